@@ -1,0 +1,60 @@
+# matforge: `make demo` and `make test` are the two commands of the README.
+SHELL := /bin/bash
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(VENV)/bin/pip
+STAMP := $(VENV)/.setup-stamp
+LIBLLVM := /usr/lib/x86_64-linux-gnu/libLLVM-19.so
+export DRJIT_LIBLLVM_PATH ?= $(LIBLLVM)
+HOST ?= 127.0.0.1
+PORT ?= 8000
+DATA ?= ./matforge-data
+
+.PHONY: setup system-deps demo test lint typecheck bench clean serve
+
+setup: $(STAMP)
+
+# System libraries: libLLVM 19 for Mitsuba's LLVM backend (Debian's LLVM 15 aborts in
+# kernel compilation, ../shared/NOTES.md) and Chromium for the dashboard browser test.
+system-deps:
+	@if [ -f $(LIBLLVM) ] && [ -x /usr/bin/chromium ]; then \
+		echo "system deps present"; \
+	elif command -v apt-get >/dev/null; then \
+		SUDO=$$( [ $$(id -u) -eq 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && \
+		DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libllvm19 chromium >/dev/null; \
+	else \
+		echo "WARNING: no apt-get: Mitsuba will fall back to scalar_rgb (slow)" >&2; \
+	fi
+
+$(STAMP): pyproject.toml | system-deps
+	@test -x $(PY) || python3.11 -m venv $(VENV) || python3 -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	# The CPU wheel of torch first: a bare range would pull a CUDA build of several GB.
+	$(PIP) install -q "torch==2.13.0"
+	$(PIP) install -q -e ".[dev]"
+	@touch $(STAMP)
+
+system-deps-check: system-deps
+
+test: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/python -m pytest -q
+
+lint: setup
+	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .
+
+typecheck: setup
+	$(VENV)/bin/mypy
+
+demo: setup
+	bash scripts/demo.sh
+
+serve: setup
+	$(VENV)/bin/matforge serve --host $(HOST) --port $(PORT) --data-dir $(DATA)
+
+bench: setup
+	for b in benchmarks/bench_*.py; do $(PY) $$b; done
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache

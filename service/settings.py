@@ -1,0 +1,105 @@
+"""The one place matforge reads its environment.
+
+Every other module receives a :class:`Settings` (or plain values taken from it); nothing
+deeper in the code reads ``os.environ``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+DEFAULT_SERVER = "http://127.0.0.1:8000"
+DEFAULT_LIBLLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+
+
+def _int(env: dict[str, str], name: str, default: int) -> int:
+    raw = env.get(name)
+    if raw is None or raw == "":
+        return default
+    try:
+        return int(raw)
+    except ValueError as exc:
+        raise ValueError(f"environment variable {name}={raw!r} is not an integer") from exc
+
+
+def _float(env: dict[str, str], name: str, default: float) -> float:
+    raw = env.get(name)
+    if raw is None or raw == "":
+        return default
+    try:
+        return float(raw)
+    except ValueError as exc:
+        raise ValueError(f"environment variable {name}={raw!r} is not a number") from exc
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Service and client configuration.
+
+    Environment variables (all optional):
+
+    ============================  ===========================  ==============================
+    variable                      field                        default
+    ============================  ===========================  ==============================
+    ``MATFORGE_DATA``             ``data_dir``                 ``./matforge-data``
+    ``MATFORGE_SERVER``           ``server``                   ``http://127.0.0.1:8000``
+    ``MATFORGE_TOKEN``            ``token``                    unset (no auth)
+    ``MATFORGE_LEASE_SECONDS``    ``lease_seconds``            30
+    ``MATFORGE_MAX_ATTEMPTS``     ``max_attempts``             3
+    ``MATFORGE_WORKERS``          ``workers``                  1
+    ``MATFORGE_RECYCLE_JOBS``     ``recycle_after_jobs``       20
+    ``MATFORGE_MAX_UPLOAD_MB``    ``max_upload_bytes``         512 MiB
+    ``MATFORGE_MAX_BODY_KB``      ``max_body_bytes``           1 MiB (JSON bodies)
+    ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
+    ``MATFORGE_GC_GRACE_HOURS``   ``gc_grace_seconds``         24 h
+    ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
+    ============================  ===========================  ==============================
+    """
+
+    data_dir: Path = Path("./matforge-data")
+    server: str = DEFAULT_SERVER
+    token: str | None = None
+    lease_seconds: float = 30.0
+    max_attempts: int = 3
+    workers: int = 1
+    recycle_after_jobs: int = 20
+    max_upload_bytes: int = 512 * 1024 * 1024
+    max_body_bytes: int = 1024 * 1024
+    pool_processes: int = 2
+    gc_grace_seconds: float = 24 * 3600.0
+    libllvm_path: str = DEFAULT_LIBLLVM
+    extra: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_env(cls, env: dict[str, str] | None = None) -> Settings:
+        """Build settings from ``env`` (default: the process environment)."""
+        e = dict(os.environ if env is None else env)
+        token = e.get("MATFORGE_TOKEN") or None
+        return cls(
+            data_dir=Path(e.get("MATFORGE_DATA") or "./matforge-data"),
+            server=(e.get("MATFORGE_SERVER") or DEFAULT_SERVER).rstrip("/"),
+            token=token,
+            lease_seconds=_float(e, "MATFORGE_LEASE_SECONDS", 30.0),
+            max_attempts=_int(e, "MATFORGE_MAX_ATTEMPTS", 3),
+            workers=_int(e, "MATFORGE_WORKERS", 1),
+            recycle_after_jobs=_int(e, "MATFORGE_RECYCLE_JOBS", 20),
+            max_upload_bytes=_int(e, "MATFORGE_MAX_UPLOAD_MB", 512) * 1024 * 1024,
+            max_body_bytes=_int(e, "MATFORGE_MAX_BODY_KB", 1024) * 1024,
+            pool_processes=max(1, _int(e, "MATFORGE_POOL_PROCESSES", min(2, os.cpu_count() or 1))),
+            gc_grace_seconds=_float(e, "MATFORGE_GC_GRACE_HOURS", 24.0) * 3600.0,
+            libllvm_path=e.get("DRJIT_LIBLLVM_PATH") or DEFAULT_LIBLLVM,
+        )
+
+    def with_(self, **changes: object) -> Settings:
+        """A copy with some fields replaced (settings are immutable)."""
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+    @property
+    def db_path(self) -> Path:
+        return self.data_dir / "jobs.sqlite3"
+
+    @property
+    def store_dir(self) -> Path:
+        return self.data_dir / "store"

@@ -1,0 +1,168 @@
+"""Job specs: validation, canonical form and identity hash.
+
+A spec is ``{"kind": ..., "name": ..., "seed": ..., "params": {...}, "force": false}``.
+Validation is strict and happens before anything is queued: an unknown kind, an unknown
+field, a wrong type or an out-of-range value raises :class:`SpecError` naming the field.
+
+Identity: the canonical JSON of ``{"kind", "seed", "params"}`` with every default filled in,
+keys sorted and no whitespace. ``name`` is a label and ``force`` an instruction, so neither
+is part of the identity.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from pathlib import Path
+from typing import Annotated, Any
+
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+
+from service import registry
+from service.errors import SpecError
+
+JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{32})/(?P<name>[A-Za-z0-9._-][A-Za-z0-9._/-]*)$")
+SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})$")
+STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)/(?P<name>[A-Za-z0-9._/-]+)$")
+MAX_SEED = 2**63 - 1
+
+
+class StrictModel(BaseModel):
+    """Base of every params model: unknown fields are errors, values are not coerced
+    across types (``"3"`` is not an int), and models are immutable."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class JobSpec(BaseModel):
+    """The envelope of a job spec (``params`` is validated against the kind's model)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: str = Field(min_length=1, max_length=64)
+    name: str | None = Field(default=None, max_length=200)
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, strict=True)
+    params: dict[str, Any] = Field(default_factory=dict)
+    force: bool = False
+
+
+class ValidSpec(BaseModel):
+    """A validated spec: the envelope, the typed params, and the identity hash."""
+
+    model_config = ConfigDict(arbitrary_types_allowed=True, frozen=True)
+
+    kind: str
+    name: str | None
+    seed: int
+    force: bool
+    params: BaseModel
+    canonical: str
+    spec_hash: str
+
+    def document(self) -> dict[str, Any]:
+        """The spec as stored and shown: defaults filled in, ``force`` dropped."""
+        doc = json.loads(self.canonical)
+        if self.name is not None:
+            doc["name"] = self.name
+        return doc
+
+
+def _loc(parts: tuple[Any, ...]) -> str:
+    return ".".join(str(p) for p in parts)
+
+
+def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, str]]:
+    out = []
+    for err in exc.errors():
+        loc = _loc(tuple(err.get("loc", ())))
+        out.append((f"{prefix}{loc}" if loc else prefix.rstrip("."), err["msg"]))
+    return out
+
+
+def canonical_json(obj: Any) -> str:
+    """Canonical JSON: sorted keys, no whitespace, UTF-8, finite floats only."""
+    return json.dumps(
+        obj, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    )
+
+
+def validate_spec(raw: Any) -> ValidSpec:
+    """Validate a spec document (a dict, as parsed from JSON or YAML)."""
+    if not isinstance(raw, dict):
+        raise SpecError([("", f"a job spec must be an object, got {type(raw).__name__}")])
+    try:
+        env = JobSpec.model_validate(raw)
+    except ValidationError as exc:
+        raise SpecError(_pydantic_errors(exc)) from None
+    try:
+        kind = registry.get(env.kind)
+    except KeyError:
+        known = ", ".join(sorted(registry.kinds()))
+        raise SpecError(
+            [("kind", f"unknown job kind {env.kind!r}; known kinds: {known}")]
+        ) from None
+    try:
+        # JSON mode: strict about types, but arrays may fill tuple fields, as in any spec
+        # that arrives as JSON or YAML.
+        params = kind.params.model_validate_json(canonical_json(env.params))
+    except ValidationError as exc:
+        raise SpecError(_pydantic_errors(exc, "params.")) from None
+    except ValueError as exc:  # NaN or infinity in params
+        raise SpecError([("params", f"not valid JSON: {exc}")]) from None
+    body = {"kind": env.kind, "seed": env.seed, "params": params.model_dump(mode="json")}
+    canonical = canonical_json(body)
+    digest = hashlib.sha256(canonical.encode()).hexdigest()
+    return ValidSpec(
+        kind=env.kind,
+        name=env.name,
+        seed=env.seed,
+        force=env.force,
+        params=params,
+        canonical=canonical,
+        spec_hash=digest,
+    )
+
+
+def load_spec_file(path: str | Path) -> Any:
+    """Parse a JSON or YAML spec file; ``SpecError`` names the file on a parse error."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError([("", f"{p}: no such file")]) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError([("", f"{p}: cannot read: {exc}")]) from None
+    return parse_spec_text(text, str(p))
+
+
+def parse_spec_text(text: str, source: str = "<spec>") -> Any:
+    """Parse JSON (or YAML, a superset) text into a document."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        pass
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else "invalid YAML"
+        raise SpecError([("", f"{source}: not valid JSON or YAML: {first}")]) from None
+
+
+def is_ref(value: str) -> bool:
+    """Whether ``value`` is a ``job:`` or ``sha256:`` artifact reference."""
+    return bool(JOB_REF.match(value) or SHA_REF.match(value))
+
+
+def _check_ref(value: str) -> str:
+    if not is_ref(value):
+        raise ValueError(
+            "must be an artifact reference 'job:<job-id>/<artifact-name>' or "
+            "'sha256:<64 lowercase hex>'"
+        )
+    return value
+
+
+#: An artifact reference field for params models.
+Ref = Annotated[str, AfterValidator(_check_ref)]

@@ -1,0 +1,127 @@
+"""What the REST API and the CLI share: submit a spec, run one in process, import a file.
+
+Routes and commands stay thin and call these functions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from service.context import media_type_for
+from service.errors import SpecError
+from service.execution import execute, worker_id
+from service.executor import make_executor
+from service.settings import Settings
+from service.specs import JOB_REF, SHA_REF, ValidSpec, validate_spec
+from storage.artifacts import ArtifactStore
+from storage.errors import NotFoundError
+from storage.formats import validate_file
+from storage.jobs import ArtifactRecord, Job, JobStore
+
+
+def _strings(obj: Any, path: str) -> Iterator[tuple[str, str]]:
+    if isinstance(obj, str):
+        yield path, obj
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _strings(v, f"{path}.{k}")
+    elif isinstance(obj, list | tuple):
+        for i, v in enumerate(obj):
+            yield from _strings(v, f"{path}.{i}")
+
+
+def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
+    """Every ``job:`` / ``sha256:`` ref in the params must exist now (before queueing)."""
+    errors: list[tuple[str, str]] = []
+    for loc, value in _strings(spec.params.model_dump(mode="json"), "params"):
+        m = JOB_REF.match(value)
+        if m:
+            try:
+                job = jobs.get(m["job"])
+            except NotFoundError:
+                errors.append((loc, f"{value}: no job {m['job']}"))
+                continue
+            if job.state != "succeeded":
+                errors.append((loc, f"{value}: job {job.id} is {job.state}, not succeeded"))
+            elif m["name"] not in {a.name for a in job.artifacts}:
+                errors.append((loc, f"{value}: job {job.id} has no artifact {m['name']!r}"))
+            continue
+        m = SHA_REF.match(value)
+        if m and not store.exists(m["digest"]):
+            errors.append((loc, f"{value}: no such object in the store"))
+    if errors:
+        raise SpecError(errors)
+
+
+def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
+    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``."""
+    spec = validate_spec(raw)
+    check_refs(spec, jobs, store)
+    return jobs.submit(
+        kind=spec.kind,
+        name=spec.name,
+        seed=spec.seed,
+        spec_hash=spec.spec_hash,
+        spec=spec.document(),
+        force=spec.force,
+    )
+
+
+def run_in_process(raw: Any, settings: Settings) -> Job:
+    """``matforge run``: validate, queue in the local store and run it here, now.
+
+    An identical spec that already succeeded is returned as it is (unless ``force``).
+    """
+    jobs = JobStore(settings.db_path)
+    store = ArtifactStore(settings.store_dir)
+    job, created = submit(raw, jobs, store)
+    if not created and job.state == "succeeded":
+        return job
+    if job.state == "queued":
+        claimed = jobs.claim(worker_id(), settings.lease_seconds, job_id=job.id)
+        if claimed is not None:
+            executor = make_executor("local", settings.pool_processes)
+            try:
+                execute(
+                    claimed,
+                    jobs=jobs,
+                    store=store,
+                    lease_seconds=settings.lease_seconds,
+                    executor=executor,
+                    scratch=settings.data_dir / "scratch",
+                )
+            finally:
+                executor.close()
+    return jobs.get(job.id)
+
+
+def import_file(
+    path: Path,
+    jobs: JobStore,
+    store: ArtifactStore,
+    *,
+    name: str | None = None,
+    max_bytes: int | None = None,
+) -> ArtifactRecord:
+    """Validate a user's file by its format and put it in the store.
+
+    Raises ``FormatError`` naming the file when it is malformed or of an unknown type, and
+    ``TooLargeError`` above ``max_bytes``.
+    """
+    from storage.errors import TooLargeError
+
+    label = name or path.name
+    size = path.stat().st_size
+    if max_bytes is not None and size > max_bytes:
+        raise TooLargeError(f"{label}: {size} bytes exceeds the limit of {max_bytes} bytes")
+    media_type = validate_file(path, label)
+    info = store.put_file(path)
+    jobs.record_upload(info.digest, label, media_type or media_type_for(label), info.size)
+    return ArtifactRecord(
+        name=label,
+        digest=info.digest,
+        size=info.size,
+        media_type=media_type or media_type_for(label),
+    )

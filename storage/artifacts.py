@@ -1,0 +1,276 @@
+"""Content-addressed artifact store on disk.
+
+Objects live at ``<root>/objects/ab/cdef...`` where ``abcdef...`` is the sha256 of their
+bytes. Writes are atomic (temp file in the same directory, fsync, rename, fsync of the
+directory) and objects are made read-only once written. Every read through
+:meth:`ArtifactStore.read` or :meth:`ArtifactStore.open_verified` re-hashes the bytes, so a
+corrupted object is reported, never served.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import stat
+import tempfile
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO
+
+from storage.errors import IntegrityError, NotFoundError
+
+DIGEST_RE = re.compile(r"^[0-9a-f]{64}$")
+_CHUNK = 1 << 20
+
+
+def check_digest(digest: str) -> str:
+    """Return ``digest`` (64 lowercase hex, an optional ``sha256:`` prefix dropped) or raise
+    ``ValueError``. Nothing that fails this pattern ever reaches a file-system path."""
+    d = digest[7:] if digest.startswith("sha256:") else digest
+    if not DIGEST_RE.match(d):
+        raise ValueError(f"not a sha256 digest: {digest!r} (expected 64 lowercase hex digits)")
+    return d
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """A stored object: its digest (hex, no prefix) and size in bytes."""
+
+    digest: str
+    size: int
+
+    @property
+    def ref(self) -> str:
+        return f"sha256:{self.digest}"
+
+
+@dataclass(frozen=True)
+class VerifyReport:
+    """Result of :meth:`ArtifactStore.verify_all`."""
+
+    checked: int
+    corrupt: list[str]
+    stray: list[str]
+
+    @property
+    def ok(self) -> bool:
+        return not self.corrupt
+
+
+@dataclass(frozen=True)
+class GcReport:
+    """Result of :meth:`ArtifactStore.gc`: what was (or, in a dry run, would be) removed."""
+
+    removed: list[str]
+    kept_recent: int
+    kept_referenced: int
+    bytes_freed: int
+    dry_run: bool
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+class ArtifactStore:
+    """A content-addressed object store rooted at ``root``."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        self.objects = self.root / "objects"
+        self.tmp = self.root / "tmp"
+        self.objects.mkdir(parents=True, exist_ok=True)
+        self.tmp.mkdir(parents=True, exist_ok=True)
+
+    # -- paths ---------------------------------------------------------------------------
+    def path(self, digest: str) -> Path:
+        """The path of an object (it may not exist). ``digest`` is pattern-checked."""
+        d = check_digest(digest)
+        return self.objects / d[:2] / d[2:]
+
+    def exists(self, digest: str) -> bool:
+        return self.path(digest).is_file()
+
+    def size(self, digest: str) -> int:
+        p = self.path(digest)
+        try:
+            return p.stat().st_size
+        except FileNotFoundError:
+            raise NotFoundError(f"no object sha256:{check_digest(digest)} in the store") from None
+
+    # -- writing -------------------------------------------------------------------------
+    def _commit(self, tmp_path: Path, digest: str) -> Path:
+        final = self.path(digest)
+        if final.is_file():
+            tmp_path.unlink(missing_ok=True)
+            return final
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.chmod(tmp_path, stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+        os.replace(tmp_path, final)
+        _fsync_dir(final.parent)
+        return final
+
+    def put_bytes(self, data: bytes) -> ObjectInfo:
+        """Store ``data`` atomically; returns its digest and size (idempotent)."""
+        digest = hashlib.sha256(data).hexdigest()
+        if self.exists(digest):
+            return ObjectInfo(digest, len(data))
+        fd, name = tempfile.mkstemp(dir=self.tmp, prefix="put-")
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            self._commit(Path(name), digest)
+        except BaseException:
+            Path(name).unlink(missing_ok=True)
+            raise
+        return ObjectInfo(digest, len(data))
+
+    def put_stream(
+        self, stream: BinaryIO | Iterable[bytes], max_bytes: int | None = None
+    ) -> ObjectInfo:
+        """Store bytes from a file object or an iterable of chunks, hashing as it goes.
+
+        Raises ``TooLargeError`` (and stores nothing) if more than ``max_bytes`` arrive.
+        """
+        from storage.errors import TooLargeError
+
+        h = hashlib.sha256()
+        size = 0
+        fd, name = tempfile.mkstemp(dir=self.tmp, prefix="put-")
+        chunks: Iterable[bytes]
+        if hasattr(stream, "read"):
+            reader = stream  # type: ignore[assignment]
+            chunks = iter(lambda: reader.read(_CHUNK), b"")  # type: ignore[union-attr]
+        else:
+            chunks = stream  # type: ignore[assignment]
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                for chunk in chunks:
+                    size += len(chunk)
+                    if max_bytes is not None and size > max_bytes:
+                        raise TooLargeError(f"upload exceeds the limit of {max_bytes} bytes")
+                    h.update(chunk)
+                    fh.write(chunk)
+                fh.flush()
+                os.fsync(fh.fileno())
+            digest = h.hexdigest()
+            self._commit(Path(name), digest)
+        except BaseException:
+            Path(name).unlink(missing_ok=True)
+            raise
+        return ObjectInfo(digest, size)
+
+    def put_file(self, path: str | Path) -> ObjectInfo:
+        """Store a copy of the file at ``path``."""
+        with open(path, "rb") as fh:
+            return self.put_stream(fh)
+
+    # -- reading -------------------------------------------------------------------------
+    def read(self, digest: str) -> bytes:
+        """The object's bytes, verified against its digest."""
+        d = check_digest(digest)
+        p = self.path(d)
+        try:
+            data = p.read_bytes()
+        except FileNotFoundError:
+            raise NotFoundError(f"no object sha256:{d} in the store") from None
+        if hashlib.sha256(data).hexdigest() != d:
+            raise IntegrityError(f"object sha256:{d} is corrupt on disk (digest mismatch)")
+        return data
+
+    def verify(self, digest: str) -> bool:
+        """Whether the object exists and hashes to its digest (streams the file)."""
+        d = check_digest(digest)
+        p = self.path(d)
+        if not p.is_file():
+            return False
+        h = hashlib.sha256()
+        with open(p, "rb") as fh:
+            for chunk in iter(lambda: fh.read(_CHUNK), b""):
+                h.update(chunk)
+        return h.hexdigest() == d
+
+    def open_verified(self, digest: str) -> Path:
+        """The path of an object after verifying it; raises if missing or corrupt."""
+        d = check_digest(digest)
+        if not self.path(d).is_file():
+            raise NotFoundError(f"no object sha256:{d} in the store")
+        if not self.verify(d):
+            raise IntegrityError(f"object sha256:{d} is corrupt on disk (digest mismatch)")
+        return self.path(d)
+
+    def iter_chunks(self, digest: str) -> Iterator[bytes]:
+        """Stream a verified object: the whole object is hashed before the first chunk."""
+        p = self.open_verified(digest)
+        with open(p, "rb") as fh:
+            yield from iter(lambda: fh.read(_CHUNK), b"")
+
+    # -- maintenance ---------------------------------------------------------------------
+    def iter_objects(self) -> Iterator[tuple[str, Path]]:
+        """``(digest, path)`` for every object file on disk."""
+        if not self.objects.is_dir():
+            return
+        for sub in sorted(self.objects.iterdir()):
+            if not sub.is_dir() or len(sub.name) != 2:
+                continue
+            for f in sorted(sub.iterdir()):
+                yield sub.name + f.name, f
+
+    def verify_all(self) -> VerifyReport:
+        """Re-hash every object. ``stray`` lists files whose names are not digests."""
+        checked, corrupt, stray = 0, [], []
+        for name, path in self.iter_objects():
+            if not DIGEST_RE.match(name):
+                stray.append(str(path))
+                continue
+            checked += 1
+            if not self.verify(name):
+                corrupt.append(name)
+        return VerifyReport(checked, corrupt, stray)
+
+    def gc(
+        self,
+        referenced: set[str],
+        grace_seconds: float,
+        dry_run: bool = True,
+        now: float | None = None,
+    ) -> GcReport:
+        """Remove objects not in ``referenced`` whose files are older than ``grace_seconds``.
+
+        The grace period protects objects written by a job that has not finished yet (its
+        manifest does not reference them yet). Stale temp files older than the grace period
+        are removed as well.
+        """
+        t = time.time() if now is None else now
+        removed, recent, kept, freed = [], 0, 0, 0
+        for name, path in self.iter_objects():
+            if name in referenced:
+                kept += 1
+                continue
+            st = path.stat()
+            if t - st.st_mtime < grace_seconds:
+                recent += 1
+                continue
+            removed.append(name)
+            freed += st.st_size
+            if not dry_run:
+                path.unlink(missing_ok=True)
+        if not dry_run:
+            for f in self.tmp.iterdir():
+                if t - f.stat().st_mtime >= grace_seconds:
+                    f.unlink(missing_ok=True)
+        return GcReport(removed, recent, kept, freed, dry_run)

@@ -1,0 +1,28 @@
+"""Error types raised by the storage layer. The edges (REST, CLI, job records) map them."""
+
+from __future__ import annotations
+
+
+class StorageError(Exception):
+    """Base class for storage errors; ``str(err)`` is one line a user can act on."""
+
+
+class FormatError(StorageError):
+    """A file is malformed. The message names the file and what is wrong with it."""
+
+    def __init__(self, filename: str, problem: str) -> None:
+        self.filename = filename
+        self.problem = problem
+        super().__init__(f"{filename}: {problem}")
+
+
+class IntegrityError(StorageError):
+    """An object's bytes do not hash to its digest (corruption on disk)."""
+
+
+class NotFoundError(StorageError):
+    """A job, artifact or object does not exist."""
+
+
+class TooLargeError(StorageError):
+    """An upload exceeds the configured size cap."""

@@ -1,0 +1,537 @@
+"""The job queue: SQLite in WAL mode, every write in a ``BEGIN IMMEDIATE`` transaction.
+
+States: ``queued`` → ``running`` → ``succeeded`` | ``failed`` | ``cancelled``.
+
+Leases and fencing: :meth:`JobStore.claim` atomically takes the oldest queued job, bumps
+``attempts`` and hands out a fresh random ``lease_token`` valid until ``lease_expires``.
+Heartbeats, completion and failure all name that token, and change nothing unless the row
+still carries it in state ``running``: a worker whose lease was reaped (and the job handed to
+another worker) or whose job was cancelled can no longer write. :meth:`JobStore.reap`
+re-queues running jobs whose lease ran out, up to ``max_attempts``, then fails them.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from storage.errors import NotFoundError
+
+STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+FINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
+HeartbeatStatus = Literal["ok", "cancelled", "lost"]
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY,
+    seq INTEGER NOT NULL,
+    kind TEXT NOT NULL,
+    name TEXT,
+    seed INTEGER NOT NULL,
+    spec_hash TEXT NOT NULL,
+    spec TEXT NOT NULL,
+    state TEXT NOT NULL,
+    progress REAL NOT NULL DEFAULT 0,
+    message TEXT NOT NULL DEFAULT '',
+    error TEXT,
+    worker TEXT,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    lease_token TEXT,
+    lease_expires REAL,
+    created_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    updated_at REAL NOT NULL,
+    manifest_digest TEXT
+);
+CREATE INDEX IF NOT EXISTS jobs_state_seq ON jobs(state, seq);
+CREATE INDEX IF NOT EXISTS jobs_hash ON jobs(spec_hash, state);
+CREATE TABLE IF NOT EXISTS artifacts (
+    job_id TEXT NOT NULL REFERENCES jobs(id),
+    name TEXT NOT NULL,
+    digest TEXT NOT NULL,
+    size INTEGER NOT NULL,
+    media_type TEXT NOT NULL,
+    PRIMARY KEY (job_id, name)
+);
+CREATE INDEX IF NOT EXISTS artifacts_digest ON artifacts(digest);
+CREATE TABLE IF NOT EXISTS shards (
+    job_id TEXT NOT NULL REFERENCES jobs(id),
+    key TEXT NOT NULL,
+    digest TEXT NOT NULL,
+    created_at REAL NOT NULL,
+    PRIMARY KEY (job_id, key)
+);
+CREATE TABLE IF NOT EXISTS uploads (
+    digest TEXT PRIMARY KEY,
+    name TEXT NOT NULL,
+    media_type TEXT NOT NULL,
+    size INTEGER NOT NULL,
+    created_at REAL NOT NULL
+);
+"""
+
+
+@dataclass(frozen=True)
+class ArtifactRecord:
+    """One artifact of a job: ``digest`` is 64 lowercase hex (no prefix)."""
+
+    name: str
+    digest: str
+    size: int
+    media_type: str
+
+    def public(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "digest": self.digest,
+            "size": self.size,
+            "media_type": self.media_type,
+        }
+
+
+@dataclass(frozen=True)
+class Job:
+    """A row of the queue, with its artifacts when the job succeeded."""
+
+    id: str
+    kind: str
+    name: str | None
+    seed: int
+    spec_hash: str
+    spec: dict[str, Any]
+    state: str
+    progress: float
+    message: str
+    error: str | None
+    worker: str | None
+    attempts: int
+    lease_token: str | None
+    lease_expires: float | None
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    updated_at: float
+    manifest_digest: str | None
+    artifacts: list[ArtifactRecord] = field(default_factory=list)
+
+    @property
+    def finished(self) -> bool:
+        return self.state in FINAL_STATES
+
+    def document(self) -> dict[str, Any]:
+        """The public job document (the body of ``GET /api/jobs/{id}``)."""
+        run_s = None
+        if self.started_at is not None:
+            run_s = (self.finished_at or time.time()) - self.started_at
+        return {
+            "id": self.id,
+            "kind": self.kind,
+            "name": self.name,
+            "state": self.state,
+            "progress": self.progress,
+            "message": self.message,
+            "error": self.error,
+            "worker": self.worker,
+            "attempts": self.attempts,
+            "seed": self.seed,
+            "spec_hash": self.spec_hash,
+            "created_at": _iso(self.created_at),
+            "started_at": _iso(self.started_at),
+            "finished_at": _iso(self.finished_at),
+            "timings": {
+                "queued_seconds": (
+                    (self.started_at or self.finished_at or time.time()) - self.created_at
+                ),
+                "run_seconds": run_s,
+            },
+            "spec": self.spec,
+            "manifest": f"sha256:{self.manifest_digest}" if self.manifest_digest else None,
+            "artifacts": [a.public() for a in self.artifacts],
+        }
+
+
+def _iso(t: float | None) -> str | None:
+    if t is None:
+        return None
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1000):03d}Z"
+
+
+_JOB_COLS = (
+    "id, kind, name, seed, spec_hash, spec, state, progress, message, error, worker, "
+    "attempts, lease_token, lease_expires, created_at, started_at, finished_at, "
+    "updated_at, manifest_digest"
+)
+
+
+class JobStore:
+    """SQLite-backed job queue. Safe to share between threads (one connection per thread)
+    and between processes (SQLite file locking; WAL lets readers run beside a writer)."""
+
+    def __init__(self, path: str | Path, busy_timeout_s: float = 30.0) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._busy_ms = int(busy_timeout_s * 1000)
+        self._local = threading.local()
+        self._conn().executescript(_SCHEMA)
+
+    # -- connections ---------------------------------------------------------------------
+    def _conn(self) -> sqlite3.Connection:
+        conn: sqlite3.Connection | None = getattr(self._local, "conn", None)
+        if conn is None:
+            conn = sqlite3.connect(self.path, isolation_level=None, timeout=self._busy_ms / 1000)
+            conn.row_factory = sqlite3.Row
+            conn.execute(f"PRAGMA busy_timeout={self._busy_ms}")
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=NORMAL")
+            conn.execute("PRAGMA foreign_keys=ON")
+            self._local.conn = conn
+        return conn
+
+    def close(self) -> None:
+        conn = getattr(self._local, "conn", None)
+        if conn is not None:
+            conn.close()
+            self._local.conn = None
+
+    @contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        db = self._conn()
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            yield db
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        else:
+            db.execute("COMMIT")
+
+    # -- reading -------------------------------------------------------------------------
+    def _row_to_job(self, row: sqlite3.Row, with_artifacts: bool = True) -> Job:
+        d = dict(row)
+        d["spec"] = json.loads(d["spec"])
+        arts: list[ArtifactRecord] = []
+        if with_artifacts and d["state"] == "succeeded":
+            arts = self.artifacts(d["id"])
+        return Job(**d, artifacts=arts)
+
+    def get(self, job_id: str) -> Job:
+        row = self._conn().execute(f"SELECT {_JOB_COLS} FROM jobs WHERE id=?", (job_id,)).fetchone()
+        if row is None:
+            raise NotFoundError(f"no job {job_id!r}")
+        return self._row_to_job(row)
+
+    def list(
+        self, state: str | None = None, kind: str | None = None, limit: int = 200, offset: int = 0
+    ) -> list[Job]:
+        """Jobs, newest first, optionally filtered by state and kind."""
+        where, args = [], []
+        if state:
+            where.append("state=?")
+            args.append(state)
+        if kind:
+            where.append("kind=?")
+            args.append(kind)
+        sql = f"SELECT {_JOB_COLS} FROM jobs"
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        sql += " ORDER BY seq DESC LIMIT ? OFFSET ?"
+        rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
+        return [self._row_to_job(r, with_artifacts=False) for r in rows]
+
+    def counts(self) -> dict[str, int]:
+        rows = self._conn().execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()
+        out = dict.fromkeys(STATES, 0)
+        out.update({r[0]: r[1] for r in rows})
+        return out
+
+    def artifacts(self, job_id: str) -> list[ArtifactRecord]:
+        rows = (
+            self._conn()
+            .execute(
+                "SELECT name, digest, size, media_type FROM artifacts WHERE job_id=? ORDER BY name",
+                (job_id,),
+            )
+            .fetchall()
+        )
+        return [ArtifactRecord(**dict(r)) for r in rows]
+
+    def artifact(self, job_id: str, name: str) -> ArtifactRecord:
+        row = (
+            self._conn()
+            .execute(
+                "SELECT name, digest, size, media_type FROM artifacts WHERE job_id=? AND name=?",
+                (job_id, name),
+            )
+            .fetchone()
+        )
+        if row is None:
+            job = self.get(job_id)
+            if job.state != "succeeded":
+                raise NotFoundError(f"job {job_id} is {job.state}; it has no artifacts yet")
+            raise NotFoundError(f"job {job_id} has no artifact {name!r}")
+        return ArtifactRecord(**dict(row))
+
+    def find_digest(self, digest: str) -> ArtifactRecord | None:
+        """An artifact or upload record for ``digest`` (for its name and media type)."""
+        db = self._conn()
+        row = db.execute(
+            "SELECT name, digest, size, media_type FROM artifacts WHERE digest=? LIMIT 1", (digest,)
+        ).fetchone()
+        if row is None:
+            row = db.execute(
+                "SELECT name, digest, size, media_type FROM uploads WHERE digest=?", (digest,)
+            ).fetchone()
+        return ArtifactRecord(**dict(row)) if row else None
+
+    def referenced_digests(self) -> set[str]:
+        """Every digest a job, manifest, shard or upload refers to (the GC roots)."""
+        db = self._conn()
+        out = {r[0] for r in db.execute("SELECT digest FROM artifacts")}
+        out |= {r[0] for r in db.execute("SELECT digest FROM shards")}
+        out |= {r[0] for r in db.execute("SELECT digest FROM uploads")}
+        out |= {
+            r[0]
+            for r in db.execute(
+                "SELECT manifest_digest FROM jobs WHERE manifest_digest IS NOT NULL"
+            )
+        }
+        return out
+
+    # -- submitting ----------------------------------------------------------------------
+    def submit(
+        self,
+        *,
+        kind: str,
+        name: str | None,
+        seed: int,
+        spec_hash: str,
+        spec: dict[str, Any],
+        force: bool = False,
+    ) -> tuple[Job, bool]:
+        """Queue a job; returns ``(job, created)``.
+
+        Unless ``force``, an identical spec (same hash) that already succeeded, or is queued
+        or running, is returned instead of queueing a duplicate.
+        """
+        now = time.time()
+        with self._write() as db:
+            if not force:
+                row = db.execute(
+                    f"SELECT {_JOB_COLS} FROM jobs WHERE spec_hash=? AND state IN "
+                    "('succeeded','running','queued') ORDER BY (state='succeeded') DESC, seq DESC "
+                    "LIMIT 1",
+                    (spec_hash,),
+                ).fetchone()
+                if row is not None:
+                    job_id = row["id"]
+                    existing = True
+                else:
+                    existing = False
+            else:
+                existing = False
+            if not existing:
+                job_id = uuid.uuid4().hex
+                seq = db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs").fetchone()[0]
+                db.execute(
+                    "INSERT INTO jobs (id, seq, kind, name, seed, spec_hash, spec, state, "
+                    "created_at, updated_at) VALUES (?,?,?,?,?,?,?,'queued',?,?)",
+                    (
+                        job_id,
+                        seq,
+                        kind,
+                        name,
+                        seed,
+                        spec_hash,
+                        json.dumps(spec, sort_keys=True),
+                        now,
+                        now,
+                    ),
+                )
+        return self.get(job_id), not existing
+
+    def record_upload(self, digest: str, name: str, media_type: str, size: int) -> None:
+        with self._write() as db:
+            db.execute(
+                "INSERT OR IGNORE INTO uploads (digest, name, media_type, size, "
+                "created_at) VALUES (?,?,?,?,?)",
+                (digest, name, media_type, size, time.time()),
+            )
+
+    # -- leasing -------------------------------------------------------------------------
+    def claim(self, worker: str, lease_seconds: float, job_id: str | None = None) -> Job | None:
+        """Atomically take the oldest queued job (or ``job_id``) under a fresh lease."""
+        now = time.time()
+        token = uuid.uuid4().hex
+        with self._write() as db:
+            if job_id is None:
+                row = db.execute(
+                    "SELECT id FROM jobs WHERE state='queued' ORDER BY seq LIMIT 1"
+                ).fetchone()
+            else:
+                row = db.execute(
+                    "SELECT id FROM jobs WHERE state='queued' AND id=?", (job_id,)
+                ).fetchone()
+            if row is None:
+                return None
+            db.execute(
+                "UPDATE jobs SET state='running', worker=?, attempts=attempts+1, lease_token=?, "
+                "lease_expires=?, started_at=?, updated_at=?, progress=0, error=NULL, "
+                "message='started' WHERE id=?",
+                (worker, token, now + lease_seconds, now, now, row["id"]),
+            )
+            claimed = row["id"]
+        return self.get(claimed)
+
+    def heartbeat(
+        self,
+        job_id: str,
+        token: str,
+        lease_seconds: float,
+        progress: float | None = None,
+        message: str | None = None,
+    ) -> HeartbeatStatus:
+        """Renew the lease and publish progress; says whether the worker still holds it."""
+        now = time.time()
+        sets = ["lease_expires=?", "updated_at=?"]
+        args: list[Any] = [now + lease_seconds, now]
+        if progress is not None:
+            sets.append("progress=?")
+            args.append(min(1.0, max(0.0, float(progress))))
+        if message is not None:
+            sets.append("message=?")
+            args.append(message[:500])
+        with self._write() as db:
+            cur = db.execute(
+                f"UPDATE jobs SET {', '.join(sets)} WHERE id=? AND lease_token=? "
+                "AND state='running'",
+                (*args, job_id, token),
+            )
+            if cur.rowcount == 1:
+                return "ok"
+            row = db.execute("SELECT state FROM jobs WHERE id=?", (job_id,)).fetchone()
+        return "cancelled" if row is not None and row["state"] == "cancelled" else "lost"
+
+    def complete(
+        self,
+        job_id: str,
+        token: str,
+        artifacts: list[ArtifactRecord],
+        manifest_digest: str,
+        message: str = "done",
+    ) -> bool:
+        """Fenced success: records artifacts only if ``token`` still holds the lease."""
+        now = time.time()
+        with self._write() as db:
+            cur = db.execute(
+                "UPDATE jobs SET state='succeeded', progress=1, message=?, finished_at=?, "
+                "updated_at=?, lease_token=NULL, lease_expires=NULL, manifest_digest=? "
+                "WHERE id=? AND lease_token=? AND state='running'",
+                (message, now, now, manifest_digest, job_id, token),
+            )
+            if cur.rowcount != 1:
+                return False
+            db.executemany(
+                "INSERT OR REPLACE INTO artifacts (job_id, name, digest, size, media_type) "
+                "VALUES (?,?,?,?,?)",
+                [(job_id, a.name, a.digest, a.size, a.media_type) for a in artifacts],
+            )
+        return True
+
+    def fail(self, job_id: str, token: str, error: str) -> bool:
+        """Fenced failure with a one-line error."""
+        now = time.time()
+        line = " ".join(error.split())[:1000] or "job failed"
+        with self._write() as db:
+            cur = db.execute(
+                "UPDATE jobs SET state='failed', error=?, message='failed', finished_at=?, "
+                "updated_at=?, lease_token=NULL, lease_expires=NULL "
+                "WHERE id=? AND lease_token=? AND state='running'",
+                (line, now, now, job_id, token),
+            )
+            return cur.rowcount == 1
+
+    def cancel(self, job_id: str) -> Job:
+        """Cancel a queued or running job; a finished job is returned unchanged. A running
+        job's worker learns of it at its next heartbeat and stops."""
+        now = time.time()
+        with self._write() as db:
+            row = db.execute("SELECT state FROM jobs WHERE id=?", (job_id,)).fetchone()
+            if row is None:
+                raise NotFoundError(f"no job {job_id!r}")
+            if row["state"] in ("queued", "running"):
+                db.execute(
+                    "UPDATE jobs SET state='cancelled', message='cancelled', "
+                    "finished_at=?, updated_at=?, lease_token=NULL, lease_expires=NULL "
+                    "WHERE id=?",
+                    (now, now, job_id),
+                )
+        return self.get(job_id)
+
+    def reap(self, max_attempts: int, now: float | None = None) -> tuple[list[str], list[str]]:
+        """Re-queue running jobs whose lease expired, or fail them after ``max_attempts``.
+
+        Returns ``(requeued ids, failed ids)``.
+        """
+        t = time.time() if now is None else now
+        requeued, failed = [], []
+        with self._write() as db:
+            rows = db.execute(
+                "SELECT id, attempts, worker FROM jobs WHERE state='running' AND lease_expires < ?",
+                (t,),
+            ).fetchall()
+            for r in rows:
+                if r["attempts"] >= max_attempts:
+                    db.execute(
+                        "UPDATE jobs SET state='failed', error=?, message='failed', "
+                        "finished_at=?, updated_at=?, lease_token=NULL, lease_expires=NULL "
+                        "WHERE id=?",
+                        (
+                            f"worker {r['worker']} stopped responding (lease expired) on attempt "
+                            f"{r['attempts']} of {max_attempts}; giving up. Check the worker log "
+                            "for a crash or out-of-memory kill, then resubmit with force",
+                            t,
+                            t,
+                            r["id"],
+                        ),
+                    )
+                    failed.append(r["id"])
+                else:
+                    db.execute(
+                        "UPDATE jobs SET state='queued', lease_token=NULL, lease_expires=NULL, "
+                        "message=?, updated_at=? WHERE id=?",
+                        (
+                            f"re-queued: worker {r['worker']} stopped responding "
+                            f"(attempt {r['attempts']} of {max_attempts})",
+                            t,
+                            r["id"],
+                        ),
+                    )
+                    requeued.append(r["id"])
+        return requeued, failed
+
+    # -- shards --------------------------------------------------------------------------
+    def record_shard(self, job_id: str, key: str, digest: str) -> None:
+        """Record a finished shard (its result object in the store) for ``job_id``."""
+        with self._write() as db:
+            db.execute(
+                "INSERT OR REPLACE INTO shards (job_id, key, digest, created_at) VALUES (?,?,?,?)",
+                (job_id, key, digest, time.time()),
+            )
+
+    def shards(self, job_id: str) -> dict[str, str]:
+        """Finished shards of a job: key → result digest."""
+        rows = (
+            self._conn()
+            .execute("SELECT key, digest FROM shards WHERE job_id=?", (job_id,))
+            .fetchall()
+        )
+        return {r["key"]: r["digest"] for r in rows}
