@@ -92,6 +92,25 @@ class Settings:
             libllvm_path=e.get("DRJIT_LIBLLVM_PATH") or DEFAULT_LIBLLVM,
         )
 
+    def to_env(self) -> dict[str, str]:
+        """The environment variables that reproduce these settings in a child process."""
+        env = {
+            "MATFORGE_DATA": str(self.data_dir),
+            "MATFORGE_SERVER": self.server,
+            "MATFORGE_LEASE_SECONDS": repr(self.lease_seconds),
+            "MATFORGE_MAX_ATTEMPTS": str(self.max_attempts),
+            "MATFORGE_WORKERS": str(self.workers),
+            "MATFORGE_RECYCLE_JOBS": str(self.recycle_after_jobs),
+            "MATFORGE_MAX_UPLOAD_MB": str(self.max_upload_bytes // (1024 * 1024)),
+            "MATFORGE_MAX_BODY_KB": str(self.max_body_bytes // 1024),
+            "MATFORGE_POOL_PROCESSES": str(self.pool_processes),
+            "MATFORGE_GC_GRACE_HOURS": repr(self.gc_grace_seconds / 3600.0),
+            "DRJIT_LIBLLVM_PATH": self.libllvm_path,
+        }
+        if self.token:
+            env["MATFORGE_TOKEN"] = self.token
+        return env
+
     def with_(self, **changes: object) -> Settings:
         """A copy with some fields replaced (settings are immutable)."""
         return replace(self, **changes)  # type: ignore[arg-type]

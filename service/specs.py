@@ -23,7 +23,9 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 from service import registry
 from service.errors import SpecError
 
-JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{32})/(?P<name>[A-Za-z0-9._-][A-Za-z0-9._/-]*)$")
+JOB_REF = re.compile(
+    r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)$"
+)
 SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})$")
 STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)/(?P<name>[A-Za-z0-9._/-]+)$")
 MAX_SEED = 2**63 - 1

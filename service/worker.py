@@ -94,8 +94,7 @@ class Supervisor:
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         cmd = [sys.executable, "-m", "service.worker", "--data-dir", str(self.settings.data_dir)]
-        env = dict(os.environ)
-        env.setdefault("DRJIT_LIBLLVM_PATH", self.settings.libllvm_path)
+        env = {**os.environ, **self.settings.to_env()}
         proc = subprocess.Popen(cmd, env=env, start_new_session=True)
         self.started_total += 1
         log.info("started worker pid %d", proc.pid)

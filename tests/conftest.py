@@ -1,0 +1,69 @@
+"""Shared fixtures: a temporary data directory and a toy job kind for platform tests."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from pydantic import Field
+
+from service import registry
+from service.context import JobContext
+from service.errors import JobFailed
+from service.settings import Settings
+from service.specs import StrictModel
+from storage.artifacts import ArtifactStore
+from storage.jobs import JobStore
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    """Settings over a fresh data directory, short leases, inline-sized pools."""
+    return Settings.from_env({}).with_(
+        data_dir=tmp_path / "data", lease_seconds=2.0, pool_processes=2
+    )
+
+
+@pytest.fixture
+def jobs(settings: Settings) -> Iterator[JobStore]:
+    store = JobStore(settings.db_path)
+    yield store
+    store.close()
+
+
+@pytest.fixture
+def store(settings: Settings) -> ArtifactStore:
+    return ArtifactStore(settings.store_dir)
+
+
+class ToyParams(StrictModel):
+    """Params of the test-only ``toy`` kind."""
+
+    n: int = Field(default=4, ge=1, le=1000, description="number of shards")
+    sleep: float = Field(default=0.0, ge=0.0, le=30.0, description="seconds per shard")
+    fail: bool = Field(default=False, description="fail with a JobFailed")
+
+
+def toy_shard(item: tuple[int, float]) -> int:
+    """A shard: sleeps, then returns i squared (module level, so it pickles)."""
+    i, sleep = item
+    time.sleep(sleep)
+    return i * i
+
+
+def run_toy(params: ToyParams, ctx: JobContext) -> None:
+    if params.fail:
+        raise JobFailed("toy failure requested by params.fail")
+    out = ctx.map_shards(toy_shard, [(i, params.sleep) for i in range(params.n)], label="toy")
+    ctx.put_json("result.json", {"squares": out, "seed_draw": int(ctx.rng().integers(1 << 30))})
+
+
+@pytest.fixture
+def toy_kind(monkeypatch: pytest.MonkeyPatch) -> registry.Kind:
+    """Register the toy kind for the duration of one test."""
+    registry.load_builtin()
+    kind = registry.Kind(name="toy", params=ToyParams, runner=run_toy, summary="test-only kind")
+    monkeypatch.setitem(registry._KINDS, "toy", kind)
+    return kind

@@ -1,0 +1,127 @@
+"""SQLite job queue: claims, leases, fencing, reaping, cancellation, dedupe."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from storage.errors import NotFoundError
+from storage.jobs import ArtifactRecord, JobStore
+
+
+def _submit(jobs: JobStore, h: str = "h1", force: bool = False):
+    return jobs.submit(kind="toy", name="n", seed=0, spec_hash=h, spec={"kind": "toy"}, force=force)
+
+
+def test01_wal_mode(jobs: JobStore) -> None:
+    assert jobs._conn().execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test02_submit_dedupes_unless_forced(jobs: JobStore) -> None:
+    a, created = _submit(jobs)
+    assert created and a.state == "queued"
+    b, created = _submit(jobs)
+    assert not created and b.id == a.id
+    c, created = _submit(jobs, force=True)
+    assert created and c.id != a.id
+
+
+def test03_claim_is_atomic_across_threads(settings) -> None:
+    """20 threads with their own connections race for 10 jobs: each job is claimed once."""
+    setup = JobStore(settings.db_path)
+    for i in range(10):
+        _submit(setup, h=f"h{i}")
+    claimed: list[str] = []
+    lock = threading.Lock()
+
+    def grab(n: int) -> None:
+        js = JobStore(settings.db_path)
+        while (job := js.claim(f"w:{n}", 30)) is not None:
+            with lock:
+                claimed.append(job.id)
+        js.close()
+
+    threads = [threading.Thread(target=grab, args=(n,)) for n in range(20)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(claimed) == 10 and len(set(claimed)) == 10
+
+
+def test04_claim_order_and_lease(jobs: JobStore) -> None:
+    first, _ = _submit(jobs, "a")
+    _submit(jobs, "b")
+    job = jobs.claim("w:1", 5)
+    assert job is not None and job.id == first.id
+    assert job.state == "running" and job.attempts == 1 and job.worker == "w:1"
+    assert job.lease_expires is not None and job.lease_expires > time.time()
+
+
+def test05_fencing(jobs: JobStore) -> None:
+    """A worker whose lease was reaped and re-claimed cannot complete the job."""
+    _submit(jobs)
+    old = jobs.claim("w:old", 0.01)
+    time.sleep(0.05)
+    requeued, failed = jobs.reap(max_attempts=3)
+    assert requeued == [old.id] and failed == []
+    new = jobs.claim("w:new", 30)
+    assert new.id == old.id and new.attempts == 2
+    art = [ArtifactRecord("x.json", "0" * 64, 1, "application/json")]
+    assert jobs.heartbeat(old.id, old.lease_token, 30) == "lost"
+    assert not jobs.complete(old.id, old.lease_token, art, "1" * 64)
+    assert not jobs.fail(old.id, old.lease_token, "stale")
+    assert jobs.complete(new.id, new.lease_token, art, "1" * 64)
+    done = jobs.get(new.id)
+    assert done.state == "succeeded" and done.worker == "w:new"
+    assert [a.name for a in done.artifacts] == ["x.json"]
+
+
+def test06_reaper_gives_up_after_max_attempts(jobs: JobStore) -> None:
+    job, _ = _submit(jobs)
+    for _ in range(2):
+        assert jobs.claim("w:x", 0.01) is not None
+        time.sleep(0.03)
+        jobs.reap(max_attempts=2)
+    final = jobs.get(job.id)
+    assert final.state == "failed" and final.attempts == 2
+    assert "lease expired" in final.error and "2 of 2" in final.error
+
+
+def test07_cancel_reaches_running_job(jobs: JobStore) -> None:
+    _submit(jobs)
+    job = jobs.claim("w:1", 30)
+    assert jobs.heartbeat(job.id, job.lease_token, 30, 0.5, "half") == "ok"
+    assert jobs.get(job.id).progress == 0.5
+    assert jobs.cancel(job.id).state == "cancelled"
+    assert jobs.heartbeat(job.id, job.lease_token, 30) == "cancelled"
+    assert not jobs.complete(job.id, job.lease_token, [], "1" * 64)
+    assert jobs.get(job.id).state == "cancelled"
+
+
+def test08_cancel_finished_is_noop(jobs: JobStore) -> None:
+    _submit(jobs)
+    job = jobs.claim("w:1", 30)
+    jobs.fail(job.id, job.lease_token, "boom\nwith   lines")
+    after = jobs.cancel(job.id)
+    assert after.state == "failed" and after.error == "boom with lines"
+    with pytest.raises(NotFoundError):
+        jobs.cancel("f" * 32)
+
+
+def test09_list_filters_newest_first(jobs: JobStore) -> None:
+    ids = [_submit(jobs, f"h{i}")[0].id for i in range(3)]
+    assert [j.id for j in jobs.list()] == ids[::-1]
+    jobs.claim("w", 30)
+    assert [j.id for j in jobs.list(state="running")] == [ids[0]]
+    assert jobs.list(kind="other") == []
+    assert jobs.counts()["queued"] == 2
+
+
+def test10_shards_recorded(jobs: JobStore) -> None:
+    job, _ = _submit(jobs)
+    jobs.record_shard(job.id, "s-0", "a" * 64)
+    assert jobs.shards(job.id) == {"s-0": "a" * 64}
+    assert "a" * 64 in jobs.referenced_digests()
