@@ -115,6 +115,8 @@ def execute(
     assert job.lease_token is not None
     started = time.time()
     hb = Heartbeat(jobs, job, lease_seconds)
+    if scratch is not None:
+        scratch.mkdir(parents=True, exist_ok=True)
     workdir = Path(tempfile.mkdtemp(prefix=f"job-{job.id[:8]}-", dir=scratch))
     try:
         with hb:
