@@ -39,6 +39,7 @@ system-deps-check: system-deps
 
 test: setup
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 	$(VENV)/bin/python -m pytest -q
 
 lint: setup

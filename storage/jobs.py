@@ -229,7 +229,7 @@ class JobStore:
             raise NotFoundError(f"no job {job_id!r}")
         return self._row_to_job(row)
 
-    def list(
+    def list_jobs(
         self, state: str | None = None, kind: str | None = None, limit: int = 200, offset: int = 0
     ) -> list[Job]:
         """Jobs, newest first, optionally filtered by state and kind."""

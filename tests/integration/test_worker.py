@@ -113,7 +113,7 @@ def test07_spec_validated_before_queueing(toy_kind, jobs, store) -> None:
             jobs,
             store,
         )
-    assert jobs.list() == []
+    assert jobs.list_jobs() == []
     validate_spec({"kind": "toy"})
 
 

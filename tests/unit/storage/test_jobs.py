@@ -113,10 +113,10 @@ def test08_cancel_finished_is_noop(jobs: JobStore) -> None:
 
 def test09_list_filters_newest_first(jobs: JobStore) -> None:
     ids = [_submit(jobs, f"h{i}")[0].id for i in range(3)]
-    assert [j.id for j in jobs.list()] == ids[::-1]
+    assert [j.id for j in jobs.list_jobs()] == ids[::-1]
     jobs.claim("w", 30)
-    assert [j.id for j in jobs.list(state="running")] == [ids[0]]
-    assert jobs.list(kind="other") == []
+    assert [j.id for j in jobs.list_jobs(state="running")] == [ids[0]]
+    assert jobs.list_jobs(kind="other") == []
     assert jobs.counts()["queued"] == 2
 
 
