@@ -172,6 +172,16 @@ _JOB_COLS = (
 )
 
 
+_WRITE_LOCKS: dict[str, threading.RLock] = {}
+_WRITE_LOCKS_GUARD = threading.Lock()
+
+
+def _process_write_lock(path: Path) -> threading.RLock:
+    key = str(path.resolve())
+    with _WRITE_LOCKS_GUARD:
+        return _WRITE_LOCKS.setdefault(key, threading.RLock())
+
+
 class JobStore:
     """SQLite-backed job queue. Safe to share between threads (one connection per thread)
     and between processes (SQLite file locking; WAL lets readers run beside a writer)."""
@@ -204,15 +214,19 @@ class JobStore:
 
     @contextmanager
     def _write(self) -> Iterator[sqlite3.Connection]:
+        # Threads of one process queue on a lock instead of on SQLite's busy handler, whose
+        # growing sleeps (up to 100 ms) made the tail latency of concurrent submissions
+        # ten times the median. Other processes still meet at BEGIN IMMEDIATE.
         db = self._conn()
-        db.execute("BEGIN IMMEDIATE")
-        try:
-            yield db
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
-        else:
-            db.execute("COMMIT")
+        with _process_write_lock(self.path):
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                yield db
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+            else:
+                db.execute("COMMIT")
 
     # -- reading -------------------------------------------------------------------------
     def _row_to_job(self, row: sqlite3.Row, with_artifacts: bool = True) -> Job:

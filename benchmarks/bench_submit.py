@@ -1,0 +1,97 @@
+"""Job submission latency at 20 concurrent clients against a real ``matforge serve``.
+
+The server runs on a free loopback port with ``--workers 0`` (only the web process: the
+measurement is of validation, dedupe and the queue write, not of rendering). Each client
+thread submits distinct ``render`` specs (different seeds) over its own HTTP connection.
+
+Run: ``.venv/bin/python benchmarks/bench_submit.py [--clients 20] [--per-client 50]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--clients", type=int, default=20)
+    ap.add_argument("--per-client", type=int, default=50)
+    a = ap.parse_args()
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    with tempfile.TemporaryDirectory() as data:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
+        proc = subprocess.Popen(
+            [str(REPO / ".venv/bin/matforge"), "serve", "--port", str(port), "--data-dir", data,
+             "--workers", "0"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True)
+        try:
+            deadline = time.time() + 60
+            while time.time() < deadline:
+                try:
+                    if httpx.get(f"{url}/api/health", timeout=1).status_code == 200:
+                        break
+                except httpx.HTTPError:
+                    time.sleep(0.2)
+            latencies: list[float] = []
+            lock = threading.Lock()
+            barrier = threading.Barrier(a.clients)
+
+            def client(c: int) -> None:
+                mine = []
+                with httpx.Client(base_url=url, timeout=30) as http:
+                    barrier.wait()
+                    for i in range(a.per_client):
+                        spec = {"kind": "render", "seed": c * 100000 + i, "params": {
+                            "scene": "sphere_env", "material": {"mitsuba": {"type": "diffuse"}},
+                            "resolution": [64, 64], "spp": 4}}
+                        t0 = time.perf_counter()
+                        r = http.post("/api/jobs", json=spec)
+                        mine.append(time.perf_counter() - t0)
+                        assert r.status_code == 201, r.text
+                with lock:
+                    latencies.extend(mine)
+
+            threads = [threading.Thread(target=client, args=(c,)) for c in range(a.clients)]
+            t0 = time.perf_counter()
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            wall = time.perf_counter() - t0
+        finally:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=30)
+    lat = sorted(latencies)
+    n = len(lat)
+    p50 = statistics.median(lat) * 1e3
+    p99 = lat[min(n - 1, int(0.99 * n))] * 1e3
+    print(f"| submit latency | {a.clients} clients x {a.per_client} | p50 {p50:.1f} ms | "
+          f"p99 {p99:.1f} ms | {n / wall:.0f} submissions/s | {platform.node()} |")
+    print(f"command: .venv/bin/python benchmarks/bench_submit.py --clients {a.clients} "
+          f"--per-client {a.per_client}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
