@@ -1,0 +1,301 @@
+"""The FastAPI app: REST API, dashboard and OpenAPI document.
+
+:func:`create_app` wires the routers of :mod:`service.routes` to one job queue and one
+artifact store (kept in ``app.state``) and maps the error types to HTTP:
+
+==========================================  =====  ============================================
+error                                       HTTP   body
+==========================================  =====  ============================================
+``SpecError``, request validation, bad JSON  422   ``{"detail": [{"loc", "msg"}], "error"}``
+``FormatError`` (an upload)                  422   ``{"detail", "error"}``, naming the file
+``NotFoundError``                            404   ``{"detail", "error"}``
+``TooLargeError``, body over the limit       413   ``{"detail", "error"}``
+``IntegrityError`` (corrupt object)          500   ``{"detail", "error"}``, never a traceback
+==========================================  =====  ============================================
+
+``error`` is always one line a user can act on. The web process never runs jobs: workers
+do (:class:`service.worker.Supervisor`, started by :func:`service.server.serve`).
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+from fastapi import APIRouter, FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import HTMLResponse, JSONResponse, Response
+from starlette.datastructures import Headers
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from service import registry
+from service.deps import AuthDep, PageAuth, set_token_cookie
+from service.errors import SpecError
+from service.routes import ROUTERS
+from service.routes.artifacts import PreviewCache
+from service.routes.dashboard import render_error_page, static_files
+from service.settings import Settings
+from service.specs import JobSpec
+from storage.artifacts import ArtifactStore
+from storage.errors import FormatError, IntegrityError, NotFoundError, TooLargeError
+from storage.jobs import JobStore
+
+log = logging.getLogger("matforge.api")
+
+TITLE = "matforge"
+VERSION = "0.1.0"
+DESCRIPTION = """\
+Dataset generation and evaluation service for real-time material models.
+
+Submit a **job spec** `{kind, name, seed, params, force}` to `POST /api/jobs`, follow it with
+`GET /api/jobs/{id}` (`queued` → `running` → `succeeded` | `failed` | `cancelled`), and
+download its artifacts by digest from `GET /api/artifacts/{digest}`. Each job kind's
+`params` are documented below as `params.<kind>` and in `GET /api/kinds`.
+
+**Auth**: when the server has `MATFORGE_TOKEN` set, every route but `/api/health` needs
+`Authorization: Bearer <token>`. In a browser, open the dashboard once as `/?token=<token>`:
+the page sets an HttpOnly, SameSite=Strict cookie that its fetches and downloads then carry.
+
+**Errors** are JSON `{"error": "<one line>", "detail": ...}`; 422 names the field or file.
+"""
+UPLOAD_PATH = "/api/artifacts"
+
+
+# -- errors ------------------------------------------------------------------------------
+def _wants_html(request: Request) -> bool:
+    return not request.url.path.startswith("/api/") and "text/html" in request.headers.get(
+        "accept", ""
+    )
+
+
+def error_response(
+    request: Request,
+    status: int,
+    error: str,
+    detail: Any = None,
+    headers: Mapping[str, str] | None = None,
+) -> Response:
+    """The JSON error body (or, for a browser on a dashboard page, an HTML page)."""
+    line = " ".join(str(error).split()) or "error"
+    if _wants_html(request):
+        page = render_error_page(request, status, line)
+        page.headers.update(dict(headers or {}))
+        return page
+    body = {"detail": line if detail is None else detail, "error": line}
+    return JSONResponse(
+        jsonable_encoder(body), status_code=status, headers=dict(headers) if headers else None
+    )
+
+
+def _loc(path: str) -> list[str | int]:
+    """``"params.resolution.0"`` → ``["body", "params", "resolution", 0]``."""
+    parts: list[str | int] = [int(p) if p.isdigit() else p for p in path.split(".") if p]
+    if not parts or parts[0] not in ("body", "query", "path", "header"):
+        parts.insert(0, "body")
+    return parts
+
+
+def _spec_error(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, SpecError)
+    detail = [{"loc": _loc(loc), "msg": msg} for loc, msg in exc.errors]
+    return error_response(request, 422, str(exc), detail)
+
+
+def _validation_error(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, RequestValidationError)
+    detail, lines = [], []
+    for err in exc.errors():
+        loc = [p for p in err.get("loc", ()) if p is not None]
+        msg = str(err.get("msg", "invalid"))
+        detail.append({"loc": loc, "msg": msg, "type": err.get("type")})
+        lines.append(f"{'.'.join(str(p) for p in loc)}: {msg}" if loc else msg)
+    return error_response(request, 422, "; ".join(lines) or "invalid request", detail)
+
+
+def _status_handler(status: int) -> Any:
+    def handler(request: Request, exc: Exception) -> Response:
+        if isinstance(exc, IntegrityError):
+            log.error("serving %s failed: %s", request.url.path, exc)
+        return error_response(request, status, str(exc))
+
+    return handler
+
+
+def _http_error(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, StarletteHTTPException)
+    detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+    if exc.status_code == 404 and detail == "Not Found":
+        detail = f"no route {request.method} {request.url.path}"
+    return error_response(request, exc.status_code, detail, headers=exc.headers)
+
+
+def _internal_error(request: Request, exc: Exception) -> Response:
+    log.exception("internal error on %s %s", request.method, request.url.path, exc_info=exc)
+    return error_response(request, 500, f"internal error: {type(exc).__name__}; see the server log")
+
+
+# -- body size limit ---------------------------------------------------------------------
+class BodyLimitMiddleware:
+    """Caps request bodies: ``upload_limit`` for ``POST /api/artifacts``, ``json_limit``
+    for everything else. A declared ``Content-Length`` over the cap is answered 413 at once;
+    a body without one is counted as it streams and stopped with :class:`TooLargeError`."""
+
+    def __init__(self, app: ASGIApp, json_limit: int, upload_limit: int) -> None:
+        self.app = app
+        self.json_limit = json_limit
+        self.upload_limit = upload_limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        upload = scope["method"] == "POST" and scope["path"].rstrip("/") == UPLOAD_PATH
+        limit = self.upload_limit if upload else self.json_limit
+        what = "upload" if upload else "request body"
+        declared = Headers(scope=scope).get("content-length", "")
+        if declared.isdigit() and int(declared) > limit:
+            error = f"{what} of {int(declared)} bytes exceeds the limit of {limit} bytes"
+            response = JSONResponse({"detail": error, "error": error}, status_code=413)
+            await response(scope, receive, send)
+            return
+        received = 0
+
+        async def limited() -> Any:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    raise TooLargeError(f"{what} exceeds the limit of {limit} bytes")
+            return message
+
+        await self.app(scope, limited, send)
+
+
+# -- OpenAPI -----------------------------------------------------------------------------
+def _kind_components(schemas: dict[str, Any]) -> dict[str, str]:
+    """Add ``params.<kind>`` (and its nested models) for every kind; returns kind → ref."""
+    refs = {}
+    for name, kind in registry.kinds().items():
+        key = f"params.{name}"
+        try:
+            js = kind.params.model_json_schema(ref_template=f"#/components/schemas/{key}.{{model}}")
+        except Exception as exc:  # one broken kind must not hide the others' docs
+            log.warning("no JSON schema for the params of %s: %s", name, exc)
+            js = {"type": "object", "description": f"schema unavailable: {exc}"}
+        for def_name, sub in js.pop("$defs", {}).items():
+            schemas[f"{key}.{def_name}"] = sub
+        js.setdefault("description", kind.summary)
+        schemas[key] = js
+        refs[name] = f"#/components/schemas/{key}"
+    return refs
+
+
+def build_openapi(app: FastAPI) -> dict[str, Any]:
+    """The OpenAPI document, with every kind's params schema and the job spec body as a
+    ``oneOf`` over kinds (discriminated by ``kind``)."""
+    if app.openapi_schema:
+        return app.openapi_schema
+    doc = get_openapi(title=TITLE, version=VERSION, description=DESCRIPTION, routes=app.routes)
+    schemas = doc.setdefault("components", {}).setdefault("schemas", {})
+    base = JobSpec.model_json_schema()
+    base["title"] = "JobCreate"
+    refs = _kind_components(schemas)
+    variants = {}
+    for name, ref in refs.items():
+        v = copy.deepcopy(base)
+        v["title"] = f"JobCreate.{name}"
+        v["description"] = registry.kinds()[name].summary
+        v["properties"]["kind"] = {"type": "string", "const": name, "title": "Kind"}
+        v["properties"]["params"] = {"$ref": ref}
+        v["required"] = ["kind"]
+        schemas[f"JobCreate.{name}"] = v
+        variants[name] = f"#/components/schemas/JobCreate.{name}"
+    if variants:
+        schemas["JobCreate"] = {
+            "title": "JobCreate",
+            "type": "object",
+            "description": "A job spec; `params` follow the schema of its `kind`.",
+            "oneOf": [{"$ref": r} for r in variants.values()],
+            "discriminator": {"propertyName": "kind", "mapping": variants},
+        }
+    else:
+        schemas["JobCreate"] = base
+    doc.setdefault("components", {})["securitySchemes"] = {
+        "bearer": {
+            "type": "http",
+            "scheme": "bearer",
+            "description": "needed when the server sets MATFORGE_TOKEN",
+        }
+    }
+    doc["security"] = [{"bearer": []}, {}]
+    app.openapi_schema = doc
+    return doc
+
+
+def _docs_router(app: FastAPI) -> APIRouter:
+    """``/openapi.json`` and ``/docs``, behind the same token as everything else."""
+    router = APIRouter(include_in_schema=False)
+
+    @router.get("/openapi.json", dependencies=[AuthDep])
+    def openapi_json() -> JSONResponse:
+        return JSONResponse(build_openapi(app))
+
+    @router.get("/docs", response_class=HTMLResponse)
+    def swagger(cookie_token: PageAuth) -> Response:
+        page = get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title=f"{TITLE}: API",
+            swagger_js_url="/static/vendor/swagger-ui/swagger-ui-bundle.js",
+            swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
+            swagger_favicon_url="/static/favicon.svg",
+        )
+        set_token_cookie(page, cookie_token)
+        return page
+
+    return router
+
+
+# -- the app -----------------------------------------------------------------------------
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The matforge web app over ``settings.data_dir`` (default: from the environment)."""
+    settings = settings or Settings.from_env()
+    app = FastAPI(
+        title=TITLE,
+        version=VERSION,
+        description=DESCRIPTION,
+        docs_url=None,
+        redoc_url=None,
+        openapi_url=None,
+    )
+    app.state.settings = settings
+    app.state.jobs = JobStore(settings.db_path)
+    app.state.store = ArtifactStore(settings.store_dir)
+    app.state.previews = PreviewCache()
+    app.openapi = lambda: build_openapi(app)  # type: ignore[method-assign]
+
+    app.add_exception_handler(SpecError, _spec_error)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(FormatError, _status_handler(422))
+    app.add_exception_handler(NotFoundError, _status_handler(404))
+    app.add_exception_handler(TooLargeError, _status_handler(413))
+    app.add_exception_handler(IntegrityError, _status_handler(500))
+    app.add_exception_handler(StarletteHTTPException, _http_error)
+    app.add_exception_handler(Exception, _internal_error)
+    app.add_middleware(
+        BodyLimitMiddleware,
+        json_limit=settings.max_body_bytes,
+        upload_limit=settings.max_upload_bytes,
+    )
+
+    for router in ROUTERS:
+        app.include_router(router)
+    app.include_router(_docs_router(app))
+    app.mount("/static", static_files(), name="static")
+    return app

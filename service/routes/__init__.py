@@ -1,0 +1,18 @@
+"""The routers of the app, one per resource. :func:`service.api.create_app` includes them in
+the order of :data:`ROUTERS`."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from service.routes import artifacts, dashboard, jobs, meta
+
+ROUTERS: tuple[APIRouter, ...] = (
+    meta.health_router,
+    meta.router,
+    jobs.router,
+    artifacts.router,
+    dashboard.router,
+)
+
+__all__ = ["ROUTERS", "artifacts", "dashboard", "jobs", "meta"]

@@ -1,0 +1,220 @@
+"""``/api/artifacts``: download verified objects, upload files, EXR previews.
+
+Only a string matching ``^(sha256:)?[0-9a-f]{64}$`` ever becomes a path in the store (the
+path parameter is pattern-checked, and :func:`storage.artifacts.check_digest` again), and the
+bytes are re-hashed before the response starts: a corrupt object is a 500 error, never data.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import threading
+from collections import OrderedDict
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.responses import FileResponse
+from starlette.concurrency import run_in_threadpool
+
+from service.deps import AuthDep, Digest, JobsDep, SettingsDep, StoreDep
+from service.errors import SpecError
+from service.schemas import ErrorPublic, UploadPublic
+from service.submission import import_file
+from storage.artifacts import check_digest
+from storage.errors import FormatError, TooLargeError
+
+router = APIRouter(prefix="/api/artifacts", tags=["artifacts"], dependencies=[AuthDep])
+
+#: Media types a browser may show inline; everything else is sent as an attachment.
+INLINE_TYPES = frozenset({"image/png", "application/json", "text/plain", "text/csv"})
+PREVIEW_MAX_SIDE = 1024
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    404: {"model": ErrorPublic, "description": "no such object"},
+    422: {"model": ErrorPublic, "description": "not a sha256 digest"},
+    500: {"model": ErrorPublic, "description": "the object is corrupt on disk"},
+}
+
+
+class PreviewCache:
+    """A small thread-safe LRU of rendered PNG previews, keyed by digest (objects are
+    immutable, so entries never go stale)."""
+
+    def __init__(self, max_entries: int = 64) -> None:
+        self.max_entries = max_entries
+        self._items: OrderedDict[str, bytes] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: str) -> bytes | None:
+        with self._lock:
+            value = self._items.get(key)
+            if value is not None:
+                self._items.move_to_end(key)
+            return value
+
+    def put(self, key: str, value: bytes) -> None:
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self.max_entries:
+                self._items.popitem(last=False)
+
+
+def render_exr_preview(path: Path, name: str) -> bytes:
+    """A tone-mapped sRGB PNG of the EXR at ``path``, at most :data:`PREVIEW_MAX_SIDE`
+    pixels on its long side (strided, no filtering: it is a thumbnail). Raises
+    ``FormatError`` naming ``name`` when the file is not a readable RGB EXR."""
+    from evaluators.tonemap import tonemap
+    from storage.formats.exr import read_exr
+    from storage.formats.png import write_png
+
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic != EXR_MAGIC:
+        raise FormatError(name, "not an OpenEXR file; previews exist for .exr artifacts only")
+    rgb = read_exr(path, name)  # (H, W, 3) float32, linear
+    step = max(1, -(-max(rgb.shape[:2]) // PREVIEW_MAX_SIDE))
+    return write_png(None, tonemap(rgb[::step, ::step]))  # uint8 sRGB, ACES curve
+
+
+def _cache_headers(digest: str, private: bool) -> dict[str, str]:
+    scope = "private" if private else "public"
+    return {
+        "ETag": f'"{digest}"',
+        "Cache-Control": f"{scope}, max-age=31536000, immutable",
+        "X-Content-Type-Options": "nosniff",
+    }
+
+
+def _not_modified(request: Request, digest: str) -> bool:
+    tags = request.headers.get("if-none-match", "")
+    return any(
+        t.strip().strip('"').removeprefix("W/").strip('"') == digest for t in tags.split(",")
+    )
+
+
+@router.get(
+    "/{digest}",
+    response_class=FileResponse,
+    responses={**_ERRORS, 200: {"description": "the bytes, verified against the digest"}},
+    summary="Download an object",
+)
+def get_artifact(
+    digest: Digest, request: Request, jobs: JobsDep, store: StoreDep, settings: SettingsDep
+) -> Response:
+    """The object's bytes, re-hashed against the digest before the first byte is sent. The
+    media type and file name come from the job artifact or upload that recorded it; the
+    ETag is the digest and the response may be cached forever (objects never change)."""
+    d = check_digest(digest)
+    headers = _cache_headers(d, private=bool(settings.token))
+    if _not_modified(request, d) and store.exists(d):
+        return Response(status_code=304, headers=headers)
+    path = store.open_verified(d)
+    record = jobs.find_digest(d)
+    media_type = record.media_type if record else "application/octet-stream"
+    filename = Path(record.name).name if record else d
+    return FileResponse(
+        path,
+        media_type=media_type,
+        filename=filename,
+        headers=headers,
+        content_disposition_type="inline" if media_type in INLINE_TYPES else "attachment",
+    )
+
+
+@router.get(
+    "/{digest}/preview.png",
+    response_class=Response,
+    responses={
+        **_ERRORS,
+        200: {"content": {"image/png": {}}, "description": "tone-mapped sRGB PNG"},
+    },
+    summary="PNG preview of an EXR object",
+)
+def get_preview(
+    digest: Digest, request: Request, jobs: JobsDep, store: StoreDep, settings: SettingsDep
+) -> Response:
+    """A tone-mapped sRGB PNG of an EXR object (for the dashboard), at most 1024 pixels on
+    its long side; cached in memory by digest. 422 when the object is not an EXR."""
+    d = check_digest(digest)
+    headers = _cache_headers(d + "-preview", private=bool(settings.token))
+    cache: PreviewCache = request.app.state.previews
+    png = cache.get(d)
+    if png is None:
+        path = store.open_verified(d)
+        record = jobs.find_digest(d)
+        png = render_exr_preview(path, record.name if record else f"sha256:{d}")
+        cache.put(d, png)
+    return Response(png, media_type="image/png", headers=headers)
+
+
+def _check_name(name: str) -> str:
+    bad = set("/\\\x00") | {chr(c) for c in range(32)}
+    if name in (".", "..") or any(ch in bad for ch in name):
+        raise SpecError([("query.name", f"{name!r} is not a plain file name (no slashes)")])
+    return name
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=UploadPublic,
+    summary="Upload a file",
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "description": "the raw bytes of the file",
+            "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}
+            },
+        }
+    },
+    responses={
+        413: {"model": ErrorPublic, "description": "over the upload size limit"},
+        422: {
+            "model": ErrorPublic,
+            "description": "malformed file, or unknown type; `error` names the file",
+        },
+    },
+)
+async def upload(
+    request: Request,
+    jobs: JobsDep,
+    store: StoreDep,
+    settings: SettingsDep,
+    name: Annotated[
+        str,
+        Query(
+            min_length=1,
+            max_length=255,
+            description="file name; its extension selects the format check (`.exr`, "
+            "`.binary`, ...)",
+        ),
+    ],
+) -> dict[str, Any]:
+    """Stream the raw body to a temporary file (capped at `MATFORGE_MAX_UPLOAD_MB`), validate
+    it by its format, and store it. Use the returned `ref` in job specs."""
+    _check_name(name)
+    limit = settings.max_upload_bytes
+    fd, tmp_name = tempfile.mkstemp(dir=store.tmp, prefix="upload-", suffix=Path(name).suffix)
+    tmp = Path(tmp_name)
+    try:
+        size = 0
+        with os.fdopen(fd, "wb") as fh:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > limit:
+                    raise TooLargeError(f"{name}: upload exceeds the limit of {limit} bytes")
+                fh.write(chunk)
+        record = await run_in_threadpool(import_file, tmp, jobs, store, name=name, max_bytes=limit)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return {
+        "digest": record.digest,
+        "ref": f"sha256:{record.digest}",
+        "size": record.size,
+        "media_type": record.media_type,
+        "name": record.name,
+    }

@@ -1,0 +1,147 @@
+"""``/api/jobs``: submit, list, show, cancel, and a job's artifacts and manifest."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Query, Request, Response
+
+from service.deps import AuthDep, JobId, JobsDep, StoreDep
+from service.errors import SpecError
+from service.schemas import ArtifactPublic, ErrorPublic, JobPublic, JobState
+from service.specs import parse_spec_text
+from service.submission import submit
+from storage.errors import NotFoundError
+
+router = APIRouter(prefix="/api/jobs", tags=["jobs"], dependencies=[AuthDep])
+
+#: The request body of ``POST /api/jobs`` in the OpenAPI document; the schema is filled in
+#: with one variant per registered kind by :func:`service.api.build_openapi`.
+SPEC_BODY_DOC: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "description": (
+            "A job spec `{kind, name, seed, params, force}`; `params` are the kind's "
+            "parameters (one schema per kind under `components/schemas/params.<kind>`). "
+            "JSON, or YAML with `Content-Type: application/yaml`."
+        ),
+        "content": {
+            "application/json": {"schema": {"$ref": "#/components/schemas/JobCreate"}},
+            "application/yaml": {"schema": {"$ref": "#/components/schemas/JobCreate"}},
+        },
+    }
+}
+
+
+async def spec_body(request: Request) -> Any:
+    """The parsed request body of a spec: JSON, or YAML when the content type says so.
+
+    A body that does not parse is a :class:`SpecError` (422) like any other bad spec.
+    """
+    raw = await request.body()
+    if not raw.strip():
+        raise SpecError([("body", "empty request body: send a job spec as JSON")])
+    content_type = request.headers.get("content-type", "")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SpecError([("body", "the request body is not UTF-8 text")]) from None
+    if "yaml" in content_type:
+        return parse_spec_text(text, "request body")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SpecError(
+            [("body", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}")]
+        ) from None
+
+
+SpecBody = Annotated[Any, Depends(spec_body)]
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    404: {"model": ErrorPublic, "description": "no such job"},
+    422: {"model": ErrorPublic, "description": "invalid input; `error` names the field"},
+}
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=JobPublic,
+    summary="Submit a job",
+    openapi_extra=SPEC_BODY_DOC,
+    responses={
+        200: {
+            "model": JobPublic,
+            "description": (
+                "The identical spec (same canonical kind, seed and params) is already "
+                "succeeded, queued or running, and `force` is not set: that job is returned "
+                "instead of a new one."
+            ),
+        },
+        201: {"description": "A new job was queued."},
+        413: {"model": ErrorPublic, "description": "body over the JSON size limit"},
+        422: _ERRORS[422],
+    },
+)
+def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep) -> Any:
+    """Validate a spec and queue it (201). Every `job:`/`sha256:` reference in the params
+    must exist. Resubmitting an identical spec returns the existing job (200) unless
+    `"force": true`."""
+    job, created = submit(raw, jobs, store)
+    response.status_code = 201 if created else 200
+    response.headers["Location"] = f"/api/jobs/{job.id}"
+    return job.document()
+
+
+@router.get("", response_model=list[JobPublic], summary="List jobs, newest first")
+def list_jobs(
+    jobs: JobsDep,
+    state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
+    kind: Annotated[str | None, Query(max_length=64, description="only this kind")] = None,
+    limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,
+    offset: Annotated[int, Query(ge=0, description="skip this many (paging)")] = 0,
+) -> Any:
+    """Jobs, newest first (without their artifact lists; see `GET /api/jobs/{id}`)."""
+    return [
+        j.document() for j in jobs.list_jobs(state=state, kind=kind, limit=limit, offset=offset)
+    ]
+
+
+@router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS, summary="A job")
+def get_job(job_id: JobId, jobs: JobsDep) -> Any:
+    """The job document, with its artifacts once it succeeded."""
+    return jobs.get(job_id).document()
+
+
+@router.post(
+    "/{job_id}/cancel", response_model=JobPublic, responses=_ERRORS, summary="Cancel a job"
+)
+def cancel_job(job_id: JobId, jobs: JobsDep) -> Any:
+    """Cancel a queued or running job (a running job stops at its worker's next heartbeat).
+    A finished job is returned unchanged."""
+    return jobs.cancel(job_id).document()
+
+
+@router.get(
+    "/{job_id}/artifacts",
+    response_model=list[ArtifactPublic],
+    responses=_ERRORS,
+    summary="A job's artifacts",
+)
+def list_artifacts(job_id: JobId, jobs: JobsDep) -> Any:
+    """`[{name, digest, size, media_type}]`; empty until the job succeeded. Download the
+    bytes with `GET /api/artifacts/{digest}`."""
+    jobs.get(job_id)  # 404 for an unknown job
+    return [a.public() for a in jobs.artifacts(job_id)]
+
+
+@router.get("/{job_id}/manifest", responses=_ERRORS, summary="A job's manifest")
+def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any]:
+    """The manifest a finished job wrote: spec, artifacts, code version, package versions,
+    worker, attempt and timings. 404 until the job succeeded."""
+    job = jobs.get(job_id)
+    if not job.manifest_digest:
+        raise NotFoundError(f"job {job_id} is {job.state}; it has no manifest yet")
+    manifest: dict[str, Any] = json.loads(store.read(job.manifest_digest))
+    return manifest

@@ -1,0 +1,107 @@
+"""Public response models of the REST API, split by direction.
+
+Requests: a job spec is validated by :func:`service.specs.validate_spec` (one strict model
+per kind), so :data:`JobCreate` is the envelope model of :mod:`service.specs`; the OpenAPI
+document adds one variant per registered kind (see :func:`service.api.build_openapi`).
+
+Responses (``*Public``) document what the routes return. They allow extra fields, so a job
+document that grows compatibly passes through unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.specs import JobSpec
+
+#: The body of ``POST /api/jobs`` (documentation; validation is ``validate_spec``).
+JobCreate = JobSpec
+
+JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class PublicModel(BaseModel):
+    """Base of the response models: extra fields pass through."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+class HealthPublic(PublicModel):
+    """``GET /api/health``."""
+
+    status: Literal["ok"] = "ok"
+
+
+class ArtifactPublic(PublicModel):
+    """One artifact of a job."""
+
+    name: str = Field(description="artifact name, e.g. `image.exr`")
+    digest: str = Field(description="sha256 of the bytes, 64 lowercase hex")
+    size: int = Field(description="size in bytes")
+    media_type: str = Field(description="media type, e.g. `image/x-exr`")
+
+
+class TimingsPublic(PublicModel):
+    """Seconds spent queued and running (``run_seconds`` is null before the job starts)."""
+
+    queued_seconds: float
+    run_seconds: float | None = None
+
+
+class JobPublic(PublicModel):
+    """The job document (``GET /api/jobs/{id}``); times are ISO 8601 UTC strings."""
+
+    id: str = Field(description="32 lowercase hex digits")
+    kind: str
+    name: str | None = None
+    state: JobState
+    progress: float = Field(description="0..1")
+    message: str = Field(description="one line: what the job is doing")
+    error: str | None = Field(default=None, description="one line, when the job failed")
+    worker: str | None = Field(default=None, description='"<host>:<pid>" of its worker')
+    attempts: int
+    seed: int
+    spec_hash: str = Field(description="sha256 of the canonical spec (the job's identity)")
+    created_at: str | None = None
+    started_at: str | None = None
+    finished_at: str | None = None
+    timings: TimingsPublic
+    spec: dict[str, Any] = Field(description="the validated spec, defaults filled in")
+    manifest: str | None = Field(default=None, description="`sha256:` ref of the manifest")
+    artifacts: list[ArtifactPublic] = Field(description="empty until the job succeeded")
+
+
+class UploadPublic(PublicModel):
+    """``POST /api/artifacts``: the stored upload."""
+
+    digest: str = Field(description="sha256 of the bytes, 64 lowercase hex")
+    ref: str = Field(description="`sha256:<digest>`, usable in job specs")
+    size: int
+    media_type: str
+    name: str = Field(description="the file name it was uploaded under")
+
+
+class KindPublic(PublicModel):
+    """A registered job kind (``GET /api/kinds``)."""
+
+    name: str
+    summary: str
+    artifacts: list[str] = Field(description="fixed artifact names (patterns allowed)")
+    params_schema: dict[str, Any] = Field(description="JSON schema of the kind's params")
+
+
+class StatsPublic(PublicModel):
+    """``GET /api/stats``: how many jobs are in each state."""
+
+    counts: dict[str, int]
+    total: int
+
+
+class ErrorPublic(PublicModel):
+    """Every error: ``error`` is one line a user can act on (it names the field or file);
+    ``detail`` is the structured form (a string, or ``[{"loc", "msg"}]`` for 422)."""
+
+    error: str
+    detail: Any = None

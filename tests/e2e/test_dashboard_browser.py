@@ -1,0 +1,285 @@
+"""The dashboard in headless Chromium (Playwright, Debian's /usr/bin/chromium).
+
+A real server (:func:`service.server.serve` in a subprocess, port 0, with a token and no
+workers) serves a data directory prepared here: one finished job with images, a FLIP map
+and metrics, and one queued job whose progress the test then moves. The pages must load
+without console errors, show the jobs live, and show the finished job's artifacts and
+images. Screenshots go to ``/tmp/matforge-dashboard-*.png``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from pydantic import Field
+
+from evaluators.tonemap import magma, tonemap
+from service import registry
+from service.context import JobContext
+from service.settings import Settings
+from service.specs import StrictModel
+from service.submission import submit
+from service.worker import run_worker
+from storage.artifacts import ArtifactStore
+from storage.formats.exr import exr_bytes
+from storage.formats.png import write_png
+from storage.jobs import JobStore
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+TOKEN = "browser-s3cret"
+SHOTS = Path("/tmp")
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium (`make setup`)"
+    ),
+]
+
+
+class GalleryParams(StrictModel):
+    """Params of the test-only kind."""
+
+    size: int = Field(default=48, ge=8, le=256, description="image side in pixels")
+
+
+def run_gallery(params: GalleryParams, ctx: JobContext) -> None:
+    """An EXR render, its preview, a FLIP-style error map and a metrics table."""
+    s = params.size
+    y, x = np.mgrid[0:s, 0:s].astype(np.float32) / s
+    rgb = np.stack([x * 2.0, y * 1.5, (1 - x) * (1 - y)], axis=-1).astype(np.float32)
+    ctx.put_bytes("image.exr", exr_bytes(rgb))
+    ctx.put_bytes("preview.png", write_png(None, tonemap(rgb)))
+    ctx.put_bytes("flip_blurred.png", write_png(None, magma(np.abs(x - y))))
+    ctx.put_json(
+        "metrics.json",
+        {
+            "reference": "sha256:" + "0" * 64,
+            "metrics": {
+                "blurred": {"flip": 0.081, "psnr": 31.2, "ssim": 0.93},
+                "noisy": {"flip": 0.142, "psnr": 27.9, "ssim": 0.88},
+            },
+            "settings": {"ppd": 67},
+        },
+    )
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """A data directory with one succeeded and one queued job."""
+    registry.load_builtin()
+    kind = registry.Kind(
+        name="test_gallery",
+        params=GalleryParams,
+        runner=run_gallery,
+        summary="test-only gallery kind",
+    )
+    saved = registry._KINDS.get(kind.name)
+    registry.register(kind)
+    data = tmp_path_factory.mktemp("dashboard") / "data"
+    (data / "scratch").mkdir(parents=True)
+    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
+    try:
+        done, _ = submit({"kind": kind.name, "name": "gallery demo", "params": {}}, jobs, store)
+        assert run_worker(settings, max_jobs=1) == 1
+        assert jobs.get(done.id).state == "succeeded"
+        queued, _ = submit(
+            {"kind": kind.name, "name": "still waiting", "params": {"size": 16}}, jobs, store
+        )
+        yield {"data": data, "done": jobs.get(done.id), "queued": queued, "jobs": jobs}
+    finally:
+        jobs.close()
+        if saved is None:
+            registry._KINDS.pop(kind.name, None)
+        else:
+            registry.register(saved)
+
+
+@pytest.fixture(scope="module")
+def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``serve()`` on a free port (port 0), with a token and no workers; yields its URL."""
+    log_path = tmp_path_factory.mktemp("server-log") / "server.log"
+    code = (
+        "import sys; from pathlib import Path; from service.server import serve; "
+        "from service.settings import Settings; "
+        "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
+        "host='127.0.0.1', port=0, workers=0)"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
+    env["MATFORGE_TOKEN"] = TOKEN
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code, str(prepared["data"])],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    try:
+        url = None
+        deadline = time.monotonic() + 60
+        while url is None and time.monotonic() < deadline and proc.poll() is None:
+            m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
+            url = m.group(1).rstrip("/") if m else None
+            time.sleep(0.1)
+        assert url, f"server did not start:\n{log_path.read_text()}"
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            pytest.fail(f"server ignored SIGTERM:\n{log_path.read_text()}")
+    assert proc.returncode == 0, log_path.read_text()
+
+
+@pytest.fixture
+def page(server: str) -> Iterator[Any]:
+    """A Chromium page that records console errors, page errors, failed requests and any
+    request to another origin (everything, scripts included, is served by matforge)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        context = browser.new_context(viewport={"width": 1280, "height": 900})
+        pg = context.new_page()
+        problems: list[str] = []
+        pg.on(
+            "console",
+            lambda m: (
+                problems.append(f"console {m.type}: {m.text}")
+                if m.type in ("error", "warning")
+                else None
+            ),
+        )
+        pg.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+        pg.on("requestfailed", lambda r: problems.append(f"request failed: {r.url}"))
+        pg.on(
+            "response",
+            lambda r: problems.append(f"HTTP {r.status}: {r.url}") if r.status >= 400 else None,
+        )
+        pg.on(
+            "request",
+            lambda r: (
+                problems.append(f"external request: {r.url}")
+                if not r.url.startswith((server, "data:", "blob:"))
+                else None
+            ),
+        )
+        pg.problems = problems
+        try:
+            yield pg
+        finally:
+            context.close()
+            browser.close()
+
+
+def test01_jobs_list_live(page: Any, server: str, prepared: dict[str, Any]) -> None:
+    done, queued = prepared["done"], prepared["queued"]
+    page.goto(f"{server}/?token={TOKEN}")
+    assert "token=" not in page.url  # the page drops the token from the address bar
+    done_row = page.locator(f'tr[data-id="{done.id}"]')
+    done_row.wait_for(timeout=10_000)
+    assert done_row.locator(".badge").inner_text() == "succeeded"
+    assert "gallery demo" in done_row.inner_text() and "100%" in done_row.inner_text()
+    queued_row = page.locator(f'tr[data-id="{queued.id}"]')
+    assert queued_row.locator(".badge").inner_text() == "queued"
+    assert page.locator('[data-count="total"]').inner_text() == "2"
+
+    # the list is live: move the queued job along and watch its row follow
+    jobs: JobStore = prepared["jobs"]
+    claimed = jobs.claim("test-host:1", 60.0, job_id=queued.id)
+    assert claimed is not None and claimed.lease_token
+    jobs.heartbeat(queued.id, claimed.lease_token, 60.0, progress=0.42, message="halfway")
+    page.wait_for_function(
+        f"""() => {{
+            const row = document.querySelector('tr[data-id="{queued.id}"]');
+            return row && row.querySelector('.badge').textContent === 'running'
+                   && row.textContent.includes('42%') && row.textContent.includes('halfway');
+        }}""",
+        timeout=10_000,
+    )
+    page.select_option("#f-state", "succeeded")
+    page.wait_for_function(
+        f"() => !document.querySelector('tr[data-id=\"{queued.id}\"]')", timeout=10_000
+    )
+    assert "state=succeeded" in page.url
+    page.select_option("#f-state", "")
+    page.locator(f'tr[data-id="{queued.id}"]').wait_for(timeout=10_000)
+    page.screenshot(path=str(SHOTS / "matforge-dashboard-index.png"), full_page=True)
+    jobs.cancel(queued.id)
+    page.wait_for_function(
+        f"""() => document.querySelector('tr[data-id="{queued.id}"] .badge')
+                  .textContent === 'cancelled'""",
+        timeout=10_000,
+    )
+    assert page.problems == [], page.problems
+
+
+def test02_job_page(page: Any, server: str, prepared: dict[str, Any]) -> None:
+    done = prepared["done"]
+    page.goto(f"{server}/jobs/{done.id}?token={TOKEN}")
+    assert page.locator("#job-state").inner_text() == "succeeded"
+    assert page.locator("h1").inner_text() == "gallery demo"
+    rows = page.locator("#artifacts-table tbody tr")
+    names = {rows.nth(i).locator("td").first.inner_text() for i in range(rows.count())}
+    assert names == {"image.exr", "preview.png", "flip_blurred.png", "metrics.json"}
+    images = page.locator(".gallery img")
+    assert images.count() == 3  # the EXR (through its preview), the PNG, the FLIP map
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('.gallery img')]"
+        ".every(i => i.complete && i.naturalWidth > 0)",
+        timeout=10_000,
+    )
+    srcs = [images.nth(i).get_attribute("src") for i in range(images.count())]
+    assert any(s.endswith("/preview.png") and "/api/artifacts/" in s for s in srcs)
+    assert page.locator("#metrics-table tbody tr").count() == 2
+    assert page.locator("#metrics-charts canvas").count() == 3
+    assert "numpy" in page.locator("table.packages").inner_text()
+    assert '"test_gallery"' in page.locator("pre.code").first.inner_text()
+    page.screenshot(path=str(SHOTS / "matforge-dashboard-job.png"), full_page=True)
+    assert page.problems == [], page.problems
+
+
+def test03_without_token_is_refused(page: Any, server: str) -> None:
+    response = page.goto(f"{server}/")
+    assert response is not None and response.status == 401
+    page.problems.clear()  # the 401 itself is expected here
+
+
+def test04_api_docs_offline(page: Any, server: str) -> None:
+    """``/docs`` renders the OpenAPI document with the vendored Swagger UI (no CDN)."""
+    page.goto(f"{server}/docs?token={TOKEN}")
+    page.locator(".opblock").first.wait_for(timeout=15_000)
+    assert page.locator(".opblock").count() >= 10
+    page.locator("section.models").wait_for(timeout=10_000)
+    models = page.locator("section.models").inner_text()
+    page.screenshot(path=str(SHOTS / "matforge-docs.png"), full_page=True)
+    builtin = [k for k in registry.kinds().values() if not k.name.startswith("test_")]
+    for kind in builtin:  # Swagger UI lists schemas by title
+        assert kind.params.model_json_schema()["title"] in models, (kind.name, models)
+    assert page.locator(".errors-wrapper").count() == 0
+    assert page.problems == [], page.problems
