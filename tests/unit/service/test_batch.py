@@ -1,0 +1,363 @@
+"""Batch files: parsing, validation (names, step refs, specs), running against a fake client,
+and the result rows."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from rich.console import Console
+
+from service.batch import (
+    BatchError,
+    load_batch,
+    parse_batch,
+    run_batch,
+    substitute_refs,
+)
+from service.batch_results import result_rows, write_rows
+from service.client import BadInput
+from service.errors import SpecError
+from service.specs import JOB_REF
+
+KINDS = {"render", "score"}
+
+
+def fake_validate(raw: Any) -> Any:
+    """A stand-in for validate_spec: known kinds only, and every ``job:`` string must be a
+    well-formed ref (the placeholders the batch parser substitutes must pass)."""
+    if raw.get("kind") not in KINDS:
+        raise SpecError([("kind", f"unknown job kind {raw.get('kind')!r}")])
+    if set(raw) - {"kind", "name", "seed", "params", "force"}:
+        extra = sorted(set(raw) - {"kind", "name", "seed", "params", "force"})[0]
+        raise SpecError([(extra, "Extra inputs are not permitted")])
+
+    def walk(obj: Any, loc: str) -> None:
+        if isinstance(obj, str) and obj.startswith("job:") and not JOB_REF.match(obj):
+            raise SpecError([(loc, "bad ref")])
+        if isinstance(obj, dict):
+            for k, v in obj.items():
+                walk(v, f"{loc}.{k}")
+
+    walk(raw.get("params", {}), "params")
+
+    class Valid:
+        kind = raw["kind"]
+
+    return Valid()
+
+
+def render(seed: int = 0) -> dict[str, Any]:
+    return {"kind": "render", "seed": seed, "params": {"scene": "sphere_env"}}
+
+
+def score(reference: str, **candidates: str) -> dict[str, Any]:
+    return {"kind": "score", "params": {"reference": reference, "candidates": candidates}}
+
+
+def parse(doc: Any) -> Any:
+    return parse_batch(doc, "b.yaml", validate=fake_validate)
+
+
+def problems(doc: Any) -> str:
+    with pytest.raises(BatchError) as info:
+        parse(doc)
+    return str(info.value)
+
+
+# -- parsing ----------------------------------------------------------------------------------
+def test01_valid_batch_with_refs() -> None:
+    batch = parse(
+        {
+            "steps": [
+                {"name": "gold", "spec": render(1)},
+                {"name": "alu", "spec": render(2)},
+                {"name": "score", "spec": score("step:gold/image.exr", a="step:alu/image.exr")},
+            ]
+        }
+    )
+    assert [s.name for s in batch.steps] == ["gold", "alu", "score"]
+    assert [s.kind for s in batch.steps] == ["render", "render", "score"]
+    refs = {(r.loc, r.step, r.artifact) for r in batch.steps[2].refs}
+    assert refs == {
+        ("params.reference", "gold", "image.exr"),
+        ("params.candidates.a", "alu", "image.exr"),
+    }
+    # the stored spec keeps its step: refs; they are resolved only when running
+    assert batch.steps[2].spec["params"]["reference"] == "step:gold/image.exr"
+
+
+def test02_top_level_list_and_defaults() -> None:
+    batch = parse([{"name": "a", "spec": render()}])
+    assert len(batch.steps) == 1
+    batch = parse(
+        {
+            "defaults": {"seed": 7, "force": True},
+            "steps": [{"name": "a", "spec": {"kind": "render"}}, {"name": "b", "spec": render(3)}],
+        }
+    )
+    assert batch.steps[0].spec["seed"] == 7 and batch.steps[0].spec["force"] is True
+    assert batch.steps[1].spec["seed"] == 3  # the step's own value wins
+
+
+def test03_forward_ref_is_rejected() -> None:
+    msg = problems(
+        {
+            "steps": [
+                {"name": "score", "spec": score("step:gold/image.exr")},
+                {"name": "gold", "spec": render()},
+            ]
+        }
+    )
+    assert "b.yaml" in msg and "'score'" in msg and "params.reference" in msg
+    assert "later step" in msg
+
+
+def test04_unknown_step_and_self_ref() -> None:
+    msg = problems(
+        {
+            "steps": [
+                {"name": "gold", "spec": render()},
+                {"name": "s", "spec": score("step:nope/image.exr", a="step:s/image.exr")},
+            ]
+        }
+    )
+    assert "'nope': no step of that name" in msg
+    assert "refers to the step itself" in msg
+
+
+def test05_malformed_step_ref() -> None:
+    msg = problems(
+        {
+            "steps": [
+                {"name": "gold", "spec": render()},
+                {"name": "s", "spec": score("step:gold")},
+            ]
+        }
+    )
+    assert "bad step reference 'step:gold'" in msg and "params.reference" in msg
+
+
+def test06_duplicate_and_bad_names() -> None:
+    msg = problems(
+        {
+            "steps": [
+                {"name": "a", "spec": render()},
+                {"name": "a", "spec": render(1)},
+                {"name": "has space", "spec": render(2)},
+                {"spec": render(3)},
+            ]
+        }
+    )
+    assert "duplicate step name 'a' (first used by step #1)" in msg
+    assert "step #3 'has space': name" in msg
+    assert "step #4: name" in msg
+
+
+def test07_spec_errors_name_step_and_field() -> None:
+    msg = problems(
+        {
+            "steps": [
+                {"name": "a", "spec": {"kind": "nope"}},
+                {"name": "b", "spec": {**render(), "colour": 1}},
+                {"name": "c", "spec": "not-a-mapping.yaml"},
+                {"name": "d", "spec": render(), "extra": 1},
+            ]
+        }
+    )
+    assert "step #1 'a': kind: unknown job kind 'nope'" in msg
+    assert "step #2 'b': colour:" in msg
+    assert "step #3 'c': spec:" in msg and "no such file" in msg
+    assert "step #4 'd': unknown field(s) extra" in msg
+
+
+def test08_bad_top_level() -> None:
+    assert "non-empty list of steps" in problems({"steps": []})
+    assert "non-empty list of steps" in problems("just a string")
+    assert "unknown top-level field(s) stepz" in problems({"stepz": []})
+    assert "defaults" in problems(
+        {"defaults": {"params": {}}, "steps": [{"name": "a", "spec": render()}]}
+    )
+
+
+def test09_load_batch_from_files(tmp_path: Path) -> None:
+    (tmp_path / "gold.yaml").write_text("kind: render\nseed: 5\nparams: {scene: x}\n")
+    f = tmp_path / "b.yaml"
+    f.write_text(
+        "steps:\n  - name: gold\n    spec: gold.yaml\n"
+        "  - name: s\n    spec: {kind: score, params: {reference: step:gold/i.exr}}\n"
+    )
+    batch = load_batch(f, validate=fake_validate)
+    assert batch.steps[0].spec["seed"] == 5
+    with pytest.raises(BatchError, match="no such file"):
+        load_batch(tmp_path / "missing.yaml", validate=fake_validate)
+    (tmp_path / "bad.yaml").write_text("steps: [unclosed\n")
+    with pytest.raises(BatchError, match="bad.yaml: not valid JSON or YAML"):
+        load_batch(tmp_path / "bad.yaml", validate=fake_validate)
+
+
+def test10_substitute_refs_copies() -> None:
+    spec = score("step:a/x.exr", b="step:b/y.exr", c="sha256:" + "0" * 64)
+    out = substitute_refs(spec, lambda r: r.replace("step:", "job:"))
+    assert out["params"]["reference"] == "job:a/x.exr"
+    assert out["params"]["candidates"]["c"] == "sha256:" + "0" * 64
+    assert spec["params"]["reference"] == "step:a/x.exr"
+
+
+def test11_real_validator_names_the_field() -> None:
+    """With the real validate_spec (the built-in kinds), errors name the step and field."""
+    with pytest.raises(BatchError) as info:
+        parse_batch(
+            {
+                "steps": [
+                    {"name": "a", "spec": {"kind": "no_such_kind"}},
+                    {"name": "b", "spec": {"kind": "render", "bogus": 1}},
+                ]
+            },
+            "x.yaml",
+        )
+    msg = str(info.value)
+    assert "x.yaml: step #1 'a': kind: unknown job kind 'no_such_kind'" in msg
+    assert "x.yaml: step #2 'b': bogus" in msg
+
+
+# -- running ----------------------------------------------------------------------------------
+class FakeClient:
+    """Finishes every job at once; ``fail`` names kinds whose jobs fail."""
+
+    def __init__(self, fail: set[str] = frozenset(), artifacts: list[str] | None = None) -> None:
+        self.fail = fail
+        self.names = artifacts or ["image.exr", "preview.png"]
+        self.submitted: list[dict[str, Any]] = []
+        self.docs: dict[str, dict[str, Any]] = {}
+
+    def submit(self, spec: dict[str, Any]) -> dict[str, Any]:
+        self.submitted.append(spec)
+        job_id = f"{len(self.submitted):032x}"
+        kind = spec["kind"]
+        failed = kind in self.fail
+        arts = (
+            []
+            if failed
+            else [
+                {"name": n, "digest": f"{len(self.submitted):064x}", "size": 1, "media_type": "x"}
+                for n in self.names
+            ]
+        )
+        if kind == "score" and not failed:
+            arts.append(
+                {
+                    "name": "metrics.json",
+                    "digest": "f" * 64,
+                    "size": 1,
+                    "media_type": "application/json",
+                }
+            )
+        self.docs[job_id] = {
+            "id": job_id,
+            "kind": kind,
+            "state": "failed" if failed else "succeeded",
+            "progress": 1.0,
+            "message": "",
+            "error": "boom" if failed else None,
+            "artifacts": arts,
+            "timings": {"run_seconds": 0.25},
+        }
+        return {"id": job_id, "state": "queued"}
+
+    def get(self, job_id: str) -> dict[str, Any]:
+        return self.docs[job_id]
+
+    def read_bytes(self, digest: str) -> bytes:
+        return json.dumps(
+            {"metrics": {"a": {"flip": 0.1, "psnr": 30.0}, "b": {"flip": 0.2}}}
+        ).encode()
+
+
+def quiet() -> Console:
+    return Console(file=io.StringIO())
+
+
+def three_steps() -> Any:
+    return parse(
+        {
+            "steps": [
+                {"name": "gold", "spec": render(1)},
+                {"name": "alu", "spec": render(2)},
+                {
+                    "name": "score",
+                    "spec": score(
+                        "step:gold/image.exr", a="step:alu/image.exr", b="step:alu/preview.png"
+                    ),
+                },
+            ]
+        }
+    )
+
+
+def test20_run_resolves_refs_and_flattens_metrics(tmp_path: Path) -> None:
+    client = FakeClient()
+    outcome = run_batch(three_steps(), client, quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
+    assert outcome.exit_code == 0
+    assert [r.state for r in outcome.results] == ["succeeded"] * 3
+    params = client.submitted[2]["params"]
+    assert params["reference"] == f"job:{1:032x}/image.exr"
+    assert params["candidates"] == {
+        "a": f"job:{2:032x}/image.exr",
+        "b": f"job:{2:032x}/preview.png",
+    }
+    columns, rows = result_rows(outcome.results)
+    assert columns[-3:] == ["a.flip", "a.psnr", "b.flip"]
+    assert rows[2]["a.psnr"] == 30.0 and rows[0]["a.psnr"] is None
+    assert rows[1]["seconds"] == 0.25
+
+    write_rows(tmp_path / "r.csv", columns, rows)
+    with open(tmp_path / "r.csv", newline="") as fh:
+        read = list(csv.DictReader(fh))
+    assert [r["step"] for r in read] == ["gold", "alu", "score"]
+    assert read[2]["b.flip"] == "0.2" and read[0]["b.flip"] == ""
+    write_rows(tmp_path / "r.json", columns, rows)
+    assert json.loads((tmp_path / "r.json").read_text()) == rows
+    with pytest.raises(ValueError, match="csv or .json"):
+        write_rows(tmp_path / "r.txt", columns, rows)
+
+
+def test21_failed_step_stops_the_batch() -> None:
+    batch = parse(
+        {
+            "steps": [
+                {"name": "gold", "spec": render(1)},
+                {"name": "s", "spec": score("step:gold/image.exr")},
+                {"name": "after", "spec": render(3)},
+            ]
+        }
+    )
+    client = FakeClient(fail={"score"})
+    outcome = run_batch(batch, client, quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
+    assert outcome.exit_code == 1
+    assert [r.state for r in outcome.results] == ["succeeded", "failed", "skipped"]
+    assert outcome.results[1].error == "boom"
+    assert len(client.submitted) == 2
+
+
+def test22_missing_artifact_is_a_clear_error() -> None:
+    batch = parse(
+        {
+            "steps": [
+                {"name": "gold", "spec": render(1)},
+                {"name": "s", "spec": score("step:gold/nope.exr")},
+            ]
+        }
+    )
+    client = FakeClient()
+    outcome = run_batch(batch, client, quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
+    assert outcome.exit_code == BadInput.exit_code == 2
+    assert outcome.results[1].state == "error"
+    err = outcome.results[1].error or ""
+    assert "step:gold/nope.exr" in err and "has no artifact 'nope.exr'" in err
+    assert "image.exr" in err  # lists what the step does have
+    assert len(client.submitted) == 1
