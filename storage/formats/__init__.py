@@ -1,0 +1,95 @@
+"""File formats matforge reads and writes, with validation.
+
+:func:`validate_file` is what ``matforge import`` and ``POST /api/artifacts`` call before a
+user's file enters the store: it dispatches on the file name's extension through
+:data:`VALIDATORS` and returns the media type to record. To support a new format (the MERL
+``.binary`` tables, dataset shards), write ``storage/formats/<format>.py`` with a validator
+``(path, name) -> None`` that raises :class:`FormatError`, and add one entry below.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from storage.errors import FormatError
+from storage.formats.exr import validate_exr
+from storage.formats.merl import validate_merl
+from storage.formats.png import validate_png
+
+#: The largest JSON document accepted by :func:`validate_json`, in bytes.
+MAX_JSON_BYTES = 64 * 1024 * 1024
+
+
+def validate_json(path: Path, name: str) -> None:
+    """Check that ``path`` holds one UTF-8 JSON document (RFC 8259: no NaN or Infinity)."""
+    try:
+        size = path.stat().st_size
+        if size > MAX_JSON_BYTES:
+            raise FormatError(
+                name, f"JSON document of {size} bytes exceeds the limit of {MAX_JSON_BYTES} bytes"
+            )
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise FormatError(name, f"cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise FormatError(name, f"not UTF-8 text (byte {exc.start})") from None
+
+    def _no_constants(token: str) -> None:
+        raise ValueError(f"{token} is not valid JSON")
+
+    try:
+        json.loads(text, parse_constant=_no_constants)
+    except json.JSONDecodeError as exc:
+        raise FormatError(
+            name, f"invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+    except (ValueError, RecursionError) as exc:
+        raise FormatError(name, f"invalid JSON: {exc}") from None
+
+
+@dataclass(frozen=True)
+class FileFormat:
+    """A format known to :func:`validate_file`: its media type and validator."""
+
+    media_type: str
+    validate: Callable[[Path, str], object]
+
+
+#: Extension (lower case, with the dot) → format. Extend here for new formats.
+VALIDATORS: dict[str, FileFormat] = {
+    ".exr": FileFormat("image/x-exr", validate_exr),
+    ".png": FileFormat("image/png", validate_png),
+    ".json": FileFormat("application/json", validate_json),
+    ".binary": FileFormat("application/x-merl-binary", validate_merl),
+}
+
+
+def validate_file(path: Path, name: str) -> str:
+    """Validate a user's file and return its media type.
+
+    Parameters
+    ----------
+    path
+        Where the bytes are (for an upload, a temporary file).
+    name
+        The user's file name: its extension picks the format, and error messages name it.
+
+    Raises
+    ------
+    FormatError
+        Unsupported extension, or the bytes are not a valid file of that format.
+    """
+    suffix = Path(name).suffix.lower()
+    fmt = VALIDATORS.get(suffix)
+    if fmt is None:
+        known = ", ".join(sorted(VALIDATORS))
+        shown = f"'{suffix}'" if suffix else "(no extension)"
+        raise FormatError(name, f"unsupported file type {shown}; known: {known}")
+    fmt.validate(Path(path), name)
+    return fmt.media_type
+
+
+__all__ = ["VALIDATORS", "FileFormat", "FormatError", "validate_file", "validate_json"]

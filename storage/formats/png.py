@@ -1,0 +1,105 @@
+"""PNG images: 8-bit sRGB previews and error maps, with deterministic bytes.
+
+Conventions: arrays are ``(H, W, 3)``, row 0 at the top. :func:`write_png` takes uint8
+display values (already tone-mapped and sRGB-encoded); :func:`read_png` returns float32
+values in ``[0, 1]``, still sRGB-encoded (divide by 255, or by 65535 for 16-bit files).
+
+Written files carry no metadata (no text chunks, no timestamps, no gamma or ICC chunks) and
+use a fixed zlib level, so the same pixels always give the same bytes with the same Pillow
+and zlib.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from storage.errors import FormatError
+
+#: The largest image read, per side, in pixels (a guard against decompression bombs).
+MAX_SIDE = 32768
+_MAGIC = b"\x89PNG\r\n\x1a\n"
+_COMPRESS_LEVEL = 6
+
+
+def write_png(path: str | Path | None, rgb8: np.ndarray) -> bytes:
+    """Encode an ``(H, W, 3)`` uint8 image as PNG; write it to ``path`` unless ``None``.
+
+    Returns the encoded bytes either way.
+    """
+    arr = np.asarray(rgb8)
+    if arr.dtype != np.uint8:
+        raise ValueError(f"write_png needs uint8 pixels, got dtype {arr.dtype}")
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"write_png needs shape (H, W, 3), got {arr.shape}")
+    img = Image.fromarray(np.ascontiguousarray(arr), mode="RGB")
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", optimize=False, compress_level=_COMPRESS_LEVEL)
+    data = buf.getvalue()
+    if path is not None:
+        Path(path).write_bytes(data)
+    return data
+
+
+def read_png(path: str | Path, name: str | None = None) -> np.ndarray:
+    """Read a PNG as an ``(H, W, 3)`` float32 array of sRGB-encoded values in ``[0, 1]``.
+
+    Grey images are replicated to three channels, palette images expanded, and alpha is
+    dropped (not composited). ``name`` is the file name used in error messages.
+
+    Raises
+    ------
+    FormatError
+        Not a PNG, truncated or corrupt, empty, or larger than :data:`MAX_SIDE` per side.
+    """
+    p = Path(path)
+    label = name or str(p)
+    try:
+        with open(p, "rb") as fh:
+            magic = fh.read(len(_MAGIC))
+    except OSError as exc:
+        raise FormatError(label, f"cannot read: {exc.strerror or exc}") from None
+    if magic != _MAGIC:
+        raise FormatError(label, "not a PNG file (bad signature)")
+    try:
+        with Image.open(p, formats=["PNG"]) as img:
+            width, height = img.size
+            if width < 1 or height < 1:
+                raise FormatError(label, f"empty image ({width}x{height} pixels)")
+            if width > MAX_SIDE or height > MAX_SIDE:
+                raise FormatError(
+                    label,
+                    f"image of {width}x{height} pixels exceeds the limit "
+                    f"of {MAX_SIDE} pixels per side",
+                )
+            img.load()
+            return _to_float_rgb(img)
+    except FormatError:
+        raise
+    except (
+        UnidentifiedImageError,
+        OSError,
+        SyntaxError,
+        ValueError,
+        Image.DecompressionBombError,
+    ) as exc:
+        raise FormatError(label, f"unreadable PNG (truncated or corrupt?): {exc}") from None
+
+
+def validate_png(path: str | Path, name: str | None = None) -> tuple[int, int]:
+    """Check that ``path`` is a readable PNG; returns ``(width, height)``."""
+    arr = read_png(path, name)
+    return arr.shape[1], arr.shape[0]
+
+
+def _to_float_rgb(img: Image.Image) -> np.ndarray:
+    if img.mode in ("I;16", "I;16B", "I;16L", "I"):
+        # 16-bit grey: Pillow keeps it as integers; scale the full 16-bit range to [0, 1].
+        grey = np.asarray(img, dtype=np.float64) / 65535.0
+        rgb = np.repeat(np.clip(grey, 0.0, 1.0)[..., None], 3, axis=-1)
+    else:
+        rgb = np.asarray(img.convert("RGB"), dtype=np.float64) / 255.0
+    return np.ascontiguousarray(rgb, dtype=np.float32)
