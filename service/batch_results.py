@@ -77,10 +77,34 @@ _STATE_STYLE = {
 }
 
 
+def metrics_tables(results: list[StepResult]) -> list[Table]:
+    """For the terminal: one table per step with metrics, a row per candidate label and a
+    column per metric (the flat ``<label>.<metric>`` columns are too wide to read)."""
+    tables = []
+    for r in results:
+        if not r.metrics:
+            continue
+        by_label: dict[str, dict[str, Any]] = {}
+        metric_names: list[str] = []
+        for key, value in r.metrics.items():
+            label, _, metric = key.rpartition(".")
+            by_label.setdefault(label, {})[metric] = value
+            if metric not in metric_names:
+                metric_names.append(metric)
+        table = Table(title=f"{r.step}: metrics")
+        table.add_column("candidate")
+        for m in metric_names:
+            table.add_column(m, justify="right")
+        for label, values in by_label.items():
+            table.add_row(label, *(_cell(values.get(m)) for m in metric_names))
+        tables.append(table)
+    return tables
+
+
 def results_table(columns: list[str], rows: list[dict[str, Any]], title: str) -> Table:
-    """A Rich table of the rows (job ids shortened to 12 characters; the ``error`` column
-    only when a step has an error)."""
-    shown = [c for c in columns if c != "error" or any(r.get("error") for r in rows)]
+    """A Rich table of the steps (job ids shortened to 12 characters; the ``error`` column
+    only when a step has an error; metrics are shown by :func:`metrics_tables`)."""
+    shown = [c for c in BASE_COLUMNS if c != "error" or any(r.get("error") for r in rows)]
     table = Table(title=title)
     for col in shown:
         table.add_column(

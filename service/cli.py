@@ -281,7 +281,7 @@ def batch(
 ) -> None:
     """Run a batch of steps on the server, in order; later steps may use step: refs."""
     from service.batch import load_batch, run_batch
-    from service.batch_results import result_rows, results_table, write_rows
+    from service.batch_results import metrics_tables, result_rows, results_table, write_rows
 
     if out is not None and out.suffix.lower() not in (".csv", ".json"):
         error(f"--out {out}: must end in .csv or .json")
@@ -293,7 +293,10 @@ def batch(
     if out is not None:
         write_rows(out, columns, rows)
     table = results_table(columns, rows, title=f"batch {file}")
-    table_console(to_stderr=as_json).print(table)
+    console = table_console(to_stderr=as_json)
+    console.print(table)
+    for metrics_table in metrics_tables(outcome.results):
+        console.print(metrics_table)
     if as_json:
         print_json(rows)
     for r in outcome.results:
