@@ -1,8 +1,9 @@
 """Print the README's table of job kinds, generated from the registry.
 
-Run: ``.venv/bin/python scripts/kinds_table.py`` and paste between the README markers
-``<!-- kinds:start -->`` and ``<!-- kinds:end -->``; ``tests/unit/service/test_readme.py``
-fails when the README's table is stale.
+Run: ``.venv/bin/python scripts/kinds_table.py --write`` to rewrite the part of README.md
+between the markers ``<!-- kinds:start -->`` and ``<!-- kinds:end -->`` (without
+``--write`` it prints the table); ``tests/unit/service/test_readme.py`` fails when the
+README's table is stale.
 """
 
 from __future__ import annotations
@@ -48,5 +49,19 @@ def kinds_markdown() -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
+START, END = "<!-- kinds:start -->", "<!-- kinds:end -->"
+README = Path(__file__).resolve().parent.parent / "README.md"
+
+
+def readme_with_table(text: str) -> str:
+    """``text`` (the README) with the part between the markers replaced by the table."""
+    head, _, rest = text.partition(START)
+    _, _, tail = rest.partition(END)
+    return f"{head}{START}\n{kinds_markdown()}{END}{tail}"
+
+
 if __name__ == "__main__":
-    sys.stdout.write(kinds_markdown())
+    if "--write" in sys.argv[1:]:
+        README.write_text(readme_with_table(README.read_text(encoding="utf-8")), encoding="utf-8")
+    else:
+        sys.stdout.write(kinds_markdown())
