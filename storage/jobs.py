@@ -19,15 +19,19 @@ import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from storage.errors import NotFoundError
+from storage.job_records import (
+    FINAL_STATES,
+    STATES,
+    ArtifactRecord,
+    HeartbeatStatus,
+    Job,
+)
 
-STATES = ("queued", "running", "succeeded", "failed", "cancelled")
-FINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
-HeartbeatStatus = Literal["ok", "cancelled", "lost"]
+__all__ = ["FINAL_STATES", "STATES", "ArtifactRecord", "HeartbeatStatus", "Job", "JobStore"]
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
@@ -78,92 +82,6 @@ CREATE TABLE IF NOT EXISTS uploads (
     created_at REAL NOT NULL
 );
 """
-
-
-@dataclass(frozen=True)
-class ArtifactRecord:
-    """One artifact of a job: ``digest`` is 64 lowercase hex (no prefix)."""
-
-    name: str
-    digest: str
-    size: int
-    media_type: str
-
-    def public(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "digest": self.digest,
-            "size": self.size,
-            "media_type": self.media_type,
-        }
-
-
-@dataclass(frozen=True)
-class Job:
-    """A row of the queue, with its artifacts when the job succeeded."""
-
-    id: str
-    kind: str
-    name: str | None
-    seed: int
-    spec_hash: str
-    spec: dict[str, Any]
-    state: str
-    progress: float
-    message: str
-    error: str | None
-    worker: str | None
-    attempts: int
-    lease_token: str | None
-    lease_expires: float | None
-    created_at: float
-    started_at: float | None
-    finished_at: float | None
-    updated_at: float
-    manifest_digest: str | None
-    artifacts: list[ArtifactRecord] = field(default_factory=list)
-
-    @property
-    def finished(self) -> bool:
-        return self.state in FINAL_STATES
-
-    def document(self) -> dict[str, Any]:
-        """The public job document (the body of ``GET /api/jobs/{id}``)."""
-        run_s = None
-        if self.started_at is not None:
-            run_s = (self.finished_at or time.time()) - self.started_at
-        return {
-            "id": self.id,
-            "kind": self.kind,
-            "name": self.name,
-            "state": self.state,
-            "progress": self.progress,
-            "message": self.message,
-            "error": self.error,
-            "worker": self.worker,
-            "attempts": self.attempts,
-            "seed": self.seed,
-            "spec_hash": self.spec_hash,
-            "created_at": _iso(self.created_at),
-            "started_at": _iso(self.started_at),
-            "finished_at": _iso(self.finished_at),
-            "timings": {
-                "queued_seconds": (
-                    (self.started_at or self.finished_at or time.time()) - self.created_at
-                ),
-                "run_seconds": run_s,
-            },
-            "spec": self.spec,
-            "manifest": f"sha256:{self.manifest_digest}" if self.manifest_digest else None,
-            "artifacts": [a.public() for a in self.artifacts],
-        }
-
-
-def _iso(t: float | None) -> str | None:
-    if t is None:
-        return None
-    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1000):03d}Z"
-
 
 _JOB_COLS = (
     "id, kind, name, seed, spec_hash, spec, state, progress, message, error, worker, "
