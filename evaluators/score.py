@@ -9,11 +9,14 @@ kind           files                metrics                               values
                                     ``ssim``, ``mae``, ``mse``
 ``image-ldr``  PNG (``.png``)       ``flip`` (LDR-FLIP), ``psnr``,         sRGB-encoded
                                     ``ssim``, ``mae``, ``mse``             values in [0, 1]
+``merl``       MERL table            ``smape`` (Eq. 6 of the hybrid-BRDF   plain RGB BRDF in
+               (``.binary``)         paper), ``mae``                       1/sr at 10^6 pairs
 =============  ===================  ====================================  =================
 
-Other artifact kinds (MERL BRDF tables, fitted models, with ``smape`` and BRDF-space
-``mae``) plug in with :func:`register_artifact_kind`: a loader, a scorer and the metrics it
-supports; the runner itself does not change.
+Other artifact kinds plug in with :func:`register_artifact_kind` (a loader, a scorer, the
+metrics it supports) from modules in :data:`ARTIFACT_KIND_MODULES`; ``merl``:
+:mod:`evaluators.score_brdf`. ``metrics`` left out means all that the reference's kind
+supports; one it does not support fails the job, listing those it does.
 
 Choices for images, recorded in ``metrics.json`` under ``settings``:
 
@@ -26,6 +29,7 @@ Choices for images, recorded in ``metrics.json`` under ``settings``:
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -55,7 +59,7 @@ from storage.formats.png import read_png, write_png
 if TYPE_CHECKING:
     from service.context import JobContext
 
-MetricName = Literal["flip", "psnr", "ssim", "mae", "mse"]
+MetricName = Literal["flip", "psnr", "ssim", "mae", "mse", "smape"]
 IMAGE_METRICS: tuple[MetricName, ...] = ("flip", "psnr", "ssim", "mae", "mse")
 Label = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
 SSIM_WINDOW = 7
@@ -108,10 +112,11 @@ class ScoreParams(StrictModel):
         max_length=64,
         description="Candidates to score, by label (1-64 characters of A-Z a-z 0-9 _ . -).",
     )
-    metrics: list[MetricName] = Field(
-        default_factory=lambda: list(IMAGE_METRICS),
+    metrics: list[MetricName] | None = Field(
+        default=None,
         min_length=1,
-        description="Metrics to compute; for images any of flip, psnr, ssim, mae, mse.",
+        description="Metrics to compute (default: all that apply to the reference's kind). "
+        "Images: flip, psnr, ssim, mae, mse; BRDF tables: smape, mae.",
     )
     exposure: ExposureSettings | None = Field(
         default=None,
@@ -121,7 +126,9 @@ class ScoreParams(StrictModel):
 
     @field_validator("metrics")
     @classmethod
-    def _unique(cls, value: list[str]) -> list[str]:
+    def _unique(cls, value: list[str] | None) -> list[str] | None:
+        if value is None:
+            return None
         dupes = sorted({m for m in value if value.count(m) > 1})
         if dupes:
             raise ValueError(f"metrics listed more than once: {', '.join(dupes)}")
@@ -259,7 +266,7 @@ def score_images(
             "reference: the image is black; PSNR, SSIM and HDR-FLIP need a "
             "reference with some light"
         )
-    wanted = set(params.metrics)
+    wanted = set(params.metrics or IMAGE_METRICS)
     if params.exposure is not None and not hdr:
         raise JobFailed("exposure: applies to HDR-FLIP only; the reference is a PNG (LDR) image")
     exposure = _exposure(ref_img, params.exposure) if hdr and "flip" in wanted else None
@@ -341,6 +348,11 @@ register_artifact_kind(
     )
 )
 
+#: Modules that register further artifact kinds, imported once this module is complete.
+ARTIFACT_KIND_MODULES: tuple[str, ...] = ("evaluators.score_brdf",)
+for _module in ARTIFACT_KIND_MODULES:
+    importlib.import_module(_module)
+
 
 # -- the runner ------------------------------------------------------------------------------
 
@@ -350,12 +362,15 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
     ctx.progress(0.0, "loading inputs")
     reference = _load(params.reference, "reference", ctx)
     kind = ARTIFACT_KINDS[reference.kind]
-    unsupported = [m for m in params.metrics if m not in kind.metrics]
+    metrics = list(params.metrics or kind.metrics)
+    unsupported = [m for m in metrics if m not in kind.metrics]
     if unsupported:
+        names = ", ".join(repr(m) for m in unsupported)
+        verb = "metric " + names + " does" if len(unsupported) == 1 else f"metrics {names} do"
         raise JobFailed(
-            f"metrics: {', '.join(unsupported)} do not apply to "
-            f"{kind.description}; use {', '.join(kind.metrics)}"
+            f"metrics: {verb} not apply to {kind.description}; use {', '.join(kind.metrics)}"
         )
+    params = params.model_copy(update={"metrics": metrics})  # scorers see the concrete list
     candidates: dict[str, Loaded] = {}
     for label, ref in params.candidates.items():
         cand = _load(ref, f"candidate {label!r}", ctx)
@@ -372,7 +387,7 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
         "metrics.json",
         {"reference": params.reference, "metrics": result.metrics, "settings": result.settings},
     )
-    ctx.progress(1.0, f"scored {len(candidates)} candidates with {', '.join(params.metrics)}")
+    ctx.progress(1.0, f"scored {len(candidates)} candidates with {', '.join(metrics)}")
 
 
 register(
@@ -381,7 +396,7 @@ register(
         params=ScoreParams,
         runner=run_score,
         summary="Scores candidate artifacts against a reference (images: FLIP, PSNR, "
-        "SSIM, MAE, MSE).",
+        "SSIM, MAE, MSE; MERL BRDF tables: SMAPE, MAE in BRDF space).",
         artifacts=("metrics.json", "flip_<label>.png"),
         smoke={},
     )

@@ -1,0 +1,163 @@
+"""``score`` in BRDF space: the ``merl`` artifact kind (MERL ``.binary`` tables).
+
+Registered with :func:`evaluators.score.register_artifact_kind`; ``score`` imports this module
+from its explicit list :data:`evaluators.score.ARTIFACT_KIND_MODULES`.
+
+The kind ``merl``: MERL tables (``.binary``, ``application/x-merl-binary``), scored with
+``smape`` (Eq. 6 of the hybrid-BRDF paper) and ``mae``, both on plain RGB BRDF values
+``f(wi, wo)`` in 1/sr at fixed-seed direction pairs.
+
+How a candidate is scored (every choice is written into ``metrics.json`` under ``settings``):
+
+1. the same ``10**6`` pairs for every score: :func:`~evaluators.brdf_metrics.direction_pairs`
+   with seed :data:`~evaluators.brdf_metrics.PAIRS_SEED`, ``wi`` and ``wo`` each
+   cosine-weighted on the upper hemisphere (the job's own ``seed`` does not enter);
+2. reference and candidates are evaluated as :class:`~evaluators.brdf_metrics.BrdfSampler`;
+   tables through :class:`~evaluators.brdf_metrics.TableSampler`, multilinear lookup;
+3. pairs where the reference has no data (lookup -1) are excluded for every candidate, and
+   counted (``excluded_pairs``);
+4. where a candidate has no data but the reference does, the candidate counts as 0 (a SMAPE
+   term of 1, the worst); counted per candidate in ``candidate_missing_pairs``;
+5. ``smape`` is Eq. 6 with ``eps = 0`` and 0/0 = 0, averaged over R, G, B; ``mae`` is the
+   mean of ``|f - f^|`` over pairs and channels, in 1/sr.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from evaluators.brdf_metrics import (
+    DEFAULT_PAIRS,
+    DISTRIBUTIONS,
+    PAIRS_SEED,
+    BrdfSampler,
+    Distribution,
+    TableSampler,
+    brdf_mae,
+    direction_pairs,
+    sample_brdf,
+    smape,
+)
+from evaluators.score import (
+    ArtifactKind,
+    Loaded,
+    ScoreParams,
+    ScoreResult,
+    register_artifact_kind,
+)
+from service.errors import JobFailed
+from storage.formats.merl import MEDIA_TYPE, MerlTable, read_merl
+
+if TYPE_CHECKING:
+    from service.context import JobContext
+
+#: Metrics of BRDF-space scoring, in the order they are listed.
+BRDF_METRICS: tuple[str, ...] = ("smape", "mae")
+#: The pair distribution of every BRDF-space score.
+DISTRIBUTION: Distribution = "cosine"
+#: Whether tables are looked up with multilinear interpolation (reference and candidates).
+INTERPOLATE = True
+#: SMAPE's denominator floor in ``score``: 0, Eq. 6 exactly.
+SMAPE_EPS = 0.0
+#: Threads for table lookups (thread-safe numpy); other samplers are evaluated on one.
+TABLE_THREADS = min(2, os.cpu_count() or 1)
+
+
+def as_sampler(role: str, data: Any) -> BrdfSampler:
+    """The :class:`BrdfSampler` of a loaded artifact: a table, or anything with ``eval``."""
+    if isinstance(data, MerlTable):
+        return TableSampler(data, interpolate=INTERPOLATE)
+    if isinstance(data, BrdfSampler):
+        return data
+    raise JobFailed(f"{role}: {type(data).__name__} cannot be evaluated as a BRDF")
+
+
+def _sample(role: str, sampler: BrdfSampler, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    workers = TABLE_THREADS if isinstance(sampler, TableSampler) else 1
+    try:
+        return sample_brdf(sampler, wi, wo, workers=workers)
+    except ValueError as exc:
+        raise JobFailed(f"{role}: {exc}") from None
+
+
+def score_brdfs(
+    reference: Loaded, candidates: dict[str, Loaded], params: ScoreParams, ctx: JobContext
+) -> ScoreResult:
+    """Score BRDFs (tables now, models later) in BRDF space with ``smape`` and ``mae``."""
+    if params.exposure is not None:
+        raise JobFailed("exposure: applies to HDR-FLIP only, not to BRDF-space scores")
+    wanted = list(params.metrics or BRDF_METRICS)
+    wi, wo = direction_pairs(DEFAULT_PAIRS, seed=PAIRS_SEED, distribution=DISTRIBUTION)
+    ref_values = _sample("reference", as_sampler("reference", reference.data), wi, wo)
+    keep = ~np.any(ref_values < 0, axis=1)
+    kept = int(np.count_nonzero(keep))
+    if kept == 0:
+        raise JobFailed("reference: the BRDF has no data at any of the scoring pairs")
+    wi, wo, ref_values = wi[keep], wo[keep], ref_values[keep]
+    ctx.progress(0.1 + 0.85 / (len(candidates) + 1), "sampled the reference")
+
+    results: dict[str, dict[str, float | None]] = {}
+    missing: dict[str, int] = {}
+    for i, (label, cand) in enumerate(sorted(candidates.items())):
+        ctx.check_cancelled()
+        role = f"candidate {label!r}"
+        values = _sample(role, as_sampler(role, cand.data), wi, wo)
+        no_data = np.any(values < 0, axis=1)
+        missing[label] = int(np.count_nonzero(no_data))
+        values[no_data] = 0.0
+        row: dict[str, float | None] = {}
+        try:
+            for metric in wanted:
+                if metric == "smape":
+                    row["smape"] = smape(ref_values, values, eps=SMAPE_EPS)
+                elif metric == "mae":
+                    row["mae"] = brdf_mae(ref_values, values)
+        except ValueError as exc:
+            raise JobFailed(f"{role}: {exc}") from None
+        results[label] = row
+        ctx.progress(
+            0.1 + 0.85 * (i + 2) / (len(candidates) + 1),
+            f"scored {i + 1}/{len(candidates)}: {label}",
+        )
+
+    settings: dict[str, Any] = {
+        "artifact_kind": reference.kind,
+        "values": "plain RGB BRDF f(wi, wo) in 1/sr, no cosine factor",
+        "pairs": DEFAULT_PAIRS,
+        "seed": PAIRS_SEED,
+        "distribution": DISTRIBUTION,
+        "distribution_rule": DISTRIBUTIONS[DISTRIBUTION],
+        "interpolation": "multilinear between bin centres" if INTERPOLATE else "nearest bin",
+        "excluded_pairs": DEFAULT_PAIRS - kept,
+        "excluded_rule": "pairs where the reference has no data (negative) are excluded",
+        "scored_pairs": kept,
+        "candidate_missing_pairs": missing,
+        "candidate_missing_rule": "counted as 0 where the reference has data",
+        "smape": {
+            "formula": "2/(N C) sum |f - f^| / (|f| + |f^| + eps), Eq. 6 of De Oliveira "
+            "et al. (hybrid neural-microfacet BRDF)",
+            "eps": SMAPE_EPS,
+            "zero_over_zero": 0.0,
+            "range": [0.0, 2.0],
+            "channels": "mean over R, G, B",
+        },
+        "mae": {"formula": "1/(N C) sum |f - f^|", "units": "1/sr"},
+    }
+    return ScoreResult(metrics=results, settings=settings)
+
+
+register_artifact_kind(
+    ArtifactKind(
+        name="merl",
+        description="a MERL BRDF table",
+        media_types=(MEDIA_TYPE,),
+        extensions=(".binary",),
+        magic=b"\x5a\x00\x00\x00\x5a\x00\x00\x00",  # int32 LE (90, 90): both MERL variants
+        load=read_merl,
+        scorer=score_brdfs,
+        metrics=BRDF_METRICS,
+    )
+)
