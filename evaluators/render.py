@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+import evaluators.merl_material  # noqa: F401  (registers the "merl" material source)
 from evaluators.material_sources import MaterialParam, resolve_material
 from evaluators.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
 from evaluators.tonemap import tonemap

@@ -37,9 +37,9 @@ def test01_spec_time_validation() -> None:
     )
     assert ok.material == {"mitsuba": {"type": "roughconductor", "alpha": 0.2}}
     assert RenderParams().material["mitsuba"]["type"] == "diffuse"
-    assert errors({"material": {"nope": {}}}) == [
-        (("material",), "unknown material source 'nope'; known: mitsuba")
-    ]
+    [(loc, msg)] = errors({"material": {"nope": {}}})
+    assert loc == ("material",) and msg.startswith("unknown material source 'nope'; known: ")
+    assert "mitsuba" in msg.split("known: ")[1].split(", ")
     [(loc, msg)] = errors({"material": {"mitsuba": {"type": "diffuse"}, "extra": 1}})
     assert loc == ("material",) and "exactly one material source key" in msg
     [(loc, msg)] = errors({"material": {"mitsuba": {"alpha": 0.1}}})
@@ -60,7 +60,8 @@ def test01_spec_time_validation() -> None:
 def test02_json_schema_lists_sources() -> None:
     schema = RenderParams.model_json_schema()["properties"]["material"]
     assert schema["description"]
-    assert [o["required"] for o in schema["oneOf"]] == [["mitsuba"]]
+    required = [o["required"] for o in schema["oneOf"]]
+    assert ["mitsuba"] in required and ["merl"] in required
 
 
 def test03_job_time_instantiation(mitsuba_module) -> None:
