@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 BUILTIN_MODULES: tuple[str, ...] = (
     "evaluators.render",
     "evaluators.score",
+    "generators.merl",
 )
 
 Runner = Callable[[Any, "JobContext"], None]

@@ -225,10 +225,18 @@ class JobStore:
         return ArtifactRecord(**dict(row)) if row else None
 
     def referenced_digests(self) -> set[str]:
-        """Every digest a job, manifest, shard or upload refers to (the GC roots)."""
+        """Every digest a job, manifest, upload or unfinished job's shard refers to (the GC
+        roots). Shard results of finished jobs are not roots: such a job never re-runs, and
+        keeping them would double the disk use of every sharded dataset."""
         db = self._conn()
         out = {r[0] for r in db.execute("SELECT digest FROM artifacts")}
-        out |= {r[0] for r in db.execute("SELECT digest FROM shards")}
+        out |= {
+            r[0]
+            for r in db.execute(
+                "SELECT s.digest FROM shards s JOIN jobs j ON j.id = s.job_id "
+                "WHERE j.state IN ('queued', 'running')"
+            )
+        }
         out |= {r[0] for r in db.execute("SELECT digest FROM uploads")}
         out |= {
             r[0]
@@ -371,6 +379,8 @@ class JobStore:
             )
             if cur.rowcount != 1:
                 return False
+            # A finished job never re-runs: its shard results are no longer GC roots.
+            db.execute("DELETE FROM shards WHERE job_id=?", (job_id,))
             db.executemany(
                 "INSERT OR REPLACE INTO artifacts (job_id, name, digest, size, media_type) "
                 "VALUES (?,?,?,?,?)",

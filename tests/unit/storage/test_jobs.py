@@ -125,3 +125,12 @@ def test10_shards_recorded(jobs: JobStore) -> None:
     jobs.record_shard(job.id, "s-0", "a" * 64)
     assert jobs.shards(job.id) == {"s-0": "a" * 64}
     assert "a" * 64 in jobs.referenced_digests()
+
+
+def test11_finished_jobs_shards_are_not_gc_roots(jobs: JobStore) -> None:
+    job, _ = _submit(jobs)
+    claimed = jobs.claim("w:1", 30)
+    jobs.record_shard(job.id, "s-0", "b" * 64)
+    assert "b" * 64 in jobs.referenced_digests()
+    jobs.complete(job.id, claimed.lease_token, [], "1" * 64)
+    assert "b" * 64 not in jobs.referenced_digests()
