@@ -1,0 +1,300 @@
+"""Yarn geometry after Jin et al. 2022: ply normal n_p, ply orientation t_p, height, yarn id.
+
+Each float of the pattern (``patterns.py``) is a curved cylinder: across the yarn it rolls
+through the angle ``v``, along it the axis inclines through ``u``, and the ply fibres wind
+around the axis at the twist angle ``psi``. The code is element-wise over an
+:class:`~materials.fabric.array_ops.ArrayOps` backend, so numpy and Dr.Jit share it.
+
+Conventions (all lengths physical: the unit is one warp cell's width, see ``patterns.py``)
+-------------------------------------------------------------------------------------------
+- Macro frame: ``x`` along the tile's ``s`` axis (the weft direction), ``y`` along ``t``
+  (the warp direction), ``z = n_s`` the macro-surface normal.
+- Yarn width: ``(1 - gap)`` times the cell's extent across the yarn (``gap`` = 0.2,
+  Sec. 5.1: "the gap takes up 20% of the yarn"); the gap strips sit on both sides of the
+  yarn and span its whole length, as in Jin et al.'s maps. Yarn length: the float's length.
+  Gap points have no yarn: ``n_p = n_s``, height 0, and zero BSDF (their delta
+  transmission is excluded, as in the paper, Sec. 6.5).
+- Local yarn frame ``(a, b, z)``: ``b`` along the yarn, ``a = b x z`` across it. Warp:
+  ``a = +x, b = +y``; weft: ``a = -y, b = +x``, a proper rotation, so both yarn families
+  share one twist handedness. ``xi in [-1, 1]`` runs across the yarn along ``a``,
+  ``eta in [-1, 1]`` along the float along ``b``.
+- Angles: ``v = xi * ROLL_MAX`` and ``u = eta * u_max`` (Jin et al.'s linear maps), then
+  ``n_p = R_a(-u) R_b(v) z = (sin v, sin u cos v, cos u cos v)`` and the fibre direction
+  ``t_p = R_a(-u) R_b(v) (-sin psi, cos psi, 0)`` =
+  ``(-cos v sin psi, cos u cos psi + sin u sin v sin psi, -sin u cos psi + cos u sin v sin psi)``
+  in ``(a, b, z)``: orthonormal by construction; ``psi > 0`` turns the fibres from ``+b``
+  towards ``-a`` at the yarn's crest.
+- ``ROLL_MAX`` = 80 deg, not Jin et al.'s 90 deg: with 90 deg the yarn edges are vertical and
+  Eq. 4's Jacobian ``1 / <n_s . n_p>`` is not integrable across the yarn under the linear
+  ``v(xi)`` map, so Eq. 3-5 would diverge. At 80 deg the steepest slope is ``beta tan 80``.
+- Height field: the exact integral of the slopes of ``n_p`` at ``psi``-free crest lines,
+  ``h = beta [r / ROLL_MAX ln(cos v / cos ROLL_MAX) + l / (2 u_max) ln(cos u / cos u_max)]``
+  with ``r`` the half width and ``l`` the float length: zero at the yarn's edges and float
+  ends, where it dives under the crossing yarn. Along the yarn it matches ``n_p`` exactly;
+  across it exactly at ``u = 0`` (elsewhere ``n_p``'s cross slope is larger by
+  ``1 / cos u``: Jin's normal field is not integrable). ``-ln cos x`` is evaluated by a
+  fixed degree-10 polynomial in ``x^2`` (Chebyshev fit on ``[0, ROLL_MAX]``, absolute error
+  below 2e-5, i.e. 5e-6 cells in height): the visibility march evaluates the height up to
+  2 x 64 times per sample, and the polynomial costs a fraction of a log and a cosine.
+- Height-field scaling ``beta`` (Table 1) scales heights, hence slopes:
+  ``n_p ~ (beta n_x, beta n_y, n_z)``, ``t_p ~ (t_x, t_y, beta t_z)`` (still orthogonal, and
+  identical to Jin et al.'s rescaling of the orientation map). ``beta = 0`` gives flat yarns:
+  ``n_p = n_s`` and horizontal ``t_p``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from materials.fabric.array_ops import Array, ArrayOps, NumpyOps, Vec3, normalize
+from materials.fabric.params import FabricParams, YarnPair
+
+#: Largest roll angle across a yarn, radians (80 deg; see the module docstring).
+ROLL_MAX = math.radians(80.0)
+#: Smallest inclination used in the height formula (avoids 0/0 as ``u_max -> 0``).
+_U_MIN = 1e-3
+#: Largest inclination the height polynomial covers (``PARAM_RANGES`` allows 75 deg).
+_U_MAX = ROLL_MAX
+#: Per-cell table encoding: ``+-(length * _PACK + offset)``, + for a warp on top.
+_PACK = 128.0
+
+
+def _lncos_coefficients(degree: int = 10) -> tuple[float, ...]:
+    """Monomial coefficients in ``z = 2 x^2 / ROLL_MAX^2 - 1`` of ``-ln cos x``, x <= ROLL_MAX."""
+    x = np.linspace(0.0, ROLL_MAX, 20001)
+    z = 2.0 * x * x / (ROLL_MAX * ROLL_MAX) - 1.0
+    cheb = np.polynomial.chebyshev.chebfit(z, -np.log(np.cos(x)), degree)
+    return tuple(float(c) for c in np.polynomial.chebyshev.cheb2poly(cheb))
+
+
+_LNCOS = _lncos_coefficients()
+
+
+def neg_log_cos(ops: ArrayOps, x: Array) -> Array:
+    """``-ln cos x`` for ``|x| <= ROLL_MAX`` by the fixed polynomial (abs. error < 2e-5)."""
+    z = ops.minimum(x * x * (2.0 / (ROLL_MAX * ROLL_MAX)) - 1.0, 1.0)
+    acc = z * _LNCOS[-1] + _LNCOS[-2]
+    for c in _LNCOS[-3::-1]:
+        acc = acc * z + c
+    return acc
+
+
+#: Yarn ids, as rasterised by :func:`rasterize`.
+GAP, WARP, WEFT = 0, 1, 2
+
+
+@dataclass(frozen=True, eq=False)
+class YarnGeometry:
+    """Scalars and per-cell tables of one material's yarn geometry (from :class:`FabricParams`).
+
+    Angles in radians, lengths physical. ``cells`` is the pattern's ``(R * C,)`` table
+    (row-major): ``+-(length * 128 + offset)`` with the float's length and the cell's offset
+    in cells (``patterns.Pattern.float_tables``), positive where the warp is on top -- one
+    gather per lookup.
+    """
+
+    rows: int
+    cols: int
+    cell: tuple[float, float]
+    tile: tuple[float, float]
+    gap: float
+    u_max: YarnPair
+    psi: YarnPair
+    beta: YarnPair
+    cells: np.ndarray
+    h_max: float
+    """Largest height anywhere on the tile (the visibility march stops above it)."""
+
+    @classmethod
+    def from_params(cls, params: FabricParams) -> YarnGeometry:
+        pat = params.pattern
+        rows, cols = pat.shape
+        offset, length = pat.float_tables()
+        u_max = YarnPair(*(min(max(math.radians(v), _U_MIN), _U_MAX) for v in params.u_max_deg))
+        psi = YarnPair(*(math.radians(v) for v in params.psi_deg))
+        cw, ch = pat.cell_size
+        h_max = 0.0
+        for is_warp in (True, False):
+            on_top = pat.warp_up if is_warp else ~pat.warp_up
+            half = (1 - params.gap) * (cw if is_warp else ch) / 2
+            longest = float(length[on_top].max()) * (ch if is_warp else cw)
+            um = u_max.warp if is_warp else u_max.weft
+            b = params.beta.warp if is_warp else params.beta.weft
+            crest = half / ROLL_MAX * -math.log(math.cos(ROLL_MAX))
+            crest += longest / (2 * um) * -math.log(math.cos(um))
+            h_max = max(h_max, b * crest)
+        return cls(
+            rows=rows,
+            cols=cols,
+            cell=(cw, ch),
+            tile=pat.tile_size,
+            gap=params.gap,
+            u_max=u_max,
+            psi=psi,
+            beta=params.beta,
+            cells=(np.where(pat.warp_up, 1.0, -1.0) * (length * _PACK + offset)).ravel(),
+            h_max=h_max,
+        )
+
+
+class YarnTables(NamedTuple):
+    """The pattern table uploaded to a backend (see :meth:`ArrayOps.table`)."""
+
+    cells: Array
+
+
+def tables(ops: ArrayOps, geo: YarnGeometry) -> YarnTables:
+    """Upload ``geo``'s per-cell table to ``ops``'s backend."""
+    return YarnTables(ops.table(geo.cells))
+
+
+class Surface(NamedTuple):
+    """The fabric surface at a batch of points (backend arrays, element-wise)."""
+
+    warp: Array
+    """Bool: a warp yarn is on top here (False in gaps)."""
+    weft: Array
+    """Bool: a weft yarn is on top here (False in gaps)."""
+    normal: Vec3
+    """Ply normal n_p, unit, in the macro frame (``n_s`` in gaps)."""
+    tangent: Vec3
+    """Ply orientation t_p (fibre direction), unit, orthogonal to n_p."""
+    height: Array
+    """Height above the fabric's base plane, physical units (0 in gaps)."""
+
+
+class _Located(NamedTuple):
+    warp_up: Array  # bool: the cell's top yarn is a warp
+    in_yarn: Array  # bool: inside the top yarn's width (not in a gap strip)
+    xi: Array  # across the yarn, along a, clamped to [-1, 1]
+    eta: Array  # along the float, along b, in [-1, 1]
+    crest: Array  # height before beta scaling
+
+
+def _locate(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Array) -> _Located:
+    """Cell lookup, yarn coordinates and the unscaled height at tile points ``(s, t)``."""
+    x = s - ops.floor(s)
+    y = t - ops.floor(t)
+    fx = x * float(geo.cols)
+    fy = y * float(geo.rows)
+    # min(): float32 round-off can give x == 1.0 exactly for tiny negative s.
+    j = ops.minimum(ops.floor(fx), float(geo.cols - 1))
+    i = ops.minimum(ops.floor(fy), float(geo.rows - 1))
+    lx = fx - j
+    ly = fy - i
+    code = ops.gather(tab.cells, ops.index(i * float(geo.cols) + j))
+    warp_up = code > 0.0
+    packed = ops.abs(code)
+    count = ops.floor(packed * (1.0 / _PACK))
+    off = packed - count * _PACK
+    k = 2.0 / (1.0 - geo.gap)
+    # a = +x for a warp, -y for a weft (module docstring).
+    xi_raw = ops.where(warp_up, (lx - 0.5) * k, (0.5 - ly) * k)
+    along = ops.where(warp_up, ly, lx)
+    eta = 2.0 * (off + along) / count - 1.0
+    in_yarn = ops.abs(xi_raw) <= 1.0
+    xi = ops.minimum(ops.maximum(xi_raw, -1.0), 1.0)
+    cw, ch = geo.cell
+    uw, uf = geo.u_max
+    half = ops.where(warp_up, (1 - geo.gap) * cw / 2, (1 - geo.gap) * ch / 2)
+    um = ops.where(warp_up, uw, uf)
+    top = ops.where(warp_up, -math.log(math.cos(uw)), -math.log(math.cos(uf)))
+    per_cell = ops.where(warp_up, ch / (2 * uw), cw / (2 * uf))
+    # Integrated slopes: across tan(v) over the half width, along tan(u) over the float.
+    g_roll = -math.log(math.cos(ROLL_MAX))
+    across = half * (1.0 / ROLL_MAX) * ops.maximum(g_roll - neg_log_cos(ops, xi * ROLL_MAX), 0.0)
+    lengthwise = count * per_cell * ops.maximum(top - neg_log_cos(ops, eta * um), 0.0)
+    return _Located(warp_up, in_yarn, xi, eta, across + lengthwise)
+
+
+def height(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Array) -> Array:
+    """Height at tile points ``(s, t)`` (physical units, 0 in gaps); cheaper than surface()."""
+    loc = _locate(ops, geo, tab, s, t)
+    beta = ops.where(loc.warp_up, geo.beta.warp, geo.beta.weft)
+    return ops.where(loc.in_yarn, beta * loc.crest, 0.0)
+
+
+def surface(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Array) -> Surface:
+    """Yarn id, ply normal, ply orientation and height at tile points ``(s, t)``."""
+    loc = _locate(ops, geo, tab, s, t)
+    w = loc.warp_up
+    v = loc.xi * ROLL_MAX
+    u = loc.eta * ops.where(w, geo.u_max.warp, geo.u_max.weft)
+    sv, cv, su, cu = ops.sin(v), ops.cos(v), ops.sin(u), ops.cos(u)
+    sp = ops.where(w, math.sin(geo.psi.warp), math.sin(geo.psi.weft))
+    cp = ops.where(w, math.cos(geo.psi.warp), math.cos(geo.psi.weft))
+    beta = ops.where(w, geo.beta.warp, geo.beta.weft)
+    # Local (a, b, z) components, then to the macro frame: warp (a, b), weft (b, -a).
+    n_a, n_b, n_z = sv, su * cv, cu * cv
+    t_a = -cv * sp
+    t_b = cu * cp + su * sv * sp
+    t_z = -su * cp + cu * sv * sp
+    nx, ny = ops.where(w, n_a, n_b), ops.where(w, n_b, -n_a)
+    tx, ty = ops.where(w, t_a, t_b), ops.where(w, t_b, -t_a)
+    # Height-field scaling (Table 1, beta): slopes scale by beta.
+    normal, _ = normalize(ops, (beta * nx, beta * ny, n_z))
+    tangent, t_len = normalize(ops, (tx, ty, beta * t_z))
+    # beta = 0 with a vertical fibre (impossible for |u|, |v| < 90 deg unless |psi| is
+    # extreme) would leave no horizontal direction: fall back to the yarn axis b.
+    ok = t_len > 1e-6
+    axis_x = ops.where(w, 0.0, 1.0)
+    axis_y = ops.where(w, 1.0, 0.0)
+    tangent = (
+        ops.where(ok, tangent[0], axis_x),
+        ops.where(ok, tangent[1], axis_y),
+        ops.where(ok, tangent[2], 0.0),
+    )
+    yarn = loc.in_yarn
+    normal = (
+        ops.where(yarn, normal[0], 0.0),
+        ops.where(yarn, normal[1], 0.0),
+        ops.where(yarn, normal[2], 1.0),
+    )
+    tangent = (
+        ops.where(yarn, tangent[0], 1.0),
+        ops.where(yarn, tangent[1], 0.0),
+        ops.where(yarn, tangent[2], 0.0),
+    )
+    h = ops.where(yarn, beta * loc.crest, 0.0)
+    return Surface(yarn & w, yarn & ~w, normal, tangent, h)
+
+
+class TileMaps(NamedTuple):
+    """Rasterised tile, arrays indexed ``[row, col]`` with row ``r`` at ``t = (r + 0.5) / res``.
+
+    Row 0 is the bottom of the tile (``t`` small): flip rows for a top-down image file.
+    """
+
+    normal: np.ndarray
+    """``(res, res, 3)`` float32 ply normals n_p, macro frame."""
+    tangent: np.ndarray
+    """``(res, res, 3)`` float32 ply orientations t_p, macro frame."""
+    height: np.ndarray
+    """``(res, res)`` float32 heights, physical units."""
+    yarn: np.ndarray
+    """``(res, res)`` uint8 yarn ids: 0 gap, 1 warp, 2 weft."""
+
+
+def rasterize(params: FabricParams, resolution: int) -> TileMaps:
+    """n_p, t_p, height and yarn id over one tile at ``resolution x resolution`` pixel centres.
+
+    For the normal/orientation maps of the paper's encoder (Sec. 4.2) and EXR export.
+    """
+    if not 1 <= resolution <= 8192:
+        raise ValueError(f"resolution must be in [1, 8192], got {resolution}")
+    ops = NumpyOps()
+    geo = YarnGeometry.from_params(params)
+    centres = (np.arange(resolution, dtype=np.float32) + 0.5) / np.float32(resolution)
+    t, s = np.meshgrid(centres, centres, indexing="ij")
+    surf = surface(ops, geo, tables(ops, geo), s, t)
+    yarn = np.where(surf.warp, WARP, np.where(surf.weft, WEFT, GAP)).astype(np.uint8)
+    return TileMaps(
+        normal=np.stack(surf.normal, axis=-1).astype(np.float32),
+        tangent=np.stack(surf.tangent, axis=-1).astype(np.float32),
+        height=np.asarray(surf.height, dtype=np.float32),
+        yarn=yarn,
+    )
