@@ -26,6 +26,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "evaluators.render",
     "evaluators.score",
     "generators.merl",
+    "generators.fabric",
 )
 
 Runner = Callable[[Any, "JobContext"], None]

@@ -17,6 +17,7 @@ from pathlib import Path
 from storage.errors import FormatError
 from storage.formats.exr import validate_exr
 from storage.formats.merl import validate_merl
+from storage.formats.npz import validate_npz
 from storage.formats.png import validate_png
 
 #: The largest JSON document accepted by :func:`validate_json`, in bytes.
@@ -64,6 +65,7 @@ VALIDATORS: dict[str, FileFormat] = {
     ".png": FileFormat("image/png", validate_png),
     ".json": FileFormat("application/json", validate_json),
     ".binary": FileFormat("application/x-merl-binary", validate_merl),
+    ".npz": FileFormat("application/x-npz", validate_npz),
 }
 
 

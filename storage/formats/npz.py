@@ -1,0 +1,47 @@
+"""Dataset shards as ``.npz``: a deterministic writer and a validating reader."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from storage.errors import FormatError
+
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An uncompressed ``.npz`` (readable by ``np.load``) with fixed zip timestamps, so the
+    same arrays always give the same bytes (``np.savez`` stamps entries on some versions)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
+        for name, arr in arrays.items():
+            entry = io.BytesIO()
+            np.lib.format.write_array(entry, np.ascontiguousarray(arr), allow_pickle=False)
+            zf.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE), entry.getvalue())
+    return buf.getvalue()
+
+
+def read_npz(path: Path, name: str | None = None) -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` (no pickled objects); ``FormatError`` naming the file if it is
+    not a readable npz or holds non-finite floats."""
+    label = name or str(path)
+    if not zipfile.is_zipfile(path):
+        raise FormatError(label, "not a .npz archive (no zip structure)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise FormatError(label, f"not a readable .npz archive: {exc}") from None
+    for key, arr in arrays.items():
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+            raise FormatError(label, f"array {key!r} has non-finite values (NaN or infinity)")
+    return arrays
+
+
+def validate_npz(path: Path, name: str | None = None) -> None:
+    """Validator for ``storage.formats.validate_file``."""
+    read_npz(path, name)

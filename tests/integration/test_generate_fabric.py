@@ -1,0 +1,152 @@
+"""``generate.fabric`` through the registry: validation, shards, artifacts, resumption.
+
+Oracles: the npz layout the issue fixes (keys, shapes, dtypes); the query design recomputed
+independently by :func:`generators.fabric_queries.design_queries` from the recorded seeds;
+the numpy reference estimator against the default Dr.Jit backend (same points, float32
+round-off apart); byte-identical shards for the same spec; sentinel shard reuse after a
+crash (as ``test_worker.py`` test04).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import pickle
+from typing import Any
+
+import numpy as np
+import pytest
+
+from generators.fabric_queries import design_queries
+from service.errors import SpecError
+from service.settings import Settings
+from service.submission import run_in_process, submit
+from storage.artifacts import ArtifactStore
+from storage.formats.exr import read_exr
+from storage.formats.npz import npz_bytes
+from storage.jobs import Job, JobStore
+
+KIND = "generate.fabric"
+#: The small preset, cut down: 3 materials x 256 queries x 64 samples, 6 shards.
+PARAMS: dict[str, Any] = {
+    "preset": "small",
+    "queries_per_material": 256,
+    "shard_queries": 128,
+    "samples": 64,
+    "map_resolution": 16,
+}
+KEYS = {
+    "material": ((), np.int32),
+    "center": ((2,), np.float32),
+    "size": ((), np.float32),
+    "wi": ((3,), np.float32),
+    "wo": ((3,), np.float32),
+    "value": ((4,), np.float32),
+    "stderr": ((4,), np.float32),
+}
+
+
+def spec(params: dict[str, Any], force: bool = False) -> dict[str, Any]:
+    return {"kind": KIND, "seed": 5, "params": params, "force": force}
+
+
+def read(settings: Settings, job: Job, name: str) -> bytes:
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return ArtifactStore(settings.store_dir).read(digest)
+
+
+def shard(settings: Settings, job: Job, i: int) -> dict[str, np.ndarray]:
+    with np.load(io.BytesIO(read(settings, job, f"shard-{i:04d}.npz"))) as z:
+        return {k: z[k] for k in z.files}
+
+
+def digests(job: Job) -> dict[str, str]:
+    return {a.name: a.digest for a in job.artifacts if a.name != "stats.json"}
+
+
+def test01_small_run_artifacts_and_determinism(settings: Settings) -> None:
+    job = run_in_process(spec(PARAMS), settings)
+    assert job.state == "succeeded", job.error
+    names = {a.name for a in job.artifacts}
+    doc = json.loads(read(settings, job, "materials.json"))
+    mats = doc["materials"]
+    assert [m["pattern"] for m in mats] == ["plain", "twill_3x3", "satin_5x5"]
+    maps = {m["maps"][k] for m in mats for k in ("normal", "orientation")}
+    shards = {f"shard-{i:04d}.npz" for i in range(6)}
+    assert names == shards | maps | {"materials.json", "stats.json", "preview.png"}
+    for i in range(6):
+        z = shard(settings, job, i)
+        assert set(z) == set(KEYS)
+        for key, (tail, dtype) in KEYS.items():
+            assert z[key].shape == (128, *tail) and z[key].dtype == dtype, key
+        m = mats[i // 2]
+        assert np.all(z["material"] == i // 2) and m["shards"][i % 2] == f"shard-{i:04d}.npz"
+        value, err = z["value"], z["stderr"]
+        assert np.all(np.isfinite(value)) and np.all(value >= 0)
+        assert np.all(np.isfinite(err)) and np.all(err[value > 0] > 0)
+        assert np.count_nonzero(value.sum(axis=1)) > 100  # most queries see some yarn
+        q = design_queries(m["design_seed"], 128 * (i % 2), 128)
+        np.testing.assert_array_equal(z["center"], q.centre.astype(np.float32))
+        np.testing.assert_array_equal(z["wi"], q.wi.astype(np.float32))
+        assert np.any(z["wi"][:, 2] < 0) and np.any(z["wi"][:, 2] > 0)  # BTDF and BRDF
+    for m in mats:
+        p = m["params"]
+        assert p["gap"] == 0.2 and len(p["psi_deg"]) == 2 and len(p["kd_warp"]) == 3
+        normal = read_exr_bytes(settings, job, m["maps"]["normal"])
+        assert normal.shape == (16, 16, 3)
+        np.testing.assert_allclose(np.linalg.norm(normal, axis=2), 1.0, atol=1e-4)
+    stats = json.loads(read(settings, job, "stats.json"))
+    assert stats["samples"] == 3 * 256 * 64 and stats["samples_per_second"] > 0
+    again = run_in_process(spec(PARAMS, force=True), settings)
+    assert again.state == "succeeded" and again.id != job.id
+    assert digests(again) == digests(job)
+
+
+def read_exr_bytes(settings: Settings, job: Job, name: str) -> np.ndarray:
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return read_exr(ArtifactStore(settings.store_dir).open_verified(digest), name)
+
+
+def test02_numpy_backend_matches_drjit(settings: Settings) -> None:
+    params = {**PARAMS, "patterns": ["twill_3x3"], "sampler": "independent"}
+    ref = run_in_process(spec({**params, "backend": "numpy"}), settings)
+    fast = run_in_process(spec(params), settings)
+    assert ref.state == fast.state == "succeeded", (ref.error, fast.error)
+    for i in range(2):
+        a, b = shard(settings, ref, i), shard(settings, fast, i)
+        np.testing.assert_array_equal(a["wo"], b["wo"])
+        np.testing.assert_allclose(a["value"], b["value"], rtol=1e-3, atol=1e-6)
+        np.testing.assert_allclose(a["stderr"], b["stderr"], rtol=1e-2, atol=1e-6)
+
+
+def test03_recorded_shard_is_reused(settings: Settings) -> None:
+    params = {**PARAMS, "patterns": ["plain"], "backend": "numpy"}
+    jobs = JobStore(settings.db_path)
+    store = ArtifactStore(settings.store_dir)
+    job, created = submit(spec(params), jobs, store)
+    assert created
+    sentinel = npz_bytes({"sentinel": np.array([7])})
+    result = {"npz": sentinel, "seconds": 0.0}
+    jobs.record_shard(job.id, "shard-0001", store.put_bytes(pickle.dumps(result)).digest)
+    done = run_in_process(spec(params), settings)
+    assert done.id == job.id and done.state == "succeeded", done.error
+    assert read(settings, done, "shard-0001.npz") == sentinel
+    assert set(shard(settings, done, 0)) == set(KEYS)  # the other shard was computed
+    jobs.close()
+
+
+@pytest.mark.parametrize(
+    ("params", "field"),
+    [
+        ({"patterns": ["plaid"]}, "patterns"),
+        ({"samples": 0}, "samples"),
+        ({"samples": 24}, "samples"),  # sobol: 24 / 4 replicates is not a power of two
+        ({"sampler": "halton"}, "sampler"),
+        ({"texture_sets": 0}, "texture_sets"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
+def test04_bad_specs_name_the_field(settings: Settings, params: dict, field: str) -> None:
+    with pytest.raises(SpecError) as info:
+        run_in_process(spec(params), settings)
+    assert field in str(info.value)
