@@ -29,7 +29,9 @@ import numpy as np
 from pydantic import Field, model_validator
 
 import evaluators.merl_material  # noqa: F401  (registers the "merl" material source)
+import evaluators.model_material  # noqa: F401  (registers the "model" material source)
 from evaluators.material_sources import MaterialParam, resolve_material
+from evaluators.neural_depth_integrator import integrator_for
 from evaluators.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
 from evaluators.tonemap import tonemap
 from materials.mitsuba_backend import active_variant, load_mitsuba
@@ -186,8 +188,11 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
         lights=tuple(params.lights) if params.lights is not None else None,
         camera=params.camera,
     )
+    scene_dict = build_scene(params.scene, mi, bsdf, setup)
+    # A model material with neural_max_depth needs the depth-aware path tracer (Sec. 5.3).
+    scene_dict["integrator"] = integrator_for(mi, bsdf, scene_dict["integrator"])
     try:
-        scene = mi.load_dict(build_scene(params.scene, mi, bsdf, setup))
+        scene = mi.load_dict(scene_dict)
     except Exception as exc:  # Mitsuba reports scene errors as RuntimeError with C++ text
         raise JobFailed(f"scene {params.scene}: {str(exc).strip().splitlines()[0]}") from None
 
@@ -209,7 +214,17 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
     ctx.put_bytes("image.exr", exr_bytes(image), "image/x-exr")
     ctx.put_bytes("preview.png", write_png(None, tonemap(image)), "image/png")
     ctx.put_json(
-        "render.json", _metadata(params, setup, variant, mi.__version__, passes, seeds, image)
+        "render.json",
+        _metadata(
+            params,
+            setup,
+            variant,
+            mi.__version__,
+            passes,
+            seeds,
+            image,
+            integrator=str(scene_dict["integrator"]["type"]),
+        ),
     )
     mpaths = width * height * params.spp / max(seconds, 1e-9) / 1e6
     log.info(
@@ -237,6 +252,8 @@ def _metadata(
     passes: list[int],
     seeds: list[int],
     image: np.ndarray,
+    *,
+    integrator: str = "path",
 ) -> dict[str, Any]:
     scene = SCENES[params.scene]
     return {
@@ -248,7 +265,7 @@ def _metadata(
         "camera": scene.camera_for(setup).model_dump(mode="json"),
         "point_lights": [light.model_dump(mode="json") for light in scene.lights_for(setup)],
         "environment": "matforge studio_envmap" if params.scene == "sphere_env" else None,
-        "integrator": "path",
+        "integrator": integrator,
         "sampler": "independent",
         "rfilter": "box",
         "passes": [{"spp": n, "seed": s} for n, s in zip(passes, seeds, strict=True)],

@@ -27,6 +27,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "evaluators.score",
     "generators.merl",
     "generators.fabric",
+    "models.brdf.kind",
 )
 
 Runner = Callable[[Any, "JobContext"], None]

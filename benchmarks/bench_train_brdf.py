@@ -1,0 +1,127 @@
+"""Mean SMAPE and training time of ``train.brdf`` models on the ``small`` collection.
+
+The headline comparison of the hybrid-BRDF paper (Fig. 4, Table 1) at our scale: the
+``small`` generate.merl collection (12 materials, every family, seed 0), each model trained
+with the ``small`` preset (5000 steps of 1024 pairs per material, AdamW lr 0.005 with cosine
+decay, clip 0.01) through the registry exactly as ``matforge run`` does, in a temporary
+data directory (or ``--data-dir``). Rows: ``analytic`` (GGX + Lambert), and ``hybrid`` and
+``neural`` at each ``--sizes`` with latent ``l`` (``--latent``); the neural code has the
+hybrid's per-material float count, ``l + 7`` (``--paper-neural`` adds rows with the paper's
+``l + 8``).
+
+Columns: ``smape`` is the mean over materials of Eq. 6 at 2^18 fixed-seed pairs
+(``metrics.json``); ``smape f_a`` that of the hybrid's analytic part alone; ``irid.`` and
+``blend`` the family means singled out by the paper's Sec. 6 (iridescence, multi-lobe);
+``wall s`` the job's wall time (loading, training, scoring; training runs on one thread,
+:data:`models.brdf.train.TORCH_THREADS`). The machine is shared: the load average is
+printed with each row.
+
+Run: ``.venv/bin/python benchmarks/bench_train_brdf.py [--sizes 16x3 32x3] [--latent 4]
+[--models analytic hybrid neural] [--steps N] [--paper-neural] [--train-seeds 0 1 2]
+[--seed 0] [--data-dir D]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from service.settings import Settings  # noqa: E402
+from service.submission import run_in_process  # noqa: E402
+from storage.artifacts import ArtifactStore  # noqa: E402
+
+
+def metrics_of(settings: Settings, job: Any) -> dict[str, Any]:
+    (digest,) = [a.digest for a in job.artifacts if a.name == "metrics.json"]
+    return dict(json.loads(ArtifactStore(settings.store_dir).read(digest)))
+
+
+def fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.4f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", nargs="+", default=["16x3", "32x3"])
+    ap.add_argument("--latent", type=int, choices=(4, 8), default=4)
+    ap.add_argument("--models", nargs="+", default=["analytic", "hybrid", "neural"])
+    ap.add_argument("--steps", type=int, default=None, help="override the preset's steps")
+    ap.add_argument("--paper-neural", action="store_true", help="also neural with l + 8")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the generate.merl collection")
+    ap.add_argument(
+        "--train-seeds", type=int, nargs="+", default=[0], help="train.brdf seeds, one row each"
+    )
+    ap.add_argument("--data-dir", type=Path, default=None)
+    args = ap.parse_args()
+
+    tmp = None
+    if args.data_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="bench_train_brdf-")
+        args.data_dir = Path(tmp.name)
+    settings = Settings.from_env({}).with_(data_dir=args.data_dir, pool_processes=2)
+    gen = run_in_process(
+        {"kind": "generate.merl", "seed": args.seed,
+         "params": {"collection": {"preset": "small"}}},
+        settings,
+    )  # fmt: skip
+    if gen.state != "succeeded":
+        raise SystemExit(f"generate.merl failed: {gen.error}")
+
+    configs: list[dict[str, Any]] = []
+    for model in args.models:
+        if model == "analytic":
+            configs.append({"model": "analytic"})
+            continue
+        for size in args.sizes:
+            w, d = (int(x) for x in size.split("x"))
+            configs.append({"model": model, "width": w, "depth": d, "latent_dim": args.latent})
+            if model == "neural" and args.paper_neural:
+                configs.append({**configs[-1], "neural_latent_dim": args.latent + 8})
+
+    print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} cores, python {platform.python_version()}")  # fmt: skip
+    print("| model | MLP | per-material floats | seed | smape | smape f_a | irid. | blend "
+          "| wall s | load avg |")  # fmt: skip
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for cfg, seed in ((c, s) for c in configs for s in args.train_seeds):
+        params = {"dataset": f"job:{gen.id}", "preset": "small", **cfg}
+        if args.steps is not None:
+            params["steps"] = args.steps
+        t0 = time.perf_counter()
+        job = run_in_process({"kind": "train.brdf", "seed": seed, "params": params},
+                             settings)  # fmt: skip
+        wall = time.perf_counter() - t0
+        if job.state != "succeeded":
+            print(f"| {cfg} | failed: {job.error} |")
+            continue
+        m = metrics_of(settings, job)
+        fam = m["families"]
+        (mats_digest,) = [a.digest for a in job.artifacts if a.name == "materials.json"]
+        floats = json.loads(ArtifactStore(settings.store_dir).read(mats_digest))[
+            "per_material_params"
+        ]
+        mlp = f"{cfg['width']}x{cfg['depth']}" if "width" in cfg else "-"
+        print(
+            f"| {cfg['model']} | {mlp} | {floats} | {seed} | {fmt(m['mean']['smape'])} "
+            f"| {fmt(m['mean']['smape_analytic'])} "
+            f"| {fmt(fam.get('iridescent', {}).get('smape'))} "
+            f"| {fmt(fam.get('blend', {}).get('smape'))} | {wall:.0f} "
+            f"| {os.getloadavg()[0]:.1f} |",
+            flush=True,
+        )
+    print(f"\n`.venv/bin/python benchmarks/bench_train_brdf.py {' '.join(sys.argv[1:])}`".rstrip())
+    if tmp is not None:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,100 @@
+"""The ``model`` material source: ``{"model": REF, "material": NAME}`` renders a trained model.
+
+``REF`` is an artifact reference (``"job:<id>/model.json"`` of a ``train.brdf`` job, or a
+``"sha256:<digest>"`` of an imported ``model.json``) to a ``matforge.brdf-model/1``
+document (:mod:`models.brdf.portable`); ``NAME`` is one of its materials. Inside the job the
+document is read, the material is looked up, and it becomes the ``brdf_model`` BSDF of
+:mod:`materials.model_bsdf`: the network fused into the render kernel, sampled by MIS
+between cosine and the material's fitted GGX lobe (Sec. 5.2 of the hybrid-BRDF paper).
+
+``neural_max_depth`` (optional, int >= 0) asks for selective neural evaluation (Sec. 5.3):
+the network only at path vertices of depth ``< neural_max_depth`` (0 = the camera ray's
+hit), the analytic part ``f_a`` beyond. Only the ``neural_depth`` integrator of
+:mod:`evaluators.neural_depth_integrator` knows the depth: the resolved BSDF carries
+``neural_max_depth`` as an attribute, and the renderer must swap its integrator with
+:func:`evaluators.neural_depth_integrator.integrator_for`. So that the setting is never
+silently ignored, the resolver refuses it (the job fails with a message) unless
+:mod:`evaluators.render` calls ``integrator_for``. Only hybrid models have an ``f_a`` to fall
+back on.
+
+``material`` and ``neural_max_depth`` are *sibling* keys of ``model`` in the material
+object (see :mod:`evaluators.material_sources`)::
+
+    {"model": "job:<id>/model.json", "material": "gold-metallic-paint", "neural_max_depth": 1}
+
+This module registers the source when imported; :mod:`evaluators.render` must import it so
+that the source exists wherever the ``render`` kind does.
+"""
+
+from __future__ import annotations
+
+import types
+from typing import TYPE_CHECKING, Any
+
+from pydantic import Field
+
+from evaluators.material_sources import register_material_source
+from materials.model_bsdf import MODEL_BSDF_NAME, bake_material, read_model, register_model_bsdf
+from service.errors import JobFailed
+from service.specs import Ref, StrictModel
+
+if TYPE_CHECKING:
+    from service.context import JobContext
+
+
+class ModelSiblings(StrictModel):
+    """The keys next to ``"model"`` in a ``{"model": REF, ...}`` material."""
+
+    material: str = Field(
+        min_length=1,
+        max_length=200,
+        description="Name of the material in the model (its materials.json / model.json).",
+    )
+    neural_max_depth: int | None = Field(
+        default=None,
+        ge=0,
+        le=64,
+        description="Evaluate the network only at path vertices of depth < this (0: the "
+        "analytic part everywhere; 1: first hits only); default: at every vertex. Hybrid "
+        "models only (Sec. 5.3 of the hybrid-BRDF paper).",
+    )
+
+
+def resolve_model(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) -> Any:
+    """Resolve ``{"model": REF, "material": NAME, ...}`` to a ``brdf_model`` BSDF.
+
+    Raises :class:`JobFailed` naming the reference when it does not resolve, the file is not
+    a model document, the material is not in it, ``neural_max_depth`` is given for a model
+    without an analytic part, or Mitsuba runs a variant the BSDF cannot use.
+    """
+    ref, name = value["model"], value["material"]
+    depth = value.get("neural_max_depth")
+    path = ctx.resolve(ref)
+    try:
+        baked = bake_material(read_model(path), name)
+    except ValueError as exc:
+        raise JobFailed(f"material.model: {ref}: {exc}") from None
+    if depth is not None and not baked.has_analytic:
+        raise JobFailed(
+            f"material.model: {ref}: neural_max_depth needs a hybrid model (this one is "
+            f"{baked.model}: it has no analytic part to fall back on)"
+        )
+    try:
+        register_model_bsdf(mi)
+    except RuntimeError as exc:
+        raise JobFailed(f"material.model: {exc}") from None
+    plugin: dict[str, Any] = {"type": MODEL_BSDF_NAME, "filename": str(path), "material": name}
+    if depth is not None:
+        plugin["neural_max_depth"] = int(depth)
+    return plugin
+
+
+register_material_source(
+    "model",
+    resolve_model,
+    value_type=Ref,
+    siblings=ModelSiblings,
+    summary="One material of a trained BRDF model: {'model': REF to a model.json, "
+    "'material': NAME, optional 'neural_max_depth': int}; rendered with the fused-network "
+    "BSDF.",
+)

@@ -1,0 +1,198 @@
+"""The body of the ``train.brdf`` runner: data, fitting phases, reports and artifacts.
+
+Kept apart from :mod:`models.brdf.kind` so that registering the kind (every CLI call)
+does not import torch. The phases, seeds and artifacts are described in
+:mod:`models.brdf.kind`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from models.brdf.data import load_dataset, split_by_family, stack_tables
+from models.brdf.kind import TrainBrdfParams, architecture, load_init
+from models.brdf.networks import BrdfModel, build_model, copy_materials, copy_network
+from models.brdf.portable import checkpoint_bytes, to_portable
+from models.brdf.report import curves_png, evaluate
+from models.brdf.train import Curves, FitConfig, deterministic_torch, fit
+from service.errors import JobFailed
+
+if TYPE_CHECKING:
+    from service.context import JobContext
+
+log = logging.getLogger(__name__)
+
+#: Progress fractions: dataset loaded, fitting done, metrics done.
+P_LOADED, P_FITTED, P_SCORED = 0.05, 0.85, 0.97
+
+
+def _resolved(params: TrainBrdfParams) -> dict[str, Any]:
+    names = ("width", "depth", "latent_dim", "steps", "batch_pairs", "lr", "weight_decay")
+    return {n: params.value(n) for n in (*names, "clip", "eval_pairs")}
+
+
+def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
+    """Run a ``train.brdf`` job end to end."""
+    started = time.perf_counter()
+    device = params.device
+    if device == "cuda" and not torch.cuda.is_available():
+        raise JobFailed("device: 'cuda' was asked for but torch sees no CUDA device")
+    ctx.progress(0.0, "loading tables")
+    materials = load_dataset(params.dataset, ctx)
+    train_set, held = split_by_family(materials, params.holdout_families)
+    init = load_init(params.init, ctx) if params.init is not None else None
+    arch = architecture(params, init[0].arch if init else None)
+    steps = int(params.value("steps"))
+    held_steps = params.holdout_steps or steps
+    total = steps + (held_steps if held else 0)
+    ctx.progress(P_LOADED, f"{len(materials)} tables, {arch.model} model")
+
+    def phase_progress(offset: int) -> Any:
+        def report(step: int, n: int, loss: float) -> None:
+            frac = P_LOADED + (P_FITTED - P_LOADED) * (offset + step) / total
+            ctx.progress(frac, f"step {offset + step}/{total}, loss {loss:.4g}")
+
+        return report
+
+    def config(n_steps: int, train_network: bool) -> FitConfig:
+        return FitConfig(
+            steps=n_steps,
+            batch_pairs=int(params.value("batch_pairs")),
+            lr=float(params.value("lr")),
+            weight_decay=float(params.value("weight_decay")),
+            clip=float(params.value("clip")),
+            train_network=train_network,
+        )
+
+    init_gen = torch.Generator().manual_seed(ctx.sub_seed("train.brdf/init"))
+    pair_gen = torch.Generator().manual_seed(ctx.sub_seed("train.brdf/pairs"))
+    curves: dict[str, Curves | None] = {"train": None, "heldout": None}
+    with deterministic_torch():
+        model = build_model(arch, len(train_set), init_gen)
+        if init is not None:
+            _start_from(model, [m.name for m in train_set], init)
+        model.to(device)
+        tables = stack_tables(train_set, device)
+        curves["train"] = fit(
+            model,
+            tables,
+            config(steps, not params.freeze_network),
+            pair_gen,
+            on_progress=phase_progress(0),
+            phase="train",
+        )
+        del tables
+        final = model
+        if held:
+            held_model = build_model(arch, len(held), init_gen).to(device)
+            copy_network(held_model, model)
+            curves["heldout"] = fit(
+                held_model,
+                stack_tables(held, device),
+                config(held_steps, False),
+                pair_gen,
+                on_progress=phase_progress(steps),
+                phase="heldout",
+            )
+            final = _merge(model, held_model, materials, {m.name for m in held}, arch)
+        final = final.to("cpu")
+        fit_seconds = time.perf_counter() - started
+        ctx.progress(P_FITTED, "scoring")
+        held_names = {m.name for m in held}
+        splits = ["heldout" if m.name in held_names else "train" for m in materials]
+        # Without held-out families train_set is materials; with them _merge keeps its order.
+        ordered = materials
+        metrics = evaluate(
+            final,
+            ordered,
+            splits,
+            int(params.value("eval_pairs")),
+            check_cancelled=ctx.check_cancelled,
+        )
+    ctx.progress(P_SCORED, "writing artifacts")
+    _write(ctx, params, final, ordered, metrics, curves)
+    train_curve = curves["train"]
+    ms = 1000.0 * train_curve.seconds / steps if train_curve is not None else 0.0
+    log.info(
+        "train.brdf %s: %s %dx%d, %d materials, %d steps, fit %.1f s (%.1f ms/step), total %.1f s",
+        ctx.job_id, arch.model, arch.width, arch.depth, len(ordered), total, fit_seconds, ms,
+        time.perf_counter() - started,
+    )  # fmt: skip
+    ctx.progress(
+        1.0,
+        f"{arch.model} {arch.width}x{arch.depth}: mean SMAPE {metrics['mean']['smape']:.4f} "
+        f"over {len(ordered)} materials; {total} steps in {fit_seconds:.0f} s "
+        f"({ms:.1f} ms/step)",
+    )
+
+
+def _start_from(
+    model: BrdfModel, names: list[str], init: tuple[BrdfModel, list[str], list[str]]
+) -> None:
+    """Copy the init model's network, and the ``(z, p)`` of materials of the same name."""
+    src, src_names, _ = init
+    copy_network(model, src)
+    pairs = [(i, src_names.index(n)) for i, n in enumerate(names) if n in src_names]
+    if pairs:
+        copy_materials(model, [a for a, _ in pairs], src, [b for _, b in pairs])
+
+
+def _merge(
+    trained: BrdfModel, held_model: BrdfModel, materials: list[Any], held: set[str], arch: Any
+) -> BrdfModel:
+    """One model of every material in dataset order: the shared network and both phases'
+    ``(z, p)``."""
+    merged = BrdfModel(arch, len(materials)).to(next(trained.parameters()).device)
+    copy_network(merged, trained)
+    train_rows = [i for i, m in enumerate(materials) if m.name not in held]
+    held_rows = [i for i, m in enumerate(materials) if m.name in held]
+    copy_materials(merged, train_rows, trained, list(range(len(train_rows))))
+    copy_materials(merged, held_rows, held_model, list(range(len(held_rows))))
+    return merged
+
+
+def _write(
+    ctx: JobContext,
+    params: TrainBrdfParams,
+    model: BrdfModel,
+    materials: list[Any],
+    metrics: dict[str, Any],
+    curves: dict[str, Curves | None],
+) -> None:
+    names = [m.name for m in materials]
+    families = [m.family for m in materials]
+    splits = {r["name"]: r["split"] for r in metrics["materials"]}
+    training = {
+        "params": params.model_dump(mode="json"),
+        "resolved": _resolved(params),
+        "seed": ctx.seed,
+        "materials": [{"name": m.name, "family": m.family, "ref": m.ref} for m in materials],
+    }
+    doc = to_portable(model, names, families, training)
+    ctx.put_bytes("model.pt", checkpoint_bytes(model, names, families))
+    ctx.put_json("model.json", doc)
+    ctx.put_json(
+        "materials.json",
+        {
+            "model": model.arch.model,
+            "architecture": model.arch.as_dict(),
+            "per_material_params": model.arch.per_material_params,
+            "materials": [
+                {**{k: m[k] for k in ("name", "family", "kd", "eta", "alpha", "z")},
+                 "split": splits[m["name"]]}
+                for m in doc["materials"]
+            ],
+        },
+    )  # fmt: skip
+    ctx.put_json(
+        "curves.json",
+        {k: (c.as_dict() if c is not None else None) for k, c in curves.items()},
+    )
+    arch = model.arch
+    size = f" {arch.width}x{arch.depth}, l={arch.latent_dim}" if arch.model != "analytic" else ""
+    ctx.put_bytes("curves.png", curves_png(curves, f"train.brdf: {arch.model}{size}"), "image/png")
+    ctx.put_json("metrics.json", {"model": arch.model, **metrics})

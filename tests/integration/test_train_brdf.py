@@ -1,0 +1,154 @@
+"""``train.brdf`` through the registry: a tiny generate.merl collection, every model type.
+
+Oracles: the portable numpy evaluator against the stored checkpoint; the shape of the
+documented artifacts; byte-identical artifacts for the same spec; the divergence guard;
+network weights left untouched by ``freeze_network``; held-out families fitted in a second
+phase. Steps are few: these tests check plumbing, not quality (the benchmark does that).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from evaluators.brdf_metrics import direction_pairs
+from models.brdf.portable import FORMAT, eval_portable, load_checkpoint
+from service.errors import SpecError
+from service.settings import Settings
+from service.submission import run_in_process
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job
+
+ARTIFACTS = {"model.pt", "model.json", "materials.json", "curves.json", "curves.png",
+             "metrics.json"}  # fmt: skip
+TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "width": 16, "depth": 2}
+
+
+@pytest.fixture(scope="module")
+def brdf_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Settings, str]]:
+    """Settings over one data directory holding a 3-material generate.merl job."""
+    data = tmp_path_factory.mktemp("train_brdf")
+    settings = Settings.from_env({}).with_(
+        data_dir=Path(data) / "data", lease_seconds=30.0, pool_processes=1
+    )
+    families = {"metal": 1, "plastic": 1, "iridescent": 1}
+    job = run_in_process(
+        {"kind": "generate.merl", "seed": 1, "params": {"collection": {"families": families}}},
+        settings,
+    )
+    assert job.state == "succeeded", job.error
+    yield settings, job.id
+
+
+def train(settings: Settings, params: dict[str, Any], force: bool = False) -> Job:
+    return run_in_process(
+        {"kind": "train.brdf", "seed": 3, "params": params, "force": force}, settings
+    )
+
+
+def read(settings: Settings, job: Job, name: str) -> bytes:
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return ArtifactStore(settings.store_dir).read(digest)
+
+
+def read_json(settings: Settings, job: Job, name: str) -> Any:
+    return json.loads(read(settings, job, name))
+
+
+@pytest.mark.parametrize("model", ["hybrid", "neural", "analytic"])
+def test01_each_model_trains_and_its_artifacts_agree(
+    brdf_env: tuple[Settings, str], model: str
+) -> None:
+    settings, gen = brdf_env
+    params = {**TINY, "model": model, "dataset": f"job:{gen}"}
+    if model == "analytic":
+        params = {k: v for k, v in params.items() if k not in ("width", "depth")}
+    job = train(settings, params)
+    assert job.state == "succeeded", job.error
+    assert {a.name for a in job.artifacts} == ARTIFACTS
+    doc = read_json(settings, job, "model.json")
+    assert doc["format"] == FORMAT and doc["model"] == model
+    torch_model, names, _ = load_checkpoint(read(settings, job, "model.pt"))
+    assert names == [m["name"] for m in doc["materials"]]
+    wi, wo = direction_pairs(500, seed=11)
+    for i, name in enumerate(names):
+        with torch.no_grad():
+            f = torch_model(torch.from_numpy(wi).float()[None], torch.from_numpy(wo).float()[None],
+                            torch.tensor([i])).f[0].double().numpy()  # fmt: skip
+        np.testing.assert_allclose(eval_portable(doc, name, wi, wo), f, rtol=1e-4, atol=1e-7)
+    metrics = read_json(settings, job, "metrics.json")
+    assert [r["name"] for r in metrics["materials"]] == names
+    for row in metrics["materials"]:
+        assert 0.0 <= row["smape"] <= 2.0 and row["mae"] >= 0.0 and row["split"] == "train"
+        assert (row["smape_analytic"] is None) == (model == "neural")
+    assert set(metrics["families"]) == {"metal", "plastic", "iridescent"}
+    assert metrics["mean"]["count"] == 3 and metrics["settings"]["pairs"] == 2048
+    mats = read_json(settings, job, "materials.json")
+    assert mats["per_material_params"] == {"hybrid": 11, "neural": 11, "analytic": 7}[model]
+    curves = read_json(settings, job, "curves.json")
+    assert curves["train"]["step"][-1] == TINY["steps"] and curves["heldout"] is None
+    assert read(settings, job, "curves.png")[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test02_same_spec_same_bytes(brdf_env: tuple[Settings, str]) -> None:
+    settings, gen = brdf_env
+    params = {**TINY, "dataset": f"job:{gen}", "latent_dim": 8}
+    first = train(settings, params)
+    again = train(settings, params, force=True)
+    assert first.state == again.state == "succeeded", (first.error, again.error)
+    assert first.id != again.id
+    assert {a.name: a.digest for a in first.artifacts} == {
+        a.name: a.digest for a in again.artifacts
+    }
+
+
+def test03_divergence_fails_the_job_with_a_clear_error(brdf_env: tuple[Settings, str]) -> None:
+    settings, gen = brdf_env
+    job = train(settings, {**TINY, "model": "neural", "dataset": f"job:{gen}", "lr": 1e4,
+                           "clip": 1e6})  # fmt: skip
+    assert job.state == "failed"
+    assert job.error is not None and "training diverged at step" in job.error
+    assert "Lower lr" in job.error and not job.artifacts
+
+
+def test04_init_with_frozen_network_fits_only_z_and_p(brdf_env: tuple[Settings, str]) -> None:
+    settings, gen = brdf_env
+    base = train(settings, {**TINY, "dataset": f"job:{gen}", "holdout_families": ["metal"]})
+    assert base.state == "succeeded", base.error
+    metrics = read_json(settings, base, "metrics.json")
+    assert metrics["splits"]["heldout"]["count"] == 1 and metrics["splits"]["train"]["count"] == 2
+    curves = read_json(settings, base, "curves.json")
+    assert curves["heldout"]["step"][-1] == TINY["steps"]
+    old = read_json(settings, base, "model.json")
+    table = next(m["ref"] for m in old["training"]["materials"] if m["family"] == "plastic")
+    for init in ("model.json", "model.pt"):
+        job = train(settings, {"dataset": [table], "init": f"job:{base.id}/{init}",
+                               "freeze_network": True, "steps": 12, "batch_pairs": 64,
+                               "eval_pairs": 2048})  # fmt: skip
+        assert job.state == "succeeded", job.error
+        new = read_json(settings, job, "model.json")
+        assert new["network"] == old["network"]  # bit for bit
+        (mat,) = new["materials"]
+        before = next(m for m in old["materials"] if m["name"] == mat["name"])
+        assert mat["z"] != before["z"]  # started from the init's z and moved
+
+
+def test05_bad_inputs_are_refused_clearly(brdf_env: tuple[Settings, str]) -> None:
+    settings, gen = brdf_env
+    with pytest.raises(SpecError, match="freeze_network needs init"):
+        train(settings, {"dataset": f"job:{gen}", "freeze_network": True})
+    with pytest.raises(SpecError, match="dataset"):
+        train(settings, {"dataset": f"job:{gen}/materials"})
+    with pytest.raises(SpecError, match="analytic model has no network"):
+        train(settings, {"dataset": f"job:{gen}", "model": "analytic", "width": 16})
+    job = train(settings, {**TINY, "dataset": "job:" + "0" * 32})
+    assert job.state == "failed" and job.error == f"dataset: no job {'0' * 32}"
+    job = train(settings, {**TINY, "dataset": f"job:{gen}", "holdout_families": ["velvet"]})
+    assert job.state == "failed" and job.error is not None
+    assert "no material of family velvet" in job.error
