@@ -18,6 +18,13 @@ metrics it supports) from modules in :data:`ARTIFACT_KIND_MODULES`; ``merl``:
 :mod:`evaluators.score_brdf`. ``metrics`` left out means all that the reference's kind
 supports; one it does not support fails the job, listing those it does.
 
+Candidates are of the reference's kind, or of a kind it lists in ``candidate_kinds``. A
+*model* kind (one with ``bind``) is a file holding several materials, scored one material
+at a time: such a candidate is given as ``{"model": REF, "material": NAME}``. The model kind
+``brdf-model`` (a ``train.brdf`` ``model.json``, recognised by its ``format`` field) is
+scored against ``merl`` references, evaluated for that material with the portable
+evaluator at the same pairs as tables; a model cannot be the reference.
+
 Choices for images, recorded in ``metrics.json`` under ``settings``:
 
 - ``data_range`` of PSNR and SSIM: 1 for PNG; for EXR the reference's largest pixel value
@@ -96,6 +103,21 @@ class ExposureSettings(StrictModel):
         return self
 
 
+MaterialName = Annotated[str, StringConstraints(min_length=1, max_length=256)]
+
+
+class ModelCandidate(StrictModel):
+    """One material of a trained model as a candidate: ``{"model": REF, "material": NAME}``."""
+
+    model: Ref = Field(
+        description="The trained model: a train.brdf model.json (job:<id>/model.json or "
+        "sha256: ref)."
+    )
+    material: MaterialName = Field(
+        description="Name of the model's material to score (one of its materials[].name)."
+    )
+
+
 class ScoreParams(StrictModel):
     """Parameters of ``score``.
 
@@ -104,13 +126,20 @@ class ScoreParams(StrictModel):
         {"kind": "score", "params": {"reference": "job:<id>/image.exr",
          "candidates": {"fit": "job:<id2>/image.exr", "baseline": "sha256:<hex>"},
          "metrics": ["flip", "psnr"]}}
+
+    Against a MERL table, a trained model's material::
+
+        {"kind": "score", "params": {"reference": "sha256:<table>",
+         "candidates": {"hybrid": {"model": "job:<train>/model.json", "material": "gold"}}}}
     """
 
     reference: Ref = Field(description="The reference artifact (job: or sha256: ref).")
-    candidates: dict[Label, Ref] = Field(
+    candidates: dict[Label, Ref | ModelCandidate] = Field(
         min_length=1,
         max_length=64,
-        description="Candidates to score, by label (1-64 characters of A-Z a-z 0-9 _ . -).",
+        description="Candidates to score, by label (1-64 characters of A-Z a-z 0-9 _ . -): "
+        "a ref, or {model, material} for one material of a trained model (model.json; "
+        "against MERL table references).",
     )
     metrics: list[MetricName] | None = Field(
         default=None,
@@ -163,8 +192,11 @@ class ArtifactKind:
     """A kind of artifact ``score`` understands.
 
     ``media_types``, ``extensions`` and ``magic`` (leading bytes) identify it, in that
-    order; ``load(path, name)`` decodes it (raising ``FormatError``); ``scorer`` scores
-    candidates of the same kind; ``metrics`` lists the metric names it supports.
+    order, then ``detect(path)`` where given; ``load(path, name)`` decodes it (raising
+    ``FormatError``); ``scorer`` scores candidates of the same kind and of the kinds named in
+    ``candidate_kinds``; ``metrics`` lists the metric names it supports. ``bind(data,
+    material)`` marks a *model* kind: it returns the loaded data of one material (raising
+    ``FormatError`` for an unknown one); model kinds are candidates only.
     """
 
     name: str
@@ -175,6 +207,9 @@ class ArtifactKind:
     load: Callable[[Path, str], Any]
     scorer: Scorer
     metrics: tuple[str, ...]
+    candidate_kinds: tuple[str, ...] = ()
+    detect: Callable[[Path], bool] | None = None
+    bind: Callable[[Any, str], Any] | None = None
 
 
 ARTIFACT_KINDS: dict[str, ArtifactKind] = {}
@@ -200,10 +235,14 @@ def identify(name: str, media_type: str, path: Path) -> ArtifactKind | None:
     for kind in ARTIFACT_KINDS.values():
         if kind.magic and head.startswith(kind.magic):
             return kind
+    for kind in ARTIFACT_KINDS.values():
+        if kind.detect is not None and kind.detect(path):
+            return kind
     return None
 
 
-def _load(ref: str, role: str, ctx: JobContext) -> Loaded:
+def _load(ref: str, role: str, ctx: JobContext, material: str | None = None) -> Loaded:
+    """Load ``ref``; ``material`` picks one material of a model kind (and requires one)."""
     record = ctx.ref_record(ref)
     path = ctx.resolve(ref)
     kind = identify(record.name, record.media_type, path)
@@ -212,11 +251,27 @@ def _load(ref: str, role: str, ctx: JobContext) -> Loaded:
         raise JobFailed(
             f"{role} {ref}: cannot score {record.name} ({record.media_type}); known kinds: {known}"
         )
+    if kind.bind is None and material is not None:
+        raise JobFailed(
+            f"{role}: {{model, material}} needs a trained model, but {ref} is {kind.description}"
+        )
+    if kind.bind is not None and material is None:
+        if role == "reference":
+            raise JobFailed(
+                f"reference {ref} is {kind.description}; a model can only be a candidate"
+            )
+        raise JobFailed(
+            f"{role}: {ref} is {kind.description}; name one of its materials with "
+            f'{{"model": "{ref}", "material": NAME}}'
+        )
     try:
         data = kind.load(path, ref)
+        if kind.bind is not None and material is not None:
+            data = kind.bind(data, material)
     except FormatError as exc:
         raise JobFailed(f"{role}: {exc}") from None
-    return Loaded(ref=ref, kind=kind.name, data=data)
+    shown = ref if material is None else f"{ref}#{material}"
+    return Loaded(ref=shown, kind=kind.name, data=data)
 
 
 # -- images ----------------------------------------------------------------------------------
@@ -372,9 +427,13 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
         )
     params = params.model_copy(update={"metrics": metrics})  # scorers see the concrete list
     candidates: dict[str, Loaded] = {}
-    for label, ref in params.candidates.items():
-        cand = _load(ref, f"candidate {label!r}", ctx)
-        if cand.kind != reference.kind:
+    for label, spec in params.candidates.items():
+        role = f"candidate {label!r}"
+        if isinstance(spec, ModelCandidate):
+            cand = _load(spec.model, role, ctx, material=spec.material)
+        else:
+            cand = _load(spec, role, ctx)
+        if cand.kind != reference.kind and cand.kind not in kind.candidate_kinds:
             raise JobFailed(
                 f"candidate {label!r} is {ARTIFACT_KINDS[cand.kind].description} "
                 f"but the reference is {kind.description}; score artifacts of "
@@ -396,7 +455,8 @@ register(
         params=ScoreParams,
         runner=run_score,
         summary="Scores candidate artifacts against a reference (images: FLIP, PSNR, "
-        "SSIM, MAE, MSE; MERL BRDF tables: SMAPE, MAE in BRDF space).",
+        "SSIM, MAE, MSE; MERL BRDF tables, and trained models' materials against them: "
+        "SMAPE, MAE in BRDF space).",
         artifacts=("metrics.json", "flip_<label>.png"),
         smoke={},
     )

@@ -20,11 +20,22 @@ How a candidate is scored (every choice is written into ``metrics.json`` under `
    term of 1, the worst); counted per candidate in ``candidate_missing_pairs``;
 5. ``smape`` is Eq. 6 with ``eps = 0`` and 0/0 = 0, averaged over R, G, B; ``mae`` is the
    mean of ``|f - f^|`` over pairs and channels, in 1/sr.
+
+The model kind ``brdf-model``: a ``train.brdf`` ``model.json`` (any JSON file whose
+``format`` is ``matforge.brdf-model/1``), a candidate of ``merl`` references only, given as
+``{"model": REF, "material": NAME}``. That material is evaluated at the same pairs, in
+float64, by the format's reference evaluator :func:`models.brdf.portable.eval_portable`
+(:class:`ModelSampler`), and scored exactly as a table candidate; ``metrics.json`` records
+the model and material of each such candidate under ``settings.candidate_models``. Scoring
+every material of a model at once is not offered: the reference is one table.
 """
 
 from __future__ import annotations
 
+import json
 import os
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,7 +59,7 @@ from evaluators.score import (
     ScoreResult,
     register_artifact_kind,
 )
-from service.errors import JobFailed
+from service.errors import FormatError, JobFailed
 from storage.formats.merl import MEDIA_TYPE, MerlTable, read_merl
 
 if TYPE_CHECKING:
@@ -64,6 +75,78 @@ INTERPOLATE = True
 SMAPE_EPS = 0.0
 #: Threads for table lookups (thread-safe numpy); other samplers are evaluated on one.
 TABLE_THREADS = min(2, os.cpu_count() or 1)
+#: The ``format`` of a ``model.json`` (:data:`models.brdf.portable.FORMAT`, not imported
+#: here so that loading ``score`` does not import torch).
+MODEL_FORMAT = "matforge.brdf-model/1"
+#: Largest ``model.json`` that :func:`detect_model` parses to look at its ``format``.
+MODEL_MAX_BYTES = 256 * 1024 * 1024
+
+
+@dataclass(frozen=True, eq=False)
+class PortableModel:
+    """A loaded ``model.json``: its ref and its document."""
+
+    ref: str
+    doc: dict[str, Any]
+
+    @property
+    def material_names(self) -> list[str]:
+        return [str(m.get("name")) for m in self.doc.get("materials", [])]
+
+
+@dataclass(frozen=True, eq=False)
+class ModelSampler:
+    """One material of a ``model.json`` as a :class:`BrdfSampler`, through
+    :func:`models.brdf.portable.eval_portable` (float64, 0 below the horizon)."""
+
+    model: PortableModel
+    material: str
+
+    def eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` BRDF values in 1/sr of the material at ``(N, 3)`` pairs."""
+        from models.brdf.portable import eval_portable
+
+        return eval_portable(self.model.doc, self.material, wi, wo)
+
+
+def detect_model(path: Path) -> bool:
+    """Whether the file at ``path`` is a JSON object whose ``format`` is :data:`MODEL_FORMAT`."""
+    try:
+        if path.stat().st_size > MODEL_MAX_BYTES:
+            return False
+        with open(path, "rb") as fh:
+            if fh.read(64).lstrip()[:1] != b"{":
+                return False
+        doc = json.loads(path.read_bytes())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and doc.get("format") == MODEL_FORMAT
+
+
+def load_model(path: Path, name: str) -> PortableModel:
+    """A ``model.json``: parsed and checked for its format and a list of named materials."""
+    try:
+        doc = json.loads(path.read_bytes())
+    except (OSError, ValueError) as exc:
+        raise FormatError(name, f"not a JSON document: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != MODEL_FORMAT:
+        raise FormatError(name, f"not a {MODEL_FORMAT} model.json")
+    materials = doc.get("materials")
+    if not isinstance(materials, list) or not all(
+        isinstance(m, dict) and isinstance(m.get("name"), str) for m in materials
+    ):
+        raise FormatError(name, "model.json: 'materials' must be a list of named materials")
+    return PortableModel(ref=name, doc=doc)
+
+
+def bind_material(model: PortableModel, material: str) -> ModelSampler:
+    """The :class:`ModelSampler` of ``material``; a ``FormatError`` naming the known ones."""
+    names = model.material_names
+    if material not in names:
+        raise FormatError(
+            model.ref, f"no material {material!r} in the model; it has {', '.join(names)}"
+        )
+    return ModelSampler(model, material)
 
 
 def as_sampler(role: str, data: Any) -> BrdfSampler:
@@ -86,7 +169,7 @@ def _sample(role: str, sampler: BrdfSampler, wi: np.ndarray, wo: np.ndarray) -> 
 def score_brdfs(
     reference: Loaded, candidates: dict[str, Loaded], params: ScoreParams, ctx: JobContext
 ) -> ScoreResult:
-    """Score BRDFs (tables now, models later) in BRDF space with ``smape`` and ``mae``."""
+    """Score BRDFs (tables, and models' materials) in BRDF space with ``smape`` and ``mae``."""
     if params.exposure is not None:
         raise JobFailed("exposure: applies to HDR-FLIP only, not to BRDF-space scores")
     wanted = list(params.metrics or BRDF_METRICS)
@@ -101,6 +184,15 @@ def score_brdfs(
 
     results: dict[str, dict[str, float | None]] = {}
     missing: dict[str, int] = {}
+    models: dict[str, dict[str, Any]] = {
+        label: {
+            "model": cand.data.model.ref,
+            "material": cand.data.material,
+            "model_type": cand.data.model.doc.get("model"),
+        }
+        for label, cand in sorted(candidates.items())
+        if isinstance(cand.data, ModelSampler)
+    }
     for i, (label, cand) in enumerate(sorted(candidates.items())):
         ctx.check_cancelled()
         role = f"candidate {label!r}"
@@ -146,6 +238,12 @@ def score_brdfs(
         },
         "mae": {"formula": "1/(N C) sum |f - f^|", "units": "1/sr"},
     }
+    if models:
+        settings["candidate_models"] = models
+        settings["model_evaluation"] = (
+            "models.brdf.portable.eval_portable of the named material, float64, "
+            "at the same pairs as the reference"
+        )
     return ScoreResult(metrics=results, settings=settings)
 
 
@@ -159,5 +257,20 @@ register_artifact_kind(
         load=read_merl,
         scorer=score_brdfs,
         metrics=BRDF_METRICS,
+        candidate_kinds=("brdf-model",),
+    )
+)
+register_artifact_kind(
+    ArtifactKind(
+        name="brdf-model",
+        description="a trained BRDF model (model.json)",
+        media_types=(),
+        extensions=(),
+        magic=b"",
+        load=load_model,
+        scorer=score_brdfs,
+        metrics=BRDF_METRICS,
+        detect=detect_model,
+        bind=bind_material,
     )
 )
