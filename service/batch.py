@@ -140,6 +140,8 @@ def substitute_refs(obj: Any, resolve: Callable[[str], str]) -> Any:
 def _placeholder(ref: str) -> str:
     m = STEP_REF.match(ref)
     assert m is not None
+    if m["name"] is None:
+        return f"job:{PLACEHOLDER_JOB}"
     return f"job:{PLACEHOLDER_JOB}/{m['name']}"
 
 
@@ -237,7 +239,7 @@ def parse_batch(
             if m is None:
                 problems.append(
                     f"{where}: {loc}: bad step reference {value!r}; expected "
-                    "'step:<step-name>/<artifact-name>'"
+                    "'step:<step-name>/<artifact-name>' (or 'step:<step-name>' for the whole job)"
                 )
                 ok = False
             elif m["step"] == name:
@@ -287,8 +289,19 @@ def load_batch(path: str | Path, *, validate: Callable[[Any], Any] = validate_sp
 
 # -- running ---------------------------------------------------------------------------------
 def flatten_metrics(doc: Any) -> dict[str, float]:
-    """``{"metrics": {label: {metric: value}}}`` → ``{"label.metric": value}``."""
+    """``{"metrics": {label: {metric: value}}}`` (``score``) or ``{"materials": [{"name":
+    label, metric: value, ...}], "mean": {metric: value}}`` (training kinds) →
+    ``{"label.metric": value}``."""
     out: dict[str, float] = {}
+    if isinstance(doc, dict) and isinstance(doc.get("materials"), list):
+        rows = [r for r in doc["materials"] if isinstance(r, dict) and "name" in r]
+        if isinstance(doc.get("mean"), dict):
+            rows.append({"name": "mean", **doc["mean"]})
+        for row in rows:
+            for metric, value in row.items():
+                if isinstance(value, float):  # counts (pairs, count) are not metrics
+                    out[f"{row['name']}.{metric}"] = float(value)
+        return out
     metrics = doc.get("metrics") if isinstance(doc, dict) else None
     if isinstance(metrics, dict):
         for label, values in metrics.items():
@@ -304,6 +317,8 @@ def _resolve(step: Step, results: dict[str, StepResult]) -> dict[str, Any]:
         m = STEP_REF.match(ref)
         assert m is not None
         prior = results[m["step"]]
+        if m["name"] is None:
+            return f"job:{prior.job_id}"
         names = [a.get("name") for a in prior.artifacts]
         if m["name"] not in names:
             have = ", ".join(str(n) for n in names) or "none"

@@ -27,7 +27,8 @@ JOB_REF = re.compile(
     r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)$"
 )
 SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})$")
-STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)/(?P<name>[A-Za-z0-9._/-]+)$")
+#: ``step:<step>/<artifact>``, or ``step:<step>`` for the whole job (e.g. a dataset).
+STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._/-]+))?$")
 MAX_SEED = 2**63 - 1
 
 

@@ -135,11 +135,21 @@ def test05_malformed_step_ref() -> None:
         {
             "steps": [
                 {"name": "gold", "spec": render()},
+                {"name": "s", "spec": score("step:gold/")},
+            ]
+        }
+    )
+    assert "bad step reference 'step:gold/'" in msg and "params.reference" in msg
+    # A bare step ref means the whole job, which score's reference does not accept.
+    msg = problems(
+        {
+            "steps": [
+                {"name": "gold", "spec": render()},
                 {"name": "s", "spec": score("step:gold")},
             ]
         }
     )
-    assert "bad step reference 'step:gold'" in msg and "params.reference" in msg
+    assert "params.reference" in msg and "bad step reference" not in msg
 
 
 def test06_duplicate_and_bad_names() -> None:
@@ -361,3 +371,29 @@ def test22_missing_artifact_is_a_clear_error() -> None:
     assert "step:gold/nope.exr" in err and "has no artifact 'nope.exr'" in err
     assert "image.exr" in err  # lists what the step does have
     assert len(client.submitted) == 1
+
+
+def test_flatten_metrics_of_score_and_training_documents() -> None:
+    from service.batch import flatten_metrics
+
+    assert flatten_metrics({"metrics": {"a": {"flip": 0.1, "psnr": None}}}) == {"a.flip": 0.1}
+    doc = {
+        "materials": [{"name": "gold", "family": "metal", "pairs": 10, "smape": 0.2, "mae": 0.5}],
+        "mean": {"count": 1, "smape": 0.2, "mae": 0.5, "smape_analytic": None},
+    }
+    assert flatten_metrics(doc) == {
+        "gold.smape": 0.2,
+        "gold.mae": 0.5,
+        "mean.smape": 0.2,
+        "mean.mae": 0.5,
+    }
+
+
+def test_bare_step_ref_means_the_whole_job() -> None:
+    from service.batch import _placeholder
+    from service.specs import STEP_REF
+
+    m = STEP_REF.match("step:tables")
+    assert m is not None and m["step"] == "tables" and m["name"] is None
+    assert _placeholder("step:tables") == "job:" + _placeholder("step:t/x")[4:36]
+    assert _placeholder("step:t/x").endswith("/x")
