@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import types
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -67,3 +68,23 @@ def toy_kind(monkeypatch: pytest.MonkeyPatch) -> registry.Kind:
     kind = registry.Kind(name="toy", params=ToyParams, runner=run_toy, summary="test-only kind")
     monkeypatch.setitem(registry._KINDS, "toy", kind)
     return kind
+
+
+@pytest.fixture(scope="session")
+def mi() -> types.ModuleType:
+    """Mitsuba in its LLVM variant. ``make setup`` installs libLLVM 19 for it, so a scalar
+    fallback means a broken set-up: the tests that need LLVM fail loudly rather than skip."""
+    from materials.mitsuba_backend import load_mitsuba
+
+    mod = load_mitsuba()
+    if not mod.variant().startswith("llvm_"):
+        pytest.fail(
+            f"Mitsuba runs {mod.variant()!r}, not an LLVM variant: libLLVM 19 is missing "
+            "(run `make setup`, which installs Debian's libllvm19)"
+        )
+    return mod
+
+
+@pytest.fixture(scope="session")
+def mitsuba_llvm(mi: types.ModuleType) -> None:
+    """For tests that only need the LLVM variant to be active."""

@@ -116,14 +116,6 @@ def render(settings: Settings, material: dict[str, Any], seed: int) -> np.ndarra
     return read_exr(ArtifactStore(settings.store_dir).path(image.digest)).astype(np.float64)
 
 
-@pytest.fixture(scope="module")
-def mitsuba_llvm() -> None:
-    from materials.mitsuba_backend import load_mitsuba
-
-    if not load_mitsuba().variant().startswith("llvm_"):
-        pytest.skip("the table BSDF needs the LLVM variant")
-
-
 @pytest.mark.parametrize("name", sorted(CASES))
 def test01_merl_render_matches_mitsuba(
     name: str, settings: Settings, tmp_path: Path, mitsuba_llvm: None

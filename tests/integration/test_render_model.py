@@ -29,14 +29,6 @@ from tests.unit.materials.test_model_bsdf import make_model
 SIZE, SPP, MAX_DEPTH = 32, 16, 4
 
 
-@pytest.fixture(scope="module")
-def mitsuba_llvm() -> None:
-    from materials.mitsuba_backend import load_mitsuba
-
-    if not load_mitsuba().variant().startswith("llvm_"):
-        pytest.skip("the model BSDF needs the LLVM variant")
-
-
 def put_model(settings: Settings, tmp_path: Path, kind: str) -> str:
     path = tmp_path / f"{kind}.json"
     path.write_text(json.dumps(make_model(kind, 16, 2, 4 if kind == "hybrid" else 0)))

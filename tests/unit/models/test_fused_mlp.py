@@ -24,16 +24,6 @@ from models.fused_mlp import (
 )
 
 
-@pytest.fixture(scope="module")
-def mi() -> types.ModuleType:
-    from materials.mitsuba_backend import load_mitsuba
-
-    mod = load_mitsuba()
-    if not mod.variant().startswith("llvm_"):
-        pytest.skip("the fused MLP is benchmarked and used with the LLVM variant")
-    return mod
-
-
 def run_fused(mi: types.ModuleType, layers: list[DenseLayer], x: np.ndarray) -> np.ndarray:
     outs = fused_mlp(layers, [mi.Float(col) for col in x.T])
     return np.stack([np.asarray(o, np.float32) for o in outs], axis=1)
