@@ -45,6 +45,7 @@ from scipy.optimize import nnls
 
 from materials import halfdiff as hd
 from materials.microfacet import ndf, smith_g1, specular_albedo
+from materials.mitsuba_backend import register_vectorised_bsdf
 from storage.formats.merl import MerlTable, read_merl
 
 #: The plugin name under which :func:`register_merl_bsdf` registers the BSDF.
@@ -58,7 +59,6 @@ ALPHA_GRID = np.geomspace(2e-3, 1.0, 160)
 
 # One class per Mitsuba variant: mi.register_bsdf binds the plugin to the variant set when
 # it is called, and the class must subclass that variant's mi.BSDF.
-_CLASSES: dict[str, type] = {}
 
 
 @dataclass(frozen=True)
@@ -159,18 +159,7 @@ def register_merl_bsdf(mi: types.ModuleType) -> type:
     Idempotent per variant; returns the class. Needs a vectorised RGB variant
     (``llvm_ad_rgb``, ``cuda_ad_rgb``); raises ``RuntimeError`` otherwise.
     """
-    variant = mi.variant()
-    cls = _CLASSES.get(variant)
-    if cls is None:
-        if not variant.startswith(("llvm_", "cuda_")) or not variant.endswith("_rgb"):
-            raise RuntimeError(
-                f"the MERL table BSDF needs a vectorised RGB Mitsuba variant such as "
-                f"llvm_ad_rgb, but Mitsuba runs {variant!r}"
-            )
-        cls = _define_class(mi)
-        mi.register_bsdf(MERL_BSDF_NAME, lambda props: cls(props))
-        _CLASSES[variant] = cls
-    return cls
+    return register_vectorised_bsdf(mi, MERL_BSDF_NAME, _define_class, "MERL table BSDF")
 
 
 def merl_bsdf(mi: types.ModuleType, table: MerlTable, lobe: SamplingLobe | None = None) -> Any:

@@ -20,6 +20,7 @@ import sys
 import threading
 import types
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -142,3 +143,29 @@ def load_mitsuba(
 def active_variant() -> str | None:
     """The variant set by :func:`load_mitsuba`, or ``None`` if Mitsuba is not loaded yet."""
     return _variant
+
+
+_PLUGIN_CLASSES: dict[tuple[str, str], type] = {}
+
+
+def register_vectorised_bsdf(
+    mi: types.ModuleType, name: str, define: Callable[[types.ModuleType], type], what: str
+) -> type:
+    """Define (``define(mi)``) and register a Python BSDF plugin ``name`` for Mitsuba's
+    current variant, once per variant; returns the class.
+
+    Our Python BSDFs are written for vectorised RGB variants (``llvm_ad_rgb``,
+    ``cuda_ad_rgb``); under any other variant this raises ``RuntimeError`` naming ``what``.
+    """
+    variant = mi.variant()
+    cls = _PLUGIN_CLASSES.get((name, variant))
+    if cls is None:
+        if not variant.startswith(("llvm_", "cuda_")) or not variant.endswith("_rgb"):
+            raise RuntimeError(
+                f"the {what} needs a vectorised RGB Mitsuba variant such as llvm_ad_rgb, "
+                f"but Mitsuba runs {variant!r}"
+            )
+        cls = define(mi)
+        mi.register_bsdf(name, lambda props: cls(props))
+        _PLUGIN_CLASSES[(name, variant)] = cls
+    return cls

@@ -46,6 +46,7 @@ import numpy as np
 
 from materials.merl_bsdf import SPECULAR_WEIGHT_BOUNDS
 from materials.microfacet import fresnel_dielectric, specular_albedo
+from materials.mitsuba_backend import register_vectorised_bsdf
 from models.fused_mlp import DenseLayer, fused_mlp, make_layers
 
 #: The plugin name under which :func:`register_model_bsdf` registers the BSDF.
@@ -53,8 +54,6 @@ MODEL_BSDF_NAME = "brdf_model"
 #: ``BSDFContext.type_mask`` bit that asks for the analytic part ``f_a`` only (Sec. 5.3).
 #: Far above Mitsuba's ``BSDFFlags`` (``All`` = 0x1FF), so native plugins ignore it.
 ANALYTIC_ONLY = 1 << 30
-
-_CLASSES: dict[str, type] = {}
 
 
 @dataclass(frozen=True)
@@ -253,18 +252,7 @@ def register_model_bsdf(mi: types.ModuleType) -> type:
     Idempotent per variant; returns the class. Needs a vectorised RGB variant
     (``llvm_ad_rgb``, ``cuda_ad_rgb``); raises ``RuntimeError`` otherwise.
     """
-    variant = mi.variant()
-    cls = _CLASSES.get(variant)
-    if cls is None:
-        if not variant.startswith(("llvm_", "cuda_")) or not variant.endswith("_rgb"):
-            raise RuntimeError(
-                f"the model BSDF needs a vectorised RGB Mitsuba variant such as llvm_ad_rgb, "
-                f"but Mitsuba runs {variant!r}"
-            )
-        cls = _define_class(mi)
-        mi.register_bsdf(MODEL_BSDF_NAME, lambda props: cls(props))
-        _CLASSES[variant] = cls
-    return cls
+    return register_vectorised_bsdf(mi, MODEL_BSDF_NAME, _define_class, "model BSDF")
 
 
 def _define_class(mi: types.ModuleType) -> type:
