@@ -1,0 +1,174 @@
+"""Training data of ``train.fabric``: a ``generate.fabric`` job's shards, maps and materials.
+
+Source: ``dataset: "job:<id>"`` (in a batch file ``step:<name>``, which resolves to it), a
+succeeded ``generate.fabric`` job. As ``train.brdf`` reads a ``generate.merl`` job, its
+``materials.json`` lists every material, and the sibling artifacts it names are read
+through the job's refs: ``shard-XXXX.npz`` (``material, center, size, wi, wo, value,
+stderr``, layout in :mod:`generators.fabric`), ``maps/<name>-normal.exr`` and
+``maps/<name>-orientation.exr`` (read with :func:`storage.formats.exr.read_exr`, then
+resampled to the network's ``map_resolution`` by :func:`models.fabric.networks.map_tensor`).
+
+Held-out queries: per material a fixed fraction is set aside for ``metrics.json`` and never
+trained on. The choice is a permutation seeded by :data:`HOLDOUT_SEED` and the material's
+name, independent of the job's seed, so models trained with different seeds are scored on
+the same queries. (Not every k-th query: the design is Latin-hypercube stratified per
+factor, so a stride would pick particular size strata.)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from models.fabric.networks import map_tensor, param_vector
+from service.errors import JobFailed, NotFoundError
+from storage.errors import FormatError
+from storage.formats.exr import read_exr
+from storage.formats.npz import read_npz
+
+if TYPE_CHECKING:
+    from service.context import JobContext
+
+#: Seed of the held-out split (with a hash of the material's name).
+HOLDOUT_SEED = 0x5EED_FAB
+#: The component order a dataset must declare (Eq. 7).
+DATASET_COMPONENTS = ["C_warp", "C_weft", "S_warp", "S_weft"]
+_KEYS = ("material", "center", "size", "wi", "wo", "value")
+
+
+@dataclass(frozen=True, eq=False)
+class MaterialData:
+    """One material of the dataset.
+
+    ``query`` is ``(N, 8)`` float32 ``cx, cy, size, wi.x, wi.y, wi.z, wo.x, wo.y`` (tile
+    units, macro frame); ``value`` ``(N, 4)`` float32 components (Eq. 7, unit albedos);
+    ``train`` and ``test`` index rows; ``maps`` ``(6, R, R)``; ``params`` ``(5,)``
+    (:data:`models.fabric.networks.PARAM_NAMES`); ``record`` the ``materials.json`` params.
+    """
+
+    name: str
+    pattern: str
+    record: dict[str, Any]
+    maps: np.ndarray
+    params: np.ndarray
+    query: np.ndarray
+    value: np.ndarray
+    train: np.ndarray
+    test: np.ndarray
+
+    def albedos(self) -> np.ndarray:
+        """``(4, 3)`` albedos of Eq. 8: rows kd_warp, kd_weft, ks_warp, ks_weft."""
+        r = self.record
+        return np.array([r["kd_warp"], r["kd_weft"], r["ks_warp"], r["ks_weft"]], np.float64)
+
+
+def holdout_split(name: str, n: int, fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(train, test)`` sorted row indices; ``round(fraction n)`` rows (at least 1 when
+    ``fraction > 0`` and ``n >= 2``) held out, chosen by :data:`HOLDOUT_SEED` and ``name``."""
+    tag = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little")
+    perm = np.random.default_rng([HOLDOUT_SEED, tag]).permutation(n)
+    k = int(round(fraction * n))
+    if fraction > 0 and n >= 2:
+        k = min(max(k, 1), n - 1)
+    return np.sort(perm[k:]), np.sort(perm[:k])
+
+
+def _job_materials(ctx: JobContext, job_id: str) -> list[dict[str, Any]]:
+    try:
+        job = ctx.jobs.get(job_id)
+    except NotFoundError:
+        raise JobFailed(f"dataset: no job {job_id}") from None
+    if job.kind != "generate.fabric":
+        raise JobFailed(f"dataset: job {job_id} is a {job.kind} job, not generate.fabric")
+    if job.state != "succeeded":
+        raise JobFailed(f"dataset: job {job_id} is {job.state}, not succeeded")
+    doc = json.loads(ctx.read_ref(f"job:{job_id}/materials.json"))
+    if doc.get("components") != DATASET_COMPONENTS:
+        raise JobFailed(f"dataset: job {job_id}'s components are not {DATASET_COMPONENTS}")
+    materials = list(doc.get("materials", []))
+    if not materials:
+        raise JobFailed(f"dataset: job {job_id} lists no materials")
+    return materials
+
+
+def _read_shard(ctx: JobContext, ref: str, index: int) -> dict[str, np.ndarray]:
+    try:
+        arrays = read_npz(ctx.resolve(ref), ref)
+    except FormatError as exc:
+        raise JobFailed(f"dataset: {exc}") from None
+    missing = [k for k in _KEYS if k not in arrays]
+    if missing:
+        raise JobFailed(f"dataset: {ref} lacks arrays {', '.join(missing)}")
+    if not np.all(arrays["material"] == index):
+        raise JobFailed(f"dataset: {ref} holds queries of another material than #{index}")
+    return arrays
+
+
+def _read_map(ctx: JobContext, ref: str) -> np.ndarray:
+    try:
+        return read_exr(ctx.resolve(ref), ref)
+    except FormatError as exc:
+        raise JobFailed(f"dataset: {exc}") from None
+
+
+def subsample(name: str, rows: np.ndarray, cap: int | None) -> np.ndarray:
+    """At most ``cap`` of ``rows`` (sorted), a fixed-seed uniform choice; all if ``cap`` is
+    ``None`` or not smaller (Sec. 5.2: "about 160 million queries out of the entire data")."""
+    if cap is None or len(rows) <= cap:
+        return rows
+    tag = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little")
+    rng = np.random.default_rng([HOLDOUT_SEED, tag, 1])
+    return np.sort(rng.choice(rows, size=cap, replace=False))
+
+
+def load_dataset(
+    dataset: str,
+    ctx: JobContext,
+    resolution: int,
+    holdout_fraction: float,
+    train_queries: int | None = None,
+) -> list[MaterialData]:
+    """Every material of the ``generate.fabric`` job ``dataset`` (``job:<id>``), in order.
+
+    ``train_queries`` caps the training queries kept per material (:func:`subsample`); the
+    held-out queries are chosen first, from all of them. Only kept rows stay in memory.
+
+    Raises :class:`JobFailed` for a missing, unfinished or other-kind job, unreadable or
+    inconsistent shards or maps.
+    """
+    job_id = dataset.removeprefix("job:")
+    out = []
+    for i, rec in enumerate(_job_materials(ctx, job_id)):
+        ctx.check_cancelled()
+        shards = [_read_shard(ctx, f"job:{job_id}/{s}", i) for s in rec["shards"]]
+        if not shards:
+            raise JobFailed(f"dataset: material {rec['name']!r} has no shards")
+        cat = {k: np.concatenate([s[k] for s in shards]) for k in _KEYS}
+        query = np.concatenate(
+            [cat["center"], cat["size"][:, None], cat["wi"], cat["wo"][:, :2]], axis=1
+        ).astype(np.float32)
+        normal = _read_map(ctx, f"job:{job_id}/{rec['maps']['normal']}")
+        orientation = _read_map(ctx, f"job:{job_id}/{rec['maps']['orientation']}")
+        train, test = holdout_split(rec["name"], len(query), holdout_fraction)
+        train = subsample(rec["name"], train, train_queries)
+        keep = np.concatenate([train, test])
+        query, value = query[keep], cat["value"][keep]
+        train, test = np.arange(len(train)), np.arange(len(train), len(keep))
+        out.append(
+            MaterialData(
+                name=rec["name"],
+                pattern=rec["pattern"],
+                record=rec["params"],
+                maps=map_tensor(normal, orientation, resolution),
+                params=param_vector(rec["params"]),
+                query=query,
+                value=value.astype(np.float32),
+                train=train,
+                test=test,
+            )
+        )
+    return out

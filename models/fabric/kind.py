@@ -1,0 +1,234 @@
+"""The ``train.fabric`` job kind: the neural woven-fabric model of Chen, Wang & Wang 2024.
+
+An encoder (ResNet-18 without its last stage over the normal and orientation maps, plus
+the appearance parameters, through a residual MLP) gives each material a 64-d latent; a
+decoder (one-blob footprint encoding, spatial fusion, a 5-layer angular decoder with a
+skip) maps latent and query to ``C_warp, C_weft, S_warp, S_weft`` (Eq. 7); Eq. 8 recombines
+them with the albedos. Architecture: :mod:`models.fabric.networks`; loss Eq. 9-11:
+:mod:`models.fabric.losses`; SGD of Sec. 5.2: :mod:`models.fabric.train`; data from a
+``generate.fabric`` job: :mod:`models.fabric.data`.
+
+Artifacts:
+
+- ``model.pt``: torch checkpoint, the whole network's state dict (encoder included) and the
+  config (:func:`models.fabric.portable.checkpoint_bytes`);
+- ``model.json``: the portable model, format ``matforge.fabric-model/1``
+  (:mod:`models.fabric.portable`): architecture, decoder weights as lists, every training
+  material's latent and parameters; the fused Dr.Jit decoder
+  (:mod:`models.fabric.fused`) reads it;
+- ``latents.json``: material name -> latent (64 floats) and its ``materials.json`` params;
+- ``curves.json``, ``curves.png``: Eq. 11 (and each component's MSE) against step;
+- ``metrics.json``: per material, on its held-out queries: MSE and relative L1 error of each
+  component and of the Eq. 8 RGB value, the Eq. 11 loss, and the same figures for a trivial
+  baseline (the material's per-component training mean); means over materials
+  (:mod:`models.fabric.report`).
+
+Same spec, same bytes: every artifact, on the CPU (``device`` ``cpu``, or ``auto`` on a
+machine without CUDA). No artifact holds a timing (the last progress message and the log
+line do). With ``auto`` on a CUDA machine training runs there, which is not bit-exact.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, Literal
+
+from pydantic import AfterValidator, Field
+
+from service.registry import Kind, register
+from service.specs import Ref, StrictModel
+
+if TYPE_CHECKING:
+    from service.context import JobContext
+
+DATASET_JOB = re.compile(r"^job:[0-9a-f]{32}$")
+
+
+def _check_dataset_job(value: str) -> str:
+    if not DATASET_JOB.match(value):
+        raise ValueError(
+            "must be 'job:<job-id>' of a generate.fabric job (in a batch file 'step:<name>')"
+        )
+    return value
+
+
+DatasetJob = Annotated[str, AfterValidator(_check_dataset_job)]
+
+
+@dataclass(frozen=True)
+class FabricPreset:
+    """Defaults of every tunable field."""
+
+    summary: str
+    encoder_width: int
+    decoder_width: int
+    map_resolution: int
+    steps: int
+    batch: int
+    materials_per_step: int
+    lr: float
+    momentum: float
+    weight_decay: float
+    clip: float
+    holdout: float
+    train_queries: int | None
+
+
+#: ``small``: ~2 minutes on 2 shared cores for the small generate.fabric dataset.
+#: ``paper``: Sec. 5.2, 10 epochs over 160 M queries in batches of 512 = 3,125,000 steps
+#: (4 days on an RTX 3090 in the paper); for a GPU.
+PRESETS: dict[str, FabricPreset] = {
+    "small": FabricPreset(
+        "~2 min on 2 cores for the small generate.fabric dataset (3 materials)",
+        encoder_width=32, decoder_width=32, map_resolution=64, steps=3000, batch=512,
+        materials_per_step=4, lr=0.05, momentum=0.9, weight_decay=1e-5, clip=1.0,
+        holdout=0.1, train_queries=None,
+    ),
+    "paper": FabricPreset(
+        "Sec. 5.2: SGD lr 5e-2, x0.2 at 60 % and 90 %, batch 512, 3.125 M steps; for a GPU",
+        encoder_width=64, decoder_width=64, map_resolution=256, steps=3_125_000, batch=512,
+        materials_per_step=8, lr=0.05, momentum=0.9, weight_decay=1e-5, clip=1.0,
+        holdout=0.01, train_queries=344_000,
+    ),
+}  # fmt: skip
+
+
+def _preset(name: str) -> str:
+    return (
+        "; unset: the preset's ("
+        + ", ".join(f"{k} {getattr(p, name)}" for k, p in PRESETS.items())
+        + ")."
+    )
+
+
+class TrainFabricParams(StrictModel):
+    """Parameters of ``train.fabric``; a field left out takes the ``preset``'s value.
+
+    ======================  ==============  ========  ========  ===============================
+    name                    type            small     paper     meaning
+    ======================  ==============  ========  ========  ===============================
+    ``dataset``             ``job:<id>``    required            a generate.fabric job
+    ``preset``              small | paper   small               defaults below
+    ``encoder_width``       16..64          32        64        ResNet base width (64: ResNet-18)
+    ``decoder_width``       16..128         32        64        decoder hidden width
+    ``map_resolution``      32..512         64        256       encoder input maps, px
+    ``steps``               int             3000      3125000   SGD steps
+    ``batch``               int             512       512       queries per step
+    ``materials_per_step``  int             4         8         materials drawn per step
+    ``lr``                  float           0.05      0.05      x0.2 at 60 % and 90 %
+    ``momentum``            float           0.9       0.9       SGD momentum
+    ``weight_decay``        float           1e-5      1e-5      L2 on every weight
+    ``clip``                float           1.0       1.0       gradient-norm clip
+    ``holdout``             float           0.1       0.01      held-out query fraction
+    ``train_queries``       int             all       344000    training queries kept
+    ``device``              auto|cpu|cuda   auto      auto      auto: cuda if available
+    ======================  ==============  ========  ========  ===============================
+
+    Example::
+
+        {"kind": "train.fabric", "seed": 0, "params": {"dataset": "job:<generate.fabric id>",
+         "preset": "small"}}
+    """
+
+    dataset: DatasetJob = Field(
+        description="'job:<id>' of a succeeded generate.fabric job (in a batch file "
+        "'step:<name>'): its shards, maps and materials.json."
+    )
+    preset: Literal["small", "paper"] = Field(
+        default="small",
+        description="Defaults of the unset fields: 'small' (~2 min on 2 cores) or 'paper' "
+        "(Sec. 5.2, 3.125 M steps; for a GPU).",
+    )
+    encoder_width: int | None = Field(
+        default=None, ge=16, le=64, multiple_of=8,
+        description="ResNet base width; layer3 has 4x this many channels"
+        + _preset("encoder_width"),
+    )  # fmt: skip
+    decoder_width: int | None = Field(
+        default=None, ge=8, le=128,
+        description="Hidden width of the spatial and angular decoder" + _preset("decoder_width"),
+    )  # fmt: skip
+    map_resolution: int | None = Field(
+        default=None, ge=16, le=512,
+        description="Pixels per side of the encoder's normal and orientation maps (the "
+        "dataset's maps are resampled)" + _preset("map_resolution"),
+    )  # fmt: skip
+    steps: int | None = Field(
+        default=None, ge=1, le=10_000_000, description="SGD steps" + _preset("steps")
+    )
+    batch: int | None = Field(
+        default=None, ge=8, le=65536, description="Queries per step" + _preset("batch")
+    )
+    materials_per_step: int | None = Field(
+        default=None, ge=1, le=256,
+        description="Distinct materials drawn per step (at most all)"
+        + _preset("materials_per_step"),
+    )  # fmt: skip
+    lr: float | None = Field(
+        default=None, gt=0.0, le=1e4,
+        description="SGD learning rate, x0.2 after 60 % and 90 % of the steps" + _preset("lr"),
+    )  # fmt: skip
+    momentum: float | None = Field(
+        default=None, ge=0.0, lt=1.0, description="SGD momentum" + _preset("momentum")
+    )
+    weight_decay: float | None = Field(
+        default=None, ge=0.0, le=1.0,
+        description="L2 regularisation of every weight" + _preset("weight_decay"),
+    )  # fmt: skip
+    clip: float | None = Field(
+        default=None, gt=0.0, le=1e6, description="Gradient-norm clip" + _preset("clip")
+    )
+    holdout: float | None = Field(
+        default=None, ge=0.0, le=0.5,
+        description="Fraction of each material's queries held out for metrics.json (fixed "
+        "seed, never trained on)" + _preset("holdout"),
+    )  # fmt: skip
+    train_queries: int | None = Field(
+        default=None, ge=1, le=1 << 26,
+        description="Most training queries kept per material (a fixed-seed uniform subset; "
+        "Sec. 5.2 trains on about 160 M of the data set's queries, 344,000 per material); "
+        "unset: the preset's (small all, paper 344000).",
+    )  # fmt: skip
+    init: Ref | None = Field(
+        default=None,
+        description="model.pt of a previous train.fabric job with the same architecture: "
+        "its weights start this fit (fine-tuning).",
+    )
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        default="auto",
+        description="Training device: 'auto' takes cuda when torch sees one, else cpu; only "
+        "cpu is byte-deterministic.",
+    )
+
+    def value(self, name: str) -> Any:
+        """The field ``name``, or the preset's value when it is unset."""
+        v = getattr(self, name)
+        return getattr(PRESETS[self.preset], name) if v is None else v
+
+
+def run_train_fabric(params: TrainFabricParams, ctx: JobContext) -> None:
+    """Train, score and store the model (see the module docstring)."""
+    from models.fabric.runner import train_and_report
+
+    train_and_report(params, ctx)
+
+
+register(
+    Kind(
+        name="train.fabric",
+        params=TrainFabricParams,
+        runner=run_train_fabric,
+        summary="Train the neural woven-fabric model (Chen et al. 2024: ResNet encoder, "
+        "one-blob spatial + angular decoder, Eq. 9-11) on a generate.fabric dataset.",
+        artifacts=(
+            "model.pt",
+            "model.json",
+            "latents.json",
+            "curves.json",
+            "curves.png",
+            "metrics.json",
+        ),
+        smoke={},
+    )
+)

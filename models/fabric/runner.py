@@ -1,0 +1,173 @@
+"""The body of the ``train.fabric`` runner: data, fitting, reports and artifacts.
+
+Kept apart from :mod:`models.fabric.kind` so that registering the kind (every CLI call)
+does not import torch. Seeds: the network's initial weights from ``ctx.sub_seed
+("train.fabric/init")``, the batches from ``"train.fabric/batches"``.
+"""
+
+from __future__ import annotations
+
+import logging
+import pickle
+import time
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from models.brdf.train import deterministic_torch
+from models.fabric.data import load_dataset
+from models.fabric.networks import Architecture, FabricNetwork, build_network
+from models.fabric.portable import checkpoint_bytes, load_checkpoint, to_portable
+from models.fabric.report import curves_png, encode_all, evaluate
+from models.fabric.train import Curves, FitConfig, TrainingSet, fit
+from service.errors import JobFailed
+
+if TYPE_CHECKING:
+    from models.fabric.kind import TrainFabricParams
+    from service.context import JobContext
+
+log = logging.getLogger(__name__)
+
+#: Progress fractions: dataset loaded, fitting done, metrics done.
+P_LOADED, P_FITTED, P_SCORED = 0.05, 0.9, 0.97
+_TUNABLE = ("encoder_width", "decoder_width", "map_resolution", "steps", "batch",
+            "materials_per_step", "lr", "momentum", "weight_decay", "clip", "holdout",
+            "train_queries")  # fmt: skip
+
+
+def resolved(params: TrainFabricParams) -> dict[str, Any]:
+    """Every tunable field's effective value."""
+    return {n: params.value(n) for n in _TUNABLE}
+
+
+def pick_device(choice: str) -> str:
+    """``auto``: cuda when torch sees a CUDA device, else cpu."""
+    if choice == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if choice == "cuda" and not torch.cuda.is_available():
+        raise JobFailed("device: 'cuda' was asked for but torch sees no CUDA device")
+    return choice
+
+
+def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
+    arch = Architecture(
+        encoder_width=int(params.value("encoder_width")),
+        map_resolution=int(params.value("map_resolution")),
+        decoder_width=int(params.value("decoder_width")),
+    )
+    net = build_network(arch, ctx.sub_seed("train.fabric/init"))
+    if params.init is None:
+        return net
+    try:
+        src, _ = load_checkpoint(ctx.read_ref(params.init))
+    except (ValueError, KeyError, TypeError, RuntimeError, OSError, EOFError,
+            pickle.UnpicklingError) as exc:  # fmt: skip
+        raise JobFailed(f"init {params.init}: not a train.fabric model.pt: {exc}") from None
+    if src.arch != arch:
+        raise JobFailed(
+            f"init: its architecture {src.arch.as_dict()} differs from this job's "
+            f"{arch.as_dict()}; set encoder_width, decoder_width, map_resolution to match"
+        )
+    net.load_state_dict(src.state_dict())
+    return net
+
+
+def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
+    """Run a ``train.fabric`` job end to end."""
+    started = time.perf_counter()
+    device = pick_device(params.device)
+    cfg = resolved(params)
+    ctx.progress(0.0, "loading dataset")
+    materials = load_dataset(
+        params.dataset,
+        ctx,
+        int(cfg["map_resolution"]),
+        float(cfg["holdout"]),
+        cfg["train_queries"],
+    )
+    ctx.progress(P_LOADED, f"{len(materials)} materials on {device}")
+    steps = int(cfg["steps"])
+
+    def report(step: int, n: int, loss: float) -> None:
+        frac = P_LOADED + (P_FITTED - P_LOADED) * step / n
+        ctx.progress(frac, f"step {step}/{n}, loss {loss:.4g}")
+
+    batch_gen = torch.Generator().manual_seed(ctx.sub_seed("train.fabric/batches"))
+    with deterministic_torch():
+        net = _initial(params, ctx).to(device)
+        curves = fit(
+            net,
+            TrainingSet(materials, device),
+            FitConfig(
+                steps=steps,
+                batch=int(cfg["batch"]),
+                materials_per_step=int(cfg["materials_per_step"]),
+                lr=float(cfg["lr"]),
+                momentum=float(cfg["momentum"]),
+                weight_decay=float(cfg["weight_decay"]),
+                clip=float(cfg["clip"]),
+            ),
+            batch_gen,
+            on_progress=report,
+        )
+        net = net.to("cpu").eval()
+        fit_seconds = time.perf_counter() - started
+        ctx.progress(P_FITTED, "scoring held-out queries")
+        latents = encode_all(net, materials)
+        metrics = evaluate(net, materials, latents)
+    ctx.progress(P_SCORED, "writing artifacts")
+    _write(ctx, params, net, materials, latents, metrics, curves)
+    ms = 1000.0 * curves.seconds / steps
+    log.info(
+        "train.fabric %s: %d materials, %d steps on %s, fit %.1f s (%.1f ms/step), total %.1f s",
+        ctx.job_id, len(materials), steps, device, fit_seconds, ms, time.perf_counter() - started,
+    )  # fmt: skip
+    mean = metrics["mean"]
+    summary = (
+        f"held-out loss {mean['loss']:.4g} (baseline {mean['baseline']['loss']:.4g}), "
+        f"RGB rel. error {mean['rgb']['rel']:.3f}; "
+        if metrics["materials"]
+        else ""
+    )
+    ctx.progress(1.0, f"{summary}{steps} steps in {fit_seconds:.0f} s ({ms:.1f} ms/step)")
+
+
+def _write(
+    ctx: JobContext,
+    params: TrainFabricParams,
+    net: FabricNetwork,
+    materials: list[Any],
+    latents: Any,
+    metrics: dict[str, Any],
+    curves: Curves,
+) -> None:
+    names = [m.name for m in materials]
+    records = [m.record for m in materials]
+    training = {
+        "params": params.model_dump(mode="json"),
+        "resolved": resolved(params),
+        "seed": ctx.seed,
+        "dataset": params.dataset,
+        "materials": len(materials),
+    }
+    doc = to_portable(net, names, [m.pattern for m in materials], records, latents, training)
+    ctx.put_bytes("model.pt", checkpoint_bytes(net, names, records, latents))
+    ctx.put_json("model.json", doc)
+    ctx.put_json(
+        "latents.json",
+        {
+            "latent_dim": net.arch.latent_dim,
+            "materials": {
+                m["name"]: {"latent": m["latent"], "params": m["params"], "pattern": m["pattern"]}
+                for m in doc["materials"]
+            },
+        },
+    )
+    ctx.put_json("curves.json", curves.as_dict())
+    a = net.arch
+    title = (
+        f"train.fabric: encoder {a.encoder_width}, decoder {a.decoder_width}, "
+        f"{len(names)} materials"
+    )
+    ctx.put_bytes("curves.png", curves_png(curves, title), "image/png")
+    ctx.put_json("metrics.json", metrics)

@@ -1,0 +1,170 @@
+"""``train.fabric`` through the registry on a small ``generate.fabric`` dataset.
+
+Oracles: a trivial baseline (each material's per-component training mean, in the training
+space of Eq. 9-11) that the trained network must beat on held-out queries it never saw;
+the torch checkpoint against the portable ``model.json`` through the numpy reference
+decoder; the documented artifacts; byte-identical artifacts for the same spec; the
+divergence guard; spec validation.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from models.fabric.fused import decoder_numpy, load_fabric_model
+from models.fabric.portable import FORMAT, load_checkpoint
+from service.errors import SpecError
+from service.settings import Settings
+from service.submission import run_in_process
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job
+
+ARTIFACTS = {"model.pt", "model.json", "latents.json", "curves.json", "curves.png",
+             "metrics.json"}  # fmt: skip
+#: Three materials (plain, twill 3x3, satin 5x5), 640 queries each, 64 samples: ~3 s.
+DATASET = {"preset": "small", "queries_per_material": 640, "shard_queries": 320,
+           "samples": 64, "map_resolution": 32}  # fmt: skip
+TINY = {"encoder_width": 16, "map_resolution": 32, "decoder_width": 32, "steps": 600,
+        "holdout": 0.15}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def fabric_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Settings, str]]:
+    data = tmp_path_factory.mktemp("train_fabric")
+    settings = Settings.from_env({}).with_(
+        data_dir=Path(data) / "data", lease_seconds=30.0, pool_processes=1
+    )
+    job = run_in_process({"kind": "generate.fabric", "seed": 2, "params": DATASET}, settings)
+    assert job.state == "succeeded", job.error
+    yield settings, job.id
+
+
+def train(settings: Settings, params: dict[str, Any], force: bool = False) -> Job:
+    spec = {"kind": "train.fabric", "seed": 4, "params": params, "force": force}
+    return run_in_process(spec, settings)
+
+
+def read(settings: Settings, job: Job, name: str) -> bytes:
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return ArtifactStore(settings.store_dir).read(digest)
+
+
+def read_json(settings: Settings, job: Job, name: str) -> Any:
+    return json.loads(read(settings, job, name))
+
+
+@pytest.fixture(scope="module")
+def trained(fabric_env: tuple[Settings, str]) -> Job:
+    settings, gen = fabric_env
+    job = train(settings, {**TINY, "dataset": f"job:{gen}"})
+    assert job.state == "succeeded", job.error
+    return job
+
+
+def test01_artifacts_and_the_network_beats_the_baseline(
+    fabric_env: tuple[Settings, str], trained: Job
+) -> None:
+    settings, gen = fabric_env
+    assert {a.name for a in trained.artifacts} == ARTIFACTS
+    metrics = read_json(settings, trained, "metrics.json")
+    names = [r["name"] for r in metrics["materials"]]
+    assert names == ["plain-t00-s00", "twill_3x3-t00-s00", "satin_5x5-t00-s00"]
+    for row in metrics["materials"]:
+        assert row["queries"] == 96  # 15 % of 640
+        figures = [row["loss"], row["rgb"]["mse"], row["rgb"]["rel"], row["baseline"]["loss"]]
+        figures += [
+            row[c][k] for c in ("C_warp", "C_weft", "S_warp", "S_weft") for k in ("mse", "rel")
+        ]
+        assert all(math.isfinite(v) and v >= 0 for v in figures)
+        print(f"\n{row['name']}: held-out loss {row['loss']:.4f}, baseline "
+              f"{row['baseline']['loss']:.4f}; RGB rel {row['rgb']['rel']:.3f}, baseline "
+              f"{row['baseline']['rgb']['rel']:.3f}")  # fmt: skip
+    mean = metrics["mean"]
+    assert mean["count"] == 3
+    # The baseline predicts each material's mean: the network must explain the queries.
+    assert mean["loss"] < 0.8 * mean["baseline"]["loss"]
+    assert mean["rgb"]["rel"] < mean["baseline"]["rgb"]["rel"]
+    assert all(r["loss"] < r["baseline"]["loss"] for r in metrics["materials"])
+    curves = read_json(settings, trained, "curves.json")
+    assert curves["step"][-1] == TINY["steps"] and len(curves["loss"]) == 200
+    assert curves["lr"][0] == 0.05 and math.isclose(curves["lr"][-1], 0.05 * 0.2 * 0.2)
+    assert read(settings, trained, "curves.png")[:8] == b"\x89PNG\r\n\x1a\n"
+    latents = read_json(settings, trained, "latents.json")
+    assert set(latents["materials"]) == set(names)
+    assert all(len(v["latent"]) == 64 for v in latents["materials"].values())
+
+
+def test02_portable_model_agrees_with_the_checkpoint(
+    fabric_env: tuple[Settings, str], trained: Job
+) -> None:
+    settings, _ = fabric_env
+    doc = read_json(settings, trained, "model.json")
+    assert doc["format"] == FORMAT and doc["architecture"]["decoder_width"] == 32
+    net, saved = load_checkpoint(read(settings, trained, "model.pt"))
+    model = load_fabric_model(read(settings, trained, "model.json"))
+    rng = np.random.default_rng(0)
+    n = 500
+    v = rng.normal(size=(n, 3))
+    wi = (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+    wo = wi.copy()
+    wo[:, 2] = np.abs(wo[:, 2])
+    cx, cy, size = (rng.random(n).astype(np.float32) * s for s in (1, 1, 5))
+    q = torch.from_numpy(
+        np.concatenate([cx[:, None], cy[:, None], size[:, None], wi, wo[:, :2]], 1)
+    )
+    for i, name in enumerate(saved["names"]):
+        z = saved["latents"][i]
+        np.testing.assert_array_equal(model.latents[name], z.numpy())
+        with torch.no_grad():
+            ref = net.decoder(z[None].expand(n, -1), q).numpy()
+        got = decoder_numpy(model, name, cx, cy, size, wi, wo, raw=True)
+        np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-6)
+
+
+def test03_same_spec_same_bytes_and_init(fabric_env: tuple[Settings, str], trained: Job) -> None:
+    settings, gen = fabric_env
+    params = {**TINY, "steps": 40, "dataset": f"job:{gen}"}
+    first, again = train(settings, params), train(settings, params, force=True)
+    assert first.state == again.state == "succeeded", (first.error, again.error)
+    assert first.id != again.id
+    assert {a.name: a.digest for a in first.artifacts} == {
+        a.name: a.digest for a in again.artifacts
+    }
+    # Fine-tuning from the trained model starts from its weights.
+    tuned = train(settings, {**params, "init": f"job:{trained.id}/model.pt", "lr": 1e-6})
+    assert tuned.state == "succeeded", tuned.error
+    before = torch.load(io.BytesIO(read(settings, trained, "model.pt")), weights_only=True)
+    after = torch.load(io.BytesIO(read(settings, tuned, "model.pt")), weights_only=True)
+    w0, w1 = (
+        before["state_dict"]["decoder.angular5.weight"],
+        after["state_dict"]["decoder.angular5.weight"],
+    )
+    assert float((w0 - w1).abs().max()) < 1e-3
+    bad = train(settings, {**params, "decoder_width": 16, "init": f"job:{trained.id}/model.pt"})
+    assert bad.state == "failed" and "architecture" in (bad.error or "")
+
+
+def test04_failures_are_clear(fabric_env: tuple[Settings, str]) -> None:
+    settings, gen = fabric_env
+    job = train(settings, {**TINY, "steps": 30, "lr": 1e4, "clip": 1e6, "momentum": 0.0,
+                           "dataset": f"job:{gen}"})  # fmt: skip
+    assert job.state == "failed" and not job.artifacts
+    assert job.error is not None and "training diverged at step" in job.error
+    other = run_in_process({"kind": "generate.merl", "seed": 0, "params":
+                            {"collection": {"families": {"metal": 1}}}}, settings)  # fmt: skip
+    job = train(settings, {**TINY, "dataset": f"job:{other.id}"})
+    assert job.state == "failed" and "not generate.fabric" in (job.error or "")
+    for bad in ("job:123", f"job:{gen}/materials.json", "sha256:" + "0" * 64):
+        with pytest.raises(SpecError, match="dataset"):
+            train(settings, {"dataset": bad})
+    with pytest.raises(SpecError, match="encoder_width"):
+        train(settings, {"dataset": f"job:{gen}", "encoder_width": 20})
