@@ -17,7 +17,9 @@ Sibling keys: a source may declare a pydantic model of *sibling* keys that sit n
 key in the same object (``"material"`` above). The object then has exactly one source key
 plus any of that source's siblings, and the source's resolver receives the whole validated
 object ``{key: value, **siblings}`` instead of the value alone. Sources without siblings
-keep the strict one-key form.
+keep the strict one-key form. A sibling may share its name with another source
+(``{"model": REF, "fabric": {...}}``): when one source key's siblings cover all the other
+source keys present, that source owns the object.
 """
 
 from __future__ import annotations
@@ -117,6 +119,22 @@ def _invalid(message: str) -> PydanticCustomError:
     return PydanticCustomError("material", message)
 
 
+def _source_keys(value: Mapping[str, Any]) -> list[str]:
+    """The source keys in ``value``; when one source takes the others as sibling keys
+    (``"model"`` with a ``"fabric"`` sibling), that source alone."""
+    keys = [k for k in value if k in _SOURCES]
+    if len(keys) > 1:
+        owners = [
+            k
+            for k in keys
+            if (sib := _SOURCES[k].siblings) is not None
+            and all(o in sib.model_fields for o in keys if o != k)
+        ]
+        if len(owners) == 1:
+            return owners
+    return keys
+
+
 def _validate_material(value: Any) -> dict[str, Any]:
     if not isinstance(value, Mapping):
         raise _invalid(
@@ -124,7 +142,7 @@ def _validate_material(value: Any) -> dict[str, Any]:
             f'{{"mitsuba": {{"type": "diffuse"}}}}; got {type(value).__name__}'
         )
     known = ", ".join(sorted(_SOURCES)) or "none registered"
-    keys = [k for k in value if k in _SOURCES]
+    keys = _source_keys(value)
     if len(value) == 1 and not keys:
         raise _invalid(f"unknown material source {next(iter(value))!r}; known: {known}")
     source = _SOURCES[keys[0]] if len(keys) == 1 else None
@@ -154,7 +172,7 @@ def _checked(key: str | None, adapter: TypeAdapter[Any], value: Any) -> Any:
         msg = first["msg"].removeprefix("Value error, ")
         if first["type"] == "missing":
             msg = "this key is required"
-        raise _invalid(f"{loc}: {msg}") from None
+        raise _invalid(f"{loc}: {msg}" if loc else msg) from None
 
 
 class _MaterialSchema:
@@ -225,7 +243,7 @@ def load_bsdf(plugin: Any, mi: types.ModuleType, where: str) -> Any:
 
 def resolve_material(material: Mapping[str, Any], ctx: JobContext, mi: types.ModuleType) -> Any:
     """Turn a validated ``material`` param into an instantiated ``mi.BSDF``."""
-    keys = [k for k in material if k in _SOURCES]
+    keys = _source_keys(material)
     if len(keys) != 1:
         raise JobFailed(f"material: no single known material source in {sorted(material)}")
     source = _SOURCES[keys[0]]

@@ -22,6 +22,11 @@ object (see :mod:`evaluators.material_sources`)::
 
     {"model": "job:<id>/model.json", "material": "gold-metallic-paint", "neural_max_depth": 1}
 
+A ``train.fabric`` model takes a ``fabric`` sibling instead of ``material`` (the value of a
+``{"fabric": ...}`` material): ``{"model": "job:<id>/model.pt", "fabric": {...}}`` renders
+the woven fabric through the network's fused decoder, with the same pixel footprints as the
+Monte Carlo reference (:mod:`evaluators.fabric_model_material`).
+
 This module registers the source when imported; :mod:`evaluators.render` must import it so
 that the source exists wherever the ``render`` kind does.
 """
@@ -31,8 +36,10 @@ from __future__ import annotations
 import types
 from typing import TYPE_CHECKING, Any
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
+from evaluators.fabric_material import FabricValue
+from evaluators.fabric_model_material import resolve_model_fabric
 from evaluators.material_sources import register_material_source
 from materials.model_bsdf import MODEL_BSDF_NAME, bake_material, read_model, register_model_bsdf
 from service.errors import JobFailed
@@ -43,12 +50,19 @@ if TYPE_CHECKING:
 
 
 class ModelSiblings(StrictModel):
-    """The keys next to ``"model"`` in a ``{"model": REF, ...}`` material."""
+    """The keys next to ``"model"`` in a ``{"model": REF, ...}`` material: exactly one of
+    ``material`` (a BRDF model's material) and ``fabric`` (a fabric model's material)."""
 
-    material: str = Field(
+    material: str | None = Field(
+        default=None,
         min_length=1,
         max_length=200,
         description="Name of the material in the model (its materials.json / model.json).",
+    )
+    fabric: FabricValue | None = Field(
+        default=None,
+        description="For a train.fabric model: the woven-fabric material (the 'fabric' "
+        "material's fields); rendered by the network through the fused decoder.",
     )
     neural_max_depth: int | None = Field(
         default=None,
@@ -59,6 +73,18 @@ class ModelSiblings(StrictModel):
         "models only (Sec. 5.3 of the hybrid-BRDF paper).",
     )
 
+    @model_validator(mode="after")
+    def _one_material(self) -> ModelSiblings:
+        if (self.material is None) == (self.fabric is None):
+            raise ValueError(
+                "material: this key is required"
+                if self.material is None
+                else "give either 'material' or 'fabric', not both"
+            )
+        if self.fabric is not None and self.neural_max_depth is not None:
+            raise ValueError("neural_max_depth applies to BRDF models, not to 'fabric'")
+        return self
+
 
 def resolve_model(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) -> Any:
     """Resolve ``{"model": REF, "material": NAME, ...}`` to a ``brdf_model`` BSDF.
@@ -67,6 +93,8 @@ def resolve_model(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     a model document, the material is not in it, ``neural_max_depth`` is given for a model
     without an analytic part, or Mitsuba runs a variant the BSDF cannot use.
     """
+    if "fabric" in value:
+        return resolve_model_fabric(value, ctx, mi)
     ref, name = value["model"], value["material"]
     depth = value.get("neural_max_depth")
     path = ctx.resolve(ref)
@@ -95,6 +123,7 @@ register_material_source(
     value_type=Ref,
     siblings=ModelSiblings,
     summary="One material of a trained BRDF model: {'model': REF to a model.json, "
-    "'material': NAME, optional 'neural_max_depth': int}; rendered with the fused-network "
-    "BSDF.",
+    "'material': NAME, optional 'neural_max_depth': int}; or of a train.fabric model: "
+    "{'model': REF to its model.json or model.pt, 'fabric': {...}}; rendered with the "
+    "fused-network BSDF.",
 )

@@ -28,8 +28,10 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+import evaluators.fabric_material  # noqa: F401  (registers the "fabric" material source)
 import evaluators.merl_material  # noqa: F401  (registers the "merl" material source)
 import evaluators.model_material  # noqa: F401  (registers the "model" material source)
+from evaluators import fabric_integrator
 from evaluators.material_sources import MaterialParam, resolve_material
 from evaluators.neural_depth_integrator import integrator_for
 from evaluators.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
@@ -63,7 +65,7 @@ class RenderParams(StrictModel):
     name            type                 default         meaning
     ==============  ===================  ==============  ======================================
     ``scene``       built-in scene name  ``sphere_env``  ``sphere_env``, ``sphere_points``,
-                                                         ``plane_points``
+                                                         ``plane_points``, ``cloth_plane``
     ``material``    ``{source: value}``  grey diffuse    e.g. ``{"mitsuba": {"type":
                                                          "roughconductor", "alpha": 0.2}}``
     ``resolution``  ``[width, height]``  ``[256, 256]``  pixels, each 8..4096
@@ -81,11 +83,12 @@ class RenderParams(StrictModel):
          "resolution": [512, 512], "spp": 256}}
     """
 
-    scene: Literal["sphere_env", "sphere_points", "plane_points"] = Field(
+    scene: Literal["sphere_env", "sphere_points", "plane_points", "cloth_plane"] = Field(
         default="sphere_env",
         description="Built-in scene: 'sphere_env' (unit sphere under "
         "matforge's HDR studio environment), 'sphere_points' (the sphere under three point "
-        "lights) or 'plane_points' (a textured plane seen at an angle, three point lights).",
+        "lights), 'plane_points' (a textured plane seen at an angle, three point lights) "
+        "or 'cloth_plane' (a square of cloth under the studio environment and a light).",
     )
     material: MaterialParam = Field(
         default_factory=lambda: copy.deepcopy(DEFAULT_MATERIAL),
@@ -191,6 +194,8 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
     scene_dict = build_scene(params.scene, mi, bsdf, setup)
     # A model material with neural_max_depth needs the depth-aware path tracer (Sec. 5.3).
     scene_dict["integrator"] = integrator_for(mi, bsdf, scene_dict["integrator"])
+    # A fabric material needs each pixel's footprint (uv partials at pixel centres).
+    scene_dict["integrator"] = fabric_integrator.integrator_for(mi, bsdf, scene_dict["integrator"])
     try:
         scene = mi.load_dict(scene_dict)
     except Exception as exc:  # Mitsuba reports scene errors as RuntimeError with C++ text
@@ -264,7 +269,9 @@ def _metadata(
         "max_depth": params.max_depth,
         "camera": scene.camera_for(setup).model_dump(mode="json"),
         "point_lights": [light.model_dump(mode="json") for light in scene.lights_for(setup)],
-        "environment": "matforge studio_envmap" if params.scene == "sphere_env" else None,
+        "environment": "matforge studio_envmap"
+        if params.scene in ("sphere_env", "cloth_plane")
+        else None,
         "integrator": integrator,
         "sampler": "independent",
         "rfilter": "box",

@@ -14,6 +14,10 @@ scene             what it is
 ``plane_points``  an 8x8 square in the y = 0 plane with uv coordinates in [0, 1]^2 (for
                   textured BTF, glint and fabric materials) filling the view, seen from
                   45 degrees above the plane, under three point lights
+``cloth_plane``   a 3x3 square of cloth (uv in [0, 1]^2) in the y = 0 plane under
+                  :func:`studio_envmap` plus one warm point light, seen from about 40
+                  degrees above it (for ``{"fabric": ...}``: the map's ground lights the
+                  cloth from below, through it)
 ================  =========================================================================
 
 Every scene uses a ``perspective`` camera, an ``hdrfilm`` with a **box** reconstruction
@@ -264,6 +268,35 @@ def plane_points(
     return scene
 
 
+#: Half the side of the ``cloth_plane`` square.
+CLOTH_HALF_SIZE = 1.5
+CLOTH_CAMERA = Camera(origin=(0.0, 2.0, 2.4), target=(0.0, 0.0, 0.0), fov=45.0)
+CLOTH_LIGHTS = (PointLight(position=(-1.5, 2.5, 1.0), intensity=(6.0, 5.5, 5.0)),)
+
+
+def cloth_plane(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """A 3x3 square (normal +y, uv in [0, 1]^2) under :func:`studio_envmap` and ``lights``."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["cloth"] = {
+        "type": "rectangle",
+        "bsdf": bsdf,
+        "to_world": mi.ScalarTransform4f()
+        .rotate([1.0, 0.0, 0.0], -90.0)
+        .scale([CLOTH_HALF_SIZE, CLOTH_HALF_SIZE, 1.0]),
+    }
+    scene["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap())}
+    scene.update(_point_lights(lights))
+    return scene
+
+
 @dataclass(frozen=True)
 class SceneDef:
     """A built-in scene: its builder and its default camera and point lights."""
@@ -295,6 +328,12 @@ SCENES: dict[str, SceneDef] = {
         PLANE_CAMERA,
         PLANE_LIGHTS,
         "textured plane seen at an angle, three point lights",
+    ),
+    "cloth_plane": SceneDef(
+        cloth_plane,
+        CLOTH_CAMERA,
+        CLOTH_LIGHTS,
+        "square of cloth under the studio environment map and a point light",
     ),
 }
 

@@ -47,7 +47,7 @@ def test01_model_source_validation() -> None:
         "model: must be an artifact reference"
     )
     assert error({"model": REF, "material": "g", "spp": 3}) == (
-        "spp: not a key of a 'model' material (allowed: model, material, neural_max_depth)"
+        "spp: not a key of a 'model' material (allowed: model, material, fabric, neural_max_depth)"
     )
 
 

@@ -1,0 +1,173 @@
+"""``{"model": REF, "fabric": {...}}``: a ``train.fabric`` network renders a woven fabric.
+
+Chen, Wang & Wang 2024, Sec. 4.3: the encoder runs once per material, and the decoder
+replaces the Monte Carlo aggregate per shading query. The ``fabric_model`` BSDF here
+derives from the same footprint base as the Monte Carlo ``fabric_aggregate``
+(:mod:`materials.fabric.footprint_bsdf`: uv partials, sides, cosine sampling, Eq. 8), and
+its ``estimate`` is the fused decoder of :mod:`models.fabric.fused`
+(``decoder_drjit``) traced into the render kernel: deterministic per footprint, so one
+sample per pixel is already noise-free in the footprint (the light integral still needs
+samples).
+
+Footprint: the network takes an isotropic square ``(cx, cy, size)``; the pixel's uv
+parallelogram (``si.duv_dx``, ``si.duv_dy``, in tile units) becomes the square of the same
+area around the hit point's uv, ``size = sqrt(|det|)``; the decoder clamps sizes beyond 5
+tiles. Secondary vertices get the one-tile fallback footprint, as in the Monte Carlo BSDF.
+
+The latent (in order):
+
+1. a ``model.pt`` reference carries the encoder: the material's normal and orientation maps
+   are rasterised from the ``fabric`` fields (``models.fabric.fused.material_maps``) and
+   encoded once;
+2. a ``model.json`` carries no encoder but the training materials' latents: the one whose
+   parameters (pattern and yarn geometry, roughness, ``w``; the albedos only enter Eq. 8)
+   equal the ``fabric`` fields is used;
+3. otherwise the job fails and says to use the job's ``model.pt``.
+
+The albedos, ``tiles_per_uv`` come from the ``fabric`` value; ``visibility`` is ignored
+(the network learned the aggregate with visibility).
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from evaluators.fabric_material import FabricSpec
+from materials.fabric.footprint_bsdf import footprint_base, params_json
+from materials.fabric.params import FabricParams
+from materials.mitsuba_backend import register_vectorised_bsdf
+from service.errors import JobFailed
+
+if TYPE_CHECKING:
+    from models.fabric.fused import FabricModel
+    from service.context import JobContext
+
+#: The plugin name.
+FABRIC_MODEL_BSDF_NAME = "fabric_model"
+#: Map resolution handed to the encoder (it resamples to its own).
+_MAP_RESOLUTION = 256
+#: Parameters that must match for a training latent to stand for the material.
+_GEOMETRY = ("psi_deg", "u_max_deg", "alpha", "beta", "w", "gap", "t_rho")
+
+
+def register_fabric_model_bsdf(mi: types.ModuleType) -> type:
+    """Register ``fabric_model`` for Mitsuba's (vectorised RGB) variant; returns the class."""
+    return register_vectorised_bsdf(mi, FABRIC_MODEL_BSDF_NAME, _define_class, "fabric model BSDF")
+
+
+def _same_material(record: Mapping[str, Any], pattern: str | None, params: FabricParams) -> bool:
+    """Whether a training record describes ``params`` (albedos aside)."""
+    if pattern is not None and pattern != params.pattern.name:
+        return False
+    try:
+        known = {k: record[k] for k in _GEOMETRY if k in record}
+        theirs = params.replace(pattern=record.get("pattern", params.pattern), **known)
+    except (ValueError, KeyError):
+        return False
+    if theirs.pattern.name != params.pattern.name:
+        return False
+    return all(
+        np.allclose(np.asarray(getattr(theirs, k)), np.asarray(getattr(params, k)), atol=1e-6)
+        for k in _GEOMETRY
+    )
+
+
+def latent_for(model: FabricModel, params: FabricParams, ref: str) -> np.ndarray:
+    """The ``(latent_dim,)`` float32 latent of ``params`` (module docstring, steps 1-3)."""
+    from models.fabric.fused import encode_material, material_maps
+
+    if model.encoder is not None:
+        normal, orientation = material_maps(params, _MAP_RESOLUTION)
+        return encode_material(model, params, normal, orientation)
+    for name, record in model.params.items():
+        if _same_material(record, record.get("pattern"), params):
+            return model.latents[name]
+    known = ", ".join(sorted(model.latents)) or "none"
+    raise JobFailed(
+        f"material.model: {ref}: this model.json carries no encoder and none of its training "
+        f"materials ({known}) has these fabric parameters; use the job's model.pt to encode "
+        f"a new material"
+    )
+
+
+def resolve_model_fabric(value: Mapping[str, Any], ctx: JobContext, mi: types.ModuleType) -> Any:
+    """Resolve ``{"model": REF, "fabric": {...}}`` to an instantiated ``fabric_model`` BSDF."""
+    from models.fabric.fused import load_fabric_model
+
+    ref = value["model"]
+    spec = FabricSpec.model_validate(value["fabric"], strict=False)
+    params = spec.to_params()
+    path = ctx.resolve(ref)
+    try:
+        model = load_fabric_model(Path(path).read_bytes())
+    except ValueError as exc:
+        raise JobFailed(f"material.model: {ref}: {exc}") from None
+    latent = latent_for(model, params, ref)
+    try:
+        register_fabric_model_bsdf(mi)
+    except RuntimeError as exc:
+        raise JobFailed(f"material.model: {exc}") from None
+    return mi.load_dict(
+        {
+            "type": FABRIC_MODEL_BSDF_NAME,
+            "filename": str(path),
+            "latent": mi.TensorXf(np.asarray(latent, np.float32)),
+            "params": params_json(params),
+            "tiles_per_uv": float(spec.tiles_per_uv),
+        }
+    )
+
+
+def _define_class(mi: types.ModuleType) -> type:
+    import drjit as dr
+
+    from models.fabric.fused import decoder_drjit, load_fabric_model
+
+    class FabricModelBSDF(footprint_base(mi)):  # type: ignore[misc]
+        """A ``train.fabric`` network as a footprint BSDF (plugin ``"fabric_model"``).
+
+        ================  ==========  ========  ==============================================
+        parameter         type        default   meaning
+        ================  ==========  ========  ==============================================
+        ``filename``      string      --        ``model.json`` or ``model.pt`` of the model
+        ``latent``        TensorXf    --        the material's ``(latent_dim,)`` latent
+        ``params``        string      --        the material (JSON of the ``FabricParams``
+                                                fields; its albedos give Eq. 8)
+        ``tiles_per_uv``  float       16        pattern tiles across the uv range [0, 1]
+        ================  ==========  ========  ==============================================
+        """
+
+        def __init__(self, props: Any) -> None:
+            super().__init__(props)
+            model = load_fabric_model(Path(str(props.get("filename"))).read_bytes())
+            latent = np.asarray(props.get("latent").numpy(), np.float32).reshape(-1)
+            self.decoder = decoder_drjit(model, latent, mi.Float)
+
+        def estimate(self, si: Any, light: Any, active: Any = True) -> Any:
+            """The network's ``f_P`` (Eq. 8) at the footprint, ``mi.Color3f``."""
+            view, lit, active = self.directions(si, light, active)
+            cs, ct, ax, ay, bx, by = self.footprint(si)
+            size = dr.sqrt(dr.abs(ax * by - ay * bx))
+            comps = self.decoder(cs, ct, size, lit[0], lit[1], lit[2], view[0], view[1])
+            return dr.select(active, self.recombine(comps), 0.0)
+
+        def to_string(self) -> str:
+            return (
+                f"FabricModelBSDF[pattern={self.params.pattern.name}, "
+                f"tiles_per_uv={self.tiles_per_uv:g}]"
+            )
+
+    return FabricModelBSDF
+
+
+__all__ = [
+    "FABRIC_MODEL_BSDF_NAME",
+    "latent_for",
+    "register_fabric_model_bsdf",
+    "resolve_model_fabric",
+]

@@ -1,0 +1,126 @@
+"""``{"model": REF, "fabric": {...}}``: the ``fabric_model`` BSDF and its latent.
+
+Oracles: ``models.fabric.fused.decoder_numpy`` (the numpy reference decoder of the same
+weights) recombined with the material's albedos (Eq. 8) at the footprint the BSDF derives
+from the uv partials (the square of the parallelogram's area); the encoder run directly
+(``encode_material``) for a ``model.pt``; the training latents for a ``model.json``.
+The network is random (a small architecture, outputs pushed positive) -- these tests check
+the plumbing, not the learning.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from evaluators.fabric_model_material import (
+    FABRIC_MODEL_BSDF_NAME,
+    latent_for,
+    register_fabric_model_bsdf,
+)
+from materials.fabric.footprint_bsdf import params_json
+from materials.fabric.params import FabricParams
+from models.fabric.fused import decoder_numpy, encode_material, load_fabric_model, material_maps
+from models.fabric.networks import Architecture, build_network
+from models.fabric.portable import checkpoint_bytes, to_portable
+from service.errors import JobFailed
+
+
+def record_of(params: FabricParams) -> dict:
+    """A material's ``materials.json`` params record (the plugins' JSON form is the same)."""
+    return json.loads(params_json(params))
+
+
+TINY = Architecture(encoder_width=16, map_resolution=16, decoder_width=16)
+TRAINED = FabricParams("twill_3x3", psi_deg=20.0, alpha=(0.3, 0.5), beta=0.8, w=0.7)
+OTHER = FabricParams("plain", alpha=0.6, beta=0.4)
+
+
+def write_model(root: Path) -> tuple[Path, Path, np.ndarray]:
+    """``model.json`` and ``model.pt`` of a random network trained on TRAINED and OTHER."""
+    net = build_network(TINY, 11).eval()
+    with torch.no_grad():
+        net.decoder.angular5.bias.copy_(torch.tensor([0.2, 0.1, 1.0, 0.5]))
+    latents = np.random.default_rng(4).normal(size=(2, TINY.latent_dim)).astype(np.float32)
+    records = [record_of(TRAINED), record_of(OTHER)]
+    names, patterns = ["twill-a", "plain-b"], ["twill_3x3", "plain"]
+    doc = to_portable(net, names, patterns, records, latents)
+    js, pt = root / "model.json", root / "model.pt"
+    js.write_text(json.dumps(doc))
+    pt.write_bytes(checkpoint_bytes(net, names, records, latents))
+    return js, pt, latents
+
+
+@pytest.fixture(scope="module")
+def model_files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, np.ndarray]:
+    return write_model(tmp_path_factory.mktemp("fabric_model"))
+
+
+def test01_eval_is_the_numpy_decoder(mi: types.ModuleType, model_files: tuple) -> None:
+    import drjit as dr
+
+    js, _, latents = model_files
+    register_fabric_model_bsdf(mi)
+    material = TRAINED.replace(kd_warp=(0.8, 0.2, 0.1), ks_weft=(0.1, 0.5, 0.9))
+    bsdf = mi.load_dict(
+        {
+            "type": FABRIC_MODEL_BSDF_NAME,
+            "filename": str(js),
+            "latent": mi.TensorXf(latents[0]),
+            "params": params_json(material),
+            "tiles_per_uv": 4.0,
+        }
+    )
+    rng = np.random.default_rng(2)
+    n = 512
+    view = rng.normal(size=(n, 3))
+    view[:, 2] = np.abs(view[:, 2]) + 0.1
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    light = rng.normal(size=(n, 3))  # both sides: reflection and transmission
+    light /= np.linalg.norm(light, axis=1, keepdims=True)
+    uv = rng.random((n, 2))
+    dx, dy = rng.normal(size=(n, 2)) * 0.05, rng.normal(size=(n, 2)) * 0.05
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(view.T.astype(np.float32))
+    si.uv = mi.Point2f(uv.T.astype(np.float32))
+    si.duv_dx = mi.Vector2f(dx.T.astype(np.float32))
+    si.duv_dy = mi.Vector2f(dy.T.astype(np.float32))
+    got = np.asarray(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(light.T.astype(np.float32))))
+    got = got.reshape(3, n).T
+
+    size = 4.0 * np.sqrt(np.abs(dx[:, 0] * dy[:, 1] - dx[:, 1] * dy[:, 0]))
+    comps = decoder_numpy(
+        load_fabric_model(js.read_bytes()), latents[0], uv[:, 0] * 4, uv[:, 1] * 4, size, light,
+        view,
+    )  # fmt: skip
+    want = comps @ material.albedos()
+    assert np.all(np.isfinite(got)) and want.max() > 0.01
+    np.testing.assert_allclose(got, want, rtol=2e-3, atol=1e-5)
+    # The back side answers as the front for mirrored directions (a two-sided sheet).
+    si.wi = mi.Vector3f(view[:, 0], view[:, 1], -view[:, 2])
+    back = mi.Vector3f(light[:, 0], light[:, 1], -light[:, 2])
+    flipped = np.asarray(bsdf.eval(mi.BSDFContext(), si, back)).reshape(3, n).T
+    np.testing.assert_allclose(flipped, got, rtol=1e-5, atol=1e-7)
+
+
+def test02_latents(model_files: tuple) -> None:
+    js, pt, latents = model_files
+    from_json = load_fabric_model(js.read_bytes())
+    # Albedos do not matter: the training latent of the same geometry and roughness.
+    same = TRAINED.replace(kd_warp=0.9, ks_weft=0.1)
+    np.testing.assert_array_equal(latent_for(from_json, same, "job:x/model.json"), latents[0])
+    np.testing.assert_array_equal(latent_for(from_json, OTHER, "job:x/model.json"), latents[1])
+    with pytest.raises(JobFailed, match="carries no encoder and none of its training"):
+        latent_for(from_json, TRAINED.replace(alpha=0.31), "job:x/model.json")
+    from_pt = load_fabric_model(pt.read_bytes())
+    new = TRAINED.replace(alpha=0.31)
+    z = latent_for(from_pt, new, "job:x/model.pt")
+    direct = encode_material(from_pt, new, *material_maps(new, 256))
+    assert z.shape == (TINY.latent_dim,) and math.isfinite(float(z.sum()))
+    np.testing.assert_allclose(z, direct, rtol=1e-6, atol=1e-7)
