@@ -150,3 +150,35 @@ def test04_bad_specs_name_the_field(settings: Settings, params: dict, field: str
     with pytest.raises(SpecError) as info:
         run_in_process(spec(params), settings)
     assert field in str(info.value)
+
+
+def test05_progress_per_shard_in_batches(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Long jobs report: per material while writing maps, then per finished shard in
+    every batch of ``BATCH_SHARDS``, monotonically, up to the preview and 1.0."""
+    import generators.fabric as fabric
+    from service.context import JobContext
+
+    reports: list[tuple[float, str | None]] = []
+    original = JobContext.progress
+
+    def record(self: JobContext, fraction: float, message: str | None = None) -> None:
+        reports.append((fraction, message))
+        original(self, fraction, message)
+
+    monkeypatch.setattr(JobContext, "progress", record)
+    monkeypatch.setattr(fabric, "BATCH_SHARDS", 4)
+    params = {**PARAMS, "queries_per_material": 64, "shard_queries": 16, "samples": 16}
+    job = run_in_process(spec({**params, "backend": "numpy"}), settings)
+    assert job.state == "succeeded", job.error
+    fractions = [f for f, _ in reports]
+    assert all(b >= a - 1e-9 for a, b in zip(fractions, fractions[1:], strict=False))
+    assert fractions[-1] == 1.0
+    messages = [m for _, m in reports if m]
+    assert [m for m in messages if m.startswith("maps:")] == [
+        f"maps: {i}/3 material(s)" for i in range(3)
+    ]
+    shard_reports = [m for m in messages if m.startswith("shards:")]
+    assert shard_reports == [f"shards: {k}/4" for _ in range(3) for k in range(1, 5)]
+    assert "preview" in messages

@@ -28,14 +28,8 @@ from materials import halfdiff as hd
 from materials.merl_bsdf import MERL_BSDF_NAME, fit_sampling_lobe, merl_bsdf, register_merl_bsdf
 from materials.tabulate import tabulate_mitsuba
 from storage.formats.merl import MerlTable, write_merl
+from tests.unit.materials.mitsuba_probes import AU_03, PLASTIC_03, hemisphere, interaction
 
-AU_03 = {"type": "roughconductor", "distribution": "ggx", "alpha": 0.3, "material": "Au"}
-PLASTIC_03 = {
-    "type": "roughplastic",
-    "distribution": "ggx",
-    "alpha": 0.3,
-    "diffuse_reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]},
-}
 PLUGINS = {"conductor": AU_03, "plastic": PLASTIC_03}
 
 
@@ -62,22 +56,6 @@ def tables(mi: types.ModuleType, tmp_path_factory: pytest.TempPathFactory) -> di
 def load(mi: types.ModuleType, path: Path, extra: str = "") -> Any:
     xml = f'<string name="filename" value="{path}"/>{extra}'
     return mi.load_string(f'<bsdf version="3.0.0" type="{MERL_BSDF_NAME}">{xml}</bsdf>')
-
-
-def hemisphere(rng: np.random.Generator, n: int, max_deg: float = 90.0) -> np.ndarray:
-    """``(n, 3)`` float32 directions, uniform in solid angle, ``theta <= max_deg``."""
-    z = rng.uniform(math.cos(math.radians(max_deg)), 1.0, n)
-    phi = rng.uniform(0.0, 2.0 * math.pi, n)
-    r = np.sqrt(1.0 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
-
-
-def interaction(mi: types.ModuleType, wi: np.ndarray) -> Any:
-    import drjit as dr
-
-    si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
-    si.wi = mi.Vector3f(*wi.T)
-    return si
 
 
 def brdf(mi: types.ModuleType, bsdf: Any, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from materials.analytic import (
     ThinFilmGGX,
     build_analytic,
 )
+from tests.unit.materials.mitsuba_probes import mitsuba_brdf
 
 
 @pytest.fixture(scope="module")
@@ -30,20 +31,6 @@ def mi() -> types.ModuleType:
     from materials.mitsuba_backend import load_mitsuba
 
     return load_mitsuba()
-
-
-def mitsuba_brdf(mi: types.ModuleType, plugin: dict, wi: np.ndarray, wo: np.ndarray):
-    """Plain BRDF from Mitsuba: eval (= f cos_o) divided by the float32 wo.z it saw."""
-    import drjit as dr
-
-    bsdf = mi.load_dict(plugin)
-    wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
-    si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
-    si.n = mi.Normal3f(0, 0, 1)
-    si.sh_frame = mi.Frame3f(si.n)
-    si.wi = mi.Vector3f(*wi32.T)
-    value = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo32.T)), np.float64).T
-    return value / wo32[:, 2:3].astype(np.float64)
 
 
 def pairs(seed: int, n: int = 20000, min_cos: float = 0.02) -> tuple[np.ndarray, np.ndarray]:

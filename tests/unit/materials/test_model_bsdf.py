@@ -33,6 +33,7 @@ from materials.model_bsdf import (
     bake_material,
     register_model_bsdf,
 )
+from tests.unit.materials.mitsuba_probes import hemisphere, interaction
 
 #: name -> (kd, eta, alpha): a rough gold-like metal, a glossy blue plastic, a sharp one.
 MATERIALS = {
@@ -95,22 +96,6 @@ def load(mi: types.ModuleType, path: Path, material: str, **extra: Any) -> Any:
     )
 
 
-def hemisphere(rng: np.random.Generator, n: int, max_deg: float = 89.0) -> np.ndarray:
-    """``(n, 3)`` float32 directions, uniform in solid angle, ``theta <= max_deg``."""
-    z = rng.uniform(math.cos(math.radians(max_deg)), 1.0, n)
-    phi = rng.uniform(0.0, 2.0 * math.pi, n)
-    r = np.sqrt(1.0 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
-
-
-def interaction(mi: types.ModuleType, wi: np.ndarray) -> Any:
-    import drjit as dr
-
-    si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
-    si.wi = mi.Vector3f(*wi.T)
-    return si
-
-
 def brdf(
     mi: types.ModuleType, bsdf: Any, wi: np.ndarray, wo: np.ndarray, ctx: Any = None
 ) -> np.ndarray:
@@ -148,7 +133,7 @@ def test02_eval_matches_portable(mi: types.ModuleType, models: dict[str, Path], 
 
     doc = json.loads(models[kind].read_text())
     rng = np.random.default_rng(7)
-    wi, wo = hemisphere(rng, 50_000), hemisphere(rng, 50_000)
+    wi, wo = hemisphere(rng, 50_000, 89.0), hemisphere(rng, 50_000, 89.0)
     worst = 0.0
     for name in MATERIALS:
         got = brdf(mi, load(mi, models[kind], name), wi, wo)
@@ -172,7 +157,7 @@ def test03_analytic_fallback(mi: types.ModuleType, models: dict[str, Path]) -> N
     """With ``ANALYTIC_ONLY`` the hybrid BSDF is Eq. 3 alone (``materials.microfacet``),
     sampling is unchanged."""
     rng = np.random.default_rng(9)
-    wi, wo = hemisphere(rng, 20_000), hemisphere(rng, 20_000)
+    wi, wo = hemisphere(rng, 20_000, 89.0), hemisphere(rng, 20_000, 89.0)
     kd, eta, alpha = MATERIALS["gold"]
     ref = np.asarray(kd) / math.pi + mf.specular_brdf(
         wi.astype(np.float64),

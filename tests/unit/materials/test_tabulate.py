@@ -26,14 +26,7 @@ from materials import halfdiff as hd
 from materials.analytic import GGXConductor
 from materials.tabulate import tabulate_analytic, tabulate_mitsuba
 from storage.formats.merl import read_merl, write_merl
-
-AU_03 = {"type": "roughconductor", "distribution": "ggx", "alpha": 0.3, "material": "Au"}
-PLASTIC_03 = {
-    "type": "roughplastic",
-    "distribution": "ggx",
-    "alpha": 0.3,
-    "diffuse_reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]},
-}
+from tests.unit.materials.mitsuba_probes import AU_03, PLASTIC_03, mitsuba_brdf
 
 
 @pytest.fixture(scope="module")
@@ -41,19 +34,6 @@ def mi() -> types.ModuleType:
     from materials.mitsuba_backend import load_mitsuba
 
     return load_mitsuba()
-
-
-def mitsuba_brdf(mi: types.ModuleType, plugin: dict, wi: np.ndarray, wo: np.ndarray):
-    import drjit as dr
-
-    bsdf = mi.load_dict(plugin)
-    wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
-    si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
-    si.n = mi.Normal3f(0, 0, 1)
-    si.sh_frame = mi.Frame3f(si.n)
-    si.wi = mi.Vector3f(*wi32.T)
-    value = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo32.T)), np.float64).T
-    return value / wo32[:, 2:3].astype(np.float64)
 
 
 def well_resolved_pairs(seed: int, n: int = 20000, max_deg: float = 70.0):

@@ -1,0 +1,55 @@
+"""Probes shared by the material tests: random directions, Mitsuba surface interactions,
+plain BRDF values from Mitsuba plugins, and the two reference plugin dicts.
+
+Directions are in the local shading frame, z up, ``(N, 3)`` float32 unless stated.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from typing import Any
+
+import numpy as np
+
+#: Mitsuba's GGX gold conductor, alpha 0.3 (the tabulation and MERL-BSDF references).
+AU_03 = {"type": "roughconductor", "distribution": "ggx", "alpha": 0.3, "material": "Au"}
+#: Mitsuba's GGX plastic, alpha 0.3, blue diffuse base.
+PLASTIC_03 = {
+    "type": "roughplastic",
+    "distribution": "ggx",
+    "alpha": 0.3,
+    "diffuse_reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]},
+}
+
+
+def hemisphere(rng: np.random.Generator, n: int, max_deg: float = 90.0) -> np.ndarray:
+    """``(n, 3)`` float32 directions, uniform in solid angle, ``theta <= max_deg``."""
+    z = rng.uniform(math.cos(math.radians(max_deg)), 1.0, n)
+    phi = rng.uniform(0.0, 2.0 * math.pi, n)
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
+
+
+def interaction(mi: types.ModuleType, wi: np.ndarray) -> Any:
+    """A ``SurfaceInteraction3f`` of ``len(wi)`` lanes with local ``wi`` (``(N, 3)``)."""
+    import drjit as dr
+
+    si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
+    si.wi = mi.Vector3f(*wi.T)
+    return si
+
+
+def mitsuba_brdf(mi: types.ModuleType, plugin: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` float64 plain BRDF from Mitsuba: eval (= f cos_o) divided by the float32
+    ``wo.z`` it saw, at the float32-rounded pairs ``wi``, ``wo`` (``(N, 3)``)."""
+    import drjit as dr
+
+    bsdf = mi.load_dict(plugin)
+    wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
+    si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
+    si.n = mi.Normal3f(0, 0, 1)
+    si.sh_frame = mi.Frame3f(si.n)
+    si.wi = mi.Vector3f(*wi32.T)
+    value = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo32.T)), np.float64).T
+    return value / wo32[:, 2:3].astype(np.float64)
