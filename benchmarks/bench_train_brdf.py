@@ -16,9 +16,15 @@ Columns: ``smape`` is the mean over materials of Eq. 6 at 2^18 fixed-seed pairs
 :data:`models.brdf.train.TORCH_THREADS`). The machine is shared: the load average is
 printed with each row.
 
+``--paper-steps N`` instead times the ``paper`` preset (Sec. 3.3: hybrid 32x3, latent 4,
+1024 pairs per material per step, 100 materials; 200k steps): N optimiser steps of
+:func:`models.brdf.train.fit` on the 12 small-collection tables tiled to 100 materials
+(speed does not depend on the values), on the job's thread count, and prints ms per step and
+the extrapolated hours for 200k steps.
+
 Run: ``.venv/bin/python benchmarks/bench_train_brdf.py [--sizes 16x3 32x3] [--latent 4]
 [--models analytic hybrid neural] [--steps N] [--paper-neural] [--train-seeds 0 1 2]
-[--seed 0] [--data-dir D]``
+[--seed 0] [--data-dir D] [--paper-steps N]``
 """
 
 from __future__ import annotations
@@ -49,6 +55,36 @@ def fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.4f}"
 
 
+def paper_step(settings: Settings, gen: Any, steps: int) -> None:
+    """Time ``steps`` steps of the paper preset on 100 tiled tables; print one row."""
+    import torch
+
+    from models.brdf.data import MaterialTable, stack_tables
+    from models.brdf.kind import PRESETS
+    from models.brdf.networks import Architecture, build_model
+    from models.brdf.train import TORCH_THREADS, FitConfig, deterministic_torch, fit
+    from storage.formats.merl import read_merl
+
+    store = ArtifactStore(settings.store_dir)
+    tables = [a for a in gen.artifacts if a.name.endswith(".binary") and "/" not in a.name]
+    mats = [MaterialTable(a.name, "x", read_merl(store.path(a.digest), a.name), a.name)
+            for a in tables]  # fmt: skip
+    mats = [mats[i % len(mats)] for i in range(100)]
+    p = PRESETS["paper"]
+    arch = Architecture("hybrid", p.width, p.depth, p.latent_dim)
+    config = FitConfig(steps, p.batch_pairs, p.lr, p.weight_decay, p.clip)
+    with deterministic_torch():
+        model = build_model(arch, len(mats), torch.Generator().manual_seed(0))
+        curves = fit(model, stack_tables(mats), config, torch.Generator().manual_seed(1))
+    ms = 1000.0 * curves.seconds / steps
+    print("| preset | materials | MLP | pairs per step | threads | ms per step | 200k steps |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    hours = ms * p.steps / 3.6e6
+    load = os.getloadavg()[0]
+    print(f"| paper | 100 | {p.width}x{p.depth} | {100 * p.batch_pairs} | {TORCH_THREADS} "
+          f"| {ms:.0f} | {hours:.1f} h (load {load:.1f}) |")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", nargs="+", default=["16x3", "32x3"])
@@ -61,6 +97,7 @@ def main() -> None:
         "--train-seeds", type=int, nargs="+", default=[0], help="train.brdf seeds, one row each"
     )
     ap.add_argument("--data-dir", type=Path, default=None)
+    ap.add_argument("--paper-steps", type=int, default=0, help="time the paper preset instead")
     args = ap.parse_args()
 
     tmp = None
@@ -75,6 +112,12 @@ def main() -> None:
     )  # fmt: skip
     if gen.state != "succeeded":
         raise SystemExit(f"generate.merl failed: {gen.error}")
+    if args.paper_steps:
+        paper_step(settings, gen, args.paper_steps)
+        print(
+            f"\n`.venv/bin/python benchmarks/bench_train_brdf.py --paper-steps {args.paper_steps}`"
+        )
+        return
 
     configs: list[dict[str, Any]] = []
     for model in args.models:

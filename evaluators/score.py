@@ -14,16 +14,21 @@ kind           files                metrics                               values
 =============  ===================  ====================================  =================
 
 Other artifact kinds plug in with :func:`register_artifact_kind` (a loader, a scorer, the
-metrics it supports) from modules in :data:`ARTIFACT_KIND_MODULES`; ``merl``:
-:mod:`evaluators.score_brdf`. ``metrics`` left out means all that the reference's kind
-supports; one it does not support fails the job, listing those it does.
+metrics it supports) from modules in :data:`ARTIFACT_KIND_MODULES`: images in
+:mod:`evaluators.score_images`, ``merl`` and ``brdf-model`` in :mod:`evaluators.score_brdf`.
+``metrics`` left out means all that the reference's kind supports; one it does not support
+fails the job, listing those it does.
 
 Candidates are of the reference's kind, or of a kind it lists in ``candidate_kinds``. A
 *model* kind (one with ``bind``) is a file holding several materials, scored one material
 at a time: such a candidate is given as ``{"model": REF, "material": NAME}``. The model kind
 ``brdf-model`` (a ``train.brdf`` ``model.json``, recognised by its ``format`` field) is
 scored against ``merl`` references, evaluated for that material with the portable
-evaluator at the same pairs as tables; a model cannot be the reference.
+evaluator at the same pairs as tables; a model cannot be the reference. A whole model,
+``{"model": REF}``, is scored against a *set* of tables given as the reference
+(``job:<generate.merl id>`` or ``{material name: table ref}``), each material against the
+table of the same name (:mod:`evaluators.score_sets`); the two forms are checked against
+the reference's form at spec time.
 
 Choices for images, recorded in ``metrics.json`` under ``settings``:
 
@@ -37,31 +42,17 @@ Choices for images, recorded in ``metrics.json`` under ``settings``:
 from __future__ import annotations
 
 import importlib
-import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
-from pydantic import Field, StringConstraints, field_validator, model_validator
+from pydantic import AfterValidator, Field, StringConstraints, field_validator, model_validator
 
-from evaluators.metrics import (
-    DEFAULT_PPD,
-    ExposureRange,
-    flip,
-    hdr_exposure_range,
-    mae,
-    mse,
-    psnr,
-    ssim,
-)
-from evaluators.tonemap import magma
 from service.errors import FormatError, JobFailed
 from service.registry import Kind, register
 from service.specs import Ref, StrictModel
-from storage.formats.exr import read_exr
-from storage.formats.png import read_png, write_png
 
 if TYPE_CHECKING:
     from service.context import JobContext
@@ -69,7 +60,6 @@ if TYPE_CHECKING:
 MetricName = Literal["flip", "psnr", "ssim", "mae", "mse", "smape"]
 IMAGE_METRICS: tuple[MetricName, ...] = ("flip", "psnr", "ssim", "mae", "mse")
 Label = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
-SSIM_WINDOW = 7
 
 
 class ExposureSettings(StrictModel):
@@ -107,15 +97,35 @@ MaterialName = Annotated[str, StringConstraints(min_length=1, max_length=256)]
 
 
 class ModelCandidate(StrictModel):
-    """One material of a trained model as a candidate: ``{"model": REF, "material": NAME}``."""
+    """A trained model as a candidate: ``{"model": REF, "material": NAME}`` scores one of its
+    materials against a table reference; ``{"model": REF}`` scores every material named in a
+    set-of-tables reference (``job:<generate.merl id>`` or ``{name: table REF}``)."""
 
     model: Ref = Field(
         description="The trained model: a train.brdf model.json (job:<id>/model.json or "
         "sha256: ref)."
     )
-    material: MaterialName = Field(
-        description="Name of the model's material to score (one of its materials[].name)."
+    material: MaterialName | None = Field(
+        default=None,
+        description="Name of the model's material to score (one of its materials[].name); "
+        "left out: the whole model, against a set of tables (reference job:<id> or a "
+        "mapping), each material against the table of the same name.",
     )
+
+
+TABLE_SET_JOB = re.compile(r"^job:[0-9a-f]{32}$")
+
+
+def _check_table_set_job(value: str) -> str:
+    if not TABLE_SET_JOB.match(value):
+        raise ValueError("must be 'job:<job-id>' (every table of a generate.merl job)")
+    return value
+
+
+#: ``job:<id>``: every table of a ``generate.merl`` job, by material name.
+TableSetJob = Annotated[str, AfterValidator(_check_table_set_job)]
+#: ``{material name: MERL table ref}``.
+TableMapping = Annotated[dict[MaterialName, Ref], Field(min_length=1, max_length=500)]
 
 
 class ScoreParams(StrictModel):
@@ -131,15 +141,26 @@ class ScoreParams(StrictModel):
 
         {"kind": "score", "params": {"reference": "sha256:<table>",
          "candidates": {"hybrid": {"model": "job:<train>/model.json", "material": "gold"}}}}
+
+    Every material of trained models against the tables of a generate.merl job
+    (:mod:`evaluators.score_sets`)::
+
+        {"kind": "score", "params": {"reference": "job:<generate.merl>",
+         "candidates": {"hybrid": {"model": "job:<train>/model.json"}}}}
     """
 
-    reference: Ref = Field(description="The reference artifact (job: or sha256: ref).")
+    reference: Ref | TableSetJob | TableMapping = Field(
+        description="The reference artifact (job:<id>/<name> or sha256: ref); or, to score "
+        "whole models ({model} candidates), a set of MERL tables: 'job:<id>' of a "
+        "generate.merl job (its materials by name) or a mapping {material name: table ref}."
+    )
     candidates: dict[Label, Ref | ModelCandidate] = Field(
         min_length=1,
         max_length=64,
         description="Candidates to score, by label (1-64 characters of A-Z a-z 0-9 _ . -): "
-        "a ref, or {model, material} for one material of a trained model (model.json; "
-        "against MERL table references).",
+        "a ref, {model, material} for one material of a trained model (model.json; against "
+        "a MERL table reference), or {model} for all of a model's materials against a set "
+        "of tables.",
     )
     metrics: list[MetricName] | None = Field(
         default=None,
@@ -152,6 +173,28 @@ class ScoreParams(StrictModel):
         description="HDR-FLIP exposure range {start, stop, count, tonemapper}; "
         "default: derived once from the reference.",
     )
+
+    @property
+    def table_set(self) -> bool:
+        """Whether the reference is a set of tables (``job:<id>`` or a mapping)."""
+        return not isinstance(self.reference, str) or bool(TABLE_SET_JOB.match(self.reference))
+
+    @model_validator(mode="after")
+    def _check_forms(self) -> ScoreParams:
+        for label, cand in self.candidates.items():
+            whole = isinstance(cand, ModelCandidate) and cand.material is None
+            if self.table_set and not whole:
+                raise ValueError(
+                    f"candidates.{label}: against a set of tables (reference 'job:<id>' or "
+                    'a mapping) every candidate is a whole model {"model": REF}'
+                )
+            if whole and not self.table_set:
+                raise ValueError(
+                    f'candidates.{label}: {{"model": REF}} without "material" scores every '
+                    "material and needs a set of tables as reference: 'job:<generate.merl "
+                    "job id>' or {material name: table ref}; or name one material"
+                )
+        return self
 
     @field_validator("metrics")
     @classmethod
@@ -274,137 +317,8 @@ def _load(ref: str, role: str, ctx: JobContext, material: str | None = None) -> 
     return Loaded(ref=shown, kind=kind.name, data=data)
 
 
-# -- images ----------------------------------------------------------------------------------
-
-
-def _check_image(role: str, img: np.ndarray, ref_shape: tuple[int, ...] | None, hdr: bool) -> None:
-    if ref_shape is not None and img.shape != ref_shape:
-        raise JobFailed(
-            f"{role}: size {img.shape[1]}x{img.shape[0]} differs from the "
-            f"reference's {ref_shape[1]}x{ref_shape[0]}"
-        )
-    bad = int(np.count_nonzero(~np.isfinite(img)))
-    if bad:
-        raise JobFailed(f"{role}: {bad} non-finite pixel values (NaN or infinity)")
-    if hdr and float(img.min()) < 0.0:
-        raise JobFailed(
-            f"{role}: negative pixel values; HDR images must hold non-negative linear radiance"
-        )
-
-
-def _exposure(reference: np.ndarray, settings: ExposureSettings | None) -> ExposureRange:
-    settings = settings or ExposureSettings()
-    auto = hdr_exposure_range(reference, tonemapper=settings.tonemapper)
-    start = auto.start if settings.start is None else settings.start
-    stop = auto.stop if settings.stop is None else settings.stop
-    if start > stop:
-        raise JobFailed(
-            f"exposure: start {start:.4g} is above stop {stop:.4g} (one of them "
-            f"was derived from the reference; give both)"
-        )
-    count = settings.count or max(2, math.ceil(stop - start))
-    return ExposureRange(start=start, stop=stop, count=count, tonemapper=settings.tonemapper)
-
-
-def score_images(
-    reference: Loaded, candidates: dict[str, Loaded], params: ScoreParams, ctx: JobContext
-) -> ScoreResult:
-    """Score images of one kind (all EXR or all PNG); writes ``flip_<label>.png`` maps."""
-    hdr = reference.kind == "image-hdr"
-    ref_img: np.ndarray = reference.data
-    _check_image("reference", ref_img, None, hdr)
-    for label, cand in candidates.items():
-        _check_image(f"candidate {label!r}", cand.data, ref_img.shape, hdr)
-    data_range = float(ref_img.max()) if hdr else 1.0
-    if data_range <= 0.0:
-        raise JobFailed(
-            "reference: the image is black; PSNR, SSIM and HDR-FLIP need a "
-            "reference with some light"
-        )
-    wanted = set(params.metrics or IMAGE_METRICS)
-    if params.exposure is not None and not hdr:
-        raise JobFailed("exposure: applies to HDR-FLIP only; the reference is a PNG (LDR) image")
-    exposure = _exposure(ref_img, params.exposure) if hdr and "flip" in wanted else None
-
-    results: dict[str, dict[str, float | None]] = {}
-    for i, (label, cand) in enumerate(sorted(candidates.items())):
-        ctx.check_cancelled()
-        row: dict[str, float | None] = {}
-        try:
-            if "mse" in wanted:
-                row["mse"] = mse(ref_img, cand.data)
-            if "mae" in wanted:
-                row["mae"] = mae(ref_img, cand.data)
-            if "psnr" in wanted:
-                value = psnr(ref_img, cand.data, data_range=data_range)
-                row["psnr"] = None if math.isinf(value) else value
-            if "ssim" in wanted:
-                row["ssim"] = ssim(ref_img, cand.data, data_range=data_range, win_size=SSIM_WINDOW)
-            if "flip" in wanted:
-                mean, error_map = flip(
-                    ref_img, cand.data, mode="hdr" if hdr else "ldr", exposure_range=exposure
-                )
-                row["flip"] = mean
-                ctx.put_bytes(f"flip_{label}.png", write_png(None, magma(error_map)), "image/png")
-        except ValueError as exc:
-            raise JobFailed(f"candidate {label!r}: {exc}") from None
-        results[label] = row
-        ctx.progress(
-            0.1 + 0.85 * (i + 1) / len(candidates), f"scored {i + 1}/{len(candidates)}: {label}"
-        )
-
-    settings: dict[str, Any] = {
-        "artifact_kind": reference.kind,
-        "values": "linear RGB" if hdr else "sRGB-encoded values in [0, 1]",
-        "data_range": data_range,
-        "data_range_rule": "max of the reference" if hdr else "1 (8-bit PNG scaled to [0, 1])",
-        "psnr_identical": "null (infinite PSNR)",
-        "ssim": {"win_size": SSIM_WINDOW, "gaussian_weights": False, "K1": 0.01, "K2": 0.03},
-    }
-    if "flip" in wanted:
-        flip_settings: dict[str, Any] = {
-            "mode": "hdr" if hdr else "ldr",
-            "ppd": DEFAULT_PPD,
-            "error_maps": "flip_<label>.png (magma)",
-        }
-        if exposure is not None:
-            flip_settings.update(
-                start_exposure=exposure.start,
-                stop_exposure=exposure.stop,
-                num_exposures=exposure.count,
-                tonemapper=exposure.tonemapper,
-            )
-        settings["flip"] = flip_settings
-    return ScoreResult(metrics=results, settings=settings)
-
-
-register_artifact_kind(
-    ArtifactKind(
-        name="image-hdr",
-        description="an EXR (HDR) image",
-        media_types=("image/x-exr",),
-        extensions=(".exr",),
-        magic=b"\x76\x2f\x31\x01",
-        load=read_exr,
-        scorer=score_images,
-        metrics=IMAGE_METRICS,
-    )
-)
-register_artifact_kind(
-    ArtifactKind(
-        name="image-ldr",
-        description="a PNG (LDR) image",
-        media_types=("image/png",),
-        extensions=(".png",),
-        magic=b"\x89PNG\r\n\x1a\n",
-        load=read_png,
-        scorer=score_images,
-        metrics=IMAGE_METRICS,
-    )
-)
-
 #: Modules that register further artifact kinds, imported once this module is complete.
-ARTIFACT_KIND_MODULES: tuple[str, ...] = ("evaluators.score_brdf",)
+ARTIFACT_KIND_MODULES: tuple[str, ...] = ("evaluators.score_images", "evaluators.score_brdf")
 for _module in ARTIFACT_KIND_MODULES:
     importlib.import_module(_module)
 
@@ -415,6 +329,12 @@ for _module in ARTIFACT_KIND_MODULES:
 def run_score(params: ScoreParams, ctx: JobContext) -> None:
     """Load the reference and candidates, score them, and store ``metrics.json``."""
     ctx.progress(0.0, "loading inputs")
+    if params.table_set:
+        from evaluators.score_sets import score_table_set
+
+        score_table_set(params, ctx)
+        return
+    assert isinstance(params.reference, str)
     reference = _load(params.reference, "reference", ctx)
     kind = ARTIFACT_KINDS[reference.kind]
     metrics = list(params.metrics or kind.metrics)
@@ -430,6 +350,7 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
     for label, spec in params.candidates.items():
         role = f"candidate {label!r}"
         if isinstance(spec, ModelCandidate):
+            assert spec.material is not None  # whole models only with table sets
             cand = _load(spec.model, role, ctx, material=spec.material)
         else:
             cand = _load(spec, role, ctx)

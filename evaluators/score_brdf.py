@@ -173,13 +173,9 @@ def score_brdfs(
     if params.exposure is not None:
         raise JobFailed("exposure: applies to HDR-FLIP only, not to BRDF-space scores")
     wanted = list(params.metrics or BRDF_METRICS)
-    wi, wo = direction_pairs(DEFAULT_PAIRS, seed=PAIRS_SEED, distribution=DISTRIBUTION)
-    ref_values = _sample("reference", as_sampler("reference", reference.data), wi, wo)
-    keep = ~np.any(ref_values < 0, axis=1)
-    kept = int(np.count_nonzero(keep))
-    if kept == 0:
-        raise JobFailed("reference: the BRDF has no data at any of the scoring pairs")
-    wi, wo, ref_values = wi[keep], wo[keep], ref_values[keep]
+    sampler = as_sampler("reference", reference.data)
+    wi, wo, ref_values, excluded = reference_pairs("reference", sampler)
+    kept = DEFAULT_PAIRS - excluded
     ctx.progress(0.1 + 0.85 / (len(candidates) + 1), "sampled the reference")
 
     results: dict[str, dict[str, float | None]] = {}
@@ -196,20 +192,9 @@ def score_brdfs(
     for i, (label, cand) in enumerate(sorted(candidates.items())):
         ctx.check_cancelled()
         role = f"candidate {label!r}"
-        values = _sample(role, as_sampler(role, cand.data), wi, wo)
-        no_data = np.any(values < 0, axis=1)
-        missing[label] = int(np.count_nonzero(no_data))
-        values[no_data] = 0.0
-        row: dict[str, float | None] = {}
-        try:
-            for metric in wanted:
-                if metric == "smape":
-                    row["smape"] = smape(ref_values, values, eps=SMAPE_EPS)
-                elif metric == "mae":
-                    row["mae"] = brdf_mae(ref_values, values)
-        except ValueError as exc:
-            raise JobFailed(f"{role}: {exc}") from None
-        results[label] = row
+        results[label], missing[label] = score_candidate(
+            role, as_sampler(role, cand.data), wi, wo, ref_values, wanted
+        )
         ctx.progress(
             0.1 + 0.85 * (i + 2) / (len(candidates) + 1),
             f"scored {i + 1}/{len(candidates)}: {label}",
@@ -217,16 +202,72 @@ def score_brdfs(
 
     settings: dict[str, Any] = {
         "artifact_kind": reference.kind,
+        **brdf_settings(),
+        "excluded_pairs": DEFAULT_PAIRS - kept,
+        "scored_pairs": kept,
+        "candidate_missing_pairs": missing,
+    }
+    if models:
+        settings["candidate_models"] = models
+        settings["model_evaluation"] = MODEL_EVALUATION
+    return ScoreResult(metrics=results, settings=settings)
+
+
+#: How a model's material is evaluated (``settings.model_evaluation``).
+MODEL_EVALUATION = (
+    "models.brdf.portable.eval_portable of the named material, float64, at the same pairs "
+    "as the reference"
+)
+
+
+def score_candidate(
+    role: str,
+    sampler: BrdfSampler,
+    wi: np.ndarray,
+    wo: np.ndarray,
+    ref_values: np.ndarray,
+    wanted: list[str],
+) -> tuple[dict[str, float | None], int]:
+    """``({metric: value}, missing pairs)`` of one candidate at the reference's kept pairs
+    (rules 4 and 5 of the module docstring)."""
+    values = _sample(role, sampler, wi, wo)
+    no_data = np.any(values < 0, axis=1)
+    values[no_data] = 0.0
+    row: dict[str, float | None] = {}
+    try:
+        for metric in wanted:
+            if metric == "smape":
+                row["smape"] = smape(ref_values, values, eps=SMAPE_EPS)
+            elif metric == "mae":
+                row["mae"] = brdf_mae(ref_values, values)
+    except ValueError as exc:
+        raise JobFailed(f"{role}: {exc}") from None
+    return row, int(np.count_nonzero(no_data))
+
+
+def reference_pairs(
+    role: str, sampler: BrdfSampler
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """``(wi, wo, values, excluded)``: the scoring pairs where the reference has data
+    (rules 1-3 of the module docstring). Raises :class:`JobFailed` if it has none."""
+    wi, wo = direction_pairs(DEFAULT_PAIRS, seed=PAIRS_SEED, distribution=DISTRIBUTION)
+    values = _sample(role, sampler, wi, wo)
+    keep = ~np.any(values < 0, axis=1)
+    if not keep.any():
+        raise JobFailed(f"{role}: the BRDF has no data at any of the scoring pairs")
+    return wi[keep], wo[keep], values[keep], DEFAULT_PAIRS - int(np.count_nonzero(keep))
+
+
+def brdf_settings() -> dict[str, Any]:
+    """The settings every BRDF-space ``metrics.json`` records (pairs, rules, formulas)."""
+    return {
         "values": "plain RGB BRDF f(wi, wo) in 1/sr, no cosine factor",
         "pairs": DEFAULT_PAIRS,
         "seed": PAIRS_SEED,
         "distribution": DISTRIBUTION,
         "distribution_rule": DISTRIBUTIONS[DISTRIBUTION],
         "interpolation": "multilinear between bin centres" if INTERPOLATE else "nearest bin",
-        "excluded_pairs": DEFAULT_PAIRS - kept,
         "excluded_rule": "pairs where the reference has no data (negative) are excluded",
-        "scored_pairs": kept,
-        "candidate_missing_pairs": missing,
         "candidate_missing_rule": "counted as 0 where the reference has data",
         "smape": {
             "formula": "2/(N C) sum |f - f^| / (|f| + |f^| + eps), Eq. 6 of De Oliveira "
@@ -238,13 +279,6 @@ def score_brdfs(
         },
         "mae": {"formula": "1/(N C) sum |f - f^|", "units": "1/sr"},
     }
-    if models:
-        settings["candidate_models"] = models
-        settings["model_evaluation"] = (
-            "models.brdf.portable.eval_portable of the named material, float64, "
-            "at the same pairs as the reference"
-        )
-    return ScoreResult(metrics=results, settings=settings)
 
 
 register_artifact_kind(

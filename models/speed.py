@@ -281,7 +281,8 @@ def speed_report(
             model, names, _ = from_portable(doc)
             name = material or names[0]
             a = doc["architecture"]
-            row = model_row(mi, model, doc, name, f"{a['width']}x{a['depth']}", pairs, repeats)
+            size = "-" if doc["model"] == "analytic" else f"{a['width']}x{a['depth']}"
+            row = model_row(mi, model, doc, name, size, pairs, repeats)
             rows.append({**row, "trained": True, "material": name})
         model, fresh = _fresh_model("analytic", 0, 0, 0, seed)
         rows.append(model_row(mi, model, fresh, "bench", "-", pairs, repeats))

@@ -28,6 +28,8 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "generators.merl",
     "generators.fabric",
     "models.brdf.kind",
+    "models.brdf.report_kind",
+    "models.fabric.kind",
 )
 
 Runner = Callable[[Any, "JobContext"], None]

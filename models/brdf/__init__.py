@@ -10,7 +10,9 @@ not import torch):
 - :mod:`models.brdf.portable`: the ``model.json`` format and its numpy evaluator;
 - :mod:`models.brdf.report`: ``metrics.json`` and ``curves.png``;
 - :mod:`models.brdf.kind`: the params model and registration; :mod:`models.brdf.runner`:
-  the runner's body.
+  the runner's body;
+- :mod:`models.brdf.report_kind`: the ``report.brdf`` kind over finished runs, with
+  :mod:`models.brdf.study` (its numbers) and :mod:`models.brdf.report_plots` (its pictures).
 """
 
 SUBMODULES: tuple[str, ...] = (
@@ -22,4 +24,7 @@ SUBMODULES: tuple[str, ...] = (
     "report",
     "kind",
     "runner",
+    "study",
+    "report_plots",
+    "report_kind",
 )

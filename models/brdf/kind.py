@@ -16,15 +16,22 @@ Artifacts:
   phase if any);
 - ``metrics.json``: per-material ``smape`` and ``mae`` against the source tables at the
   fixed-seed scoring pairs, with means overall, per family and per split
-  (:mod:`models.brdf.report`).
+  (:mod:`models.brdf.report`);
+- ``speed.json`` (unless ``speed: off``): ns per evaluation of the fused Dr.Jit kernel and
+  of torch eager, bytes per network and per material, measured in this job by
+  :func:`models.speed.speed_report` (format ``matforge.speed/1``). ``speed: trained``
+  (default) times the trained model at its own size, with its weights and its first
+  material, beside the analytic GGX + Lambert; ``speed: full`` adds the bare MLP, hybrid
+  and neural at the paper's Table 4 sizes 16x2 ... 64x3 (fresh weights); ``speed_batch``
+  pairs per measurement, median of :data:`SPEED_REPEATS` runs, 2 threads.
 
-Same spec, same bytes: all randomness comes from the job's seed (``ctx.sub_seed``), training
-runs with :func:`models.brdf.train.deterministic_torch`, and no artifact holds a timing (the
-last progress message and the log line of :mod:`models.brdf.runner` do; the job's manifest
-has its run time). Byte identity holds on CPU; ``device: cuda`` is not guaranteed
-deterministic (and is untested here: no GPU). ``speed.json`` (fused Dr.Jit kernel against
-torch eager) comes from :func:`models.speed.speed_report`, not from this kind: timings would
-break byte identity.
+Same spec, same bytes, except ``speed.json``: it holds timings, so it is the one artifact
+whose bytes vary between runs (like ``stats.json`` of ``generate.fabric``). All randomness
+comes from the job's seed (``ctx.sub_seed``), training runs with
+:func:`models.brdf.train.deterministic_torch`, and no other artifact holds a timing (the last
+progress message and the log line of :mod:`models.brdf.runner` do; the job's manifest has
+its run time). Byte identity holds on CPU; ``device: cuda`` is not guaranteed deterministic
+(and is untested here: no GPU).
 
 Held-out families (Table 3 of the paper): materials of ``holdout_families`` are left out
 of the first phase (network and training materials' ``(z, p)``); a second phase then fits
@@ -53,6 +60,8 @@ if TYPE_CHECKING:
 DATASET_JOB = re.compile(r"^job:[0-9a-f]{32}$")
 #: Most tables one job may train on.
 MAX_TABLES = 500
+#: Runs per median of each ``speed.json`` measurement (after one warm-up run).
+SPEED_REPEATS = 5
 
 
 def _check_dataset_job(value: str) -> str:
@@ -148,6 +157,9 @@ class TrainBrdfParams(StrictModel):
     ``init``                ref                  none       model.json / model.pt to start
     ``freeze_network``      bool                 false      fit only ``(z, p)`` (needs init)
     ``device``              cpu | cuda           cpu        where to train
+    ``speed``               full | trained |     trained    what ``speed.json`` times
+                            off
+    ``speed_batch``         int                  2^18       pairs per speed measurement
     ======================  ===================  =========  =================================
 
     Example::
@@ -242,6 +254,19 @@ class TrainBrdfParams(StrictModel):
     device: Literal["cpu", "cuda"] = Field(
         default="cpu", description="Training device; only 'cpu' gives byte-identical results."
     )
+    speed: Literal["full", "trained", "off"] = Field(
+        default="trained",
+        description="speed.json, ns per evaluation (fused Dr.Jit kernel and torch eager): "
+        "'trained' the trained size and the analytic model (seconds), 'full' also the bare "
+        "MLP, hybrid and neural at 16x2..64x3 (a few minutes), 'off' no speed.json. Its "
+        "timings vary between runs: the one non-deterministic artifact.",
+    )
+    speed_batch: int = Field(
+        default=1 << 18,
+        ge=1024,
+        le=1 << 22,
+        description="Cosine-weighted pairs per speed.json measurement (median of 5 runs).",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> TrainBrdfParams:
@@ -327,6 +352,7 @@ register(
             "curves.json",
             "curves.png",
             "metrics.json",
+            "speed.json",
         ),
         smoke={},
     )

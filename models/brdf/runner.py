@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from models.brdf.data import load_dataset, split_by_family, stack_tables
-from models.brdf.kind import TrainBrdfParams, architecture, load_init
+from models.brdf.kind import SPEED_REPEATS, TrainBrdfParams, architecture, load_init
 from models.brdf.networks import BrdfModel, build_model, copy_materials, copy_network
 from models.brdf.portable import checkpoint_bytes, to_portable
 from models.brdf.report import curves_png, evaluate
@@ -114,7 +114,10 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
             check_cancelled=ctx.check_cancelled,
         )
     ctx.progress(P_SCORED, "writing artifacts")
-    _write(ctx, params, final, ordered, metrics, curves)
+    doc = _write(ctx, params, final, ordered, metrics, curves)
+    if params.speed != "off":
+        ctx.progress(P_SCORED, f"timing the model (speed: {params.speed})")
+        ctx.put_json("speed.json", measure_speed(params, doc))
     train_curve = curves["train"]
     ms = 1000.0 * train_curve.seconds / steps if train_curve is not None else 0.0
     log.info(
@@ -162,7 +165,8 @@ def _write(
     materials: list[Any],
     metrics: dict[str, Any],
     curves: dict[str, Curves | None],
-) -> None:
+) -> dict[str, Any]:
+    """Store every deterministic artifact; returns the ``model.json`` document."""
     names = [m.name for m in materials]
     families = [m.family for m in materials]
     splits = {r["name"]: r["split"] for r in metrics["materials"]}
@@ -196,3 +200,34 @@ def _write(
     size = f" {arch.width}x{arch.depth}, l={arch.latent_dim}" if arch.model != "analytic" else ""
     ctx.put_bytes("curves.png", curves_png(curves, f"train.brdf: {arch.model}{size}"), "image/png")
     ctx.put_json("metrics.json", {"model": arch.model, **metrics})
+    return doc
+
+
+def measure_speed(params: TrainBrdfParams, doc: dict[str, Any]) -> dict[str, Any]:
+    """The ``speed.json`` document of a trained model (see :mod:`models.brdf.kind`).
+
+    ``speed: trained`` times the model at its own size and the analytic baseline; ``full``
+    adds the paper's Table 4 sizes. Without Mitsuba's LLVM variant nothing is timed and the
+    document says why (``skipped``), so that the job still succeeds.
+    """
+    from materials.mitsuba_backend import load_mitsuba
+    from models.speed import SIZES, SPEED_FORMAT, speed_report
+
+    mi = load_mitsuba()
+    if not mi.variant().startswith("llvm_"):
+        return {
+            "format": SPEED_FORMAT,
+            "skipped": f"needs Mitsuba's LLVM variant for the fused kernel; got {mi.variant()}",
+            "rows": [],
+        }
+    latent = int(params.value("latent_dim")) if params.model != "analytic" else 4
+    report = speed_report(
+        mi,
+        doc,
+        sizes=SIZES if params.speed == "full" else (),
+        latent_dim=latent,
+        batch=params.speed_batch,
+        repeats=SPEED_REPEATS,
+    )
+    report["mode"] = params.speed
+    return report

@@ -1,8 +1,11 @@
 """The dashboard: server-rendered pages (Jinja2) whose small scripts poll the JSON API.
 
 ``/`` lists the jobs with live state and progress; ``/jobs/{id}`` shows one job: spec,
-manifest, artifacts, image previews and metrics. Static files (our CSS and JS, and the
-vendored Chart.js) are served from ``/static`` behind the same token check as every page.
+manifest, artifacts, image previews (PNGs such as ``curves.png``, ``pareto.png``) and one
+table: ``score``'s metrics per candidate, a training job's ``metrics.json`` per material
+(``train.brdf``), or ``report.brdf``'s ``pareto.json`` per configuration with its claims.
+Static files (our CSS and JS, and the vendored Chart.js) are served from ``/static`` behind
+the same token check as every page.
 """
 
 from __future__ import annotations
@@ -152,14 +155,96 @@ def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
     return sorted(out, key=lambda i: (i["group"] == "flip", i["name"]))
 
 
-def _metrics(store: ArtifactStore, artifacts: list[ArtifactRecord]) -> dict[str, Any] | None:
-    """``metrics.json`` as ``{"reference", "labels", "names", "rows", "settings"}``."""
-    rec = next((a for a in artifacts if Path(a.name).name == "metrics.json"), None)
-    doc = _read_json(store, rec.digest) if rec else None
-    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), dict):
+def _artifact_json(store: ArtifactStore, artifacts: list[ArtifactRecord], name: str) -> Any:
+    rec = next((a for a in artifacts if Path(a.name).name == name), None)
+    return _read_json(store, rec.digest) if rec else None
+
+
+#: Columns of a training job's per-material table (``train.brdf`` ``metrics.json``).
+MATERIAL_COLUMNS = ("family", "split", "smape", "mae", "smape_analytic", "mae_analytic")
+#: Columns of ``report.brdf``'s ``pareto.json`` points.
+PARETO_COLUMNS = (
+    "per_material_params",
+    "n",
+    "smape_mean",
+    "smape_std",
+    "smape_min",
+    "smape_max",
+    "ns_per_eval",
+    "torch_ns",
+    "bytes_per_material",
+    "pareto",
+)
+
+
+def _table(
+    title: str, header: str, rows: dict[str, dict[str, Any]], names: list[str], **extra: Any
+) -> dict[str, Any]:
+    """The view of one metrics table: ``labels`` (rows), ``names`` (columns), ``rows``."""
+    return {
+        "title": title,
+        "label_header": header,
+        "labels": list(rows),
+        "names": names,
+        "rows": rows,
+        **extra,
+    }
+
+
+def _per_material(doc: dict[str, Any]) -> dict[str, Any] | None:
+    """A training ``metrics.json`` (``{"materials": [{"name", ...}], "mean": {...}}``):
+    one row per material, then the mean."""
+    mats = [m for m in doc["materials"] if isinstance(m, dict) and "name" in m]
+    if not mats:
         return None
+    rows = {str(m["name"]): {k: m.get(k) for k in MATERIAL_COLUMNS} for m in mats}
+    if isinstance(doc.get("mean"), dict):
+        rows["mean"] = {k: doc["mean"].get(k) for k in MATERIAL_COLUMNS}
+    names = [k for k in MATERIAL_COLUMNS if any(r.get(k) is not None for r in rows.values())]
+    return _table("Metrics per material", "Material", rows, names, settings=doc.get("settings"))
+
+
+def _pareto(doc: dict[str, Any]) -> dict[str, Any] | None:
+    """``report.brdf``'s ``pareto.json``: one row per configuration, and its claims."""
+    points = [p for p in doc.get("points", []) if isinstance(p, dict) and "config" in p]
+    if not points:
+        return None
+    rows = {str(p["config"]): {k: p.get(k) for k in PARETO_COLUMNS} for p in points}
+    claims = [c for c in doc.get("claims", []) if isinstance(c, dict) and "claim" in c]
+    return _table(
+        "Accuracy against cost",
+        "Configuration",
+        rows,
+        list(PARETO_COLUMNS),
+        claims=claims,
+        settings=doc.get("settings"),
+    )
+
+
+def _with_material_rows(
+    rows: dict[str, dict[str, Any]], per: dict[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """Each label's row followed by its ``"<label> / <material>"`` rows."""
+    out: dict[str, dict[str, Any]] = {}
+    for label, row in rows.items():
+        out[label] = row
+        for name, vals in (per.get(label) or {}).items():
+            if isinstance(vals, dict):
+                out[f"{label} / {name}"] = vals
+    return out
+
+
+def _metrics(store: ArtifactStore, artifacts: list[ArtifactRecord]) -> dict[str, Any] | None:
+    """The job's table: ``score``'s ``metrics.json`` (one row per candidate), a training
+    job's ``metrics.json`` (one row per material) or ``report.brdf``'s ``pareto.json``;
+    as ``{"title", "label_header", "reference", "labels", "names", "rows", "settings"}``."""
+    doc = _artifact_json(store, artifacts, "metrics.json")
+    if isinstance(doc, dict) and isinstance(doc.get("materials"), list):
+        return _per_material(doc)
+    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), dict):
+        pareto = _artifact_json(store, artifacts, "pareto.json")
+        return _pareto(pareto) if isinstance(pareto, dict) else None
     table: dict[str, Any] = doc["metrics"]
-    labels = [str(k) for k in table]
     names: list[str] = []
     for values in table.values():
         for m in values if isinstance(values, dict) else {}:
@@ -169,13 +254,18 @@ def _metrics(store: ArtifactStore, artifacts: list[ArtifactRecord]) -> dict[str,
         label: {m: v for m, v in (vals.items() if isinstance(vals, dict) else [])}
         for label, vals in table.items()
     }
-    return {
-        "reference": doc.get("reference"),
-        "labels": labels,
-        "names": names,
-        "rows": rows,
-        "settings": doc.get("settings"),
-    }
+    per = doc.get("per_material")  # whole models against a set of tables
+    if isinstance(per, dict):
+        rows = _with_material_rows(rows, per)
+    reference = doc.get("reference")
+    return _table(
+        "Metrics",
+        "Candidate",
+        rows,
+        names,
+        settings=doc.get("settings"),
+        reference=reference if isinstance(reference, str) else None,
+    )
 
 
 def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:

@@ -27,7 +27,10 @@ from storage.jobs import Job
 
 ARTIFACTS = {"model.pt", "model.json", "materials.json", "curves.json", "curves.png",
              "metrics.json"}  # fmt: skip
-TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "width": 16, "depth": 2}
+TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "width": 16, "depth": 2,
+        "speed": "off"}  # fmt: skip
+#: The cheapest speed.json: the trained size and analytic, 4096 pairs per measurement.
+TIMED = {"speed": "trained", "speed_batch": 4096}
 
 
 @pytest.fixture(scope="module")
@@ -66,12 +69,25 @@ def test01_each_model_trains_and_its_artifacts_agree(
     brdf_env: tuple[Settings, str], model: str
 ) -> None:
     settings, gen = brdf_env
-    params = {**TINY, "model": model, "dataset": f"job:{gen}"}
+    params = {**TINY, **TIMED, "model": model, "dataset": f"job:{gen}"}
     if model == "analytic":
         params = {k: v for k, v in params.items() if k not in ("width", "depth")}
     job = train(settings, params)
     assert job.state == "succeeded", job.error
-    assert {a.name for a in job.artifacts} == ARTIFACTS
+    assert {a.name for a in job.artifacts} == ARTIFACTS | {"speed.json"}
+    speed = read_json(settings, job, "speed.json")
+    assert speed["format"] == "matforge.speed/1" and speed["mode"] == "trained"
+    assert speed["batch"] == 4096
+    trained, analytic = speed["rows"]  # the trained size, then the analytic baseline
+    assert trained["trained"] is True and trained["model"] == model
+    assert analytic["model"] == "analytic"
+    assert trained["size"] == ("-" if model == "analytic" else "16x2")
+    for row in speed["rows"]:
+        assert row["fused_ns"] > 0 and row["fused_kernel_ns"] > 0 and row["torch_ns"] > 0
+    # Bytes: 4 per float; the per-material count is materials.json's.
+    floats = {"hybrid": 11, "neural": 11, "analytic": 7}[model]
+    assert trained["bytes_per_material"] == 4 * floats
+    assert (trained["bytes_per_network"] > 0) == (model != "analytic")
     doc = read_json(settings, job, "model.json")
     assert doc["format"] == FORMAT and doc["model"] == model
     torch_model, names, _ = load_checkpoint(read(settings, job, "model.pt"))
@@ -98,14 +114,15 @@ def test01_each_model_trains_and_its_artifacts_agree(
 
 def test02_same_spec_same_bytes(brdf_env: tuple[Settings, str]) -> None:
     settings, gen = brdf_env
-    params = {**TINY, "dataset": f"job:{gen}", "latent_dim": 8}
+    params = {**TINY, **TIMED, "dataset": f"job:{gen}", "latent_dim": 8}
     first = train(settings, params)
     again = train(settings, params, force=True)
     assert first.state == again.state == "succeeded", (first.error, again.error)
     assert first.id != again.id
-    assert {a.name: a.digest for a in first.artifacts} == {
-        a.name: a.digest for a in again.artifacts
-    }
+    # speed.json holds timings: the one artifact whose bytes may differ (kind docstring).
+    one, two = ({a.name: a.digest for a in j.artifacts} for j in (first, again))
+    assert one.pop("speed.json") and two.pop("speed.json")
+    assert one == two and set(one) == ARTIFACTS
 
 
 def test03_divergence_fails_the_job_with_a_clear_error(brdf_env: tuple[Settings, str]) -> None:
@@ -121,6 +138,7 @@ def test04_init_with_frozen_network_fits_only_z_and_p(brdf_env: tuple[Settings, 
     settings, gen = brdf_env
     base = train(settings, {**TINY, "dataset": f"job:{gen}", "holdout_families": ["metal"]})
     assert base.state == "succeeded", base.error
+    assert {a.name for a in base.artifacts} == ARTIFACTS  # speed: off, no speed.json
     metrics = read_json(settings, base, "metrics.json")
     assert metrics["splits"]["heldout"]["count"] == 1 and metrics["splits"]["train"]["count"] == 2
     curves = read_json(settings, base, "curves.json")

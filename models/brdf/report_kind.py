@@ -1,0 +1,218 @@
+"""The ``report.brdf`` job kind: accuracy against cost over finished ``train.brdf`` runs.
+
+For the hybrid-BRDF paper's summary figures (De Oliveira et al.: Fig. 4 accuracy, Table 4
+cost, Fig. 12 failure families): ``runs`` are ``train.brdf`` jobs, typically every model
+type and size over several seeds on one ``generate.merl`` collection. Runs of the same model
+type and size are one *configuration* (:mod:`models.brdf.study`).
+
+Artifacts:
+
+- ``pareto.json``: per configuration its mean SMAPE over seeds (with std, min, max), its
+  fused-kernel ns per evaluation, bytes per network and per material, ``pareto: true`` on
+  the front; ``front`` (the front's configurations by cost) and ``claims``: "hybrid <
+  analytic" for each hybrid size and "hybrid <= neural at equal per-material parameters" at
+  16x3, 32x3 and every other size with both, each with its numbers and ``holds``
+  true / false (``null`` with ``why`` where a configuration is missing);
+- ``pareto.png``: the same as a picture;
+- ``spread.json``: per configuration the per-seed mean SMAPE (job, seed, value) and
+  mean / std / min / max over seeds;
+- ``families.json``, ``families.png``: per configuration and material family the mean
+  SMAPE over seeds and its spread; ``iridescent`` (thin film) and ``blend`` (multi-lobe)
+  singled out, as in the paper's Fig. 12.
+
+Cost: from each run's ``speed.json`` (``train.brdf``'s ``speed: trained`` or ``full``), its
+trained-size row; a configuration none of whose runs has one is timed here, once, with
+the first run's model (:func:`models.speed.model_row`, ``speed_batch`` pairs, median of 5,
+2 threads), and its ``ns_source`` says so. Same runs, same bytes, unless a configuration
+had to be timed here (then the ns figures vary between runs, as ``speed.json`` does).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import TYPE_CHECKING, Annotated, Any
+
+from pydantic import AfterValidator, Field
+
+from service.errors import JobFailed, NotFoundError
+from service.registry import Kind, register
+from service.specs import StrictModel
+
+if TYPE_CHECKING:
+    from models.brdf.study import Run
+    from service.context import JobContext
+
+JOB = re.compile(r"^job:[0-9a-f]{32}$")
+REPORT_FORMAT = "matforge.brdf-report/1"
+
+
+def _check_job(value: str) -> str:
+    if not JOB.match(value):
+        raise ValueError("must be 'job:<job-id>' of a train.brdf job ('step:<name>' in batches)")
+    return value
+
+
+class ReportBrdfParams(StrictModel):
+    """Parameters of ``report.brdf``.
+
+    ===============  =======================  ========  ===================================
+    name             type                     default   meaning
+    ===============  =======================  ========  ===================================
+    ``runs``         list of ``job:<id>``     required  finished train.brdf jobs, 1..64
+    ``speed_batch``  int                      2^18      pairs per ns/eval measurement of a
+                                                        configuration without speed.json
+    ===============  =======================  ========  ===================================
+
+    Example (in a batch file, ``step:<name>`` is the whole job)::
+
+        {"kind": "report.brdf", "params": {"runs": ["step:hybrid_s0", "step:neural_s0"]}}
+    """
+
+    runs: list[Annotated[str, AfterValidator(_check_job)]] = Field(
+        min_length=1,
+        max_length=64,
+        description="train.brdf jobs to compare: 'job:<id>' each ('step:<name>' in a batch "
+        "file); all fitted to the same materials.",
+    )
+    speed_batch: int = Field(
+        default=1 << 18,
+        ge=1024,
+        le=1 << 22,
+        description="Pairs per ns/eval measurement, for configurations whose runs have no "
+        "speed.json (they are timed here, median of 5).",
+    )
+
+
+def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
+    """The :class:`~models.brdf.study.Run` of a ``train.brdf`` job and its ``model.json``."""
+    from models.brdf.study import Run
+
+    job_id = ref.removeprefix("job:")
+    try:
+        job = ctx.jobs.get(job_id)
+    except NotFoundError:
+        raise JobFailed(f"runs: no job {job_id}") from None
+    if job.kind != "train.brdf":
+        raise JobFailed(f"runs: job {job_id} is a {job.kind} job, not train.brdf")
+    if job.state != "succeeded":
+        raise JobFailed(f"runs: job {job_id} is {job.state}, not succeeded")
+    names = {a.name for a in job.artifacts}
+
+    def read(name: str) -> Any:
+        return json.loads(ctx.read_ref(f"job:{job_id}/{name}"))
+
+    metrics, doc = read("metrics.json"), read("model.json")
+    arch = doc["architecture"]
+    speed, source = None, "none"
+    if "speed.json" in names:
+        rows = [r for r in read("speed.json").get("rows", []) if r.get("trained")]
+        if rows:
+            speed, source = rows[0], "speed.json of the runs"
+    run = Run(
+        job_id=job_id,
+        seed=job.seed,
+        model=str(doc["model"]),
+        width=int(arch["width"]),
+        depth=int(arch["depth"]),
+        latent_dim=int(arch["latent_dim"]),
+        per_material_params=int(arch["per_material_params"]),
+        materials=tuple(metrics["materials"]),
+        speed=speed,
+        speed_source=source,
+    )
+    return run, doc
+
+
+def _time_config(doc: dict[str, Any], batch: int) -> dict[str, Any] | None:
+    """The trained-size speed row of ``doc``'s first material, or ``None`` without LLVM."""
+    from materials.mitsuba_backend import load_mitsuba
+    from models.brdf.kind import SPEED_REPEATS
+    from models.speed import speed_report
+
+    mi = load_mitsuba()
+    if not mi.variant().startswith("llvm_"):
+        return None
+    rows = speed_report(mi, doc, sizes=(), batch=batch, repeats=SPEED_REPEATS)["rows"]
+    return next(r for r in rows if r.get("trained"))
+
+
+def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
+    """Gather the runs, time what is untimed, and write the report artifacts."""
+    from dataclasses import replace
+
+    from models.brdf import study
+    from models.brdf.report_plots import families_png, pareto_png
+
+    if len(set(params.runs)) != len(params.runs):
+        raise JobFailed("runs: a job is listed twice")
+    runs, docs = [], {}
+    for i, ref in enumerate(params.runs):
+        run, doc = load_run(ref, ctx)
+        runs.append(run)
+        docs[run.job_id] = doc
+        ctx.progress(0.3 * (i + 1) / len(params.runs), f"read {i + 1}/{len(params.runs)} runs")
+    sets = {tuple(sorted(r["name"] for r in run.materials)) for run in runs}
+    if len(sets) > 1:
+        raise JobFailed(
+            "runs: fitted to different sets of materials; a report compares models on one "
+            "dataset (the same generate.merl job)"
+        )
+    configs = study.group(runs)
+    for i, c in enumerate(configs.values()):
+        if all(r.speed is None for r in c.runs):
+            ctx.progress(0.3 + 0.6 * i / len(configs), f"timing {c.label}")
+            row = _time_config(docs[c.runs[0].job_id], params.speed_batch)
+            if row is not None:
+                c.runs[:] = [
+                    replace(r, speed=row, speed_source="timed by this job") for r in c.runs
+                ]
+    points = [c.summary() for c in configs.values()]
+    front = study.pareto_front(points)
+    for p in points:
+        p["pareto"] = p["config"] in front
+    claims = study.claims(configs)
+    n_mat = len(runs[0].materials)
+    common = {"format": REPORT_FORMAT, "materials": n_mat, "runs": list(params.runs)}
+    ctx.put_json("pareto.json", {
+        **common, "points": points, "front": front, "claims": claims,
+        "settings": {
+            "accuracy": "mean SMAPE (Eq. 6) over materials per run (metrics.json), then mean "
+            "over seeds; std is the sample std (ddof 1)",
+            "cost": "fused Dr.Jit kernel execution ns per evaluation (fused_kernel_ns), "
+            "median over runs; bytes per material = 4 x per-material floats",
+            "front": "not beaten on both mean SMAPE and ns_per_eval by another configuration",
+        },
+    })  # fmt: skip
+    spread = {
+        c.label: {
+            **study.spread([r.mean_smape for r in c.runs]),
+            "per_seed": [
+                {"seed": r.seed, "run": f"job:{r.job_id}", "smape": r.mean_smape} for r in c.runs
+            ],  # fmt: skip
+        }
+        for c in configs.values()
+    }
+    ctx.put_json("spread.json", {**common, "configs": spread})
+    fams = {**common, **study.families(configs)}
+    ctx.put_json("families.json", fams)
+    title = f"report.brdf: {len(configs)} configurations, {len(runs)} runs, {n_mat} materials"
+    ctx.progress(0.95, "drawing")
+    ctx.put_bytes("pareto.png", pareto_png(points, front, title), "image/png")
+    ctx.put_bytes("families.png", families_png(fams, title), "image/png")
+    held = [c["claim"] for c in claims if c.get("holds") is False]
+    ctx.progress(1.0, f"front: {', '.join(front) or 'none timed'}; claims not holding: "
+                 f"{'; '.join(held) or 'none'}")  # fmt: skip
+
+
+register(
+    Kind(
+        name="report.brdf",
+        params=ReportBrdfParams,
+        runner=run_report_brdf,
+        summary="Accuracy (mean SMAPE) against cost (fused ns/eval) over train.brdf runs: "
+        "Pareto front, seed spread, per-family errors and the paper's claims checked.",
+        artifacts=("pareto.json", "pareto.png", "spread.json", "families.json", "families.png"),
+        smoke={},
+    )
+)

@@ -1,0 +1,137 @@
+"""The job page's tables for training and report jobs (server-rendered HTML and the JSON the
+page's chart script reads), through the real app with a TestClient.
+
+A test-only kind writes what ``train.brdf`` and ``report.brdf`` write (a per-material
+``metrics.json`` with ``curves.png``; a ``pareto.json`` with claims and ``pareto.png``).
+References: the documents themselves: every material, the mean row and every claim appear,
+the chart data carries the numbers unchanged, and the PNGs are in the gallery.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from collections.abc import Iterator
+from typing import Any, Literal
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from pydantic import Field
+
+from service import registry
+from service.api import create_app
+from service.context import JobContext
+from service.settings import Settings
+from service.specs import StrictModel
+from service.submission import submit
+from service.worker import run_worker
+from storage.artifacts import ArtifactStore
+from storage.formats.png import write_png
+from storage.jobs import JobStore
+
+TRAIN_METRICS = {
+    "model": "hybrid",
+    "materials": [
+        {"name": "gold", "family": "metal", "split": "train", "smape": 0.11, "mae": 0.02,
+         "smape_analytic": 0.3, "mae_analytic": 0.05, "pairs": 2048},
+        {"name": "film", "family": "iridescent", "split": "heldout", "smape": 0.4, "mae": 0.1,
+         "smape_analytic": 0.6, "mae_analytic": 0.2, "pairs": 2000},
+    ],
+    "mean": {"count": 2, "smape": 0.255, "mae": 0.06, "smape_analytic": 0.45,
+             "mae_analytic": 0.125},
+    "settings": {"pairs": 2048},
+}  # fmt: skip
+PARETO = {
+    "points": [
+        {"config": "analytic", "n": 3, "smape_mean": 0.2, "ns_per_eval": 2.0, "pareto": True},
+        {"config": "hybrid 16x3", "n": 3, "smape_mean": 0.1, "ns_per_eval": 60.0,
+         "pareto": True},
+    ],
+    "claims": [
+        {"claim": "hybrid 16x3 mean SMAPE < analytic", "holds": True},
+        {"claim": "hybrid 32x3 mean SMAPE <= neural 32x3 at equal per-material parameters",
+         "holds": None, "why": "no neural 32x3 run in the report"},
+    ],
+}  # fmt: skip
+
+
+#: ``score`` of whole models against a set of tables (means, then rows per material).
+SET_SCORE = {
+    "reference": "job:" + "0" * 32,
+    "metrics": {"hybrid": {"smape": 0.2, "mae": 0.03}},
+    "per_material": {"hybrid": {"gold": {"smape": 0.1, "mae": 0.02},
+                                "film": {"smape": 0.3, "mae": 0.04}}},
+}  # fmt: skip
+
+
+class TablesParams(StrictModel):
+    """Params of the test-only kind."""
+
+    what: Literal["train", "report", "set"] = Field(description="which job's artifacts to write")
+
+
+def run_tables(params: TablesParams, ctx: JobContext) -> None:
+    png = write_png(None, np.zeros((4, 4, 3), dtype=np.uint8))
+    if params.what == "set":
+        ctx.put_json("metrics.json", SET_SCORE)
+    elif params.what == "train":
+        ctx.put_json("metrics.json", TRAIN_METRICS)
+        ctx.put_bytes("curves.png", png, "image/png")
+    else:
+        ctx.put_json("pareto.json", PARETO)
+        ctx.put_bytes("pareto.png", png, "image/png")
+
+
+@pytest.fixture
+def client(settings: Settings, monkeypatch: pytest.MonkeyPatch) -> Iterator[TestClient]:
+    registry.load_builtin()
+    kind = registry.Kind("test_tables", TablesParams, run_tables, "test-only tables kind")
+    monkeypatch.setitem(registry._KINDS, kind.name, kind)
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+def page(client: TestClient, settings: Settings, what: str) -> tuple[str, Any]:
+    """The job page's HTML and its ``metrics-data`` JSON, for a finished job."""
+    jobs = JobStore(settings.db_path)
+    try:
+        job, _ = submit({"kind": "test_tables", "params": {"what": what}}, jobs,
+                        ArtifactStore(settings.store_dir))  # fmt: skip
+    finally:
+        jobs.close()
+    assert run_worker(settings, max_jobs=1) == 1
+    r = client.get(f"/jobs/{job.id}")
+    assert r.status_code == 200, r.text
+    m = re.search(r'<script type="application/json" id="metrics-data">(.*?)</script>', r.text, re.S)
+    assert m is not None
+    return r.text, json.loads(html.unescape(m.group(1)))
+
+
+def test01_training_metrics_per_material(client: TestClient, settings: Settings) -> None:
+    text, data = page(client, settings, "train")
+    assert "Metrics per material" in text and "<th>Material</th>" in text
+    assert data["labels"] == ["gold", "film", "mean"]
+    assert data["names"] == ["family", "split", "smape", "mae", "smape_analytic", "mae_analytic"]
+    assert data["rows"]["film"]["smape"] == 0.4 and data["rows"]["mean"]["mae"] == 0.06
+    assert data["rows"]["gold"]["family"] == "metal"
+    assert len(re.findall(r"<tr><td>(gold|film|mean)</td>", text)) == 3
+    assert 'alt="curves.png"' in text
+
+
+def test02_report_pareto_and_claims(client: TestClient, settings: Settings) -> None:
+    text, data = page(client, settings, "report")
+    assert "Accuracy against cost" in text and "<th>Configuration</th>" in text
+    assert data["labels"] == ["analytic", "hybrid 16x3"]
+    assert data["rows"]["hybrid 16x3"]["ns_per_eval"] == 60.0
+    assert 'id="claims-table"' in text
+    assert "hybrid 16x3 mean SMAPE &lt; analytic" in text and "no neural 32x3 run" in text
+    assert 'alt="pareto.png"' in text
+
+
+def test03_whole_model_scores_per_material(client: TestClient, settings: Settings) -> None:
+    text, data = page(client, settings, "set")
+    assert data["labels"] == ["hybrid", "hybrid / film", "hybrid / gold"]  # JSON keys sorted
+    assert data["rows"]["hybrid / film"] == {"smape": 0.3, "mae": 0.04}
+    assert "<th>Candidate</th>" in text and "Reference" in text
