@@ -26,22 +26,40 @@ The latent (in order):
 
 The albedos, ``tiles_per_uv`` come from the ``fabric`` value; ``visibility`` is ignored
 (the network learned the aggregate with visibility).
+
+Latent interpolation (Sec. 6.3, Fig. 8): an optional ``interpolate`` sibling renders the
+latent ``(1 - t) z(A) + t z(B)`` between the ``fabric`` material A and a second material B,
+both encoded as above (steps 1-3; with a ``model.json`` both must be training materials)::
+
+    {"model": "job:<id>/model.pt", "fabric": {"pattern": "twill_3x3", "beta": 0.2},
+     "interpolate": {"fabric": {"pattern": "twill_3x3", "beta": 0.8}, "t": 0.5}}
+
+``t`` lies in [0, 1]; B must have A's ``pattern`` and ``tiles_per_uv`` (the latent space is
+continuous in the parameters, not across patterns). Every numeric ``FabricParams`` field of
+the BSDF (albedos for Eq. 8, ``gap`` for the tile geometry) is interpolated with the same
+weights, so ``t = 0`` renders exactly A and ``t = 1`` exactly B (bit for bit: ``1 x + 0 y``
+is ``x``); in Fig. 8 A and B differ only in roughness or height scaling, which only the
+latent carries, so the interpolated latent is the only thing compared against the directly
+encoded one.
 """
 
 from __future__ import annotations
 
+import json
 import types
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
+from pydantic import Field, WithJsonSchema
 
-from evaluators.fabric_material import FabricSpec
+from evaluators.fabric_material import FabricSpec, FabricValue
 from materials.fabric.footprint_bsdf import footprint_base, params_json
 from materials.fabric.params import FabricParams
 from materials.mitsuba_backend import register_vectorised_bsdf
 from service.errors import JobFailed
+from service.specs import StrictModel
 
 if TYPE_CHECKING:
     from models.fabric.fused import FabricModel
@@ -53,6 +71,61 @@ FABRIC_MODEL_BSDF_NAME = "fabric_model"
 _MAP_RESOLUTION = 256
 #: Parameters that must match for a training latent to stand for the material.
 _GEOMETRY = ("psi_deg", "u_max_deg", "alpha", "beta", "w", "gap", "t_rho")
+
+
+class FabricInterpolation(StrictModel):
+    """The ``interpolate`` sibling: render the latent ``(1 - t) z(fabric) + t z(B)``."""
+
+    fabric: FabricValue = Field(
+        description="Material B (the 'fabric' material's fields): same pattern and "
+        "tiles_per_uv as the 'fabric' sibling."
+    )
+    t: float = Field(
+        ge=0.0,
+        le=1.0,
+        allow_inf_nan=False,
+        description="Weight of B, [0, 1]: 0 renders the 'fabric' material, 1 renders B.",
+    )
+
+
+#: The ``interpolate`` sibling's type, its JSON schema inlined (the material schema embeds
+#: sibling properties without ``$defs``).
+InterpolationValue = Annotated[
+    FabricInterpolation, WithJsonSchema(FabricInterpolation.model_json_schema())
+]
+
+
+def check_interpolation(a: Mapping[str, Any], b: Mapping[str, Any]) -> None:
+    """Spec-time check of B (``b``) against A (``a``), both validated ``fabric`` values.
+
+    Raises ``ValueError`` naming the field when the patterns or ``tiles_per_uv`` differ.
+    """
+    for key in ("pattern", "tiles_per_uv"):
+        if a.get(key) != b.get(key):
+            raise ValueError(
+                f"interpolate.fabric.{key} must equal fabric.{key} ({a.get(key)!r}), got "
+                f"{b.get(key)!r}: latents interpolate between parameters of one pattern"
+            )
+
+
+def lerp_params(a: FabricParams, b: FabricParams, t: float) -> FabricParams:
+    """Every numeric field ``(1 - t) a + t b`` (exactly ``a`` at 0 and ``b`` at 1)."""
+    if a.pattern.name != b.pattern.name:
+        raise ValueError(f"patterns differ: {a.pattern.name} and {b.pattern.name}")
+    ra, rb = json.loads(params_json(a)), json.loads(params_json(b))
+
+    def mix(x: Any, y: Any) -> Any:
+        if isinstance(x, list):
+            return [mix(u, v) for u, v in zip(x, y, strict=True)]
+        return (1.0 - t) * float(x) + t * float(y)
+
+    return FabricParams(**{k: v if k == "pattern" else mix(v, rb[k]) for k, v in ra.items()})
+
+
+def lerp_latent(za: np.ndarray, zb: np.ndarray, t: float) -> np.ndarray:
+    """``(1 - t) za + t zb`` as float32 (exactly ``za`` at 0 and ``zb`` at 1)."""
+    za64, zb64 = np.asarray(za, np.float64), np.asarray(zb, np.float64)
+    return ((1.0 - t) * za64 + t * zb64).astype(np.float32)
 
 
 def register_fabric_model_bsdf(mi: types.ModuleType) -> type:
@@ -108,6 +181,14 @@ def resolve_model_fabric(value: Mapping[str, Any], ctx: JobContext, mi: types.Mo
     except ValueError as exc:
         raise JobFailed(f"material.model: {ref}: {exc}") from None
     latent = latent_for(model, params, ref)
+    if value.get("interpolate") is not None:
+        # Sec. 6.3: the latent (and with it the shading fields) between A and B.
+        interp = FabricInterpolation.model_validate(value["interpolate"], strict=False)
+        other = FabricSpec.model_validate(interp.fabric, strict=False)
+        check_interpolation(spec.model_dump(mode="json"), other.model_dump(mode="json"))
+        b = other.to_params()
+        latent = lerp_latent(latent, latent_for(model, b, ref), interp.t)
+        params = lerp_params(params, b, interp.t)
     try:
         register_fabric_model_bsdf(mi)
     except RuntimeError as exc:
@@ -167,6 +248,11 @@ def _define_class(mi: types.ModuleType) -> type:
 
 __all__ = [
     "FABRIC_MODEL_BSDF_NAME",
+    "FabricInterpolation",
+    "InterpolationValue",
+    "check_interpolation",
+    "lerp_latent",
+    "lerp_params",
     "latent_for",
     "register_fabric_model_bsdf",
     "resolve_model_fabric",

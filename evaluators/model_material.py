@@ -25,7 +25,9 @@ object (see :mod:`evaluators.material_sources`)::
 A ``train.fabric`` model takes a ``fabric`` sibling instead of ``material`` (the value of a
 ``{"fabric": ...}`` material): ``{"model": "job:<id>/model.pt", "fabric": {...}}`` renders
 the woven fabric through the network's fused decoder, with the same pixel footprints as the
-Monte Carlo reference (:mod:`evaluators.fabric_model_material`).
+Monte Carlo reference (:mod:`evaluators.fabric_model_material`). With it, an optional
+``interpolate`` sibling ``{"fabric": {...}, "t": 0.5}`` renders the latent interpolated
+between the two materials (Sec. 6.3 of the woven-fabric paper).
 
 This module registers the source when imported; :mod:`evaluators.render` must import it so
 that the source exists wherever the ``render`` kind does.
@@ -39,7 +41,11 @@ from typing import TYPE_CHECKING, Any
 from pydantic import Field, model_validator
 
 from evaluators.fabric_material import FabricValue
-from evaluators.fabric_model_material import resolve_model_fabric
+from evaluators.fabric_model_material import (
+    InterpolationValue,
+    check_interpolation,
+    resolve_model_fabric,
+)
 from evaluators.material_sources import register_material_source
 from materials.model_bsdf import MODEL_BSDF_NAME, bake_material, read_model, register_model_bsdf
 from service.errors import JobFailed
@@ -64,6 +70,12 @@ class ModelSiblings(StrictModel):
         description="For a train.fabric model: the woven-fabric material (the 'fabric' "
         "material's fields); rendered by the network through the fused decoder.",
     )
+    interpolate: InterpolationValue | None = Field(
+        default=None,
+        description="With 'fabric': render the latent (1 - t) z(fabric) + t z(B) of a "
+        "second material B {'fabric': {...}, 't': 0..1} of the same pattern (Sec. 6.3 of the "
+        "woven-fabric paper); the shading fields are interpolated alike.",
+    )
     neural_max_depth: int | None = Field(
         default=None,
         ge=0,
@@ -83,6 +95,10 @@ class ModelSiblings(StrictModel):
             )
         if self.fabric is not None and self.neural_max_depth is not None:
             raise ValueError("neural_max_depth applies to BRDF models, not to 'fabric'")
+        if self.interpolate is not None:
+            if self.fabric is None:
+                raise ValueError("interpolate applies to fabric models: give 'fabric' too")
+            check_interpolation(self.fabric, self.interpolate.fabric)  # type: ignore[arg-type]
         return self
 
 
@@ -124,6 +140,7 @@ register_material_source(
     siblings=ModelSiblings,
     summary="One material of a trained BRDF model: {'model': REF to a model.json, "
     "'material': NAME, optional 'neural_max_depth': int}; or of a train.fabric model: "
-    "{'model': REF to its model.json or model.pt, 'fabric': {...}}; rendered with the "
+    "{'model': REF to its model.json or model.pt, 'fabric': {...}, optional 'interpolate': "
+    "{'fabric': {...}, 't': 0..1}}; rendered with the "
     "fused-network BSDF.",
 )

@@ -124,3 +124,107 @@ def test02_latents(model_files: tuple) -> None:
     direct = encode_material(from_pt, new, *material_maps(new, 256))
     assert z.shape == (TINY.latent_dim,) and math.isfinite(float(z.sum()))
     np.testing.assert_allclose(z, direct, rtol=1e-6, atol=1e-7)
+
+
+class _Ctx:
+    """The one ``JobContext`` method the resolver uses: ``resolve(ref) -> Path``."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def resolve(self, ref: str) -> Path:
+        return self.path
+
+
+def eval_bsdf(mi: types.ModuleType, bsdf: object, n: int = 256) -> np.ndarray:
+    """``(n, 3)`` values of ``bsdf.eval`` at fixed random footprints and directions."""
+    import drjit as dr
+
+    rng = np.random.default_rng(9)
+    view = rng.normal(size=(n, 3))
+    view[:, 2] = np.abs(view[:, 2]) + 0.1
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    light = rng.normal(size=(n, 3))
+    light /= np.linalg.norm(light, axis=1, keepdims=True)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(view.T.astype(np.float32))
+    si.uv = mi.Point2f(rng.random((2, n)).astype(np.float32))
+    si.duv_dx = mi.Vector2f((rng.normal(size=(2, n)) * 0.02).astype(np.float32))
+    si.duv_dy = mi.Vector2f((rng.normal(size=(2, n)) * 0.02).astype(np.float32))
+    got = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(light.T.astype(np.float32)))  # type: ignore[attr-defined]
+    return np.asarray(got).reshape(3, n).T.copy()
+
+
+def test03_interpolation_endpoints(mi: types.ModuleType, model_files: tuple) -> None:
+    """Reference: the plain ``{"model", "fabric"}`` renders of A and of B (same resolver)."""
+    from evaluators.fabric_model_material import lerp_latent, lerp_params, resolve_model_fabric
+
+    _, pt, _ = model_files
+    ctx = _Ctx(pt)
+    a = {**record_of(TRAINED), "beta": 0.2, "kd_warp": [0.8, 0.2, 0.1], "tiles_per_uv": 4}
+    b = {**a, "beta": 1.4, "alpha": 0.7, "kd_warp": 0.3}
+
+    def values(fabric: dict, interpolate: dict | None = None) -> np.ndarray:
+        value: dict = {"model": "job:x/model.pt", "fabric": fabric}
+        if interpolate is not None:
+            value["interpolate"] = interpolate
+        return eval_bsdf(mi, resolve_model_fabric(value, ctx, mi))  # type: ignore[arg-type]
+
+    va, vb = values(a), values(b)
+    assert np.abs(va - vb).max() > 1e-3  # A and B shade differently
+    np.testing.assert_array_equal(values(a, {"fabric": b, "t": 0.0}), va)
+    np.testing.assert_array_equal(values(a, {"fabric": b, "t": 1.0}), vb)
+    mid = values(a, {"fabric": b, "t": 0.5})
+    assert np.all(np.isfinite(mid))
+    assert np.abs(mid - va).max() > 1e-4 and np.abs(mid - vb).max() > 1e-4
+
+    pa = FabricParams(**{k: v for k, v in a.items() if k != "tiles_per_uv"})
+    pb = FabricParams(**{k: v for k, v in b.items() if k != "tiles_per_uv"})
+    half = lerp_params(pa, pb, 0.5)
+    assert half.beta == pytest.approx((0.8, 0.8)) and half.alpha == pytest.approx((0.5, 0.6))
+    assert half.kd_warp == pytest.approx((0.55, 0.25, 0.2))
+    assert lerp_params(pa, pb, 0.0) == pa and lerp_params(pa, pb, 1.0) == pb
+    za, zb = np.float32([1.5, -2.0]), np.float32([0.25, 3.0])
+    np.testing.assert_array_equal(lerp_latent(za, zb, 0.25), np.float32([1.1875, -0.75]))
+    with pytest.raises(ValueError, match="patterns differ"):
+        lerp_params(pa, OTHER, 0.5)
+
+
+def test04_interpolation_specs_are_checked() -> None:
+    """Reference: the documented spec-time rules (t in [0, 1], same pattern and tiling)."""
+    from pydantic import ValidationError
+
+    from evaluators.render import RenderParams
+
+    a = {"pattern": "twill_3x3", "beta": 0.2}
+
+    def material(interpolate: object) -> dict:
+        ref = "sha256:" + "0" * 64
+        return {"scene": "cloth_plane", "material": {"model": ref, "fabric": a,
+                                                     "interpolate": interpolate}}  # fmt: skip
+
+    ok = RenderParams.model_validate(material({"fabric": {**a, "beta": 0.8}, "t": 1}))
+    assert ok.material["interpolate"]["t"] == 1.0
+    assert ok.material["interpolate"]["fabric"]["beta"] == 0.8  # defaults filled in
+    bad = {
+        "must be less than or equal to 1|less than or equal to 1": {"fabric": a, "t": 1.5},
+        "greater than or equal to 0": {"fabric": a, "t": -0.1},
+        "interpolate.t: this key is required": {"fabric": a},
+        r"interpolate.fabric.pattern must equal fabric.pattern \('twill_3x3'\), got 'plain'": {
+            "fabric": {"pattern": "plain"},
+            "t": 0.5,
+        },
+        "interpolate.fabric.tiles_per_uv must equal": {
+            "fabric": {**a, "tiles_per_uv": 8},
+            "t": 0.5,
+        },  # fmt: skip
+        "interpolate.extra: Extra inputs": {"fabric": a, "t": 0.5, "extra": 1},
+        r"alpha must lie in \[0.02, 1.0\]": {"fabric": {**a, "alpha": 3}, "t": 0.5},
+    }
+    for message, interpolate in bad.items():
+        with pytest.raises(ValidationError, match=message):
+            RenderParams.model_validate(material(interpolate))
+    with pytest.raises(ValidationError, match="interpolate applies to fabric models"):
+        RenderParams.model_validate({"material": {"model": "sha256:" + "0" * 64,
+                                                  "material": "m", "interpolate": {
+                                                      "fabric": a, "t": 0.5}}})  # fmt: skip

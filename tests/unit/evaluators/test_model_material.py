@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 from pydantic import Field, ValidationError
 
+import evaluators.merl_material  # noqa: F401  (registers "merl", a source without siblings)
 import evaluators.model_material  # noqa: F401  (registers the "model" source)
 from evaluators import material_sources as ms
 from service.specs import StrictModel
@@ -47,7 +48,8 @@ def test01_model_source_validation() -> None:
         "model: must be an artifact reference"
     )
     assert error({"model": REF, "material": "g", "spp": 3}) == (
-        "spp: not a key of a 'model' material (allowed: model, material, fabric, neural_max_depth)"
+        "spp: not a key of a 'model' material (allowed: model, material, fabric, interpolate, "
+        "neural_max_depth)"
     )
 
 

@@ -1,0 +1,145 @@
+"""``scripts/fabric_eval.yaml`` (Sec. 6 of the woven-fabric paper) run through the job machinery.
+
+The batch file is loaded and validated as ``matforge batch`` does (:func:`load_batch`), then
+each step runs through :func:`service.submission.run_in_process` with its ``step:`` refs
+resolved by :func:`service.batch.substitute_refs`, after shrinking the costly params: the
+dataset of ``tests/integration/test_train_fabric.py`` (640 queries per material, 64
+samples), a 300-step fit of its tiny network, renders at 64x64 (ground truth 64 spp instead
+of 256, network 4 spp instead of 16; the 1- and 12-spp baselines as they are).
+
+References: each material's Monte Carlo render at 64 spp (the shrunk ground truth), scored
+by the ``score`` steps; for the interpolation endpoints, the plain ``{"model", "fabric"}``
+renders of the two materials. Oracles: every metric is finite and in its range and the
+documented artifacts exist; the Monte Carlo estimator converges (12 spp scores a better
+PSNR, MSE and FLIP than 1 spp against the 64-spp reference, for the seen and the unseen
+material); the interpolated latent at ``t = 0`` and ``t = 1`` renders the same bytes as the
+materials themselves, and ``t = 0.5`` differs from both. The tiny network's quality is not
+asserted (300 steps); ``benchmarks/bench_fabric_eval.py`` measures the real one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service.batch import load_batch, substitute_refs
+from service.settings import Settings
+from service.specs import STEP_REF
+from service.submission import run_in_process
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job
+from tests.integration.test_train_fabric import DATASET, TINY
+
+RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "fabric_eval.yaml"
+SHRINK: dict[str, dict[str, Any]] = {
+    "generate.fabric": DATASET,
+    "train.fabric": {**TINY, "steps": 300},
+    "render": {"resolution": [64, 64]},
+}
+#: The recipe's spp -> the test's (1 and 12 spp stay as they are).
+SPP = {256: 64, 16: 4}
+RENDER_ARTIFACTS = {"image.exr", "preview.png", "render.json"}
+RANGES = {"flip": (0.0, 1.0), "psnr": (0.0, 200.0), "ssim": (-1.0, 1.0), "mse": (0.0, 10.0)}
+
+
+@pytest.fixture(scope="module")
+def chain(
+    tmp_path_factory: pytest.TempPathFactory, mi: types.ModuleType
+) -> tuple[Settings, dict[str, Job]]:
+    """Every step of the shrunk recipe, run in order (``mi``: LLVM Mitsuba checked first)."""
+    settings = Settings.from_env({}).with_(
+        data_dir=tmp_path_factory.mktemp("fabric_eval") / "data",
+        lease_seconds=30.0,
+        pool_processes=1,
+    )
+    jobs: dict[str, Job] = {}
+
+    def resolve(ref: str) -> str:
+        m = STEP_REF.match(ref)
+        assert m is not None and m["step"] in jobs
+        job_id = jobs[m["step"]].id
+        return f"job:{job_id}" if m["name"] is None else f"job:{job_id}/{m['name']}"
+
+    for step in load_batch(RECIPE).steps:
+        spec = substitute_refs(step.spec, resolve)
+        params = spec["params"]
+        params.update(SHRINK.get(spec["kind"], {}))
+        if spec["kind"] == "render":
+            params["spp"] = SPP.get(params["spp"], params["spp"])
+        job = run_in_process(spec, settings)
+        assert job.state == "succeeded", (step.name, job.error)
+        jobs[step.name] = job
+    return settings, jobs
+
+
+def artifact(settings: Settings, job: Job, name: str) -> bytes:
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return ArtifactStore(settings.store_dir).read(digest)
+
+
+def scores(settings: Settings, job: Job) -> dict[str, dict[str, float]]:
+    return json.loads(artifact(settings, job, "metrics.json"))["metrics"]
+
+
+def test01_scores_are_finite_and_monte_carlo_converges(
+    chain: tuple[Settings, dict[str, Job]], mitsuba_llvm: None
+) -> None:
+    settings, jobs = chain
+    for name, job in jobs.items():
+        if job.kind == "render":
+            assert RENDER_ARTIFACTS <= {a.name for a in job.artifacts}, name
+    expected = {
+        "seen_scores": {"net16", "net1", "mc1", "mc_eq"},
+        "unseen_scores": {"net16", "net1", "mc1", "mc_eq"},
+        "interp_scores": {"interpolated", "direct"},
+        "interp_vs_direct": {"interpolated", "beta_0_2", "beta_0_8"},
+        "interp_gt_scale": {"beta_0_2", "beta_0_8"},
+    }
+    for step, labels in expected.items():
+        table = scores(settings, jobs[step])
+        print(f"\n{step}: {table}")
+        assert set(table) == labels
+        names = {a.name for a in jobs[step].artifacts}
+        assert {f"flip_{label}.png" for label in labels} <= names
+        for label, row in table.items():
+            assert set(row) == set(RANGES), (step, label)
+            for metric, (low, high) in RANGES.items():
+                value = row[metric]
+                assert math.isfinite(value) and low <= value <= high, (step, label, metric)
+    for material in ("seen", "unseen"):
+        table = scores(settings, jobs[f"{material}_scores"])
+        # Reference: the 64-spp Monte Carlo render; 12 samples converge further than 1.
+        assert table["mc_eq"]["psnr"] > table["mc1"]["psnr"] + 3.0, material
+        assert table["mc_eq"]["mse"] < table["mc1"]["mse"], material
+        assert table["mc_eq"]["flip"] < table["mc1"]["flip"], material
+
+
+def test02_interpolation_endpoints_render_the_materials(
+    chain: tuple[Settings, dict[str, Job]], mitsuba_llvm: None
+) -> None:
+    settings, jobs = chain
+    lerp = jobs["interp_lerp"].spec
+    material = lerp["params"]["material"]
+    a, b = material["fabric"], material["interpolate"]["fabric"]
+    assert a["beta"] != b["beta"]
+
+    def render(value: dict[str, Any]) -> bytes:
+        spec = {**lerp, "params": {**lerp["params"], "material": value}}
+        job = run_in_process(spec, settings)
+        assert job.state == "succeeded", job.error
+        return artifact(settings, job, "image.exr")
+
+    model = material["model"]
+    # Reference: the plain renders of A and B (same seed, spp and scene).
+    image_a, image_b = render({"model": model, "fabric": a}), render({"model": model, "fabric": b})
+    assert image_a != image_b
+    at0 = render({**material, "interpolate": {"fabric": b, "t": 0.0}})
+    at1 = render({**material, "interpolate": {"fabric": b, "t": 1.0}})
+    assert at0 == image_a and at1 == image_b
+    mid = artifact(settings, jobs["interp_lerp"], "image.exr")
+    assert mid not in (image_a, image_b)
