@@ -71,9 +71,20 @@ def bench_service(n_jobs: int, workers: int) -> float:
         s = Settings.from_env({}).with_(data_dir=Path(d))
         js, store = JobStore(s.db_path), ArtifactStore(s.store_dir)
         for i in range(n_jobs):
-            submit({"kind": "render", "seed": i, "params": {
-                "scene": "sphere_points", "material": {"mitsuba": {"type": "diffuse"}},
-                "resolution": [8, 8], "spp": 1}}, js, store)
+            submit(
+                {
+                    "kind": "render",
+                    "seed": i,
+                    "params": {
+                        "scene": "sphere_points",
+                        "material": {"mitsuba": {"type": "diffuse"}},
+                        "resolution": [8, 8],
+                        "spp": 1,
+                    },
+                },
+                js,
+                store,
+            )
         ctx = mp.get_context("spawn")
         t0 = time.perf_counter()
         procs = [ctx.Process(target=_work, args=(d, n_jobs)) for _ in range(workers)]
@@ -95,12 +106,18 @@ def main() -> None:
 
     sub, run = bench_store(a.jobs, a.workers)
     svc = bench_service(a.service_jobs, a.workers)
-    print(f"| queue (store) | {a.jobs} jobs, {a.workers} worker procs | submit {sub:.0f} jobs/s | "
-          f"claim+heartbeat+complete {run:.0f} jobs/s | {platform.node()} |")
-    print(f"| queue (service) | {a.service_jobs} render 8x8 1spp jobs, {a.workers} workers | "
-          f"{svc:.1f} jobs/s end to end | | {platform.node()} |")
-    print(f"command: .venv/bin/python benchmarks/bench_queue.py --jobs {a.jobs} "
-          f"--service-jobs {a.service_jobs} --workers {a.workers}")
+    print(
+        f"| queue (store) | {a.jobs} jobs, {a.workers} worker procs | submit {sub:.0f} jobs/s | "
+        f"claim+heartbeat+complete {run:.0f} jobs/s | {platform.node()} |"
+    )
+    print(
+        f"| queue (service) | {a.service_jobs} render 8x8 1spp jobs, {a.workers} workers | "
+        f"{svc:.1f} jobs/s end to end | | {platform.node()} |"
+    )
+    print(
+        f"command: .venv/bin/python benchmarks/bench_queue.py --jobs {a.jobs} "
+        f"--service-jobs {a.service_jobs} --workers {a.workers}"
+    )
 
 
 if __name__ == "__main__":

@@ -43,9 +43,21 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as data:
         env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
         proc = subprocess.Popen(
-            [str(REPO / ".venv/bin/matforge"), "serve", "--port", str(port), "--data-dir", data,
-             "--workers", "0"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            start_new_session=True)
+            [
+                str(REPO / ".venv/bin/matforge"),
+                "serve",
+                "--port",
+                str(port),
+                "--data-dir",
+                data,
+                "--workers",
+                "0",
+            ],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
         try:
             deadline = time.time() + 60
             while time.time() < deadline:
@@ -63,9 +75,16 @@ def main() -> None:
                 with httpx.Client(base_url=url, timeout=30) as http:
                     barrier.wait()
                     for i in range(a.per_client):
-                        spec = {"kind": "render", "seed": c * 100000 + i, "params": {
-                            "scene": "sphere_env", "material": {"mitsuba": {"type": "diffuse"}},
-                            "resolution": [64, 64], "spp": 4}}
+                        spec = {
+                            "kind": "render",
+                            "seed": c * 100000 + i,
+                            "params": {
+                                "scene": "sphere_env",
+                                "material": {"mitsuba": {"type": "diffuse"}},
+                                "resolution": [64, 64],
+                                "spp": 4,
+                            },
+                        }
                         t0 = time.perf_counter()
                         r = http.post("/api/jobs", json=spec)
                         mine.append(time.perf_counter() - t0)
@@ -87,10 +106,14 @@ def main() -> None:
     n = len(lat)
     p50 = statistics.median(lat) * 1e3
     p99 = lat[min(n - 1, int(0.99 * n))] * 1e3
-    print(f"| submit latency | {a.clients} clients x {a.per_client} | p50 {p50:.1f} ms | "
-          f"p99 {p99:.1f} ms | {n / wall:.0f} submissions/s | {platform.node()} |")
-    print(f"command: .venv/bin/python benchmarks/bench_submit.py --clients {a.clients} "
-          f"--per-client {a.per_client}")
+    print(
+        f"| submit latency | {a.clients} clients x {a.per_client} | p50 {p50:.1f} ms | "
+        f"p99 {p99:.1f} ms | {n / wall:.0f} submissions/s | {platform.node()} |"
+    )
+    print(
+        f"command: .venv/bin/python benchmarks/bench_submit.py --clients {a.clients} "
+        f"--per-client {a.per_client}"
+    )
 
 
 if __name__ == "__main__":
