@@ -64,6 +64,12 @@ class Heartbeat:
         if time.monotonic() - self._last_push > 0.5:  # keep the dashboard lively
             self.beat()
 
+    @property
+    def last_message(self) -> str | None:
+        """The last message the runner reported, if any."""
+        with self._lock:
+            return self._message
+
     def cancelled(self) -> bool:
         return self.status != "ok"
 
@@ -170,7 +176,10 @@ def execute(
             },
         }
         minfo = store.put_bytes((canonical_json(manifest) + "\n").encode())
-        if jobs.complete(job.id, job.lease_token, arts, minfo.digest):
+        # The runner's last progress line (e.g. a throughput) stays visible after success.
+        last = hb.last_message
+        done = f"done: {last}" if last and last.strip().lower() != "done" else "done"
+        if jobs.complete(job.id, job.lease_token, arts, minfo.digest, message=done[:1000]):
             return "succeeded"
         return "cancelled" if jobs.get(job.id).state == "cancelled" else "lost"
     finally:

@@ -28,6 +28,8 @@ def test01_worker_runs_job_and_writes_manifest(toy_kind, settings, jobs, store) 
     assert run_worker(settings, max_jobs=1) == 1
     job = jobs.get(job_id)
     assert job.state == "succeeded" and job.progress == 1.0 and job.attempts == 1
+    # The runner's last progress line stays after success (the toy's shard count).
+    assert job.message == "done: toys: 3/3"
     result = json.loads(store.read(job.artifacts[0].digest))
     assert result["squares"] == [0, 1, 4]
     manifest = json.loads(store.read(job.manifest_digest))
