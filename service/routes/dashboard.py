@@ -162,6 +162,21 @@ def _artifact_json(store: ArtifactStore, artifacts: list[ArtifactRecord], name: 
 
 #: Columns of a training job's per-material table (``train.brdf`` ``metrics.json``).
 MATERIAL_COLUMNS = ("family", "split", "smape", "mae", "smape_analytic", "mae_analytic")
+#: Columns of ``train.fabric``'s ``metrics.json`` (held-out errors against the Monte Carlo
+#: estimates, flattened; ``baseline.*``: the per-material mean predictor).
+FABRIC_COLUMNS = (
+    "pattern",
+    "queries",
+    "loss",
+    "baseline.loss",
+    "rgb.rel",
+    "baseline.rgb.rel",
+    "rgb.mse",
+    "C_warp.rel",
+    "C_weft.rel",
+    "S_warp.rel",
+    "S_weft.rel",
+)
 #: Columns of ``report.brdf``'s ``pareto.json`` points.
 PARETO_COLUMNS = (
     "per_material_params",
@@ -191,16 +206,29 @@ def _table(
     }
 
 
+def _flat(doc: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested metrics as dotted keys: ``{"rgb": {"rel": x}}`` -> ``{"rgb.rel": x}``."""
+    out: dict[str, Any] = {}
+    for key, value in doc.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
 def _per_material(doc: dict[str, Any]) -> dict[str, Any] | None:
     """A training ``metrics.json`` (``{"materials": [{"name", ...}], "mean": {...}}``):
-    one row per material, then the mean."""
+    one row per material, then the mean. ``train.brdf`` rows show :data:`MATERIAL_COLUMNS`;
+    ``train.fabric`` rows (nested per component) show :data:`FABRIC_COLUMNS`."""
     mats = [m for m in doc["materials"] if isinstance(m, dict) and "name" in m]
     if not mats:
         return None
-    rows = {str(m["name"]): {k: m.get(k) for k in MATERIAL_COLUMNS} for m in mats}
+    columns = MATERIAL_COLUMNS if any("smape" in m for m in mats) else FABRIC_COLUMNS
+    rows = {str(m["name"]): {k: _flat(m).get(k) for k in columns} for m in mats}
     if isinstance(doc.get("mean"), dict):
-        rows["mean"] = {k: doc["mean"].get(k) for k in MATERIAL_COLUMNS}
-    names = [k for k in MATERIAL_COLUMNS if any(r.get(k) is not None for r in rows.values())]
+        rows["mean"] = {k: _flat(doc["mean"]).get(k) for k in columns}
+    names = [k for k in columns if any(r.get(k) is not None for r in rows.values())]
     return _table("Metrics per material", "Material", rows, names, settings=doc.get("settings"))
 
 

@@ -57,6 +57,20 @@ PARETO = {
 }  # fmt: skip
 
 
+def _fabric_row(name: str, rel: float) -> dict[str, Any]:
+    comps = {c: {"mse": rel / 10, "rel": rel} for c in ("C_warp", "C_weft", "S_warp", "S_weft")}
+    return {"name": name, "pattern": "plain", "queries": 128, "loss": rel / 2,
+            **comps, "rgb": {"mse": rel / 10, "rel": rel},
+            "baseline": {"loss": 0.4, **comps, "rgb": {"mse": 0.1, "rel": 1.1}}}  # fmt: skip
+
+
+#: ``train.fabric``'s nested per-component metrics.json.
+FABRIC_METRICS = {
+    "materials": [_fabric_row("plain-0", 0.2), _fabric_row("twill-0", 0.4)],
+    "mean": {"count": 2, "loss": 0.15, "rgb": {"mse": 0.03, "rel": 0.3},
+             "baseline": {"loss": 0.4, "rgb": {"mse": 0.1, "rel": 1.1}}},
+}  # fmt: skip
+
 #: ``score`` of whole models against a set of tables (means, then rows per material).
 SET_SCORE = {
     "reference": "job:" + "0" * 32,
@@ -69,13 +83,17 @@ SET_SCORE = {
 class TablesParams(StrictModel):
     """Params of the test-only kind."""
 
-    what: Literal["train", "report", "set"] = Field(description="which job's artifacts to write")
+    what: Literal["train", "report", "set", "fabric"] = Field(
+        description="which job's artifacts to write"
+    )
 
 
 def run_tables(params: TablesParams, ctx: JobContext) -> None:
     png = write_png(None, np.zeros((4, 4, 3), dtype=np.uint8))
     if params.what == "set":
         ctx.put_json("metrics.json", SET_SCORE)
+    elif params.what == "fabric":
+        ctx.put_json("metrics.json", FABRIC_METRICS)
     elif params.what == "train":
         ctx.put_json("metrics.json", TRAIN_METRICS)
         ctx.put_bytes("curves.png", png, "image/png")
@@ -135,3 +153,16 @@ def test03_whole_model_scores_per_material(client: TestClient, settings: Setting
     assert data["labels"] == ["hybrid", "hybrid / film", "hybrid / gold"]  # JSON keys sorted
     assert data["rows"]["hybrid / film"] == {"smape": 0.3, "mae": 0.04}
     assert "<th>Candidate</th>" in text and "Reference" in text
+
+
+def test04_fabric_training_metrics_flattened(client: TestClient, settings: Settings) -> None:
+    """train.fabric's nested metrics become dotted columns; the mean row keeps what it has."""
+    text, data = page(client, settings, "fabric")
+    assert data["labels"] == ["plain-0", "twill-0", "mean"]
+    assert data["names"][:6] == ["pattern", "queries", "loss", "baseline.loss", "rgb.rel",
+                                 "baseline.rgb.rel"]  # fmt: skip
+    assert data["rows"]["twill-0"]["rgb.rel"] == 0.4
+    assert data["rows"]["twill-0"]["S_weft.rel"] == 0.4
+    assert data["rows"]["mean"]["baseline.rgb.rel"] == 1.1
+    assert data["rows"]["mean"]["C_warp.rel"] is None
+    assert "Metrics per material" in text
