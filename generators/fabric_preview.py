@@ -59,10 +59,33 @@ def preview_png(materials: Sequence[PlannedFabric], seed: int) -> bytes:
     colours = magma(scaled.reshape(-1, g)).reshape(len(materials), 4, g, g, 3)
     big = colours.repeat(2, axis=2).repeat(2, axis=3)  # 64 px panels
     gap, side = 2, 2 * g
-    h, w = len(materials) * (side + gap) + gap, 4 * (side + gap) + gap
+    top, left = _HEADER_PX, _LABEL_PX
+    h = top + len(materials) * (side + gap) + gap
+    w = left + 4 * (side + gap) + gap
     image = np.full((h, w, 3), 255, dtype=np.uint8)
     for r in range(len(materials)):
         for k in range(4):
-            y, x = gap + r * (side + gap), gap + k * (side + gap)
+            y, x = top + gap + r * (side + gap), left + gap + k * (side + gap)
             image[y : y + side, x : x + side] = big[r, k]
-    return write_png(None, image)
+    return write_png(None, _labelled(image, [m.pattern for m in materials], side, gap))
+
+
+#: Space for the component names above the panels and the pattern names left of them.
+_HEADER_PX, _LABEL_PX = 14, 64
+_COMPONENT_LABELS = ("C warp", "C weft", "S warp", "S weft")
+
+
+def _labelled(image: np.ndarray, rows: Sequence[str], side: int, gap: int) -> np.ndarray:
+    """``image`` with the component names over the columns and the patterns by the rows
+    (Pillow's built-in bitmap font, so the bytes do not depend on installed fonts)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    pic = Image.fromarray(image)
+    draw = ImageDraw.Draw(pic)
+    font = ImageFont.load_default_imagefont()
+    for k, label in enumerate(_COMPONENT_LABELS):
+        draw.text((_LABEL_PX + gap + k * (side + gap) + 2, 1), label, fill=(0, 0, 0), font=font)
+    for r, label in enumerate(rows):
+        y = _HEADER_PX + gap + r * (side + gap) + side // 2 - 5
+        draw.text((2, y), label[:10], fill=(0, 0, 0), font=font)
+    return np.asarray(pic)
