@@ -53,3 +53,41 @@ def mitsuba_brdf(mi: types.ModuleType, plugin: dict, wi: np.ndarray, wo: np.ndar
     si.wi = mi.Vector3f(*wi32.T)
     value = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo32.T)), np.float64).T
     return value / wo32[:, 2:3].astype(np.float64)
+
+
+def check_pdf_and_sampling(
+    mi: types.ModuleType, bsdf: Any, deg: float, n: int, rng: np.random.Generator
+) -> tuple[float, float, np.ndarray]:
+    """A BSDF's pdf and sampling checked against its own eval at incidence ``deg``.
+
+    - pdf >= 0 on the whole sphere (uniform directions), 0 below the surface, and its
+      integral ``4 pi E[pdf]`` in (0.8, 1] within 4 standard errors;
+    - ``eval_pdf`` is ``(eval, pdf)``; ``sample``'s pdf equals ``pdf(wo)``, and its weight
+      equals ``eval(wo) / pdf(wo)`` where the pdf is positive, 0 elsewhere, always finite.
+
+    Returns the pdf integral, its standard error and the sample weights ``(3, n)``.
+    """
+    import drjit as dr
+
+    ctx = mi.BSDFContext()
+    t = math.radians(deg)
+    wi = np.tile(np.array([[math.sin(t), 0.0, math.cos(t)]], np.float32), (n, 1))
+    si = interaction(mi, wi)
+    v = rng.normal(size=(n, 3))
+    v = (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+    pdf = np.asarray(bsdf.pdf(ctx, si, mi.Vector3f(*v.T)), np.float64)
+    integral = 4.0 * math.pi * pdf.mean()
+    stderr = 4.0 * math.pi * pdf.std() / math.sqrt(n)
+    assert pdf.min() >= 0.0 and np.all(pdf[v[:, 2] <= 0] == 0.0)
+    assert 0.8 < integral < 1.0 + 4.0 * stderr, (deg, integral, stderr)
+    u = rng.random((n, 3)).astype(np.float32)
+    bs, weight = bsdf.sample(ctx, si, mi.Float(u[:, 0]), mi.Vector2f(u[:, 1], u[:, 2]))
+    value, pdf2 = bsdf.eval_pdf(ctx, si, bs.wo)
+    assert dr.allclose(value, bsdf.eval(ctx, si, bs.wo))
+    assert dr.allclose(pdf2, bsdf.pdf(ctx, si, bs.wo))
+    assert dr.allclose(bs.pdf, pdf2, rtol=1e-4, atol=1e-6)
+    w, val, p = (np.asarray(a, np.float64) for a in (weight, value, pdf2))
+    ok = p > 0
+    assert np.allclose(w[:, ok], val[:, ok] / p[ok], rtol=1e-4, atol=1e-6)
+    assert np.all(w[:, ~ok] == 0.0) and np.all(np.isfinite(w))
+    return integral, stderr, w

@@ -28,7 +28,13 @@ from materials import halfdiff as hd
 from materials.merl_bsdf import MERL_BSDF_NAME, fit_sampling_lobe, merl_bsdf, register_merl_bsdf
 from materials.tabulate import tabulate_mitsuba
 from storage.formats.merl import MerlTable, write_merl
-from tests.unit.materials.mitsuba_probes import AU_03, PLASTIC_03, hemisphere, interaction
+from tests.unit.materials.mitsuba_probes import (
+    AU_03,
+    PLASTIC_03,
+    check_pdf_and_sampling,
+    hemisphere,
+    interaction,
+)
 
 PLUGINS = {"conductor": AU_03, "plastic": PLASTIC_03}
 
@@ -188,36 +194,10 @@ def test06_pdf_and_sample_consistency(
 ) -> None:
     """pdf >= 0 on the whole sphere and integrates to <= 1; sample's pdf and weight agree
     with pdf and eval; eval_pdf is (eval, pdf)."""
-    import drjit as dr
-
     bsdf = load(mi, tables[name])
     rng = np.random.default_rng(3)
-    n = 1 << 20
-    ctx = mi.BSDFContext()
     for deg in (0.0, 45.0, 80.0):
-        t = math.radians(deg)
-        wi = np.tile(np.array([[math.sin(t), 0.0, math.cos(t)]], np.float32), (n, 1))
-        si = interaction(mi, wi)
-        # The whole sphere, uniform in solid angle: pdf >= 0, integral = 4 pi E[pdf].
-        v = rng.normal(size=(n, 3))
-        v = (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
-        pdf = np.asarray(bsdf.pdf(ctx, si, mi.Vector3f(*v.T)), np.float64)
-        integral = 4.0 * math.pi * pdf.mean()
-        stderr = 4.0 * math.pi * pdf.std() / math.sqrt(n)
-        assert pdf.min() >= 0.0 and np.all(pdf[v[:, 2] <= 0] == 0.0)
-        assert 0.8 < integral < 1.0 + 4.0 * stderr, (deg, integral, stderr)
-        # Samples: bs.pdf == pdf(bs.wo), weight == eval(bs.wo) / pdf for valid samples.
-        u = rng.random((n, 3)).astype(np.float32)
-        bs, weight = bsdf.sample(ctx, si, mi.Float(u[:, 0]), mi.Vector2f(u[:, 1], u[:, 2]))
-        wo = bs.wo
-        value, pdf2 = bsdf.eval_pdf(ctx, si, wo)
-        assert dr.allclose(value, bsdf.eval(ctx, si, wo))
-        assert dr.allclose(pdf2, bsdf.pdf(ctx, si, wo))
-        assert dr.allclose(bs.pdf, pdf2, rtol=1e-4, atol=1e-6)
-        w, val, p = (np.asarray(a, np.float64) for a in (weight, value, pdf2))
-        ok = p > 0
-        assert np.allclose(w[:, ok], val[:, ok] / p[ok], rtol=1e-4, atol=1e-6)
-        assert np.all(w[:, ~ok] == 0.0) and np.all(np.isfinite(w))
+        integral, stderr, w = check_pdf_and_sampling(mi, bsdf, deg, 1 << 20, rng)
         print(
             f"\n{name} at {deg:.0f} deg: pdf integral {integral:.4f} +- {stderr:.4f}, "
             f"max sample weight {w.max():.3f}"

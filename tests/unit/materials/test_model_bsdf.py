@@ -33,7 +33,7 @@ from materials.model_bsdf import (
     bake_material,
     register_model_bsdf,
 )
-from tests.unit.materials.mitsuba_probes import hemisphere, interaction
+from tests.unit.materials.mitsuba_probes import check_pdf_and_sampling, hemisphere, interaction
 
 #: name -> (kd, eta, alpha): a rough gold-like metal, a glossy blue plastic, a sharp one.
 MATERIALS = {
@@ -228,32 +228,10 @@ def test04_chi2(
 def test05_pdf_and_sample_consistency(mi: types.ModuleType, models: dict[str, Path]) -> None:
     """pdf >= 0 on the sphere and integrates to <= 1; sample's pdf and weight agree with
     pdf and eval; eval_pdf is (eval, pdf)."""
-    import drjit as dr
-
     rng = np.random.default_rng(3)
-    n = 1 << 18
-    ctx = mi.BSDFContext()
     for name, deg in (("gold", 0.0), ("sharp", 70.0)):
         bsdf = load(mi, models["hybrid"], name)
-        t = math.radians(deg)
-        wi = np.tile(np.array([[math.sin(t), 0.0, math.cos(t)]], np.float32), (n, 1))
-        si = interaction(mi, wi)
-        v = rng.normal(size=(n, 3))
-        v = (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
-        pdf = np.asarray(bsdf.pdf(ctx, si, mi.Vector3f(*v.T)), np.float64)
-        integral = 4.0 * math.pi * pdf.mean()
-        stderr = 4.0 * math.pi * pdf.std() / math.sqrt(n)
-        assert pdf.min() >= 0.0 and np.all(pdf[v[:, 2] <= 0] == 0.0)
-        assert 0.8 < integral < 1.0 + 4.0 * stderr, (name, integral, stderr)
-        u = rng.random((n, 3)).astype(np.float32)
-        bs, weight = bsdf.sample(ctx, si, mi.Float(u[:, 0]), mi.Vector2f(u[:, 1], u[:, 2]))
-        value, pdf2 = bsdf.eval_pdf(ctx, si, bs.wo)
-        assert dr.allclose(value, bsdf.eval(ctx, si, bs.wo))
-        assert dr.allclose(bs.pdf, pdf2, rtol=1e-4, atol=1e-6)
-        w, val, p = (np.asarray(a, np.float64) for a in (weight, value, pdf2))
-        ok = p > 0
-        assert np.allclose(w[:, ok], val[:, ok] / p[ok], rtol=1e-4, atol=1e-6)
-        assert np.all(w[:, ~ok] == 0.0) and np.all(np.isfinite(w))
+        integral, stderr, w = check_pdf_and_sampling(mi, bsdf, deg, 1 << 18, rng)
         print(
             f"\n{name} at {deg:.0f} deg: pdf integral {integral:.4f} +- {stderr:.4f}, "
             f"albedo {w.mean():.4f}, max sample weight {w.max():.3f}"
