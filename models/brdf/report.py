@@ -32,8 +32,8 @@ from evaluators.brdf_metrics import (
 from models.brdf.data import MaterialTable
 from models.brdf.networks import BrdfModel
 from models.brdf.train import Curves
+from models.figures import figure_png, loss_axes
 from service.errors import JobFailed
-from storage.formats.png import write_png
 
 #: Rows per torch evaluation chunk.
 EVAL_CHUNK = 1 << 16
@@ -134,13 +134,8 @@ def evaluate(
 
 def curves_png(curves: dict[str, Curves | None], title: str) -> bytes:
     """Loss against step (log scale) of each phase, as deterministic PNG bytes."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4), dpi=100)
-    try:
+    def draw(fig: Any, ax: Any) -> None:
         for phase, c in curves.items():
             if c is None or not c.step:
                 continue
@@ -152,15 +147,6 @@ def curves_png(curves: dict[str, Curves | None], title: str) -> bytes:
                 l_t = [float("nan") if v is None else v for v in c.loss_hybrid]
                 ax.plot(c.step, l_a, "--", label=f"{phase}: L_a (analytic)")
                 ax.plot(c.step, l_t, ":", label=f"{phase}: L_t (hybrid)")
-        ax.set_yscale("log")
-        ax.set_xlabel("step")
-        ax.set_ylabel("loss (Eq. 4, mean per pair)")
-        ax.set_title(title)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.canvas.draw()
-        rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
-        return write_png(None, np.ascontiguousarray(rgba[..., :3]))
-    finally:
-        plt.close(fig)
+        loss_axes(ax, "loss (Eq. 4, mean per pair)", title)
+
+    return figure_png(draw)

@@ -7,34 +7,16 @@ Deterministic bytes for the same numbers: fixed figure size and DPI, no timestam
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from storage.formats.png import write_png
+from models.figures import figure_png
 
 #: One colour per model type.
 COLOURS = {"analytic": "#4d4d4d", "hybrid": "#d95f02", "neural": "#1b9e77"}
 #: Tick labels of the families the paper singles out (Fig. 12).
 SHORT = {"iridescent": "thin film", "blend": "multi-lobe"}
-
-
-def _figure(draw: Callable[[Any, Any], None], size: tuple[float, float]) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=size, dpi=100)
-    try:
-        draw(fig, ax)
-        fig.tight_layout()
-        fig.canvas.draw()
-        rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
-        return write_png(None, np.ascontiguousarray(rgba[..., :3]))
-    finally:
-        plt.close(fig)
 
 
 def _minor_tick(v: float, _: Any) -> str:
@@ -73,7 +55,7 @@ def pareto_png(points: list[dict[str, Any]], front: list[str], title: str) -> by
         ax.set_title(title + (f"\nnot timed: {', '.join(untimed)}" if untimed else ""), fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
 
-    return _figure(draw, (7.5, 4.8))
+    return figure_png(draw, (7.5, 4.8))
 
 
 def families_png(doc: dict[str, Any], title: str) -> bytes:
@@ -100,4 +82,4 @@ def families_png(doc: dict[str, Any], title: str) -> bytes:
         ax.legend(fontsize=7, ncol=2)
         ax.grid(True, axis="y", alpha=0.3)
 
-    return _figure(draw, (8.5, 4.5))
+    return figure_png(draw, (8.5, 4.5))

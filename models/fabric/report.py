@@ -28,8 +28,8 @@ from models.fabric.data import MaterialData
 from models.fabric.losses import fabric_loss_numpy, log_targets_numpy
 from models.fabric.networks import COMPONENTS, FabricNetwork, components_numpy
 from models.fabric.train import Curves
+from models.figures import figure_png, loss_axes
 from service.errors import JobFailed
-from storage.formats.png import write_png
 
 #: Queries per decoder evaluation chunk.
 EVAL_CHUNK = 1 << 15
@@ -129,25 +129,11 @@ def evaluate(
 
 def curves_png(curves: Curves, title: str) -> bytes:
     """Loss and per-component MSE against step (log scale), as deterministic PNG bytes."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4), dpi=100)
-    try:
+    def draw(fig: Any, ax: Any) -> None:
         ax.plot(curves.step, curves.loss, label="Eq. 11 total", color="black")
         for name, values in curves.components.items():
             ax.plot(curves.step, values, "--", label=f"MSE {name}", linewidth=0.8)
-        ax.set_yscale("log")
-        ax.set_xlabel("step")
-        ax.set_ylabel("loss (mean per query)")
-        ax.set_title(title)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.canvas.draw()
-        rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
-        return write_png(None, np.ascontiguousarray(rgba[..., :3]))
-    finally:
-        plt.close(fig)
+        loss_axes(ax, "loss (mean per query)", title)
+
+    return figure_png(draw)
