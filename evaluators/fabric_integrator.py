@@ -31,10 +31,10 @@ from __future__ import annotations
 import types
 from typing import Any
 
+from materials.mitsuba_backend import mis_weight, register_vectorised_integrator
+
 #: The plugin name of the integrator.
 FABRIC_INTEGRATOR = "fabric_path"
-
-_CLASSES: dict[str, type] = {}
 
 
 def integrator_for(mi: types.ModuleType, bsdf: Any, integrator: dict[str, Any]) -> dict[str, Any]:
@@ -50,27 +50,15 @@ def integrator_for(mi: types.ModuleType, bsdf: Any, integrator: dict[str, Any]) 
 
 
 def register_fabric_integrator(mi: types.ModuleType) -> type:
-    """Define and register ``fabric_path`` for Mitsuba's (JIT) variant, once; returns the class."""
-    variant = mi.variant()
-    if not variant.startswith(("llvm_", "cuda_")):
-        raise RuntimeError(f"the fabric_path integrator needs a JIT variant, not {variant!r}")
-    cls = _CLASSES.get(variant)
-    if cls is None:
-        cls = _define_class(mi)
-        mi.register_integrator(FABRIC_INTEGRATOR, lambda props: cls(props))
-        _CLASSES[variant] = cls
-    return cls
+    """Define and register ``fabric_path`` for Mitsuba's variant, once; returns the class."""
+    return register_vectorised_integrator(
+        mi, FABRIC_INTEGRATOR, _define_class, "fabric_path integrator"
+    )
 
 
 def _define_class(mi: types.ModuleType) -> type:
     import drjit as dr
     from mitsuba.ad.integrators.common import ADIntegrator
-
-    def mis_weight(pdf_a: Any, pdf_b: Any) -> Any:
-        # Power heuristic (Veach 1997), as Mitsuba's path integrator.
-        a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
-        w = a2 / (a2 + b2)
-        return dr.select(dr.isfinite(w), w, 0.0)
 
     class FabricPathIntegrator(ADIntegrator):  # type: ignore[misc,valid-type]
         """Path tracer with pixel-footprint uv partials (plugin ``"fabric_path"``).

@@ -34,12 +34,11 @@ from __future__ import annotations
 import types
 from typing import Any
 
+from materials.mitsuba_backend import mis_weight, register_vectorised_integrator
 from materials.model_bsdf import ANALYTIC_ONLY
 
 #: The plugin name of the integrator.
 NEURAL_DEPTH_INTEGRATOR = "neural_depth"
-
-_CLASSES: dict[str, type] = {}
 
 
 def integrator_for(mi: types.ModuleType, bsdf: Any, integrator: dict[str, Any]) -> dict[str, Any]:
@@ -64,27 +63,15 @@ def integrator_for(mi: types.ModuleType, bsdf: Any, integrator: dict[str, Any]) 
 def register_neural_depth_integrator(mi: types.ModuleType) -> type:
     """Define and register the ``"neural_depth"`` integrator for Mitsuba's current variant.
 
-    Idempotent per variant; returns the class. Needs a JIT variant (``llvm_*``, ``cuda_*``).
+    Idempotent per variant; returns the class. Needs a vectorised RGB variant (``llvm_ad_rgb``).
     """
-    variant = mi.variant()
-    if not variant.startswith(("llvm_", "cuda_")):
-        raise RuntimeError(f"the neural_depth integrator needs a JIT variant, not {variant!r}")
-    cls = _CLASSES.get(variant)
-    if cls is None:
-        cls = _define_class(mi)
-        mi.register_integrator(NEURAL_DEPTH_INTEGRATOR, lambda props: cls(props))
-        _CLASSES[variant] = cls
-    return cls
+    return register_vectorised_integrator(
+        mi, NEURAL_DEPTH_INTEGRATOR, _define_class, "neural_depth integrator"
+    )
 
 
 def _define_class(mi: types.ModuleType) -> type:
     import drjit as dr
-
-    def mis_weight(pdf_a: Any, pdf_b: Any) -> Any:
-        # Power heuristic (Veach 1997), as Mitsuba's path integrator.
-        a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
-        w = a2 / (a2 + b2)
-        return dr.select(dr.isfinite(w), w, 0.0)
 
     def context(analytic: bool) -> Any:
         ctx = mi.BSDFContext()

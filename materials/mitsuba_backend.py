@@ -22,6 +22,7 @@ import types
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +146,31 @@ def active_variant() -> str | None:
     return _variant
 
 
-_PLUGIN_CLASSES: dict[tuple[str, str], type] = {}
+_PLUGIN_CLASSES: dict[tuple[str, str, str], type] = {}
+
+
+def _register_plugin(
+    mi: types.ModuleType,
+    plugin: str,
+    name: str,
+    define: Callable[[types.ModuleType], type],
+    what: str,
+) -> type:
+    """``define(mi)`` and register it as a ``plugin`` (``"bsdf"`` or ``"integrator"``)
+    named ``name`` for the current variant, once per variant; returns the class."""
+    variant = mi.variant()
+    cls = _PLUGIN_CLASSES.get((plugin, name, variant))
+    if cls is None:
+        if not variant.startswith(("llvm_", "cuda_")) or not variant.endswith("_rgb"):
+            raise RuntimeError(
+                f"the {what} needs a vectorised RGB Mitsuba variant such as llvm_ad_rgb, "
+                f"but Mitsuba runs {variant!r}"
+            )
+        cls = define(mi)
+        register = mi.register_bsdf if plugin == "bsdf" else mi.register_integrator
+        register(name, lambda props: cls(props))
+        _PLUGIN_CLASSES[(plugin, name, variant)] = cls
+    return cls
 
 
 def register_vectorised_bsdf(
@@ -157,15 +182,21 @@ def register_vectorised_bsdf(
     Our Python BSDFs are written for vectorised RGB variants (``llvm_ad_rgb``,
     ``cuda_ad_rgb``); under any other variant this raises ``RuntimeError`` naming ``what``.
     """
-    variant = mi.variant()
-    cls = _PLUGIN_CLASSES.get((name, variant))
-    if cls is None:
-        if not variant.startswith(("llvm_", "cuda_")) or not variant.endswith("_rgb"):
-            raise RuntimeError(
-                f"the {what} needs a vectorised RGB Mitsuba variant such as llvm_ad_rgb, "
-                f"but Mitsuba runs {variant!r}"
-            )
-        cls = define(mi)
-        mi.register_bsdf(name, lambda props: cls(props))
-        _PLUGIN_CLASSES[(name, variant)] = cls
-    return cls
+    return _register_plugin(mi, "bsdf", name, define, what)
+
+
+def register_vectorised_integrator(
+    mi: types.ModuleType, name: str, define: Callable[[types.ModuleType], type], what: str
+) -> type:
+    """:func:`register_vectorised_bsdf` for a Python integrator plugin ``name``."""
+    return _register_plugin(mi, "integrator", name, define, what)
+
+
+def mis_weight(pdf_a: Any, pdf_b: Any) -> Any:
+    """Power heuristic (Veach 1997) as Mitsuba's ``path`` integrator: ``a^2 / (a^2 + b^2)``,
+    0 where it is not finite. Dr.Jit arrays of the current variant."""
+    import drjit as dr
+
+    a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
+    w = a2 / (a2 + b2)
+    return dr.select(dr.isfinite(w), w, 0.0)
