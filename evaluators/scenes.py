@@ -245,6 +245,20 @@ def sphere_points(
     return scene
 
 
+def _floor_square(mi: types.ModuleType, bsdf: Any, half_size: float) -> dict[str, Any]:
+    """A square of side ``2 half_size`` in y = 0, normal +y, uv in [0, 1]^2.
+
+    Mitsuba's rectangle spans [-1, 1]^2 in z = 0 with normal +z: rotated into y = 0.
+    """
+    return {
+        "type": "rectangle",
+        "bsdf": bsdf,
+        "to_world": mi.ScalarTransform4f()
+        .rotate([1.0, 0.0, 0.0], -90.0)
+        .scale([half_size, half_size, 1.0]),
+    }
+
+
 def plane_points(
     mi: types.ModuleType,
     bsdf: Any,
@@ -256,14 +270,7 @@ def plane_points(
 ) -> dict[str, Any]:
     """An 8x8 textured square (normal +y, uv in [0, 1]^2) under point lights."""
     scene = _base(mi, camera, max_depth, resolution, spp)
-    # Mitsuba's rectangle spans [-1, 1]^2 in z = 0 with normal +z: rotate it into y = 0.
-    scene["plane"] = {
-        "type": "rectangle",
-        "bsdf": bsdf,
-        "to_world": mi.ScalarTransform4f()
-        .rotate([1.0, 0.0, 0.0], -90.0)
-        .scale([PLANE_HALF_SIZE, PLANE_HALF_SIZE, 1.0]),
-    }
+    scene["plane"] = _floor_square(mi, bsdf, PLANE_HALF_SIZE)
     scene.update(_point_lights(lights))
     return scene
 
@@ -285,13 +292,7 @@ def cloth_plane(
 ) -> dict[str, Any]:
     """A 3x3 square (normal +y, uv in [0, 1]^2) under :func:`studio_envmap` and ``lights``."""
     scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["cloth"] = {
-        "type": "rectangle",
-        "bsdf": bsdf,
-        "to_world": mi.ScalarTransform4f()
-        .rotate([1.0, 0.0, 0.0], -90.0)
-        .scale([CLOTH_HALF_SIZE, CLOTH_HALF_SIZE, 1.0]),
-    }
+    scene["cloth"] = _floor_square(mi, bsdf, CLOTH_HALF_SIZE)
     scene["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap())}
     scene.update(_point_lights(lights))
     return scene
