@@ -43,7 +43,7 @@ from evaluators.score_brdf import (
     reference_pairs,
     score_candidate,
 )
-from service.errors import FormatError, JobFailed, NotFoundError
+from service.errors import FormatError, JobFailed
 from storage.formats.merl import read_merl
 
 if TYPE_CHECKING:
@@ -56,12 +56,7 @@ def reference_tables(reference: str | dict[str, str], ctx: JobContext) -> dict[s
     if isinstance(reference, dict):
         return dict(reference)
     job_id = reference.removeprefix("job:")
-    try:
-        job = ctx.jobs.get(job_id)
-    except NotFoundError:
-        raise JobFailed(f"reference: no job {job_id}") from None
-    if job.state != "succeeded":
-        raise JobFailed(f"reference: job {job_id} is {job.state}, not succeeded")
+    job = ctx.input_job(job_id, "reference")
     names = {a.name for a in job.artifacts}
     if "materials.json" not in names:
         raise JobFailed(

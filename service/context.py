@@ -22,7 +22,7 @@ from service.errors import JobCancelled, JobFailed, NotFoundError
 from service.executor import Executor, InlineExecutor
 from service.specs import JOB_REF, SHA_REF
 from storage.artifacts import ArtifactStore
-from storage.jobs import ArtifactRecord, JobStore
+from storage.jobs import ArtifactRecord, Job, JobStore
 
 MEDIA_TYPES = {
     ".exr": "image/x-exr",
@@ -124,6 +124,19 @@ class JobContext:
             raise JobCancelled(f"job {self.job_id} was cancelled")
 
     # -- inputs --------------------------------------------------------------------------
+    def input_job(self, job_id: str, field: str, kind: str | None = None) -> Job:
+        """The succeeded job a param names (``job:<id>`` without the prefix), else
+        :class:`JobFailed` naming ``field``: no such job, another ``kind``, not succeeded."""
+        try:
+            job = self.jobs.get(job_id)
+        except NotFoundError:
+            raise JobFailed(f"{field}: no job {job_id}") from None
+        if kind is not None and job.kind != kind:
+            raise JobFailed(f"{field}: job {job_id} is a {job.kind} job, not {kind}")
+        if job.state != "succeeded":
+            raise JobFailed(f"{field}: job {job_id} is {job.state}, not succeeded")
+        return job
+
     def ref_record(self, ref: str) -> ArtifactRecord:
         """The record (name, digest, size, media type) behind a ``job:`` or ``sha256:`` ref."""
         m = JOB_REF.match(ref)

@@ -29,7 +29,7 @@ import torch
 from torch import Tensor
 
 from materials import halfdiff as hd
-from service.errors import JobFailed, NotFoundError
+from service.errors import JobFailed
 from service.specs import JOB_REF
 from storage.errors import FormatError
 from storage.formats.merl import MerlTable, merl_from_bytes
@@ -67,12 +67,7 @@ class MaterialTable:
 
 def _job_materials(ctx: JobContext, job_id: str) -> list[dict[str, Any]] | None:
     """The ``materials`` list of a job's ``materials.json``, or ``None`` if it has none."""
-    try:
-        job = ctx.jobs.get(job_id)
-    except NotFoundError:
-        raise JobFailed(f"dataset: no job {job_id}") from None
-    if job.state != "succeeded":
-        raise JobFailed(f"dataset: job {job_id} is {job.state}, not succeeded")
+    job = ctx.input_job(job_id, "dataset")
     if "materials.json" not in {a.name for a in job.artifacts}:
         return None
     doc = json.loads(ctx.read_ref(f"job:{job_id}/materials.json"))

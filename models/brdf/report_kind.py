@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import AfterValidator, Field
 
-from service.errors import JobFailed, NotFoundError
+from service.errors import JobFailed
 from service.registry import Kind, register
 from service.specs import StrictModel
 
@@ -89,14 +89,7 @@ def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
     from models.brdf.study import Run
 
     job_id = ref.removeprefix("job:")
-    try:
-        job = ctx.jobs.get(job_id)
-    except NotFoundError:
-        raise JobFailed(f"runs: no job {job_id}") from None
-    if job.kind != "train.brdf":
-        raise JobFailed(f"runs: job {job_id} is a {job.kind} job, not train.brdf")
-    if job.state != "succeeded":
-        raise JobFailed(f"runs: job {job_id} is {job.state}, not succeeded")
+    job = ctx.input_job(job_id, "runs", "train.brdf")
     names = {a.name for a in job.artifacts}
 
     def read(name: str) -> Any:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from models.fabric.networks import map_tensor, param_vector
-from service.errors import JobFailed, NotFoundError
+from service.errors import JobFailed
 from storage.errors import FormatError
 from storage.formats.exr import read_exr
 from storage.formats.npz import read_npz
@@ -78,14 +78,7 @@ def holdout_split(name: str, n: int, fraction: float) -> tuple[np.ndarray, np.nd
 
 
 def _job_materials(ctx: JobContext, job_id: str) -> list[dict[str, Any]]:
-    try:
-        job = ctx.jobs.get(job_id)
-    except NotFoundError:
-        raise JobFailed(f"dataset: no job {job_id}") from None
-    if job.kind != "generate.fabric":
-        raise JobFailed(f"dataset: job {job_id} is a {job.kind} job, not generate.fabric")
-    if job.state != "succeeded":
-        raise JobFailed(f"dataset: job {job_id} is {job.state}, not succeeded")
+    ctx.input_job(job_id, "dataset", "generate.fabric")
     doc = json.loads(ctx.read_ref(f"job:{job_id}/materials.json"))
     if doc.get("components") != DATASET_COMPONENTS:
         raise JobFailed(f"dataset: job {job_id}'s components are not {DATASET_COMPONENTS}")
