@@ -39,6 +39,8 @@ system-deps-check: system-deps
 
 test: setup
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 	$(VENV)/bin/python -m pytest -q
 
@@ -47,6 +49,7 @@ lint: setup
 
 typecheck: setup
 	$(VENV)/bin/mypy
+	$(VENV)/bin/lint-imports
 
 demo: setup
 	bash scripts/demo.sh

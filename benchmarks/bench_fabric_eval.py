@@ -64,7 +64,7 @@ class _Refs:
 
 def run_recipe(settings: Any, recipe: Path) -> dict[str, Any]:
     """Run every step of ``recipe`` in order; returns ``{step name: Job}`` (all succeeded)."""
-    from service.batch import load_batch, substitute_refs
+    from service.cli.batch import load_batch, substitute_refs
     from service.specs import STEP_REF
     from service.submission import run_in_process
 
@@ -96,17 +96,17 @@ def read_json(settings: Any, job: Any, name: str) -> Any:
 
 def frame_seconds(mi: Any, params: Any, refs: _Refs, repeats: int) -> float:
     """Median seconds per frame of a render step's params, compiled first, read back."""
-    from evaluators import fabric_integrator
-    from evaluators.material_sources import resolve_material
-    from evaluators.render import plan_passes, render_passes
-    from evaluators.scenes import SceneSetup, build_scene
+    from evaluators.render.integrators import integrator_for
+    from evaluators.render.kind import plan_passes, render_passes
+    from evaluators.render.scenes import SceneSetup, build_scene
+    from evaluators.render.sources.common import resolve_material
 
     width, height = params.resolution
     passes = plan_passes(width, height, params.spp)
     bsdf = resolve_material(params.material, refs, mi)  # type: ignore[arg-type]
     setup = SceneSetup(resolution=(width, height), spp=passes[0], max_depth=params.max_depth)
     scene_dict = build_scene(params.scene, mi, bsdf, setup)
-    scene_dict["integrator"] = fabric_integrator.integrator_for(mi, bsdf, scene_dict["integrator"])
+    scene_dict["integrator"] = integrator_for(mi, bsdf, scene_dict["integrator"])
     scene = mi.load_dict(scene_dict)
     render_passes(mi, scene, passes[:1], [0])  # compiles the kernel
     times = []
@@ -121,7 +121,7 @@ def cloth_mask(mi: Any, params: Any) -> Any:
     """``(H, W)`` bool: the pixels whose centre's camera ray hits the scene's object."""
     import numpy as np
 
-    from evaluators.scenes import SceneSetup, build_scene
+    from evaluators.render.scenes import SceneSetup, build_scene
 
     width, height = params.resolution
     setup = SceneSetup(resolution=(width, height), spp=1, max_depth=params.max_depth)
@@ -137,7 +137,7 @@ def cloth_scores(ref: Any, images: dict[str, Any], mask: Any) -> dict[str, dict[
     """Metrics of ``images`` against ``ref`` over the ``mask`` pixels (module docstring)."""
     import numpy as np
 
-    from evaluators.metrics import flip, hdr_exposure_range
+    from evaluators.metrics.images import flip, hdr_exposure_range
 
     exposure, peak = hdr_exposure_range(ref), float(ref.max())
     out = {}
@@ -155,8 +155,8 @@ def cloth_scores(ref: Any, images: dict[str, Any], mask: Any) -> dict[str, dict[
 
 def encoder_seconds(refs: _Refs, model_ref: str, fabric: dict[str, Any]) -> float:
     """Seconds to encode one material (maps rasterised and the encoder run), median of 3."""
-    from evaluators.fabric_material import FabricSpec
-    from evaluators.fabric_model_material import latent_for
+    from evaluators.render.sources.fabric import FabricSpec
+    from evaluators.render.sources.fabric_model import latent_for
     from models.fabric.fused import load_fabric_model
 
     model = load_fabric_model(refs.resolve(model_ref).read_bytes())
@@ -171,7 +171,7 @@ def encoder_seconds(refs: _Refs, model_ref: str, fabric: dict[str, Any]) -> floa
 
 def check_seen(settings: Any, jobs: dict[str, Any]) -> str:
     """Which training material the recipe's 'seen' material is (``''``: none, a warning)."""
-    from evaluators.fabric_material import FabricSpec
+    from evaluators.render.sources.fabric import FabricSpec
 
     seen = jobs["seen_gt"].spec["params"]["material"]["fabric"]
     mine = FabricSpec.model_validate(seen, strict=False).to_params()
@@ -190,8 +190,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
 
-    from evaluators.render import RenderParams
-    from materials.mitsuba_backend import load_mitsuba
+    from evaluators.render.kind import RenderParams
+    from materials.backend import load_mitsuba
     from service.settings import Settings
     from storage.artifacts import ArtifactStore
 

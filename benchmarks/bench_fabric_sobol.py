@@ -7,7 +7,7 @@ script measures the smallest Sobol N whose error is at most independent sampling
 
 Queries: one material per weave family (plain, twill 3x3, satin 5x5; drawn with
 ``sample_params`` from the paper's ranges, fixed seeds), ``--queries`` queries each from the
-generator's own stratified design (``generators.fabric_queries.design_queries``: footprint
+generator's own stratified design (``generators.fabric.queries.design_queries``: footprint
 sizes over 0-5 tiles, half BTDF pairs), so both BRDF and BTDF pairs and small (< 1 tile) and
 large (>= 1 tile) footprints are covered. Reference: Sobol at ``--reference-samples``
 (default 2^17) with its own seed.
@@ -43,7 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from generators.fabric_queries import design_queries  # noqa: E402
+from generators.fabric.queries import design_queries  # noqa: E402
 from materials.fabric.aggregate import Backend, FootprintQueries, estimate  # noqa: E402
 from materials.fabric.params import FabricParams, sample_params  # noqa: E402
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from materials.mitsuba_backend import load_mitsuba  # noqa: E402
+from materials.backend import load_mitsuba  # noqa: E402
 from models.speed import BATCH, REPEATS, speed_report  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 """Seconds per MERL table of the ``generate.merl`` kind, per family, and a whole collection.
 
-Part 1 times the shard function of the job (:func:`generators.merl.tabulate_material`:
+Part 1 times the shard function of the job (:func:`generators.merl.kind.tabulate_material`:
 tabulation at every bin centre plus the anisotropy probes, the ``.binary`` bytes and the
 half/diff PNG) on the first materials of each family of the ``merl100`` preset, drawn with
 the seed a job with ``seed`` would use, in this process. Each family's first material warms
@@ -30,10 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 
-from generators.merl import MaterialTask, tabulate_material  # noqa: E402
-from generators.merl_collections import FAMILIES, PRESETS, draw_collection  # noqa: E402
-from materials.mitsuba_backend import active_variant, load_mitsuba  # noqa: E402
-from service.context import JobContext  # noqa: E402
+from generators.merl.collections import FAMILIES, PRESETS, draw_collection  # noqa: E402
+from generators.merl.kind import MaterialTask, tabulate_material  # noqa: E402
+from jobapi.context import JobContext  # noqa: E402
+from materials.backend import active_variant, load_mitsuba  # noqa: E402
 from service.settings import Settings  # noqa: E402
 from service.submission import run_in_process  # noqa: E402
 

@@ -3,7 +3,8 @@
 Renders ``sphere_env`` exactly as the ``render`` kind does (same scene dict, passes of about
 4 M paths, host read-back after every pass, so Dr.Jit's lazy evaluation cannot hide work)
 with a native Mitsuba material and with the ``merl_table`` BSDF of its tabulation
-(:mod:`materials.merl_bsdf`): a GGX gold conductor (alpha 0.3) and a rough plastic. Each
+(:mod:`evaluators.render.bsdfs.merl_table`): a GGX gold conductor (alpha 0.3) and a rough plastic.
+Each
 configuration is warmed up once (kernel compilation), then timed ``--repeats`` times,
 native and table renders interleaved; a row reports the median, the throughput relative to
 the native BSDF, and the 1-minute load average after the runs (compare rows taken at low
@@ -25,11 +26,11 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from evaluators.material_sources import load_bsdf  # noqa: E402
-from evaluators.render import plan_passes, render_passes  # noqa: E402
-from evaluators.scenes import SceneSetup, build_scene  # noqa: E402
-from materials.merl_bsdf import merl_bsdf  # noqa: E402
-from materials.mitsuba_backend import active_variant, load_mitsuba  # noqa: E402
+from evaluators.render.bsdfs.merl_table import merl_bsdf  # noqa: E402
+from evaluators.render.kind import plan_passes, render_passes  # noqa: E402
+from evaluators.render.scenes import SceneSetup, build_scene  # noqa: E402
+from evaluators.render.sources.common import load_bsdf  # noqa: E402
+from materials.backend import active_variant, load_mitsuba  # noqa: E402
 from materials.tabulate import tabulate_mitsuba  # noqa: E402
 
 MATERIALS: dict[str, dict[str, Any]] = {

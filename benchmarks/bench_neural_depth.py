@@ -2,7 +2,7 @@
 
 De Oliveira et al., Sec. 5.3 / Table 5: the network is evaluated up to a bounce and the
 analytic GGX + Lambert part after it. Here: the ``neural_depth`` integrator
-(:mod:`evaluators.neural_depth_integrator`) with ``neural_max_depth`` in {0 (analytic
+(:mod:`evaluators.render.integrators.neural_depth`) with ``neural_max_depth`` in {0 (analytic
 only), 1, 2, inf}, plus Mitsuba's C++ ``path`` integrator with the full model as a reference
 for the Python integrator's own cost. Two scenes, both with every surface in the model's
 material: ``sphere_env`` as the ``render`` kind builds it (a convex sphere: no path hits it
@@ -33,13 +33,13 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from evaluators.neural_depth_integrator import (  # noqa: E402
+from evaluators.render.bsdfs.brdf_model import MODEL_BSDF_NAME, register_model_bsdf  # noqa: E402
+from evaluators.render.integrators.neural_depth import (  # noqa: E402
     NEURAL_DEPTH_INTEGRATOR,
     register_neural_depth_integrator,
 )
-from evaluators.scenes import SceneSetup, build_scene  # noqa: E402
-from materials.mitsuba_backend import load_mitsuba  # noqa: E402
-from materials.model_bsdf import MODEL_BSDF_NAME, register_model_bsdf  # noqa: E402
+from evaluators.render.scenes import SceneSetup, build_scene  # noqa: E402
+from materials.backend import load_mitsuba  # noqa: E402
 
 DEPTHS: tuple[tuple[str, int], ...] = (("0 (analytic)", 0), ("1", 1), ("2", 2), ("inf", -1))
 

@@ -5,7 +5,7 @@ Two measurements in one run:
 1. ``store``: 1,000 jobs submitted, then claimed, heartbeaten once and completed (fenced)
    by W worker processes racing on the same database file: the queue's own ceiling.
 2. ``service``: N tiny ``render`` jobs (8x8, 1 spp) executed by real workers
-   (``service.worker.run_worker`` in W processes): the per-job overhead of the whole path,
+   (``service.workers.worker.run_worker`` in W processes): the per-job overhead of the whole path,
    Mitsuba scene set-up included.
 
 Run: ``.venv/bin/python benchmarks/bench_queue.py [--jobs 1000] [--workers 2]``
@@ -57,7 +57,7 @@ def bench_store(n_jobs: int, workers: int) -> tuple[float, float]:
 
 
 def _work(data_dir: str, n: int) -> None:
-    from service.worker import run_worker
+    from service.workers.worker import run_worker
 
     s = Settings.from_env({}).with_(data_dir=Path(data_dir), pool_processes=1)
     run_worker(s, max_jobs=n, idle_exit_seconds=1.0)

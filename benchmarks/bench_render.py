@@ -22,10 +22,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from evaluators.material_sources import load_bsdf  # noqa: E402
-from evaluators.render import plan_passes, render_passes  # noqa: E402
-from evaluators.scenes import SceneSetup, build_scene  # noqa: E402
-from materials.mitsuba_backend import active_variant, load_mitsuba  # noqa: E402
+from evaluators.render.kind import plan_passes, render_passes  # noqa: E402
+from evaluators.render.scenes import SceneSetup, build_scene  # noqa: E402
+from evaluators.render.sources.common import load_bsdf  # noqa: E402
+from materials.backend import active_variant, load_mitsuba  # noqa: E402
 
 MATERIALS = {
     "diffuse": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}},

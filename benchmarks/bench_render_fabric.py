@@ -31,16 +31,18 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from evaluators.fabric_integrator import integrator_for  # noqa: E402
-from evaluators.fabric_model_material import (  # noqa: E402
+from evaluators.render.bsdfs.fabric_aggregate import fabric_bsdf  # noqa: E402
+from evaluators.render.bsdfs.fabric_model import (  # noqa: E402
     FABRIC_MODEL_BSDF_NAME,
     register_fabric_model_bsdf,
 )
-from evaluators.scenes import SceneSetup, build_scene  # noqa: E402
-from materials.fabric.bsdf import fabric_bsdf  # noqa: E402
-from materials.fabric.footprint_bsdf import params_json  # noqa: E402
-from materials.fabric.params import FabricParams  # noqa: E402
-from materials.mitsuba_backend import load_mitsuba  # noqa: E402
+from evaluators.render.integrators import integrator_for  # noqa: E402
+from evaluators.render.scenes import SceneSetup, build_scene  # noqa: E402
+from materials.backend import load_mitsuba  # noqa: E402
+from materials.fabric.params import (
+    FabricParams,  # noqa: E402
+    params_json,  # noqa: E402
+)
 
 MATERIAL = FabricParams(
     "twill_3x3",

@@ -57,7 +57,7 @@ def decoder_rows(widths: list[int], batch: int, repeats: int, threads: int) -> l
     import drjit as dr
     import torch
 
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
     from models.fabric.fused import decoder_drjit, load_fabric_model
     from models.fabric.networks import Architecture, build_network, components
     from models.fabric.portable import to_portable

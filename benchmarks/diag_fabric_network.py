@@ -102,7 +102,7 @@ def _artifact_json(settings: Any, job: Any, name: str) -> Any:
 
 def query_sets(n: int) -> dict[str, np.ndarray]:
     """``{name: (n, 9) float64 cx, cy, size, wi.xyz, wo.xyz}``: ``design`` and ``render``."""
-    from generators.fabric_queries import design_queries
+    from generators.fabric.queries import design_queries
 
     q = design_queries(DESIGN_SEED, 0, n)
     base = np.concatenate([q.centre, q.size[:, None], q.wi, q.wo], axis=1)
@@ -177,7 +177,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
 
-    from evaluators.fabric_material import FabricSpec
+    from evaluators.render.sources.fabric import FabricSpec
     from models.fabric.fused import encode_material, load_fabric_model, material_maps
     from models.fabric.networks import components_numpy
     from models.fabric.portable import load_checkpoint

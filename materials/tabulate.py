@@ -6,7 +6,7 @@ its centre in the MERL coordinates (square-root theta_h, linear theta_d and phi_
 ``wi.z <= 0`` or ``wo.z <= 0`` are set to :data:`materials.halfdiff.MISSING` (-1).
 
 Mitsuba sources are evaluated in the vectorised ``llvm_ad_rgb`` variant (via
-:func:`materials.mitsuba_backend.load_mitsuba`) in a single ``bsdf.eval`` call over all
+:func:`materials.backend.load_mitsuba`) in a single ``bsdf.eval`` call over all
 bins plus the anisotropy and reciprocity probes. ``bsdf.eval`` returns ``f cos(theta_o)``;
 the table stores ``f = eval / wo.z``, with ``wo.z`` taken from the float32 direction that
 Mitsuba saw, so grazing bins keep full relative precision.
@@ -117,7 +117,7 @@ def mitsuba_evaluator(bsdf: Any) -> Evaluator:
     :func:`load_mitsuba`, in a surface interaction with normal ``(0, 0, 1)``; the result
     is ``eval / wo.z`` in float64, 0 where ``wi.z <= 0`` or ``wo.z <= 0``.
     """
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     mi = load_mitsuba()
     variant = mi.variant()
@@ -184,7 +184,7 @@ def tabulate_mitsuba(
         The dict does not build, or the BSDF is anisotropic beyond the tolerance.
     """
     evaluate = mitsuba_evaluator(bsdf)
-    from materials.mitsuba_backend import active_variant
+    from materials.backend import active_variant
 
     table, info = _tabulate(
         evaluate,
@@ -237,7 +237,7 @@ def mitsuba_conductor_ior(material: str) -> tuple[tuple[float, ...], tuple[float
     ``.venv/bin/python -c "from materials.tabulate import mitsuba_conductor_ior as f;
     print(f('Au'))"``.
     """
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     mi = load_mitsuba()
     params = mi.traverse(mi.load_dict({"type": "roughconductor", "material": material}))

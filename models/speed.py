@@ -5,7 +5,8 @@ What is measured (all on the CPU, ``threads`` threads for both back ends, float3
 - ``mlp`` rows: the bare MLP of the hybrid model (``6 + l`` inputs, 6 outputs, ReLU),
   :func:`models.fused_mlp.fused_mlp` against the same ``torch.nn.Sequential``;
 - ``analytic``, ``hybrid``, ``neural`` rows: the whole BRDF of one material at
-  ``(wi, wo)`` pairs: :func:`materials.model_bsdf.model_brdf` (weights and the material's
+  ``(wi, wo)`` pairs: :func:`evaluators.render.bsdfs.brdf_model.model_brdf` (weights and the
+  material's
   ``z``, ``kd``, ``eta``, ``alpha`` baked as literals) against the torch model's ``forward``
   (:class:`models.brdf.networks.BrdfModel`, one material).
 
@@ -210,7 +211,7 @@ def model_row(
     import drjit as dr
     import torch
 
-    from materials.model_bsdf import bake_material, model_brdf
+    from models.brdf.fused import bake_material, model_brdf
 
     baked = bake_material(doc, material)
     index = [m["name"] for m in doc["materials"]].index(material)
@@ -255,7 +256,7 @@ def speed_report(
     Parameters
     ----------
     mi
-        Mitsuba from :func:`materials.mitsuba_backend.load_mitsuba` (an LLVM variant).
+        Mitsuba from :func:`materials.backend.load_mitsuba` (an LLVM variant).
     doc, material
         A trained ``model.json`` document and one of its materials (default: its first):
         adds ``trained`` rows at the model's own size, with its real weights.

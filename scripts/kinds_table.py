@@ -13,7 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service import registry  # noqa: E402
+from service import kinds
 
 
 def _type(prop: dict) -> str:
@@ -34,10 +34,10 @@ def _type(prop: dict) -> str:
 def kinds_markdown() -> str:
     """The markdown table of kinds and their parameters."""
     lines = []
-    for kind in sorted(registry.kinds().values(), key=lambda k: k.name):
+    for kind in sorted(kinds.all_kinds().values(), key=lambda k: k.name):
         schema = kind.params.model_json_schema()
         arts = ", ".join(f"`{a}`" for a in kind.artifacts) or "(see below)"
-        lines.append(f"### `{kind.name}`\n\n{kind.summary}\n\nArtifacts: {arts}\n")
+        lines.append(f"### `{kind.name}`\n\n{kind.description}\n\nArtifacts: {arts}\n")
         lines.append("| param | type | default | description |")
         lines.append("| --- | --- | --- | --- |")
         required = set(schema.get("required", []))

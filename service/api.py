@@ -14,7 +14,7 @@ error                                       HTTP   body
 ==========================================  =====  ============================================
 
 ``error`` is always one line a user can act on. The web process never runs jobs: workers
-do (:class:`service.worker.Supervisor`, started by :func:`service.server.serve`).
+do (:class:`service.workers.worker.Supervisor`, started by :func:`service.server.serve`).
 """
 
 from __future__ import annotations
@@ -34,9 +34,9 @@ from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from service import registry
+from jobapi.errors import SpecError
+from service import kinds
 from service.deps import AuthDep, PageAuth, set_token_cookie
-from service.errors import SpecError
 from service.routes import ROUTERS
 from service.routes.artifacts import PreviewCache
 from service.routes.dashboard import render_error_page, static_files
@@ -182,7 +182,7 @@ class BodyLimitMiddleware:
 def _kind_components(schemas: dict[str, Any]) -> dict[str, str]:
     """Add ``params.<kind>`` (and its nested models) for every kind; returns kind → ref."""
     refs = {}
-    for name, kind in registry.kinds().items():
+    for name, kind in kinds.all_kinds().items():
         key = f"params.{name}"
         try:
             js = kind.params.model_json_schema(ref_template=f"#/components/schemas/{key}.{{model}}")
@@ -191,7 +191,7 @@ def _kind_components(schemas: dict[str, Any]) -> dict[str, str]:
             js = {"type": "object", "description": f"schema unavailable: {exc}"}
         for def_name, sub in js.pop("$defs", {}).items():
             schemas[f"{key}.{def_name}"] = sub
-        js.setdefault("description", kind.summary)
+        js.setdefault("description", kind.description)
         schemas[key] = js
         refs[name] = f"#/components/schemas/{key}"
     return refs
@@ -211,7 +211,7 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
     for name, ref in refs.items():
         v = copy.deepcopy(base)
         v["title"] = f"JobCreate.{name}"
-        v["description"] = registry.kinds()[name].summary
+        v["description"] = kinds.all_kinds()[name].description
         v["properties"]["kind"] = {"type": "string", "const": name, "title": "Kind"}
         v["properties"]["params"] = {"$ref": ref}
         v["required"] = ["kind"]

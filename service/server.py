@@ -1,6 +1,6 @@
 """``matforge serve``: the web app in this process, the jobs in N worker processes.
 
-:func:`serve` starts a :class:`service.worker.Supervisor` (which keeps ``workers`` worker
+:func:`serve` starts a :class:`service.workers.worker.Supervisor` (which keeps ``workers`` worker
 processes alive and re-queues the jobs of dead ones), then runs uvicorn with
 :func:`service.api.create_app`. On SIGINT or SIGTERM uvicorn shuts down gracefully and the
 supervisor stops its workers (SIGTERM, then SIGKILL after a grace period) before this
@@ -21,7 +21,7 @@ import uvicorn
 
 from service.api import create_app
 from service.settings import Settings
-from service.worker import Supervisor
+from service.workers.worker import Supervisor
 
 log = logging.getLogger("matforge.server")
 

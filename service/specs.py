@@ -15,28 +15,17 @@ import hashlib
 import json
 import re
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from service import registry
-from service.errors import SpecError
+from jobapi.errors import SpecError
+from service import kinds
 
-JOB_REF = re.compile(
-    r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)$"
-)
-SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})$")
 #: ``step:<step>/<artifact>``, or ``step:<step>`` for the whole job (e.g. a dataset).
 STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._/-]+))?$")
 MAX_SEED = 2**63 - 1
-
-
-class StrictModel(BaseModel):
-    """Base of every params model: unknown fields are errors, values are not coerced
-    across types (``"3"`` is not an int), and models are immutable."""
-
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
 
 class JobSpec(BaseModel):
@@ -100,9 +89,9 @@ def validate_spec(raw: Any) -> ValidSpec:
     except ValidationError as exc:
         raise SpecError(_pydantic_errors(exc)) from None
     try:
-        kind = registry.get(env.kind)
+        kind = kinds.get_kind(env.kind)
     except KeyError:
-        known = ", ".join(sorted(registry.kinds()))
+        known = ", ".join(sorted(kinds.all_kinds()))
         raise SpecError(
             [("kind", f"unknown job kind {env.kind!r}; known kinds: {known}")]
         ) from None
@@ -151,21 +140,3 @@ def parse_spec_text(text: str, source: str = "<spec>") -> Any:
     except yaml.YAMLError as exc:
         first = str(exc).splitlines()[0] if str(exc) else "invalid YAML"
         raise SpecError([("", f"{source}: not valid JSON or YAML: {first}")]) from None
-
-
-def is_ref(value: str) -> bool:
-    """Whether ``value`` is a ``job:`` or ``sha256:`` artifact reference."""
-    return bool(JOB_REF.match(value) or SHA_REF.match(value))
-
-
-def _check_ref(value: str) -> str:
-    if not is_ref(value):
-        raise ValueError(
-            "must be an artifact reference 'job:<job-id>/<artifact-name>' or "
-            "'sha256:<64 lowercase hex>'"
-        )
-    return value
-
-
-#: An artifact reference field for params models.
-Ref = Annotated[str, AfterValidator(_check_ref)]

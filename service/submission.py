@@ -9,12 +9,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from service.context import media_type_for
-from service.errors import SpecError
-from service.execution import execute, worker_id
-from service.executor import make_executor
+from jobapi.context import media_type_for
+from jobapi.errors import SpecError
+from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
-from service.specs import JOB_REF, SHA_REF, ValidSpec, validate_spec
+from service.specs import ValidSpec, validate_spec
+from service.workers.execution import execute, worker_id
+from service.workers.executors import make_executor
 from storage.artifacts import ArtifactStore
 from storage.errors import NotFoundError
 from storage.formats import validate_file

@@ -153,10 +153,10 @@ class ArtifactStore:
         fd, name = tempfile.mkstemp(dir=self.tmp, prefix="put-")
         chunks: Iterable[bytes]
         if hasattr(stream, "read"):
-            reader = stream  # type: ignore[assignment]
-            chunks = iter(lambda: reader.read(_CHUNK), b"")  # type: ignore[union-attr]
+            reader = stream
+            chunks = iter(lambda: reader.read(_CHUNK), b"")
         else:
-            chunks = stream  # type: ignore[assignment]
+            chunks = stream
         try:
             with os.fdopen(fd, "wb") as fh:
                 for chunk in chunks:

@@ -10,11 +10,13 @@ from pathlib import Path
 import pytest
 from pydantic import Field
 
-from service import registry
-from service.context import JobContext
-from service.errors import JobFailed
+from jobapi import kinds as jobapi_kinds
+from jobapi.context import JobContext
+from jobapi.errors import JobFailed
+from jobapi.kinds import Kind
+from jobapi.params import StrictModel
+from service import kinds
 from service.settings import Settings
-from service.specs import StrictModel
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
 
@@ -62,11 +64,11 @@ def run_toy(params: ToyParams, ctx: JobContext) -> None:
 
 
 @pytest.fixture
-def toy_kind(monkeypatch: pytest.MonkeyPatch) -> registry.Kind:
+def toy_kind(monkeypatch: pytest.MonkeyPatch) -> Kind:
     """Register the toy kind for the duration of one test."""
-    registry.load_builtin()
-    kind = registry.Kind(name="toy", params=ToyParams, runner=run_toy, summary="test-only kind")
-    monkeypatch.setitem(registry._KINDS, "toy", kind)
+    kinds.load_builtin()
+    kind = Kind(name="toy", params=ToyParams, runner=run_toy, description="test-only kind")
+    monkeypatch.setitem(jobapi_kinds._KINDS, "toy", kind)
     return kind
 
 
@@ -74,7 +76,7 @@ def toy_kind(monkeypatch: pytest.MonkeyPatch) -> registry.Kind:
 def mi() -> types.ModuleType:
     """Mitsuba in its LLVM variant. ``make setup`` installs libLLVM 19 for it, so a scalar
     fallback means a broken set-up: the tests that need LLVM fail loudly rather than skip."""
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     mod = load_mitsuba()
     if not mod.variant().startswith("llvm_"):

@@ -13,10 +13,9 @@ Submodules, imported explicitly (DESIGN.md):
 - ``aggregate``: the estimator of the four components of Eq. 7-8 with standard errors.
 
 ``aggregate_drjit`` (the Dr.Jit LLVM twin of the estimator) is imported on demand only,
-because it starts Dr.Jit. So are the Mitsuba plugins: ``footprint_bsdf`` (the base shared by
-the fabric BSDFs: pixel footprints from uv partials, two-sided sheet, cosine sampling,
-Eq. 8) and ``bsdf`` (``fabric_aggregate``: each ``eval`` an unbiased one-sample Monte Carlo
-estimate of the footprint's aggregate, for the ``render`` kind's ``{"fabric": ...}``).
+because it starts Dr.Jit. The Mitsuba plugins that render this model live in
+:mod:`evaluators.render.bsdfs` (``fabric_footprint``, ``fabric_aggregate``,
+``fabric_model``).
 """
 
 from materials.fabric import (

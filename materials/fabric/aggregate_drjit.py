@@ -16,7 +16,7 @@ Material scalars are baked into the kernel as literals, so each material compile
 do not. The sums are float64 atomic adds; reruns gave bit-identical results here, but the
 additions' order is not guaranteed by Dr.Jit.
 
-Dr.Jit starts through :func:`materials.mitsuba_backend.load_mitsuba`, which points it at a
+Dr.Jit starts through :func:`materials.backend.load_mitsuba`, which points it at a
 working libLLVM (NOTES.md); if only the scalar fallback is available this module raises.
 Timing note (NOTES.md): results are read back with ``.numpy()``, which waits for the kernel.
 """
@@ -43,7 +43,7 @@ if TYPE_CHECKING:
 @lru_cache(maxsize=1)
 def _drjit() -> types.SimpleNamespace:
     """Start Dr.Jit's LLVM backend (once) and return its module and array types."""
-    from materials.mitsuba_backend import active_variant, load_mitsuba
+    from materials.backend import active_variant, load_mitsuba
 
     load_mitsuba()
     import drjit as dr

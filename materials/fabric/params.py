@@ -31,6 +31,7 @@ t_rho        (0, 20]                fixed 2           Sec. 3.1: "T rho ... a val
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
@@ -195,4 +196,24 @@ def sample_params(rng: np.random.Generator, pattern: Pattern | str) -> FabricPar
         kd_weft=rgb(),
         ks_warp=rgb(),
         ks_weft=rgb(),
+    )
+
+
+def params_json(params: FabricParams) -> str:
+    """The material as the JSON string the plugins' ``params`` property takes."""
+    return json.dumps(
+        {
+            "pattern": params.pattern.name,
+            "psi_deg": list(params.psi_deg),
+            "u_max_deg": list(params.u_max_deg),
+            "alpha": list(params.alpha),
+            "beta": list(params.beta),
+            "w": params.w,
+            "kd_warp": list(params.kd_warp),
+            "kd_weft": list(params.kd_weft),
+            "ks_warp": list(params.ks_warp),
+            "ks_weft": list(params.ks_weft),
+            "gap": params.gap,
+            "t_rho": params.t_rho,
+        }
     )

@@ -298,3 +298,17 @@ def rasterize(params: FabricParams, resolution: int) -> TileMaps:
         height=np.asarray(surf.height, dtype=np.float32),
         yarn=yarn,
     )
+
+
+def max_slope(params: FabricParams) -> float:
+    """Largest ``|n_xy| / n_z`` of the ply normal over the tile (``yarn.surface``).
+
+    ``tan^2 = beta^2 (tan^2 v / cos^2 u + tan^2 u)`` grows with ``|u|`` and ``|v|``, so the
+    maximum sits at ``v = ROLL_MAX``, ``u = u_max`` (yarn edges at float ends).
+    """
+    geo = YarnGeometry.from_params(params)
+    out = 0.0
+    for um, beta in zip(geo.u_max, geo.beta, strict=True):
+        tan2 = math.tan(ROLL_MAX) ** 2 / math.cos(um) ** 2 + math.tan(um) ** 2
+        out = max(out, beta * math.sqrt(tan2))
+    return out

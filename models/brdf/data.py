@@ -7,7 +7,7 @@ the artifact, else ``"custom"``).
 
 Batches (Sec. 3.3 of the hybrid-BRDF paper): at every step each material gets ``B`` pairs
 ``(wi, wo)``, independent and each cosine-weighted on the upper hemisphere (Malley's method,
-as :func:`evaluators.brdf_metrics.direction_pairs`, but from the job's own generator). The
+as :func:`evaluators.metrics.brdf.direction_pairs`, but from the job's own generator). The
 targets come from :func:`lookup_tables`, a torch twin of :func:`materials.halfdiff.lookup`
 with ``interpolate=True`` (the reconstruction that ``score`` and ``metrics.json`` use): the
 Rusinkiewicz angles and MERL coordinates are the shared generic formulas of
@@ -28,14 +28,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from jobapi.errors import JobFailed
+from jobapi.params import JOB_REF
 from materials import halfdiff as hd
-from service.errors import JobFailed
-from service.specs import JOB_REF
 from storage.errors import FormatError
 from storage.formats.merl import MerlTable, merl_from_bytes
 
 if TYPE_CHECKING:
-    from service.context import JobContext
+    from jobapi.context import JobContext
 
 
 def _maximum(a: Any, b: Any) -> Any:

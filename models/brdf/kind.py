@@ -43,38 +43,29 @@ job's network.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import AfterValidator, Field, model_validator
+from pydantic import Field, model_validator
 
-from service.errors import JobFailed
-from service.registry import Kind, register
-from service.specs import Ref, StrictModel
+from jobapi.errors import JobFailed
+from jobapi.kinds import Kind, register
+from jobapi.params import JobRef, Ref, StrictModel
+from jobapi.presets import preset_note, preset_value
+from jobapi.results import ArtifactReader, ResultTable, per_material_table
 
 if TYPE_CHECKING:
+    from jobapi.context import JobContext
     from models.brdf.networks import Architecture, BrdfModel
-    from service.context import JobContext
 
-DATASET_JOB = re.compile(r"^job:[0-9a-f]{32}$")
 #: Most tables one job may train on.
 MAX_TABLES = 500
 #: Runs per median of each ``speed.json`` measurement (after one warm-up run).
 SPEED_REPEATS = 5
 
 
-def _check_dataset_job(value: str) -> str:
-    if not DATASET_JOB.match(value):
-        raise ValueError(
-            "must be 'job:<job-id>' (every table of a generate.merl job) or a list of "
-            "table refs 'job:<job-id>/<name>.binary' or 'sha256:<hex>'"
-        )
-    return value
-
-
 #: ``job:<id>`` without an artifact name: every table of a ``generate.merl`` job.
-DatasetJob = Annotated[str, AfterValidator(_check_dataset_job)]
+DatasetJob = JobRef
 
 
 @dataclass(frozen=True)
@@ -123,12 +114,7 @@ PRESETS: dict[str, TrainPreset] = {
 
 
 def _preset(name: str) -> str:
-    """Description suffix naming each preset's value of ``name``."""
-    return (
-        "; unset: the preset's ("
-        + ", ".join(f"{k} {getattr(p, name)}" for k, p in PRESETS.items())
-        + ")."
-    )
+    return preset_note(PRESETS, name)
 
 
 class TrainBrdfParams(StrictModel):
@@ -286,8 +272,7 @@ class TrainBrdfParams(StrictModel):
 
     def value(self, name: str) -> Any:
         """The field ``name``, or the preset's value when it is unset."""
-        v = getattr(self, name)
-        return getattr(PRESETS[self.preset], name) if v is None else v
+        return preset_value(self, PRESETS, name)
 
 
 def architecture(params: TrainBrdfParams, init: Architecture | None) -> Architecture:
@@ -338,12 +323,21 @@ def run_train_brdf(params: TrainBrdfParams, ctx: JobContext) -> None:
     train_and_report(params, ctx)
 
 
+#: Columns of ``metrics.json``'s per-material rows, in the result table.
+MATERIAL_COLUMNS = ("family", "split", "smape", "mae", "smape_analytic", "mae_analytic")
+
+
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """The result table: ``metrics.json``, one row per material then the mean."""
+    return per_material_table(read("metrics.json"), MATERIAL_COLUMNS)
+
+
 register(
     Kind(
         name="train.brdf",
         params=TrainBrdfParams,
         runner=run_train_brdf,
-        summary="Fit the hybrid neural-microfacet BRDF (or the neural / GGX baselines) to "
+        description="Fit the hybrid neural-microfacet BRDF (or the neural / GGX baselines) to "
         "MERL tables; portable model, per-material parameters, curves and SMAPE.",
         artifacts=(
             "model.pt",
@@ -354,6 +348,15 @@ register(
             "metrics.json",
             "speed.json",
         ),
-        smoke={},
+        smoke={
+            "dataset": "step:generate.merl",
+            "steps": 20,
+            "width": 16,
+            "depth": 2,
+            "batch_pairs": 64,
+            "eval_pairs": 4096,
+            "speed_batch": 1024,
+        },
+        summary=summarize,
     )
 )

@@ -161,14 +161,17 @@ def to_portable(
     }
 
 
-def _check(doc: dict[str, Any]) -> Architecture:
+def check_document(doc: dict[str, Any]) -> Architecture:
+    """The architecture of a ``model.json`` document; ``ValueError`` if it is not one."""
     if doc.get("format") != FORMAT:
         raise ValueError(f"not a {FORMAT} document (format {doc.get('format')!r})")
     a = doc["architecture"]
     return Architecture(a["model"], a["width"], a["depth"], a["latent_dim"])
 
 
-def _material(doc: dict[str, Any], name: str) -> dict[str, Any]:
+def material_entry(doc: dict[str, Any], name: str) -> dict[str, Any]:
+    """A copy of material ``name``'s entry of ``doc["materials"]``; ``ValueError`` naming
+    the model's materials if there is none."""
     for m in doc["materials"]:
         if m["name"] == name:
             return dict(m)
@@ -188,7 +191,9 @@ def _normalize(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
-def _frames(frame: dict[str, Any], z: np.ndarray) -> np.ndarray:
+def neural_frames(frame: dict[str, Any], z: np.ndarray) -> np.ndarray:
+    """The neural model's learned frames for latent ``z``: ``(F, 3, 3)``, rows ``t, b, n``
+    of each frame (the ``frame`` module of the document applied to ``z``)."""
     raw = np.asarray(frame["weight"], np.float64) @ z + np.asarray(frame["bias"], np.float64)
     raw = raw.reshape(NEURAL_FRAMES, 2, 3)
     n = _normalize(raw[:, 0])
@@ -202,8 +207,8 @@ def eval_portable(doc: dict[str, Any], material: str, wi: np.ndarray, wo: np.nda
     Returns ``(N, 3)`` float64 plain BRDF values in 1/sr; 0 where either direction is at or
     below the horizon. Reproduces the torch model's forward (see the module docstring).
     """
-    arch = _check(doc)
-    mat = _material(doc, material)
+    arch = check_document(doc)
+    mat = material_entry(doc, material)
     wi = np.asarray(wi, np.float64)
     wo = np.asarray(wo, np.float64)
     if wi.ndim != 2 or wi.shape[1] != 3 or wi.shape != wo.shape:
@@ -230,7 +235,7 @@ def eval_portable(doc: dict[str, Any], material: str, wi: np.ndarray, wo: np.nda
             f_g = 1.0 / (1.0 + np.exp(-y[:, 3:6]))
         out[above] = np.exp(y[:, 0:3]) + f_g * f_a
         return out
-    rot = _frames(net["frame"], z)
+    rot = neural_frames(net["frame"], z)
     li = np.einsum("fij,nj->nfi", rot, i)
     lo = np.einsum("fij,nj->nfi", rot, o)
     x = np.concatenate([li, lo], axis=-1).reshape(len(i), 6 * NEURAL_FRAMES)
@@ -247,7 +252,7 @@ def from_portable(doc: dict[str, Any]) -> tuple[BrdfModel, list[str], list[str]]
     Per-material values go through the inverse constraints, so ``kd``, ``eta`` and ``alpha``
     come back within float32 rounding (values on a range's edge are clamped just inside).
     """
-    arch = _check(doc)
+    arch = check_document(doc)
     mats = doc["materials"]
     model = BrdfModel(arch, len(mats))
     with torch.no_grad():

@@ -1,10 +1,10 @@
 """Reports of ``train.brdf``: ``metrics.json`` (BRDF-space errors) and ``curves.png``.
 
 Metrics: every material of a trained model is scored as ``score`` scores MERL tables
-(:mod:`evaluators.score_brdf`): plain RGB BRDF values at the fixed-seed pairs of
-:func:`evaluators.brdf_metrics.direction_pairs` (seed ``PAIRS_SEED``, cosine-weighted, the
+(:mod:`evaluators.score.brdf`): plain RGB BRDF values at the fixed-seed pairs of
+:func:`evaluators.metrics.brdf.direction_pairs` (seed ``PAIRS_SEED``, cosine-weighted, the
 same for every job: never the training pairs, which come from the job's own seed), the
-reference through :class:`~evaluators.brdf_metrics.TableSampler` (multilinear lookup), pairs
+reference through :class:`~evaluators.metrics.brdf.TableSampler` (multilinear lookup), pairs
 where the table has no data left out, ``smape`` (Eq. 6 of the hybrid-BRDF paper, eps 0)
 and ``mae`` (1/sr). Models with an analytic part also get ``smape_analytic`` and
 ``mae_analytic``: the same scores of ``f_a`` alone (the figure the paper quotes beside each
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from evaluators.brdf_metrics import (
+from evaluators.metrics.brdf import (
     DISTRIBUTIONS,
     PAIRS_SEED,
     TableSampler,
@@ -29,11 +29,11 @@ from evaluators.brdf_metrics import (
     sample_brdf,
     smape,
 )
+from evaluators.metrics.figures import figure_png, loss_axes
+from jobapi.errors import JobFailed
 from models.brdf.data import MaterialTable
 from models.brdf.networks import BrdfModel
 from models.brdf.train import Curves
-from models.figures import figure_png, loss_axes
-from service.errors import JobFailed
 
 #: Rows per torch evaluation chunk.
 EVAL_CHUNK = 1 << 16

@@ -30,27 +30,20 @@ had to be timed here (then the ns figures vary between runs, as ``speed.json`` d
 from __future__ import annotations
 
 import json
-import re
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Any
 
-from pydantic import AfterValidator, Field
+from pydantic import Field
 
-from service.errors import JobFailed
-from service.registry import Kind, register
-from service.specs import StrictModel
+from jobapi.errors import JobFailed
+from jobapi.kinds import Kind, register
+from jobapi.params import JobRef, StrictModel
+from jobapi.results import ArtifactReader, ResultTable
 
 if TYPE_CHECKING:
+    from jobapi.context import JobContext
     from models.brdf.study import Run
-    from service.context import JobContext
 
-JOB = re.compile(r"^job:[0-9a-f]{32}$")
 REPORT_FORMAT = "matforge.brdf-report/1"
-
-
-def _check_job(value: str) -> str:
-    if not JOB.match(value):
-        raise ValueError("must be 'job:<job-id>' of a train.brdf job ('step:<name>' in batches)")
-    return value
 
 
 class ReportBrdfParams(StrictModel):
@@ -69,7 +62,7 @@ class ReportBrdfParams(StrictModel):
         {"kind": "report.brdf", "params": {"runs": ["step:hybrid_s0", "step:neural_s0"]}}
     """
 
-    runs: list[Annotated[str, AfterValidator(_check_job)]] = Field(
+    runs: list[JobRef] = Field(
         min_length=1,
         max_length=64,
         description="train.brdf jobs to compare: 'job:<id>' each ('step:<name>' in a batch "
@@ -113,13 +106,14 @@ def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
         materials=tuple(metrics["materials"]),
         speed=speed,
         speed_source=source,
+        stored_mean=float(metrics["mean"]["smape"]),
     )
     return run, doc
 
 
 def _time_config(doc: dict[str, Any], batch: int) -> dict[str, Any] | None:
     """The trained-size speed row of ``doc``'s first material, or ``None`` without LLVM."""
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
     from models.brdf.kind import SPEED_REPEATS
     from models.speed import speed_report
 
@@ -198,14 +192,50 @@ def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
                  f"{'; '.join(held) or 'none'}")  # fmt: skip
 
 
+#: Columns of ``pareto.json``'s points, in the result table.
+PARETO_COLUMNS = (
+    "per_material_params",
+    "n",
+    "smape_mean",
+    "smape_std",
+    "smape_min",
+    "smape_max",
+    "ns_per_eval",
+    "torch_ns",
+    "bytes_per_material",
+    "pareto",
+)
+
+
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """The result table: ``pareto.json``, one row per configuration, and its claims."""
+    doc = read("pareto.json")
+    if not isinstance(doc, dict):
+        return None
+    points = [p for p in doc.get("points", []) if isinstance(p, dict) and "config" in p]
+    if not points:
+        return None
+    rows = {str(p["config"]): {k: p.get(k) for k in PARETO_COLUMNS} for p in points}
+    claims = [c for c in doc.get("claims", []) if isinstance(c, dict) and "claim" in c]
+    return ResultTable(
+        title="Accuracy against cost",
+        label_header="Configuration",
+        columns=list(PARETO_COLUMNS),
+        rows=rows,
+        settings=doc.get("settings"),
+        claims=claims,
+    )
+
+
 register(
     Kind(
         name="report.brdf",
         params=ReportBrdfParams,
         runner=run_report_brdf,
-        summary="Accuracy (mean SMAPE) against cost (fused ns/eval) over train.brdf runs: "
+        description="Accuracy (mean SMAPE) against cost (fused ns/eval) over train.brdf runs: "
         "Pareto front, seed spread, per-family errors and the paper's claims checked.",
         artifacts=("pareto.json", "pareto.png", "spread.json", "families.json", "families.png"),
-        smoke={},
+        smoke={"runs": ["step:train.brdf"], "speed_batch": 1024},
+        summary=summarize,
     )
 )

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from models.figures import figure_png
+from evaluators.metrics.figures import figure_png
 
 #: One colour per model type.
 COLOURS = {"analytic": "#4d4d4d", "hybrid": "#d95f02", "neural": "#1b9e77"}

@@ -13,16 +13,16 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
+from jobapi.errors import JobFailed
 from models.brdf.data import load_dataset, split_by_family, stack_tables
 from models.brdf.kind import SPEED_REPEATS, TrainBrdfParams, architecture, load_init
 from models.brdf.networks import BrdfModel, build_model, copy_materials, copy_network
 from models.brdf.portable import checkpoint_bytes, to_portable
 from models.brdf.report import curves_png, evaluate
 from models.brdf.train import Curves, FitConfig, deterministic_torch, fit
-from service.errors import JobFailed
 
 if TYPE_CHECKING:
-    from service.context import JobContext
+    from jobapi.context import JobContext
 
 log = logging.getLogger(__name__)
 
@@ -210,7 +210,7 @@ def measure_speed(params: TrainBrdfParams, doc: dict[str, Any]) -> dict[str, Any
     adds the paper's Table 4 sizes. Without Mitsuba's LLVM variant nothing is timed and the
     document says why (``skipped``), so that the job still succeeds.
     """
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
     from models.speed import SIZES, SPEED_FORMAT, speed_report
 
     mi = load_mitsuba()

@@ -16,7 +16,7 @@ the network's tensors are left bit-for-bit unchanged.
 
 Stability: the loss and the gradient norm are checked at every step. A non-finite value,
 or a loss above ``max(DIVERGENCE_FACTOR * first loss, DIVERGENCE_FLOOR)``, raises
-:class:`~service.errors.JobFailed` naming the step and suggesting a lower ``lr``; so does a
+:class:`~jobapi.errors.JobFailed` naming the step and suggesting a lower ``lr``; so does a
 non-finite parameter at the end. A silent bad model is never returned.
 
 Determinism: :func:`deterministic_torch` fixes the thread count (:data:`TORCH_THREADS`) and
@@ -36,10 +36,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from jobapi.errors import JobFailed
 from models.brdf.data import draw_batch
 from models.brdf.losses import joint_loss
 from models.brdf.networks import BrdfModel
-from service.errors import JobFailed
 
 #: Threads of every training run: fixed so that results do not depend on the machine's size.
 #: One, measured: on the shared 2-core machines a second OpenMP thread spin-waits against the

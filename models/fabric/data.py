@@ -4,7 +4,7 @@ Source: ``dataset: "job:<id>"`` (in a batch file ``step:<name>``, which resolves
 succeeded ``generate.fabric`` job. As ``train.brdf`` reads a ``generate.merl`` job, its
 ``materials.json`` lists every material, and the sibling artifacts it names are read
 through the job's refs: ``shard-XXXX.npz`` (``material, center, size, wi, wo, value,
-stderr``, layout in :mod:`generators.fabric`), ``maps/<name>-normal.exr`` and
+stderr``, layout in :mod:`generators.fabric.kind`), ``maps/<name>-normal.exr`` and
 ``maps/<name>-orientation.exr`` (read with :func:`storage.formats.exr.read_exr`, then
 resampled to the network's ``map_resolution`` by :func:`models.fabric.networks.map_tensor`).
 
@@ -24,14 +24,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from jobapi.errors import JobFailed
 from models.fabric.networks import map_tensor, param_vector
-from service.errors import JobFailed
 from storage.errors import FormatError
 from storage.formats.exr import read_exr
 from storage.formats.npz import read_npz
 
 if TYPE_CHECKING:
-    from service.context import JobContext
+    from jobapi.context import JobContext
 
 #: Seed of the held-out split (with a hash of the material's name).
 HOLDOUT_SEED = 0x5EED_FAB

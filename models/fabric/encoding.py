@@ -1,7 +1,7 @@
 """Input encodings of the fabric decoder (Chen, Wang & Wang 2024, Sec. 4.2).
 
 Spatial query. A footprint ``P`` is its centre ``(cx, cy)`` and its box side ``size``, in
-tile units (``generators.fabric_queries``: centres in ``[0, 1)``, sizes in ``[0, 5]``).
+tile units (``generators.fabric.queries``: centres in ``[0, 1)``, sizes in ``[0, 5]``).
 Before encoding each is mapped to the unit interval:
 
 - centres are wrapped, ``x - floor(x)``: the weave tile is periodic, so a renderer may pass

@@ -30,30 +30,21 @@ line do). With ``auto`` on a CUDA machine training runs there, which is not bit-
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import AfterValidator, Field
+from pydantic import Field
 
-from service.registry import Kind, register
-from service.specs import Ref, StrictModel
+from jobapi.kinds import Kind, register
+from jobapi.params import JobRef, Ref, StrictModel
+from jobapi.presets import preset_note, preset_value
+from jobapi.results import ArtifactReader, ResultTable, per_material_table
 
 if TYPE_CHECKING:
-    from service.context import JobContext
+    from jobapi.context import JobContext
 
-DATASET_JOB = re.compile(r"^job:[0-9a-f]{32}$")
-
-
-def _check_dataset_job(value: str) -> str:
-    if not DATASET_JOB.match(value):
-        raise ValueError(
-            "must be 'job:<job-id>' of a generate.fabric job (in a batch file 'step:<name>')"
-        )
-    return value
-
-
-DatasetJob = Annotated[str, AfterValidator(_check_dataset_job)]
+#: ``job:<id>`` of a ``generate.fabric`` job.
+DatasetJob = JobRef
 
 
 @dataclass(frozen=True)
@@ -95,11 +86,7 @@ PRESETS: dict[str, FabricPreset] = {
 
 
 def _preset(name: str) -> str:
-    return (
-        "; unset: the preset's ("
-        + ", ".join(f"{k} {getattr(p, name)}" for k, p in PRESETS.items())
-        + ")."
-    )
+    return preset_note(PRESETS, name)
 
 
 class TrainFabricParams(StrictModel):
@@ -203,8 +190,7 @@ class TrainFabricParams(StrictModel):
 
     def value(self, name: str) -> Any:
         """The field ``name``, or the preset's value when it is unset."""
-        v = getattr(self, name)
-        return getattr(PRESETS[self.preset], name) if v is None else v
+        return preset_value(self, PRESETS, name)
 
 
 def run_train_fabric(params: TrainFabricParams, ctx: JobContext) -> None:
@@ -214,12 +200,34 @@ def run_train_fabric(params: TrainFabricParams, ctx: JobContext) -> None:
     train_and_report(params, ctx)
 
 
+#: Columns of ``metrics.json``'s per-material rows, in the result table: held-out errors
+#: against the Monte Carlo estimates (``baseline.*``: the per-material mean predictor).
+FABRIC_COLUMNS = (
+    "pattern",
+    "queries",
+    "loss",
+    "baseline.loss",
+    "rgb.rel",
+    "baseline.rgb.rel",
+    "rgb.mse",
+    "C_warp.rel",
+    "C_weft.rel",
+    "S_warp.rel",
+    "S_weft.rel",
+)
+
+
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """The result table: ``metrics.json``, one row per material then the mean."""
+    return per_material_table(read("metrics.json"), FABRIC_COLUMNS)
+
+
 register(
     Kind(
         name="train.fabric",
         params=TrainFabricParams,
         runner=run_train_fabric,
-        summary="Train the neural woven-fabric model (Chen et al. 2024: ResNet encoder, "
+        description="Train the neural woven-fabric model (Chen et al. 2024: ResNet encoder, "
         "one-blob spatial + angular decoder, Eq. 9-11) on a generate.fabric dataset.",
         artifacts=(
             "model.pt",
@@ -229,6 +237,15 @@ register(
             "curves.png",
             "metrics.json",
         ),
-        smoke={},
+        smoke={
+            "dataset": "step:generate.fabric",
+            "encoder_width": 16,
+            "decoder_width": 16,
+            "map_resolution": 32,
+            "steps": 3,
+            "batch": 32,
+            "materials_per_step": 1,
+        },
+        summary=summarize,
     )
 )

@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from evaluators.metrics.figures import figure_png, loss_axes
+from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
 from models.fabric.losses import fabric_loss_numpy, log_targets_numpy
 from models.fabric.networks import COMPONENTS, FabricNetwork, components_numpy
 from models.fabric.train import Curves
-from models.figures import figure_png, loss_axes
-from service.errors import JobFailed
 
 #: Queries per decoder evaluation chunk.
 EVAL_CHUNK = 1 << 15

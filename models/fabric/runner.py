@@ -14,17 +14,17 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
+from jobapi.errors import JobFailed
 from models.brdf.train import deterministic_torch
 from models.fabric.data import load_dataset
 from models.fabric.networks import Architecture, FabricNetwork, build_network
 from models.fabric.portable import checkpoint_bytes, load_checkpoint, to_portable
 from models.fabric.report import curves_png, encode_all, evaluate
 from models.fabric.train import Curves, FitConfig, TrainingSet, fit
-from service.errors import JobFailed
 
 if TYPE_CHECKING:
+    from jobapi.context import JobContext
     from models.fabric.kind import TrainFabricParams
-    from service.context import JobContext
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,7 @@ at ``clip`` (a guard for the early steps at the paper's rate).
 
 Stability: the loss and gradient norm are checked every step; a non-finite value or a loss
 above ``max(DIVERGENCE_FACTOR * first loss, DIVERGENCE_FLOOR)`` raises
-:class:`~service.errors.JobFailed` naming the step; so does a non-finite weight at the end.
+:class:`~jobapi.errors.JobFailed` naming the step; so does a non-finite weight at the end.
 
 Determinism: run inside :func:`models.brdf.train.deterministic_torch` (one thread,
 deterministic algorithms); every draw comes from the caller's ``torch.Generator`` on the
@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
 from models.fabric.losses import fabric_loss, log_targets
 from models.fabric.networks import COMPONENTS, FabricNetwork
-from service.errors import JobFailed
 
 #: Divergence: a loss above max(factor * the first step's loss, floor) fails the job.
 DIVERGENCE_FACTOR = 1000.0

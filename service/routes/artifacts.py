@@ -18,8 +18,8 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
+from jobapi.errors import SpecError
 from service.deps import AuthDep, Digest, JobsDep, SettingsDep, StoreDep
-from service.errors import SpecError
 from service.schemas import ErrorPublic, UploadPublic
 from service.submission import import_file
 from storage.artifacts import check_digest
@@ -66,7 +66,7 @@ def render_exr_preview(path: Path, name: str) -> bytes:
     """A tone-mapped sRGB PNG of the EXR at ``path``, at most :data:`PREVIEW_MAX_SIDE`
     pixels on its long side (strided, no filtering: it is a thumbnail). Raises
     ``FormatError`` naming ``name`` when the file is not a readable RGB EXR."""
-    from evaluators.tonemap import tonemap
+    from evaluators.metrics.tonemap import tonemap
     from storage.formats.exr import read_exr
     from storage.formats.png import write_png
 

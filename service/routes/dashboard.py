@@ -1,9 +1,9 @@
 """The dashboard: server-rendered pages (Jinja2) whose small scripts poll the JSON API.
 
 ``/`` lists the jobs with live state and progress; ``/jobs/{id}`` shows one job: spec,
-manifest, artifacts, image previews (PNGs such as ``curves.png``, ``pareto.png``) and one
-table: ``score``'s metrics per candidate, a training job's ``metrics.json`` per material
-(``train.brdf``), or ``report.brdf``'s ``pareto.json`` per configuration with its claims.
+manifest, artifacts, image previews (PNGs such as ``curves.png``, ``pareto.png``) and the
+result table its kind's summary hook returns (:attr:`jobapi.kinds.Kind.summary`); the
+dashboard knows no kind's fields.
 Static files (our CSS and JS, and the vendored Chart.js) are served from ``/static`` behind
 the same token check as every page.
 """
@@ -24,7 +24,7 @@ from starlette.requests import HTTPConnection
 from starlette.responses import JSONResponse
 from starlette.types import Receive, Scope, Send
 
-from service import registry
+from service import kinds
 from service.deps import (
     JobId,
     JobsDep,
@@ -33,15 +33,13 @@ from service.deps import (
     request_authorized,
     set_token_cookie,
 )
+from service.summaries import job_summary, read_json
 from storage.artifacts import ArtifactStore
-from storage.errors import StorageError
 from storage.jobs import STATES, ArtifactRecord, Job
 
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
 router = APIRouter(include_in_schema=False)
 
-#: JSON artifacts above this size are linked, not rendered into the page.
-MAX_INLINE_JSON = 2 * 1024 * 1024
 IMAGE_TYPES = frozenset({"image/png", "image/jpeg"})
 EXR_TYPE = "image/x-exr"
 
@@ -121,17 +119,6 @@ def render_error_page(request: Request, status: int, message: str) -> Response:
     )
 
 
-def _read_json(store: ArtifactStore, digest: str) -> Any:
-    """A small JSON object from the store, or ``None`` if it is too big, missing or corrupt
-    (the page then links to it instead; the download route reports the problem)."""
-    try:
-        if store.size(digest) > MAX_INLINE_JSON:
-            return None
-        return json.loads(store.read(digest))
-    except (StorageError, ValueError):
-        return None
-
-
 def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
     """Image previews: PNGs as they are, EXRs through the preview route; FLIP maps last."""
     out = []
@@ -155,157 +142,16 @@ def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
     return sorted(out, key=lambda i: (i["group"] == "flip", i["name"]))
 
 
-def _artifact_json(store: ArtifactStore, artifacts: list[ArtifactRecord], name: str) -> Any:
-    rec = next((a for a in artifacts if Path(a.name).name == name), None)
-    return _read_json(store, rec.digest) if rec else None
-
-
-#: Columns of a training job's per-material table (``train.brdf`` ``metrics.json``).
-MATERIAL_COLUMNS = ("family", "split", "smape", "mae", "smape_analytic", "mae_analytic")
-#: Columns of ``train.fabric``'s ``metrics.json`` (held-out errors against the Monte Carlo
-#: estimates, flattened; ``baseline.*``: the per-material mean predictor).
-FABRIC_COLUMNS = (
-    "pattern",
-    "queries",
-    "loss",
-    "baseline.loss",
-    "rgb.rel",
-    "baseline.rgb.rel",
-    "rgb.mse",
-    "C_warp.rel",
-    "C_weft.rel",
-    "S_warp.rel",
-    "S_weft.rel",
-)
-#: Columns of ``report.brdf``'s ``pareto.json`` points.
-PARETO_COLUMNS = (
-    "per_material_params",
-    "n",
-    "smape_mean",
-    "smape_std",
-    "smape_min",
-    "smape_max",
-    "ns_per_eval",
-    "torch_ns",
-    "bytes_per_material",
-    "pareto",
-)
-
-
-def _table(
-    title: str, header: str, rows: dict[str, dict[str, Any]], names: list[str], **extra: Any
-) -> dict[str, Any]:
-    """The view of one metrics table: ``labels`` (rows), ``names`` (columns), ``rows``."""
-    return {
-        "title": title,
-        "label_header": header,
-        "labels": list(rows),
-        "names": names,
-        "rows": rows,
-        **extra,
-    }
-
-
-def _flat(doc: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested metrics as dotted keys: ``{"rgb": {"rel": x}}`` -> ``{"rgb.rel": x}``."""
-    out: dict[str, Any] = {}
-    for key, value in doc.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
-def _per_material(doc: dict[str, Any]) -> dict[str, Any] | None:
-    """A training ``metrics.json`` (``{"materials": [{"name", ...}], "mean": {...}}``):
-    one row per material, then the mean. ``train.brdf`` rows show :data:`MATERIAL_COLUMNS`;
-    ``train.fabric`` rows (nested per component) show :data:`FABRIC_COLUMNS`."""
-    mats = [m for m in doc["materials"] if isinstance(m, dict) and "name" in m]
-    if not mats:
-        return None
-    columns = MATERIAL_COLUMNS if any("smape" in m for m in mats) else FABRIC_COLUMNS
-    rows = {str(m["name"]): {k: _flat(m).get(k) for k in columns} for m in mats}
-    if isinstance(doc.get("mean"), dict):
-        rows["mean"] = {k: _flat(doc["mean"]).get(k) for k in columns}
-    names = [k for k in columns if any(r.get(k) is not None for r in rows.values())]
-    return _table("Metrics per material", "Material", rows, names, settings=doc.get("settings"))
-
-
-def _pareto(doc: dict[str, Any]) -> dict[str, Any] | None:
-    """``report.brdf``'s ``pareto.json``: one row per configuration, and its claims."""
-    points = [p for p in doc.get("points", []) if isinstance(p, dict) and "config" in p]
-    if not points:
-        return None
-    rows = {str(p["config"]): {k: p.get(k) for k in PARETO_COLUMNS} for p in points}
-    claims = [c for c in doc.get("claims", []) if isinstance(c, dict) and "claim" in c]
-    return _table(
-        "Accuracy against cost",
-        "Configuration",
-        rows,
-        list(PARETO_COLUMNS),
-        claims=claims,
-        settings=doc.get("settings"),
-    )
-
-
-def _with_material_rows(
-    rows: dict[str, dict[str, Any]], per: dict[str, Any]
-) -> dict[str, dict[str, Any]]:
-    """Each label's row followed by its ``"<label> / <material>"`` rows."""
-    out: dict[str, dict[str, Any]] = {}
-    for label, row in rows.items():
-        out[label] = row
-        for name, vals in (per.get(label) or {}).items():
-            if isinstance(vals, dict):
-                out[f"{label} / {name}"] = vals
-    return out
-
-
-def _metrics(store: ArtifactStore, artifacts: list[ArtifactRecord]) -> dict[str, Any] | None:
-    """The job's table: ``score``'s ``metrics.json`` (one row per candidate), a training
-    job's ``metrics.json`` (one row per material) or ``report.brdf``'s ``pareto.json``;
-    as ``{"title", "label_header", "reference", "labels", "names", "rows", "settings"}``."""
-    doc = _artifact_json(store, artifacts, "metrics.json")
-    if isinstance(doc, dict) and isinstance(doc.get("materials"), list):
-        return _per_material(doc)
-    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), dict):
-        pareto = _artifact_json(store, artifacts, "pareto.json")
-        return _pareto(pareto) if isinstance(pareto, dict) else None
-    table: dict[str, Any] = doc["metrics"]
-    names: list[str] = []
-    for values in table.values():
-        for m in values if isinstance(values, dict) else {}:
-            if m not in names:
-                names.append(str(m))
-    rows = {
-        label: {m: v for m, v in (vals.items() if isinstance(vals, dict) else [])}
-        for label, vals in table.items()
-    }
-    per = doc.get("per_material")  # whole models against a set of tables
-    if isinstance(per, dict):
-        rows = _with_material_rows(rows, per)
-    reference = doc.get("reference")
-    return _table(
-        "Metrics",
-        "Candidate",
-        rows,
-        names,
-        settings=doc.get("settings"),
-        reference=reference if isinstance(reference, str) else None,
-    )
-
-
 def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
-    manifest = _read_json(store, job.manifest_digest) if job.manifest_digest else None
+    manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
     return {
         "job": job.document(),
         "spec_json": json.dumps(job.spec, indent=2, sort_keys=True),
         "manifest": manifest if isinstance(manifest, dict) else None,
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
         "images": _images(job.artifacts),
-        "metrics": _metrics(store, job.artifacts),
+        "metrics": job_summary(job, store),
     }
 
 
@@ -313,7 +159,7 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
 def index(request: Request, cookie_token: PageAuth) -> Response:
     """The jobs list (rows are filled in and refreshed by ``static/js/jobs.js``)."""
     response = templates.TemplateResponse(
-        request, "index.html", {"states": STATES, "kinds": sorted(registry.kinds())}
+        request, "index.html", {"states": STATES, "kinds": sorted(kinds.all_kinds())}
     )
     set_token_cookie(response, cookie_token)
     return response

@@ -7,11 +7,12 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 
+from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, StoreDep
-from service.errors import SpecError
 from service.schemas import ArtifactPublic, ErrorPublic, JobPublic, JobState
 from service.specs import parse_spec_text
 from service.submission import submit
+from service.summaries import job_summary
 from storage.errors import NotFoundError
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"], dependencies=[AuthDep])
@@ -145,3 +146,11 @@ def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any
         raise NotFoundError(f"job {job_id} is {job.state}; it has no manifest yet")
     manifest: dict[str, Any] = json.loads(store.read(job.manifest_digest))
     return manifest
+
+
+@router.get("/{job_id}/summary", responses=_ERRORS, summary="A job's result table")
+def get_summary(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any] | None:
+    """The result table the job's kind makes of its artifacts: `{title, label_header,
+    labels, names, rows: {label: {column: value}}, reference, settings, claims}`; `null`
+    for a kind without one, or a job that has not succeeded."""
+    return job_summary(jobs.get(job_id), store)

@@ -6,7 +6,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
-from service import registry
+from service import kinds
 from service.deps import AuthDep, JobsDep
 from service.schemas import HealthPublic, KindPublic, StatsPublic
 
@@ -26,11 +26,11 @@ def list_kinds() -> list[dict[str, Any]]:
     return [
         {
             "name": k.name,
-            "summary": k.summary,
+            "summary": k.description,
             "artifacts": list(k.artifacts),
             "params_schema": k.params.model_json_schema(),
         }
-        for k in registry.kinds().values()
+        for k in kinds.all_kinds().values()
     ]
 
 

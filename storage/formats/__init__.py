@@ -16,6 +16,7 @@ from pathlib import Path
 
 from storage.errors import FormatError
 from storage.formats.exr import validate_exr
+from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
 from storage.formats.npz import validate_npz
 from storage.formats.png import validate_png
@@ -61,11 +62,11 @@ class FileFormat:
 
 #: Extension (lower case, with the dot) → format. Extend here for new formats.
 VALIDATORS: dict[str, FileFormat] = {
-    ".exr": FileFormat("image/x-exr", validate_exr),
-    ".png": FileFormat("image/png", validate_png),
-    ".json": FileFormat("application/json", validate_json),
-    ".binary": FileFormat("application/x-merl-binary", validate_merl),
-    ".npz": FileFormat("application/x-npz", validate_npz),
+    ".exr": FileFormat(MEDIA_TYPES[".exr"], validate_exr),
+    ".png": FileFormat(MEDIA_TYPES[".png"], validate_png),
+    ".json": FileFormat(MEDIA_TYPES[".json"], validate_json),
+    ".binary": FileFormat(MEDIA_TYPES[".binary"], validate_merl),
+    ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz),
 }
 
 

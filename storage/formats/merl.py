@@ -32,13 +32,14 @@ from pathlib import Path
 import numpy as np
 
 from storage.errors import FormatError
+from storage.formats.media import MEDIA_TYPES
 
 #: Per-channel scales of the reference code: physical = stored * scale.
 SCALES = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)
 #: The accepted dimension headers.
 ACCEPTED_DIMS = ((90, 90, 180), (90, 90, 360))
 #: Media type used by the artifact store and the upload route.
-MEDIA_TYPE = "application/x-merl-binary"
+MEDIA_TYPE = MEDIA_TYPES[".binary"]
 HEADER_BYTES = 12
 
 

@@ -4,7 +4,7 @@
 The server runs in its own session (process group). Workers are started by the supervisor
 in sessions of their own, so stopping the server group alone could leave one behind:
 :func:`stop_server` sends SIGTERM, waits, escalates to SIGKILL, and then kills (by pid) any
-``service.worker`` process still running on this server's data directory, reporting them.
+``service.workers.worker`` process still running on this server's data directory, reporting them.
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def closed_port_url() -> str:
 
 
 def worker_pids(data_dir: Path) -> list[int]:
-    """Pids of ``python -m service.worker`` processes working on ``data_dir``."""
+    """Pids of ``python -m service.workers.worker`` processes working on ``data_dir``."""
     pids = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -73,7 +73,7 @@ def worker_pids(data_dir: Path) -> list[int]:
             args = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"service.worker" in args and str(data_dir).encode() in args:
+        if b"service.workers.worker" in args and str(data_dir).encode() in args:
             pids.append(int(entry.name))
     return sorted(pids)
 

@@ -20,13 +20,16 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import Field
 
-from evaluators.tonemap import tonemap
-from service import registry
+from evaluators.metrics.tonemap import tonemap
+from evaluators.score.kind import summarize as score_summary
+from jobapi import kinds as jobapi_kinds
+from jobapi.context import JobContext
+from jobapi.kinds import Kind
+from jobapi.params import StrictModel
+from service import kinds
 from service.api import create_app
-from service.context import JobContext
 from service.settings import Settings
-from service.specs import StrictModel
-from service.worker import run_worker
+from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
@@ -68,17 +71,18 @@ def run_echo(params: EchoParams, ctx: JobContext) -> None:
 
 
 @pytest.fixture(autouse=True)
-def echo_kind(monkeypatch: pytest.MonkeyPatch) -> registry.Kind:
+def echo_kind(monkeypatch: pytest.MonkeyPatch) -> Kind:
     """Register ``test_echo`` for one test (beside the built-in kinds)."""
-    registry.load_builtin()
-    kind = registry.Kind(
+    kinds.load_builtin()
+    kind = Kind(
         name=KIND,
         params=EchoParams,
         runner=run_echo,
-        summary="test-only echo kind",
+        description="test-only echo kind",
         artifacts=("result.json",),
+        summary=score_summary,  # it writes metrics.json as score does
     )
-    monkeypatch.setitem(registry._KINDS, KIND, kind)
+    monkeypatch.setitem(jobapi_kinds._KINDS, KIND, kind)
     return kind
 
 
@@ -448,10 +452,10 @@ def test20_no_auth_when_no_token(client: TestClient) -> None:
 
 # -- service routes, OpenAPI, dashboard ------------------------------------------------------
 def test21_kinds_and_stats(client: TestClient, settings: Settings) -> None:
-    kinds = {k["name"]: k for k in client.get("/api/kinds").json()}
-    assert set(kinds) == set(registry.kinds())
-    assert kinds[KIND]["params_schema"]["properties"]["n"]["maximum"] == 100
-    assert kinds[KIND]["artifacts"] == ["result.json"]
+    listed = {k["name"]: k for k in client.get("/api/kinds").json()}
+    assert set(listed) == set(kinds.all_kinds())
+    assert listed[KIND]["params_schema"]["properties"]["n"]["maximum"] == 100
+    assert listed[KIND]["artifacts"] == ["result.json"]
     finished_job(client, settings, n=5)
     client.post("/api/jobs", json=spec(n=6))
     stats = client.get("/api/stats").json()
@@ -469,7 +473,7 @@ def test22_openapi_documents_every_kind(client: TestClient) -> None:
     doc = client.get("/openapi.json").json()
     assert doc["info"]["title"] == "matforge" and doc["info"]["version"]
     schemas = doc["components"]["schemas"]
-    for name, kind in registry.kinds().items():
+    for name, kind in kinds.all_kinds().items():
         assert f"params.{name}" in schemas, name
         assert set(schemas[f"params.{name}"].get("properties", {})) == set(
             kind.params.model_json_schema().get("properties", {})

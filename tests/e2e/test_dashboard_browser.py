@@ -23,13 +23,16 @@ import numpy as np
 import pytest
 from pydantic import Field
 
-from evaluators.tonemap import magma, tonemap
-from service import registry
-from service.context import JobContext
+from evaluators.metrics.tonemap import magma, tonemap
+from evaluators.score.kind import summarize as score_summary
+from jobapi import kinds as jobapi_kinds
+from jobapi.context import JobContext
+from jobapi.kinds import Kind
+from jobapi.params import StrictModel
+from service import kinds
 from service.settings import Settings
-from service.specs import StrictModel
 from service.submission import submit
-from service.worker import run_worker
+from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
@@ -46,6 +49,7 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
+ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "browser-s3cret"
 SHOTS = Path("/tmp")
 
@@ -84,18 +88,25 @@ def run_gallery(params: GalleryParams, ctx: JobContext) -> None:
     )
 
 
-@pytest.fixture(scope="module")
-def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """A data directory with one succeeded and one queued job."""
-    registry.load_builtin()
-    kind = registry.Kind(
+def gallery_kind() -> Kind:
+    """The test-only kind; the server process registers it too (its job page asks the kind's
+    summary hook for the table)."""
+    return Kind(
         name="test_gallery",
         params=GalleryParams,
         runner=run_gallery,
-        summary="test-only gallery kind",
+        description="test-only gallery kind",
+        summary=score_summary,  # it writes metrics.json as score does
     )
-    saved = registry._KINDS.get(kind.name)
-    registry.register(kind)
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """A data directory with one succeeded and one queued job."""
+    kinds.load_builtin()
+    kind = gallery_kind()
+    saved = jobapi_kinds._KINDS.get(kind.name)
+    jobapi_kinds.register(kind)
     data = tmp_path_factory.mktemp("dashboard") / "data"
     (data / "scratch").mkdir(parents=True)
     settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
@@ -111,9 +122,9 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     finally:
         jobs.close()
         if saved is None:
-            registry._KINDS.pop(kind.name, None)
+            jobapi_kinds._KINDS.pop(kind.name, None)
         else:
-            registry.register(saved)
+            jobapi_kinds.register(saved)
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +132,11 @@ def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -
     """``serve()`` on a free port (port 0), with a token and no workers; yields its URL."""
     log_path = tmp_path_factory.mktemp("server-log") / "server.log"
     code = (
-        "import sys; from pathlib import Path; from service.server import serve; "
-        "from service.settings import Settings; "
+        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
+        "from service.server import serve; from service.settings import Settings; "
+        "from service import kinds; from jobapi.kinds import register; "
+        "from tests.e2e.test_dashboard_browser import gallery_kind; "
+        "kinds.load_builtin(); register(gallery_kind()); "
         "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
         "host='127.0.0.1', port=0, workers=0)"
     )
@@ -130,7 +144,7 @@ def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -
     env["MATFORGE_TOKEN"] = TOKEN
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-c", code, str(prepared["data"])],
+            [sys.executable, "-c", code, str(prepared["data"]), str(ROOT)],
             env=env,
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -278,7 +292,7 @@ def test04_api_docs_offline(page: Any, server: str) -> None:
     page.locator("section.models").wait_for(timeout=10_000)
     models = page.locator("section.models").inner_text()
     page.screenshot(path=str(SHOTS / "matforge-docs.png"), full_page=True)
-    builtin = [k for k in registry.kinds().values() if not k.name.startswith("test_")]
+    builtin = [k for k in kinds.all_kinds().values() if not k.name.startswith("test_")]
     for kind in builtin:  # Swagger UI lists schemas by title
         assert kind.params.model_json_schema()["title"] in models, (kind.name, models)
     assert page.locator(".errors-wrapper").count() == 0

@@ -2,7 +2,7 @@
 
 The batch file is loaded and validated as ``matforge batch`` does (:func:`load_batch`),
 then each step runs through :func:`service.submission.run_in_process` with its ``step:``
-refs resolved by :func:`service.batch.substitute_refs`, after shrinking the costly params:
+refs resolved by :func:`service.cli.batch.substitute_refs`, after shrinking the costly params:
 the model gets a short fit (16x2, 400 steps), renders are 40x40 at 16 spp, depth 4.
 
 Reference: the render of the material's own MERL table (``{"merl": REF}``). Oracles: the
@@ -19,7 +19,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from service.batch import load_batch, substitute_refs
+from service.cli.batch import load_batch, substitute_refs
 from service.settings import Settings
 from service.specs import STEP_REF
 from service.submission import run_in_process

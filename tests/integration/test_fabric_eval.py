@@ -2,7 +2,7 @@
 
 The batch file is loaded and validated as ``matforge batch`` does (:func:`load_batch`), then
 each step runs through :func:`service.submission.run_in_process` with its ``step:`` refs
-resolved by :func:`service.batch.substitute_refs`, after shrinking the costly params: the
+resolved by :func:`service.cli.batch.substitute_refs`, after shrinking the costly params: the
 dataset of ``tests/integration/test_train_fabric.py`` (640 queries per material, 64
 samples), a 300-step fit of its tiny network, renders at 64x64 (ground truth 64 spp instead
 of 256, network 4 spp instead of 16; the 1- and 12-spp baselines as they are).
@@ -27,13 +27,13 @@ from typing import Any
 
 import pytest
 
-from service.batch import load_batch, substitute_refs
+from service.cli.batch import load_batch, substitute_refs
 from service.settings import Settings
 from service.specs import STEP_REF
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
-from tests.integration.test_train_fabric import DATASET, TINY
+from tests.helpers.fabric_recipes import DATASET, TINY
 
 RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "fabric_eval.yaml"
 SHRINK: dict[str, dict[str, Any]] = {

@@ -1,7 +1,7 @@
 """``generate.fabric`` through the registry: validation, shards, artifacts, resumption.
 
 Oracles: the npz layout the issue fixes (keys, shapes, dtypes); the query design recomputed
-independently by :func:`generators.fabric_queries.design_queries` from the recorded seeds;
+independently by :func:`generators.fabric.queries.design_queries` from the recorded seeds;
 the numpy reference estimator against the default Dr.Jit backend (same points, float32
 round-off apart); byte-identical shards for the same spec; sentinel shard reuse after a
 crash (as ``test_worker.py`` test04).
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from generators.fabric_queries import design_queries
-from service.errors import SpecError
+from generators.fabric.queries import design_queries
+from jobapi.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process, submit
 from storage.artifacts import ArtifactStore
@@ -157,8 +157,8 @@ def test05_progress_per_shard_in_batches(
 ) -> None:
     """Long jobs report: per material while writing maps, then per finished shard in
     every batch of ``BATCH_SHARDS``, monotonically, up to the preview and 1.0."""
-    import generators.fabric as fabric
-    from service.context import JobContext
+    import generators.fabric.kind as fabric
+    from jobapi.context import JobContext
 
     reports: list[tuple[float, str | None]] = []
     original = JobContext.progress

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from jobapi.errors import SpecError
 from materials import halfdiff as hd
-from service.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
@@ -52,7 +52,7 @@ def mitsuba_at_bin_centres(plugin: dict[str, Any], phi_d_bins: int = 180) -> np.
     """``(N, 3)`` Mitsuba ``eval / wo.z`` at every bin centre; NaN below the horizon."""
     import drjit as dr
 
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     mi: types.ModuleType = load_mitsuba()
     wi, wo = (d.astype(np.float32) for d in hd.bin_directions(phi_d_bins))

@@ -16,13 +16,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from service.errors import SpecError
+from jobapi.errors import SpecError
 from service.settings import Settings
 from service.submission import import_file, run_in_process
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
 from storage.jobs import JobStore
-from tests.unit.evaluators.test_fabric_model_material import TRAINED, record_of, write_model
+from tests.helpers.fabric_models import TRAINED, record_of, write_model
 
 FABRIC = {
     "pattern": "twill_3x3",

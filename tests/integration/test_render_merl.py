@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from evaluators.scenes import SPHERE_CAMERA
+from evaluators.render.scenes import SPHERE_CAMERA
 from materials.tabulate import tabulate_mitsuba
 from service.settings import Settings
 from service.submission import import_file, run_in_process
@@ -160,7 +160,7 @@ def test02_bad_table_fails_naming_the_ref(settings: Settings) -> None:
 
 
 def test03_spec_time_errors(settings: Settings) -> None:
-    from service.errors import SpecError
+    from jobapi.errors import SpecError
 
     with pytest.raises(SpecError, match="merl: must be an artifact reference"):
         run_in_process(

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from service import registry
-from service.context import JobContext
-from service.errors import JobFailed, SpecError
+from jobapi.context import JobContext
+from jobapi.errors import JobFailed, SpecError
+from service import kinds
 from service.specs import validate_spec
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import exr_bytes
@@ -59,7 +59,7 @@ class Runner:
             workdir=work,
         )
         try:
-            registry.get(kind).runner(spec.params, ctx)
+            kinds.get_kind(kind).runner(spec.params, ctx)
         except JobFailed as exc:
             self.jobs.fail(job.id, claimed.lease_token, str(exc))
             raise

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from evaluators.brdf_metrics import DEFAULT_PAIRS, PAIRS_SEED, direction_pairs
+from evaluators.metrics.brdf import DEFAULT_PAIRS, PAIRS_SEED, direction_pairs
 from materials import halfdiff as hd
 from materials.tabulate import tabulate_mitsuba
 from service.settings import Settings

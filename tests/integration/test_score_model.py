@@ -5,7 +5,7 @@ exported with :func:`models.brdf.portable.to_portable`, an analytic one and a hy
 written as ``model.json`` and imported into the store as ``matforge import`` does; the
 reference table is the tabulation of the analytic model's first material. Oracles: metrics
 equal a direct computation (table lookup against ``eval_portable`` at the documented pairs,
-through :mod:`evaluators.brdf_metrics`), in the same job as a table candidate; the analytic
+through :mod:`evaluators.metrics.brdf`), in the same job as a table candidate; the analytic
 material scored against its own tabulation is close (interpolation error only) and closer
 than the other material; errors are clear for an image reference, a model without a
 material, an unknown material, a table given as a model, and a model as the reference.
@@ -22,8 +22,8 @@ import pytest
 import torch
 from pydantic import ValidationError
 
-from evaluators.brdf_metrics import DEFAULT_PAIRS, PAIRS_SEED, brdf_mae, direction_pairs, smape
-from evaluators.score import ScoreParams
+from evaluators.metrics.brdf import DEFAULT_PAIRS, PAIRS_SEED, brdf_mae, direction_pairs, smape
+from evaluators.score.kind import ScoreParams
 from materials import halfdiff as hd
 from materials.tabulate import tabulate_analytic
 from models.brdf.networks import Architecture, build_model

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from service.errors import SpecError
+from jobapi.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore

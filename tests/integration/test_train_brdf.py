@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 import torch
 
-from evaluators.brdf_metrics import direction_pairs
+from evaluators.metrics.brdf import direction_pairs
+from jobapi.errors import SpecError
 from models.brdf.portable import FORMAT, eval_portable, load_checkpoint
-from service.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore

@@ -20,23 +20,20 @@ import numpy as np
 import pytest
 import torch
 
+from jobapi.errors import SpecError
 from models.fabric.fused import decoder_numpy, load_fabric_model
 from models.fabric.portable import FORMAT, load_checkpoint
-from service.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
+from tests.helpers.fabric_recipes import DATASET, TINY
 
 ARTIFACTS = {"model.pt", "model.json", "latents.json", "curves.json", "curves.png",
              "metrics.json"}  # fmt: skip
+
+
 #: Three materials (plain, twill 3x3, satin 5x5), 640 queries each, 64 samples: ~3 s.
-DATASET = {"preset": "small", "queries_per_material": 640, "shard_queries": 320,
-           "samples": 64, "map_resolution": 32}  # fmt: skip
-TINY = {"encoder_width": 16, "map_resolution": 32, "decoder_width": 32, "steps": 600,
-        "holdout": 0.15}  # fmt: skip
-
-
 @pytest.fixture(scope="module")
 def fabric_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Settings, str]]:
     data = tmp_path_factory.mktemp("train_fabric")

@@ -9,10 +9,10 @@ import signal
 import threading
 import time
 
-from service.execution import execute
 from service.specs import validate_spec
 from service.submission import submit
-from service.worker import Supervisor, run_worker
+from service.workers.execution import execute
+from service.workers.worker import Supervisor, run_worker
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
 
@@ -99,7 +99,7 @@ def test06_lost_lease_cannot_write(toy_kind, settings, jobs, store) -> None:
 def test07_spec_validated_before_queueing(toy_kind, jobs, store) -> None:
     import pytest
 
-    from service.errors import SpecError
+    from jobapi.errors import SpecError
 
     with pytest.raises(SpecError, match="params.n"):
         submit({"kind": "toy", "params": {"n": -1}}, jobs, store)

@@ -216,7 +216,7 @@ def test11_errors() -> None:
 
 def test12_drjit_twin_of_the_core() -> None:
     # The generic core runs unchanged on Dr.Jit arrays (the future table BSDF's path).
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     mi = load_mitsuba()
     import drjit as dr

@@ -23,12 +23,12 @@ from materials.analytic import (
     ThinFilmGGX,
     build_analytic,
 )
-from tests.unit.materials.mitsuba_probes import mitsuba_brdf
+from tests.helpers.mitsuba_probes import mitsuba_brdf
 
 
 @pytest.fixture(scope="module")
 def mi() -> types.ModuleType:
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     return load_mitsuba()
 

@@ -26,12 +26,12 @@ from materials import halfdiff as hd
 from materials.analytic import GGXConductor
 from materials.tabulate import tabulate_analytic, tabulate_mitsuba
 from storage.formats.merl import read_merl, write_merl
-from tests.unit.materials.mitsuba_probes import AU_03, PLASTIC_03, mitsuba_brdf
+from tests.helpers.mitsuba_probes import AU_03, PLASTIC_03, mitsuba_brdf
 
 
 @pytest.fixture(scope="module")
 def mi() -> types.ModuleType:
-    from materials.mitsuba_backend import load_mitsuba
+    from materials.backend import load_mitsuba
 
     return load_mitsuba()
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from evaluators.brdf_metrics import direction_pairs
+from evaluators.metrics.brdf import direction_pairs
 from materials import microfacet as mf
 from models.brdf.networks import (
     ALPHA_MIN,

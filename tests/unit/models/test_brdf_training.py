@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 import torch
 
-from evaluators.brdf_metrics import direction_pairs
+from evaluators.metrics.brdf import direction_pairs
+from jobapi.errors import JobFailed
 from materials import halfdiff as hd
 from models.brdf.data import cosine_pairs, lookup_tables
 from models.brdf.losses import joint_loss, log_cos_error
 from models.brdf.networks import Architecture, BrdfOutput, build_model
 from models.brdf.train import FitConfig, deterministic_torch, fit
-from service.errors import JobFailed
 
 
 def random_table(seed: int, missing: float = 0.02) -> np.ndarray:

@@ -12,17 +12,18 @@ from typing import Any
 import pytest
 from rich.console import Console
 
-from service.batch import (
+from jobapi.errors import SpecError
+from jobapi.params import JOB_REF
+from service import kinds
+from service.cli.batch import (
     BatchError,
     load_batch,
     parse_batch,
     run_batch,
     substitute_refs,
 )
-from service.batch_results import result_rows, write_rows
-from service.client import BadInput
-from service.errors import SpecError
-from service.specs import JOB_REF
+from service.cli.client import BadInput
+from service.cli.results import result_rows, write_rows
 
 KINDS = {"render", "score"}
 
@@ -236,6 +237,9 @@ def test11_real_validator_names_the_field() -> None:
 
 
 # -- running ----------------------------------------------------------------------------------
+SCORE_METRICS = {"metrics": {"a": {"flip": 0.1, "psnr": 30.0}, "b": {"flip": 0.2}}}
+
+
 class FakeClient:
     """Finishes every job at once; ``fail`` names kinds whose jobs fail."""
 
@@ -283,9 +287,17 @@ class FakeClient:
         return self.docs[job_id]
 
     def read_bytes(self, digest: str) -> bytes:
-        return json.dumps(
-            {"metrics": {"a": {"flip": 0.1, "psnr": 30.0}, "b": {"flip": 0.2}}}
-        ).encode()
+        return json.dumps(SCORE_METRICS).encode()
+
+    def summary(self, job_id: str) -> dict[str, Any] | None:
+        """What the server's ``GET /api/jobs/{id}/summary`` returns: the kind's hook."""
+        doc = self.docs[job_id]
+        names = {a["name"] for a in doc["artifacts"]}
+        kind = kinds.get_kind(doc["kind"])
+        if kind.summary is None or doc["state"] != "succeeded":
+            return None
+        table = kind.summary(lambda name: SCORE_METRICS if name in names else None)
+        return table.document() if table is not None else None
 
 
 def quiet() -> Console:
@@ -373,15 +385,23 @@ def test22_missing_artifact_is_a_clear_error() -> None:
     assert len(client.submitted) == 1
 
 
-def test_flatten_metrics_of_score_and_training_documents() -> None:
-    from service.batch import flatten_metrics
+def test_result_tables_flatten_to_label_column_metrics() -> None:
+    """The batch's metric columns are the numeric cells of the kinds' result tables (bools,
+    text and missing values left out), through the tables' JSON form."""
+    from evaluators.score.kind import summarize as score_summary
+    from jobapi.results import ResultTable
+    from models.brdf.kind import summarize as brdf_summary
 
-    assert flatten_metrics({"metrics": {"a": {"flip": 0.1, "psnr": None}}}) == {"a.flip": 0.1}
+    score = score_summary(lambda name: {"metrics": {"a": {"flip": 0.1, "psnr": None}}})
+    assert score is not None
+    assert ResultTable.from_document(score.document()).flat() == {"a.flip": 0.1}
     doc = {
         "materials": [{"name": "gold", "family": "metal", "pairs": 10, "smape": 0.2, "mae": 0.5}],
         "mean": {"count": 1, "smape": 0.2, "mae": 0.5, "smape_analytic": None},
     }
-    assert flatten_metrics(doc) == {
+    brdf = brdf_summary(lambda name: doc if name == "metrics.json" else None)
+    assert brdf is not None
+    assert brdf.flat() == {
         "gold.smape": 0.2,
         "gold.mae": 0.5,
         "mean.smape": 0.2,
@@ -390,7 +410,7 @@ def test_flatten_metrics_of_score_and_training_documents() -> None:
 
 
 def test_bare_step_ref_means_the_whole_job() -> None:
-    from service.batch import _placeholder
+    from service.cli.batch import _placeholder
     from service.specs import STEP_REF
 
     m = STEP_REF.match("step:tables")

@@ -1,8 +1,10 @@
 """The job page's tables for training and report jobs (server-rendered HTML and the JSON the
 page's chart script reads), through the real app with a TestClient.
 
-A test-only kind writes what ``train.brdf`` and ``report.brdf`` write (a per-material
-``metrics.json`` with ``curves.png``; a ``pareto.json`` with claims and ``pareto.png``).
+A test-only kind writes what ``train.brdf``, ``train.fabric``, ``report.brdf`` and ``score``
+write (a per-material ``metrics.json`` with ``curves.png``; a ``pareto.json`` with claims and
+``pareto.png``; a whole-model score), and its summary hook is the real hook of that kind:
+the page shows whatever the hook returns and knows no kind's fields.
 References: the documents themselves: every material, the mean row and every claim appear,
 the chart data carries the numbers unchanged, and the PNGs are in the gallery.
 """
@@ -20,13 +22,20 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import Field
 
-from service import registry
+from evaluators.score.kind import summarize as score_summary
+from jobapi import kinds as jobapi_kinds
+from jobapi.context import JobContext
+from jobapi.kinds import Kind
+from jobapi.params import StrictModel
+from jobapi.results import ArtifactReader, ResultTable
+from models.brdf.kind import summarize as brdf_summary
+from models.brdf.report_kind import summarize as report_summary
+from models.fabric.kind import summarize as fabric_summary
+from service import kinds
 from service.api import create_app
-from service.context import JobContext
 from service.settings import Settings
-from service.specs import StrictModel
 from service.submission import submit
-from service.worker import run_worker
+from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.png import write_png
 from storage.jobs import JobStore
@@ -102,11 +111,23 @@ def run_tables(params: TablesParams, ctx: JobContext) -> None:
         ctx.put_bytes("pareto.png", png, "image/png")
 
 
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """The summary hook of the kind whose artifacts the job wrote."""
+    if read("pareto.json") is not None:
+        return report_summary(read)
+    doc = read("metrics.json")
+    if isinstance(doc, dict) and "metrics" in doc:
+        return score_summary(read)
+    if isinstance(doc, dict) and any("smape" in m for m in doc["materials"]):
+        return brdf_summary(read)
+    return fabric_summary(read)
+
+
 @pytest.fixture
 def client(settings: Settings, monkeypatch: pytest.MonkeyPatch) -> Iterator[TestClient]:
-    registry.load_builtin()
-    kind = registry.Kind("test_tables", TablesParams, run_tables, "test-only tables kind")
-    monkeypatch.setitem(registry._KINDS, kind.name, kind)
+    kinds.load_builtin()
+    kind = Kind("test_tables", TablesParams, run_tables, "test-only tables kind", summary=summarize)
+    monkeypatch.setitem(jobapi_kinds._KINDS, kind.name, kind)
     with TestClient(create_app(settings)) as c:
         yield c
 

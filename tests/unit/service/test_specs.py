@@ -7,8 +7,9 @@ import json
 
 import pytest
 
-from service.errors import SpecError
-from service.specs import canonical_json, is_ref, parse_spec_text, validate_spec
+from jobapi.errors import SpecError
+from jobapi.params import is_ref
+from service.specs import canonical_json, parse_spec_text, validate_spec
 
 
 def test01_defaults_filled_and_hash_is_sha256_of_canonical(toy_kind) -> None:

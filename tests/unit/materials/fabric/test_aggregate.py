@@ -27,8 +27,7 @@ from materials.fabric.array_ops import NumpyOps
 from materials.fabric.integrand import point_components
 from materials.fabric.params import FabricParams, sample_params
 from materials.fabric.patterns import PATTERNS
-
-from .slab_reference import direction, slab_specular
+from tests.helpers.slab_reference import direction, slab_specular
 
 Z = np.array([0.0, 0.0, 1.0])
 

@@ -16,8 +16,7 @@ import pytest
 from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.params import FabricParams, sample_params
 from materials.fabric.patterns import PATTERNS
-
-from .slab_reference import direction
+from tests.helpers.slab_reference import direction
 
 
 def mixed_queries(rng: np.random.Generator, count: int) -> FootprintQueries:

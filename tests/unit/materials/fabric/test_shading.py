@@ -15,8 +15,7 @@ import pytest
 
 from materials.fabric import shading
 from materials.fabric.array_ops import NumpyOps
-
-from .slab_reference import (
+from tests.helpers.slab_reference import (
     direction,
     hemisphere_quadrature,
     sggx_matrix,

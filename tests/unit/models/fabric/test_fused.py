@@ -2,7 +2,7 @@
 
 Oracles: the torch decoder of :mod:`models.fabric.networks` (the trained module itself);
 the numpy reference decoder, which shares only the layer arrays with the fused kernel; the
-``generate.fabric`` EXR maps (:func:`generators.fabric_preview.map_images`) for
+``generate.fabric`` EXR maps (:func:`generators.fabric.preview.map_images`) for
 ``material_maps``; the torch encoder for ``encode_material``.
 """
 
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from generators.fabric_preview import map_images
+from generators.fabric.preview import map_images
 from materials.fabric.params import FabricParams
 from models.fabric.fused import (
     decoder_drjit,

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import torch
 
+from jobapi.errors import JobFailed
 from models.brdf.train import deterministic_torch
 from models.fabric.data import MaterialData, holdout_split, subsample
 from models.fabric.networks import build_network
 from models.fabric.train import FitConfig, TrainingSet, draw, fit, milestone_steps
-from service.errors import JobFailed
 
 from .conftest import TINY
 

@@ -1,0 +1,23 @@
+"""Our Mitsuba 3 BSDF plugins, one per module; shared machinery in :mod:`.common` and
+:mod:`.fabric_footprint`.
+
+=====================  ======================  =============================================
+plugin                 module                  what it renders
+=====================  ======================  =============================================
+``merl_table``         ``merl_table``          a MERL table, interpolated, GGX/cosine MIS
+``brdf_model``         ``brdf_model``          one material of a trained BRDF model (fused)
+``fabric_aggregate``   ``fabric_aggregate``    the woven-fabric aggregate over the pixel
+                                               footprint, one Monte Carlo sample per call
+``fabric_model``       ``fabric_model``        a trained fabric network over the footprint
+=====================  ======================  =============================================
+
+Each registers itself per Mitsuba variant through :mod:`evaluators.render.plugins` when its
+``register_*`` function is first called (the material sources do), not on import.
+"""
+
+from __future__ import annotations
+
+from evaluators.render.bsdfs import brdf_model, fabric_aggregate, fabric_model, merl_table
+
+#: The plugin modules, in table order.
+PLUGINS = (merl_table, brdf_model, fabric_aggregate, fabric_model)

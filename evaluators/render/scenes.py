@@ -1,0 +1,361 @@
+"""Built-in scenes for reference renders, as Mitsuba 3 scene dicts.
+
+World frame: right-handed, **y up**, lengths in scene units (the sphere has radius 1).
+Radiometry: environment maps in radiance (W sr^-1 m^-2), point lights in radiant intensity
+(W sr^-1), linear Rec. 709 RGB throughout.
+
+================  =========================================================================
+scene             what it is
+================  =========================================================================
+``sphere_env``    a unit sphere at the origin lit by :func:`studio_envmap` (sky, ground and
+                  three small bright "studio" lights), seen from +z; the look of the sphere
+                  renders in BRDF papers
+``sphere_points`` the same sphere and camera under three point lights, black background
+``plane_points``  an 8x8 square in the y = 0 plane with uv coordinates in [0, 1]^2 (for
+                  textured BTF, glint and fabric materials) filling the view, seen from
+                  45 degrees above the plane, under three point lights
+``cloth_plane``   a 3x3 square of cloth (uv in [0, 1]^2) in the y = 0 plane under
+                  :func:`studio_envmap` plus one warm point light, seen from about 40
+                  degrees above it (for ``{"fabric": ...}``: the map's ground lights the
+                  cloth from below, through it)
+================  =========================================================================
+
+Every scene uses a ``perspective`` camera, an ``hdrfilm`` with a **box** reconstruction
+filter, an ``independent`` sampler and the ``path`` integrator. The box filter is a choice
+for reproducibility: each sample lands in exactly one pixel, so Mitsuba's LLVM backend
+accumulates pixels in a fixed order and the same seed gives the same bytes. A Gaussian filter
+splats samples into neighbouring pixels with atomic adds whose order varies from run to run.
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import Field, StrictFloat, model_validator
+
+from jobapi.params import StrictModel
+
+Vec3 = Annotated[tuple[StrictFloat, StrictFloat, StrictFloat], Field(strict=False)]
+NonNegative = Annotated[float, Field(ge=0.0, le=1e9, allow_inf_nan=False)]
+RGB = Annotated[tuple[NonNegative, NonNegative, NonNegative], Field(strict=False)]
+
+
+class PointLight(StrictModel):
+    """An isotropic point light."""
+
+    position: Vec3 = Field(description="Position in world units (y up).")
+    intensity: RGB = Field(description="Radiant intensity per RGB channel, W/sr (linear).")
+
+
+class Camera(StrictModel):
+    """A pinhole camera looking from ``origin`` at ``target``."""
+
+    origin: Vec3 = Field(description="Eye position in world units (y up).")
+    target: Vec3 = Field(description="Point the camera looks at.")
+    up: Vec3 = Field(
+        default=(0.0, 1.0, 0.0), description="Up direction (not parallel to the viewing direction)."
+    )
+    fov: float = Field(
+        default=35.0,
+        gt=1.0,
+        lt=170.0,
+        allow_inf_nan=False,
+        description="Field of view in degrees, along the image's smaller side.",
+    )
+
+    @model_validator(mode="after")
+    def _check_frame(self) -> Camera:
+        view = np.subtract(self.target, self.origin)
+        if float(np.linalg.norm(view)) < 1e-6:
+            raise ValueError("camera origin and target must differ")
+        cross = np.cross(view / np.linalg.norm(view), self.up)
+        if float(np.linalg.norm(self.up)) < 1e-6 or float(np.linalg.norm(cross)) < 1e-6:
+            raise ValueError("camera up must be non-zero and not parallel to target - origin")
+        return self
+
+
+@dataclass(frozen=True)
+class SceneSetup:
+    """Everything a scene builder needs besides the BSDF.
+
+    ``resolution`` is ``(width, height)`` in pixels; ``spp`` the samples per pixel of one
+    ``mi.render`` call; ``lights``/``camera`` override the scene's defaults when not ``None``.
+    """
+
+    resolution: tuple[int, int]
+    spp: int
+    max_depth: int
+    lights: tuple[PointLight, ...] | None = None
+    camera: Camera | None = None
+
+
+# -- the studio environment map ------------------------------------------------------------
+
+# (direction towards the light, angular radius in degrees, RGB radiance): a warm key light
+# upper left, a cool fill light right, a rim light behind, as seen from the default camera.
+_STUDIO_LIGHTS: tuple[tuple[tuple[float, float, float], float, tuple[float, float, float]], ...] = (
+    ((-0.55, 0.65, 0.52), 8.0, (36.0, 33.0, 28.0)),
+    ((0.80, 0.15, 0.58), 10.0, (7.0, 8.0, 10.0)),
+    ((0.25, 0.55, -0.80), 6.0, (24.0, 24.0, 24.0)),
+)
+_ZENITH = np.array([0.10, 0.18, 0.42])
+_HORIZON = np.array([0.55, 0.58, 0.62])
+_GROUND = np.array([0.16, 0.14, 0.12])
+
+
+def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
+    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def envmap_directions(width: int, height: int) -> np.ndarray:
+    """World directions of the pixel centres of a ``(height, width)`` latitude-longitude map
+    in Mitsuba's ``envmap`` convention: ``u = atan2(x, -z) / 2 pi``, ``v = acos(y) / pi``,
+    row 0 at the zenith. Returns ``(height, width, 3)`` float64 unit vectors."""
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    phi, theta = np.meshgrid(2.0 * np.pi * u, np.pi * v)
+    return np.stack(
+        [np.sin(phi) * np.sin(theta), np.cos(theta), -np.cos(phi) * np.sin(theta)], axis=-1
+    )
+
+
+def studio_envmap(width: int = 512, height: int = 256) -> np.ndarray:
+    """matforge's HDR studio environment, made from code (deterministic, no files).
+
+    A sky whose radiance blends from a bright horizon to a blue zenith, a darker warm ground,
+    a soft horizon line, and three small bright disc lights with smooth edges (key, fill and
+    rim; up to 36 W sr^-1 m^-2 against a sky below 0.7). Returns ``(height, width, 3)``
+    float32 linear RGB radiance in Mitsuba's envmap layout (:func:`envmap_directions`).
+    """
+    if width < 8 or height < 4:
+        raise ValueError(f"envmap too small: {width}x{height}")
+    d = envmap_directions(width, height)
+    y = d[..., 1:2]
+    sky_t = np.sqrt(np.clip(y, 0.0, 1.0))
+    sky = (1.0 - sky_t) * _HORIZON + sky_t * _ZENITH
+    ground = _GROUND * (0.6 + 0.4 * np.clip(1.0 + y, 0.0, 1.0))
+    blend = _smoothstep(-0.02, 0.02, y)
+    radiance = blend * sky + (1.0 - blend) * ground
+    for direction, radius_deg, rgb in _STUDIO_LIGHTS:
+        axis = np.asarray(direction) / np.linalg.norm(direction)
+        angle = np.degrees(np.arccos(np.clip(d @ axis, -1.0, 1.0)))[..., None]
+        disc = 1.0 - _smoothstep(0.8 * radius_deg, radius_deg, angle)
+        radiance = radiance + disc * np.asarray(rgb)
+    return np.ascontiguousarray(radiance, dtype=np.float32)
+
+
+# -- scene dicts ---------------------------------------------------------------------------
+
+
+def _sensor(
+    mi: types.ModuleType, cam: Camera, resolution: tuple[int, int], spp: int
+) -> dict[str, Any]:
+    width, height = resolution
+    return {
+        "type": "perspective",
+        "fov": float(cam.fov),
+        "fov_axis": "smaller",
+        "to_world": mi.ScalarTransform4f().look_at(
+            origin=list(cam.origin), target=list(cam.target), up=list(cam.up)
+        ),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(width),
+            "height": int(height),
+            "pixel_format": "rgb",
+            "component_format": "float32",
+            "rfilter": {"type": "box"},
+        },
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+    }
+
+
+def _point_lights(lights: tuple[PointLight, ...]) -> dict[str, Any]:
+    return {
+        f"light_{i}": {
+            "type": "point",
+            "position": list(light.position),
+            "intensity": {"type": "rgb", "value": list(light.intensity)},
+        }
+        for i, light in enumerate(lights)
+    }
+
+
+def _base(
+    mi: types.ModuleType, camera: Camera, max_depth: int, resolution: tuple[int, int], spp: int
+) -> dict[str, Any]:
+    return {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": int(max_depth)},
+        "sensor": _sensor(mi, camera, resolution, spp),
+    }
+
+
+SPHERE_CAMERA = Camera(origin=(0.0, 0.0, 4.0), target=(0.0, 0.0, 0.0), fov=35.0)
+PLANE_CAMERA = Camera(origin=(0.0, 3.2, 3.2), target=(0.0, 0.0, 0.0), fov=40.0)
+SPHERE_LIGHTS = (
+    PointLight(position=(-3.0, 3.0, 3.0), intensity=(32.0, 30.0, 28.0)),
+    PointLight(position=(3.5, 1.0, 3.0), intensity=(9.0, 10.0, 11.0)),
+    PointLight(position=(1.0, 3.0, -3.5), intensity=(18.0, 18.0, 18.0)),
+)
+#: Half the side of the ``plane_points`` square: large enough to fill the default view.
+PLANE_HALF_SIZE = 4.0
+PLANE_LIGHTS = (
+    PointLight(position=(-2.0, 2.0, 1.0), intensity=(12.0, 11.0, 10.0)),
+    PointLight(position=(2.5, 1.5, 2.0), intensity=(4.0, 4.5, 5.0)),
+    PointLight(position=(0.5, 2.0, -2.0), intensity=(8.0, 8.0, 8.0)),
+)
+
+
+def sphere_env(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """Unit sphere under :func:`studio_envmap`, plus ``lights`` (none by default)."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["sphere"] = {"type": "sphere", "bsdf": bsdf}
+    scene["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap())}
+    scene.update(_point_lights(lights))
+    return scene
+
+
+def sphere_points(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """Unit sphere under point lights (by default :data:`SPHERE_LIGHTS`), black background."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["sphere"] = {"type": "sphere", "bsdf": bsdf}
+    scene.update(_point_lights(lights))
+    return scene
+
+
+def _floor_square(mi: types.ModuleType, bsdf: Any, half_size: float) -> dict[str, Any]:
+    """A square of side ``2 half_size`` in y = 0, normal +y, uv in [0, 1]^2.
+
+    Mitsuba's rectangle spans [-1, 1]^2 in z = 0 with normal +z: rotated into y = 0.
+    """
+    return {
+        "type": "rectangle",
+        "bsdf": bsdf,
+        "to_world": mi.ScalarTransform4f()
+        .rotate([1.0, 0.0, 0.0], -90.0)
+        .scale([half_size, half_size, 1.0]),
+    }
+
+
+def plane_points(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """An 8x8 textured square (normal +y, uv in [0, 1]^2) under point lights."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["plane"] = _floor_square(mi, bsdf, PLANE_HALF_SIZE)
+    scene.update(_point_lights(lights))
+    return scene
+
+
+#: Half the side of the ``cloth_plane`` square.
+CLOTH_HALF_SIZE = 1.5
+CLOTH_CAMERA = Camera(origin=(0.0, 2.0, 2.4), target=(0.0, 0.0, 0.0), fov=45.0)
+CLOTH_LIGHTS = (PointLight(position=(-1.5, 2.5, 1.0), intensity=(6.0, 5.5, 5.0)),)
+
+
+def cloth_plane(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """A 3x3 square (normal +y, uv in [0, 1]^2) under :func:`studio_envmap` and ``lights``."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["cloth"] = _floor_square(mi, bsdf, CLOTH_HALF_SIZE)
+    scene["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap())}
+    scene.update(_point_lights(lights))
+    return scene
+
+
+@dataclass(frozen=True)
+class SceneDef:
+    """A built-in scene: its builder and its default camera and point lights."""
+
+    builder: Callable[..., dict[str, Any]]
+    camera: Camera
+    lights: tuple[PointLight, ...]
+    summary: str
+
+    def camera_for(self, setup: SceneSetup) -> Camera:
+        """The camera used with ``setup`` (its override, or the default)."""
+        return setup.camera or self.camera
+
+    def lights_for(self, setup: SceneSetup) -> tuple[PointLight, ...]:
+        """The point lights used with ``setup`` (its override, or the defaults)."""
+        return self.lights if setup.lights is None else tuple(setup.lights)
+
+
+#: The built-in scenes, by name.
+SCENES: dict[str, SceneDef] = {
+    "sphere_env": SceneDef(
+        sphere_env, SPHERE_CAMERA, (), "unit sphere under matforge's HDR studio environment map"
+    ),
+    "sphere_points": SceneDef(
+        sphere_points, SPHERE_CAMERA, SPHERE_LIGHTS, "unit sphere under three point lights"
+    ),
+    "plane_points": SceneDef(
+        plane_points,
+        PLANE_CAMERA,
+        PLANE_LIGHTS,
+        "textured plane seen at an angle, three point lights",
+    ),
+    "cloth_plane": SceneDef(
+        cloth_plane,
+        CLOTH_CAMERA,
+        CLOTH_LIGHTS,
+        "square of cloth under the studio environment map and a point light",
+    ),
+}
+
+
+def build_scene(name: str, mi: types.ModuleType, bsdf: Any, setup: SceneSetup) -> dict[str, Any]:
+    """The Mitsuba scene dict of the built-in scene ``name`` with ``bsdf`` on its object.
+
+    ``bsdf`` is a Mitsuba BSDF plugin dict or an instantiated ``mi.BSDF``.
+    """
+    try:
+        scene = SCENES[name]
+    except KeyError:
+        raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}") from None
+    if setup.spp < 1 or setup.max_depth < 1 or min(setup.resolution) < 1:
+        raise ValueError(f"invalid scene setup {setup}")
+    return scene.builder(
+        mi,
+        bsdf,
+        scene.camera_for(setup),
+        scene.lights_for(setup),
+        setup.max_depth,
+        setup.resolution,
+        setup.spp,
+    )

@@ -1,0 +1,39 @@
+"""Material sources: from a ``material`` param to a Mitsuba BSDF.
+
+The registry and the ``material`` params type are in :mod:`.common`; each other module
+registers one source when it is imported. The list below is the one place that decides
+which sources exist:
+
+================  =============================================================  ============
+key               value                                                           module
+================  =============================================================  ============
+``mitsuba``       a Mitsuba 3 BSDF plugin dict                                    ``mitsuba``
+``merl``          a MERL ``.binary`` table ref                                    ``merl``
+``model``         a trained ``train.brdf`` model's material (or, with ``fabric``,  ``model``
+                  a ``train.fabric`` network)
+``fabric``        the woven-fabric aggregate (Monte Carlo over the footprint)     ``fabric``
+================  =============================================================  ============
+"""
+
+from __future__ import annotations
+
+from evaluators.render.sources import fabric, fabric_model, merl, mitsuba, model
+from evaluators.render.sources.common import (
+    MaterialParam,
+    load_bsdf,
+    material_sources,
+    register_material_source,
+    resolve_material,
+)
+
+#: The modules that register the built-in sources, in table order.
+BUILTIN = (mitsuba, merl, model, fabric, fabric_model)
+
+__all__ = [
+    "BUILTIN",
+    "MaterialParam",
+    "load_bsdf",
+    "material_sources",
+    "register_material_source",
+    "resolve_material",
+]

@@ -1,0 +1,353 @@
+"""The ``generate.fabric`` job kind: the woven-fabric training set of Chen et al. 2024, Sec. 5.1.
+
+Materials. For each weave pattern, ``texture_sets`` draws of the yarn geometry (twist
+``psi`` and inclination ``u``, warp and weft apart), and for each of those ``shading_sets``
+draws of the roughness ``alpha``, the height scaling ``beta``, the Lambertian weight ``w``
+and the albedos; all from :data:`materials.fabric.params.PARAM_RANGES` (documented there:
+psi U(-40, 40) deg, u U(10, 45) deg, alpha U(0.1, 0.8), beta U(0.1, 1.0), w U(0.3, 1.0),
+albedos U(0.05, 0.9), gap fixed at 0.2). The paper's set is 9 x 9 = 81 plain materials and
+4 x 16 = 64 for each of the three twills and three satins: 192 twill, 192 satin.
+
+Queries: the stratified design of :mod:`generators.fabric.queries` (8 x 8 centres, 10 + 10
+sizes, 8 x 8 x 8 x 8 direction strata, BRDF and BTDF pairs). Estimation:
+:func:`materials.fabric.aggregate.estimate` with ``samples`` footprint samples per query,
+``sampler`` independent or scrambled Sobol (4 replicates; seeded), and standard errors.
+
+Artifacts:
+
+- ``shard-XXXX.npz``: ``shard_queries`` queries of one material; arrays ``material`` (N,)
+  int32 (index into ``materials.json``), ``center`` (N, 2), ``size`` (N,), ``wi`` (N, 3),
+  ``wo`` (N, 3), ``value`` (N, 4), ``stderr`` (N, 4), all float32 but ``material``;
+  components in the order C_warp, C_weft, S_warp, S_weft (Eq. 7, unit albedos, incident
+  cosine included); footprints in tile units; directions in the macro frame, z up.
+- ``materials.json``: every material's parameters, seeds, maps and shards.
+- ``maps/<name>-normal.exr`` and ``maps/<name>-orientation.exr``: ply normal n_p and ply
+  orientation t_p over one tile (``map_resolution`` squared, xyz in RGB, row 0 at the top,
+  i.e. the highest ``t``), from :func:`materials.fabric.yarn.rasterize`.
+- ``preview.png``: as Fig. 2, the four components (columns) over the tile at a small
+  footprint (1/32 tile) for one light/view pair, one row per pattern (its first material).
+- ``stats.json``: samples, seconds, samples per second. The only artifact whose bytes vary
+  from run to run (it holds timings); all others are byte-deterministic for a spec.
+
+Parallelism and resumption: one shard per ``shard_queries`` queries of a material, through
+``ctx.map_shards`` in batches; a shard returns its finished ``.npz`` bytes, so a crash loses
+at most the shards in flight, and memory holds one batch at a time. Progress: per material
+while the maps are written (0 - 0.02), per finished shard in every batch (0.02 - 0.95),
+then the preview; each report also honours a cancel.
+
+Modules: the params model, presets and material plan are in :mod:`generators.fabric.params`
+(re-exported here), the query design in :mod:`generators.fabric.queries`, the pictures in
+:mod:`generators.fabric.preview`; this module holds the shard function, the runner and the
+kind's registration.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from generators.fabric.params import (
+    MAX_MATERIALS,
+    MAX_QUERIES,
+    PRESETS,
+    REPLICATES,
+    FabricGenParams,
+    FabricPreset,
+    PresetName,
+    Resolved,
+    plan_sets,
+)
+from generators.fabric.preview import (
+    _PREVIEW_WI,
+    _PREVIEW_WO,
+    PREVIEW_ROWS,
+    PREVIEW_SAMPLES,
+    PREVIEW_SIZE,
+    map_images,
+    preview_png,
+)
+from generators.fabric.queries import design_queries
+from jobapi.kinds import Kind, register
+from jobapi.results import ArtifactReader, ResultTable
+from materials.fabric.aggregate import FootprintQueries, estimate
+from materials.fabric.params import FabricParams, sample_params
+from storage.formats.npz import npz_bytes
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
+
+#: Shards handed to the executor per ``map_shards`` call (bounds the memory held).
+BATCH_SHARDS = 32
+
+#: The params model, presets and plan live in :mod:`generators.fabric.params`; they are
+#: re-exported so ``from generators.fabric.kind import FabricGenParams`` (etc.) keeps working.
+__all__ = [
+    "BATCH_SHARDS",
+    "MAX_MATERIALS",
+    "MAX_QUERIES",
+    "PRESETS",
+    "REPLICATES",
+    "FabricGenParams",
+    "FabricPreset",
+    "PlannedFabric",
+    "PresetName",
+    "Resolved",
+    "ShardTask",
+    "estimate_shard",
+    "params_record",
+    "plan_materials",
+    "plan_sets",
+    "run_generate_fabric",
+]
+
+
+@dataclass(frozen=True)
+class PlannedFabric:
+    """One material: its name, place in the plan, parameters and design seed."""
+
+    name: str
+    pattern: str
+    texture_set: int
+    shading_set: int
+    params: FabricParams
+    design_seed: int
+
+
+def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
+    """Draw every material (seeded per pattern and set, so adding one leaves others)."""
+    out = []
+    for name, j, k in plan_sets(cfg):
+        geometry = sample_params(ctx.rng(f"generate.fabric/{name}/texture/{j}"), name)
+        shading = sample_params(ctx.rng(f"generate.fabric/{name}/shading/{j}/{k}"), name)
+        params = shading.replace(psi_deg=geometry.psi_deg, u_max_deg=geometry.u_max_deg)
+        label = f"{name}-t{j:02d}-s{k:02d}"
+        seed = ctx.sub_seed(f"generate.fabric/queries/{label}")
+        out.append(PlannedFabric(label, name, j, k, params, seed))
+    return out
+
+
+def params_record(p: FabricParams) -> dict[str, Any]:
+    """Every parameter of a material as plain JSON data (pairs are ``[warp, weft]``)."""
+    return {
+        "pattern": p.pattern.name,
+        "psi_deg": list(p.psi_deg),
+        "u_max_deg": list(p.u_max_deg),
+        "alpha": list(p.alpha),
+        "beta": list(p.beta),
+        "w": p.w,
+        "kd_warp": list(p.kd_warp),
+        "kd_weft": list(p.kd_weft),
+        "ks_warp": list(p.ks_warp),
+        "ks_weft": list(p.ks_weft),
+        "gap": p.gap,
+        "t_rho": p.t_rho,
+    }
+
+
+@dataclass(frozen=True)
+class ShardTask:
+    """One shard: queries ``first .. first + count - 1`` of material ``material``."""
+
+    material: int
+    params: FabricParams
+    design_seed: int
+    first: int
+    count: int
+    btdf_fraction: float
+    samples: int
+    sampler: str
+    sample_seed: int
+    backend: str
+
+
+def estimate_shard(task: ShardTask) -> dict[str, Any]:
+    """Shard function: design and estimate the queries; ``{"npz": bytes, "seconds": s}``."""
+    started = time.perf_counter()
+    q = design_queries(task.design_seed, task.first, task.count, btdf_fraction=task.btdf_fraction)
+    # Store float32 and estimate at exactly the stored values.
+    centre, size = q.centre.astype(np.float32), q.size.astype(np.float32)
+    wi, wo = q.wi.astype(np.float32), q.wo.astype(np.float32)
+    est = estimate(
+        task.params,
+        FootprintQueries(centre, size, wi, wo),
+        samples=task.samples,
+        sampler=task.sampler,  # type: ignore[arg-type]
+        seed=task.sample_seed,
+        replicates=REPLICATES,
+        backend=task.backend,  # type: ignore[arg-type]
+    )
+    data = npz_bytes(
+        {
+            "material": np.full(task.count, task.material, dtype=np.int32),
+            "center": centre,
+            "size": size,
+            "wi": wi,
+            "wo": wo,
+            "value": est.mean.astype(np.float32),
+            "stderr": est.stderr.astype(np.float32),
+        }
+    )
+    return {"npz": data, "seconds": time.perf_counter() - started}
+
+
+def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
+    """Plan materials, write their maps, estimate every shard, then preview and stats."""
+    started = time.perf_counter()
+    cfg = params.resolved()
+    ctx.progress(0.0, "planning materials")
+    planned = plan_materials(cfg, ctx)
+    tasks: list[ShardTask] = []
+    owners: list[list[str]] = []
+    for i, m in enumerate(planned):
+        names = []
+        for first in range(0, cfg.queries, cfg.shard_queries):
+            names.append(f"shard-{len(tasks):04d}.npz")
+            tasks.append(
+                ShardTask(
+                    material=i,
+                    params=m.params,
+                    design_seed=m.design_seed,
+                    first=first,
+                    count=min(cfg.shard_queries, cfg.queries - first),
+                    btdf_fraction=cfg.btdf_fraction,
+                    samples=cfg.samples,
+                    sampler=cfg.sampler,
+                    sample_seed=ctx.sub_seed(f"generate.fabric/samples/{m.name}/{first}"),
+                    backend=cfg.backend,
+                )
+            )
+        owners.append(names)
+    records = []
+    for i, (m, shards) in enumerate(zip(planned, owners, strict=True)):
+        # Paper scale: 465 materials x ~0.1 s of maps each; report (and honour cancel).
+        ctx.progress(0.02 * i / len(planned), f"maps: {i}/{len(planned)} material(s)")
+        normal, orientation = map_images(m.params, cfg.map_resolution)
+        maps = {
+            "normal": f"maps/{m.name}-normal.exr",
+            "orientation": f"maps/{m.name}-orientation.exr",
+        }
+        ctx.put_bytes(maps["normal"], normal, "image/x-exr")
+        ctx.put_bytes(maps["orientation"], orientation, "image/x-exr")
+        records.append(
+            {
+                "name": m.name,
+                "pattern": m.pattern,
+                "texture_set": m.texture_set,
+                "shading_set": m.shading_set,
+                "params": params_record(m.params),
+                "design_seed": m.design_seed,
+                "maps": maps,
+                "shards": shards,
+            }
+        )
+    ctx.progress(0.02, f"{len(planned)} material(s), {len(tasks)} shard(s)")
+    shard_seconds = 0.0
+    for lo in range(0, len(tasks), BATCH_SHARDS):
+        batch = tasks[lo : lo + BATCH_SHARDS]
+        hi = lo + len(batch)
+        results = ctx.map_shards(
+            estimate_shard,
+            batch,
+            keys=[f"shard-{i:04d}" for i in range(lo, hi)],
+            label="shard",
+            progress_range=(0.02 + 0.93 * lo / len(tasks), 0.02 + 0.93 * hi / len(tasks)),
+        )
+        for i, res in enumerate(results, start=lo):
+            ctx.put_bytes(f"shard-{i:04d}.npz", res["npz"], "application/x-npz")
+            shard_seconds += res["seconds"]
+        del results
+    ctx.progress(0.95, "preview")
+    first_of_pattern = [m for m in planned if m.texture_set == 0 and m.shading_set == 0]
+    ctx.put_bytes(
+        "preview.png",
+        preview_png(first_of_pattern[:PREVIEW_ROWS], ctx.sub_seed("generate.fabric/preview")),
+        "image/png",
+    )
+    ctx.put_json(
+        "materials.json",
+        {
+            "materials": records,
+            "components": ["C_warp", "C_weft", "S_warp", "S_weft"],
+            "preset": params.preset,
+            "config": {**cfg.__dict__, "patterns": list(cfg.patterns), "replicates": REPLICATES},
+            "preview": {
+                "materials": [m.name for m in first_of_pattern[:PREVIEW_ROWS]],
+                "footprint_size": PREVIEW_SIZE,
+                "wi": _PREVIEW_WI.tolist(),
+                "wo": _PREVIEW_WO.tolist(),
+                "samples": PREVIEW_SAMPLES,
+            },
+        },
+    )
+    seconds = time.perf_counter() - started
+    samples = len(planned) * cfg.queries * cfg.samples
+    ctx.put_json(
+        "stats.json",
+        {
+            "materials": len(planned),
+            "queries": len(planned) * cfg.queries,
+            "samples_per_query": cfg.samples,
+            "samples": samples,
+            "seconds": round(seconds, 3),
+            "samples_per_second": round(samples / max(seconds, 1e-9), 1),
+            "shard_seconds": round(shard_seconds, 3),
+            "backend": cfg.backend,
+            "note": "timings vary from run to run; the only non-deterministic artifact",
+        },
+    )
+    ctx.progress(
+        1.0,
+        f"{len(planned)} material(s), {samples:.3g} samples in {seconds:.1f} s "
+        f"({samples / max(seconds, 1e-9):.3g} samples/s)",
+    )
+
+
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """The result table: ``materials.json``, one row per material (pattern, sets, shards),
+    with the throughput of ``stats.json`` in the settings."""
+    doc = read("materials.json")
+    if not isinstance(doc, dict) or not isinstance(doc.get("materials"), list):
+        return None
+    columns = ["pattern", "texture_set", "shading_set", "shards"]
+    rows = {
+        str(m["name"]): {
+            "pattern": m.get("pattern"),
+            "texture_set": m.get("texture_set"),
+            "shading_set": m.get("shading_set"),
+            "shards": len(m.get("shards") or []),
+        }
+        for m in doc["materials"]
+        if isinstance(m, dict) and "name" in m
+    }
+    if not rows:
+        return None
+    return ResultTable(
+        title="Materials",
+        label_header="Material",
+        columns=columns,
+        rows=rows,
+        settings={"config": doc.get("config"), "stats": read("stats.json")},
+    )
+
+
+register(
+    Kind(
+        name="generate.fabric",
+        params=FabricGenParams,
+        runner=run_generate_fabric,
+        description="Woven-fabric training set (Chen et al. 2024, Sec. 5.1): aggregated BSDF "
+        "components C/S warp/weft with standard errors at stratified footprint queries.",
+        artifacts=("shard-*.npz", "materials.json", "maps/*.exr", "stats.json", "preview.png"),
+        smoke={
+            "patterns": ["plain"],
+            "queries_per_material": 64,
+            "samples": 64,
+            "map_resolution": 16,
+            "backend": "numpy",
+        },
+        summary=summarize,
+    )
+)

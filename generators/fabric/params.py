@@ -1,0 +1,243 @@
+"""Parameters of the ``generate.fabric`` job kind: the spec model, its presets, and the plan.
+
+:class:`FabricGenParams` is the strict params model (validated before a job is queued);
+:data:`PRESETS` holds the named defaults (``small``, and ``paper``: Chen et al. 2024,
+Sec. 5.1); :meth:`FabricGenParams.resolved` merges explicit fields over the preset into a
+:class:`Resolved` configuration, and :func:`plan_sets` lists its materials in artifact
+order. The runner and the kind's registration are in :mod:`generators.fabric.kind`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+from generators.fabric.queries import BTDF_FRACTION
+from jobapi.params import StrictModel
+from jobapi.presets import preset_value
+from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS
+from materials.fabric.samplers import check_sampling
+
+PresetName = Literal["small", "paper"]
+#: Replicates of the estimator (Sobol's standard error; ``aggregate.py``).
+REPLICATES = 4
+#: Most materials and queries per material one job may hold.
+MAX_MATERIALS = 1000
+MAX_QUERIES = 1 << 23
+
+
+@dataclass(frozen=True)
+class FabricPreset:
+    """A named configuration; sets are ``{pattern: count}`` with a default for the rest."""
+
+    patterns: tuple[str, ...]
+    texture_sets: dict[str, int]
+    shading_sets: dict[str, int]
+    queries_per_material: int
+    samples: int
+    shard_queries: int
+    map_resolution: int
+
+
+#: Named presets. ``paper``: Sec. 5.1 (81 + 192 + 192 materials, 160 x 20480 = 3.28 M
+#: queries per material, 2048 samples); ``small``: one material per weave family.
+PRESETS: dict[str, FabricPreset] = {
+    "small": FabricPreset(
+        patterns=("plain", "twill_3x3", "satin_5x5"),
+        texture_sets={"*": 1},
+        shading_sets={"*": 1},
+        queries_per_material=1280,
+        samples=256,
+        shard_queries=640,
+        map_resolution=64,
+    ),
+    "paper": FabricPreset(
+        patterns=TRAINING_PATTERNS,
+        texture_sets={"plain": 9, "*": 4},
+        shading_sets={"plain": 9, "*": 16},
+        queries_per_material=3_276_800,
+        samples=2048,
+        shard_queries=65_536,
+        map_resolution=256,
+    ),
+}
+
+
+def _invalid(message: str) -> PydanticCustomError:
+    return PydanticCustomError("generate_fabric", message)
+
+
+class FabricGenParams(StrictModel):
+    """Parameters of ``generate.fabric``; unset fields take the preset's values.
+
+    ========================  ==================  ===========  ===========  ================
+    name                      type                small        paper        meaning
+    ========================  ==================  ===========  ===========  ================
+    ``preset``                small | paper       (default)                 defaults below
+    ``patterns``              list of names       plain,       the seven    weave patterns
+                                                  twill_3x3,   of Sec. 5.1
+                                                  satin_5x5
+    ``texture_sets``          int                 1            9 plain, 4   (psi, u) draws
+    ``shading_sets``          int                 1            9 plain, 16  (alpha, beta)
+    ``queries_per_material``  int                 1280         3276800      queries
+    ``samples``               int                 256          2048         per query
+    ``sampler``               independent|sobol   sobol        sobol
+    ``shard_queries``         int                 640          65536        per shard
+    ``map_resolution``        int                 64           256          EXR maps, px
+    ``backend``               drjit | numpy       drjit        drjit        estimator
+    ``btdf_fraction``         float               0.5          0.5          light below
+    ========================  ==================  ===========  ===========  ================
+
+    Example::
+
+        {"kind": "generate.fabric", "seed": 1, "params": {"preset": "small",
+         "patterns": ["twill_5x5"], "samples": 512}}
+    """
+
+    preset: PresetName = Field(
+        default="small",
+        description="Named defaults: 'small' (3 materials, one per weave family, 1280 "
+        "queries each) or 'paper' (Sec. 5.1: 465 materials, 3.28 M queries each).",
+    )
+    patterns: list[str] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=len(PATTERNS),
+        description="Weave patterns by name (materials.fabric.patterns): "
+        + ", ".join(PATTERNS)
+        + ". Default: the preset's.",
+    )
+    texture_sets: int | None = Field(
+        default=None,
+        ge=1,
+        le=64,
+        description="Yarn-geometry draws (twist psi, inclination u) per pattern, i.e. "
+        "normal/orientation textures. Default: the preset's (paper: 9 plain, 4 others).",
+    )
+    shading_sets: int | None = Field(
+        default=None,
+        ge=1,
+        le=64,
+        description="Draws of roughness alpha and height scaling beta (with w and albedos) "
+        "per texture set. Default: the preset's (paper: 9 plain, 16 others).",
+    )
+    queries_per_material: int | None = Field(
+        default=None,
+        ge=1,
+        le=MAX_QUERIES,
+        description="Stratified queries per material (generators.fabric.queries); a "
+        "multiple of 20480 completes every stratum round. Default: the preset's.",
+    )
+    samples: int | None = Field(
+        default=None,
+        ge=8,
+        le=1 << 16,
+        description="Footprint samples per query (sobol: 4 times a power of two). "
+        "Default: 256 (small), 2048 (paper).",
+    )
+    sampler: Literal["independent", "sobol"] = Field(
+        default="sobol",
+        description="Footprint sample points: 'independent' uniform, or 'sobol' (scrambled, "
+        "per-query digital shifts, 4 replicates for the standard error); both seeded.",
+    )
+    shard_queries: int | None = Field(
+        default=None,
+        ge=16,
+        le=1 << 20,
+        description="Queries per shard (one shard-XXXX.npz, one unit of work and of crash "
+        "recovery). Default: 640 (small), 65536 (paper).",
+    )
+    map_resolution: int | None = Field(
+        default=None,
+        ge=8,
+        le=2048,
+        description="Pixels per side of the per-material normal and orientation EXR maps "
+        "(one tile). Default: 64 (small), 256 (paper).",
+    )
+    backend: Literal["drjit", "numpy"] = Field(
+        default="drjit",
+        description="Estimator backend: 'drjit' (fused LLVM kernel) or 'numpy' (reference).",
+    )
+    btdf_fraction: float = Field(
+        default=BTDF_FRACTION,
+        ge=0.0,
+        le=1.0,
+        description="Fraction of direction pairs with the light below the cloth (BTDF "
+        "pairs); the rest are BRDF pairs.",
+    )
+
+    @field_validator("patterns")
+    @classmethod
+    def _known_patterns(cls, value: list[str] | None) -> list[str] | None:
+        if value is None:
+            return None
+        for name in value:
+            if name not in PATTERNS:
+                raise _invalid(f"unknown pattern {name!r}; known: {', '.join(sorted(PATTERNS))}")
+        if len(set(value)) != len(value):
+            raise _invalid("patterns must not repeat")
+        return value
+
+    @model_validator(mode="after")
+    def _check(self) -> FabricGenParams:
+        try:
+            check_sampling(self.sampler, self.resolved().samples, REPLICATES)
+        except ValueError as exc:
+            raise _invalid(f"samples: {exc}") from None
+        n = len(plan_sets(self.resolved()))
+        if n > MAX_MATERIALS:
+            raise _invalid(f"at most {MAX_MATERIALS} materials per job, got {n}")
+        return self
+
+    def resolved(self) -> Resolved:
+        """The effective configuration: explicit fields over the preset's."""
+        patterns = tuple(preset_value(self, PRESETS, "patterns"))
+
+        def sets(name: str) -> dict[str, int]:
+            # A preset gives a per-pattern table ("*": the others); a field one count for all.
+            value = preset_value(self, PRESETS, name)
+            if isinstance(value, int):
+                return {p: value for p in patterns}
+            return {p: value.get(p, value["*"]) for p in patterns}
+
+        return Resolved(
+            patterns=patterns,
+            texture_sets=sets("texture_sets"),
+            shading_sets=sets("shading_sets"),
+            queries=preset_value(self, PRESETS, "queries_per_material"),
+            samples=preset_value(self, PRESETS, "samples"),
+            sampler=self.sampler,
+            shard_queries=preset_value(self, PRESETS, "shard_queries"),
+            map_resolution=preset_value(self, PRESETS, "map_resolution"),
+            backend=self.backend,
+            btdf_fraction=self.btdf_fraction,
+        )
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """Effective parameters of one job (see :class:`FabricGenParams`)."""
+
+    patterns: tuple[str, ...]
+    texture_sets: dict[str, int]
+    shading_sets: dict[str, int]
+    queries: int
+    samples: int
+    sampler: str
+    shard_queries: int
+    map_resolution: int
+    backend: str
+    btdf_fraction: float
+
+
+def plan_sets(cfg: Resolved) -> list[tuple[str, int, int]]:
+    """``(pattern, texture set, shading set)`` of every material, in artifact order."""
+    return [
+        (name, j, k)
+        for name in cfg.patterns
+        for j in range(cfg.texture_sets[name])
+        for k in range(cfg.shading_sets[name])
+    ]

@@ -1,0 +1,232 @@
+"""The context a job runner receives: seed, progress, cancellation, shards, artifacts.
+
+A runner is ``runner(params, ctx)``. It reads inputs with :meth:`JobContext.resolve`, reports
+progress with :meth:`JobContext.progress`, splits heavy work with
+:meth:`JobContext.map_shards`, and writes every result with ``ctx.put_*``. It never touches
+the job store, the server or the environment.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pickle
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from jobapi.errors import JobCancelled, JobFailed, NotFoundError
+from jobapi.executor import Executor, InlineExecutor
+from jobapi.params import JOB_REF, SHA_REF
+from storage.artifacts import ArtifactStore
+from storage.formats.media import media_type_for
+from storage.jobs import ArtifactRecord, Job, JobStore
+
+
+class Monitor(Protocol):
+    """Where progress goes and where cancellation comes from (the worker's heartbeat)."""
+
+    def report(self, progress: float, message: str | None) -> None: ...
+
+    def cancelled(self) -> bool: ...
+
+
+class NullMonitor:
+    """A monitor that records the last progress and is never cancelled."""
+
+    def __init__(self) -> None:
+        self.progress = 0.0
+        self.message: str | None = None
+
+    def report(self, progress: float, message: str | None) -> None:
+        self.progress, self.message = progress, message
+
+    def cancelled(self) -> bool:
+        return False
+
+
+class JobContext:
+    """Everything a runner may use. Attributes:
+
+    - ``job_id``: 32-hex job id; ``seed``: the spec's seed; ``workdir``: a private scratch
+      directory, removed after the job.
+    - ``store``: the artifact store (use :meth:`resolve` / :meth:`put_bytes` instead).
+    """
+
+    def __init__(
+        self,
+        *,
+        job_id: str,
+        seed: int,
+        spec: dict[str, Any],
+        store: ArtifactStore,
+        jobs: JobStore,
+        workdir: Path,
+        monitor: Monitor | None = None,
+        executor: Executor | None = None,
+    ) -> None:
+        self.job_id = job_id
+        self.seed = seed
+        self.spec = spec
+        self.store = store
+        self.jobs = jobs
+        self.workdir = workdir
+        self.monitor: Monitor = monitor or NullMonitor()
+        self.executor: Executor = executor or InlineExecutor()
+        self.artifacts: dict[str, ArtifactRecord] = {}
+
+    # -- randomness ----------------------------------------------------------------------
+    def rng(self, stream: int | str = 0) -> np.random.Generator:
+        """A numpy Generator seeded from ``(seed, stream)``: independent per stream, the same
+        on every run of the same spec."""
+        tag = (
+            stream
+            if isinstance(stream, int)
+            else int.from_bytes(hashlib.sha256(str(stream).encode()).digest()[:8], "little")
+        )
+        return np.random.default_rng(np.random.SeedSequence([self.seed, tag]))
+
+    def sub_seed(self, stream: int | str) -> int:
+        """A 32-bit seed derived from ``(seed, stream)``, for libraries that take an int."""
+        return int(self.rng(stream).integers(0, 2**31 - 1))
+
+    # -- progress and cancellation -------------------------------------------------------
+    def progress(self, fraction: float, message: str | None = None) -> None:
+        """Report progress in [0, 1] with an optional one-line message; raises
+        :class:`JobCancelled` if the job was cancelled meanwhile."""
+        self.monitor.report(min(1.0, max(0.0, float(fraction))), message)
+        self.check_cancelled()
+
+    def cancelled(self) -> bool:
+        return self.monitor.cancelled()
+
+    def check_cancelled(self) -> None:
+        if self.monitor.cancelled():
+            raise JobCancelled(f"job {self.job_id} was cancelled")
+
+    # -- inputs --------------------------------------------------------------------------
+    def input_job(self, job_id: str, field: str, kind: str | None = None) -> Job:
+        """The succeeded job a param names (``job:<id>`` without the prefix), else
+        :class:`JobFailed` naming ``field``: no such job, another ``kind``, not succeeded."""
+        try:
+            job = self.jobs.get(job_id)
+        except NotFoundError:
+            raise JobFailed(f"{field}: no job {job_id}") from None
+        if kind is not None and job.kind != kind:
+            raise JobFailed(f"{field}: job {job_id} is a {job.kind} job, not {kind}")
+        if job.state != "succeeded":
+            raise JobFailed(f"{field}: job {job_id} is {job.state}, not succeeded")
+        return job
+
+    def ref_record(self, ref: str) -> ArtifactRecord:
+        """The record (name, digest, size, media type) behind a ``job:`` or ``sha256:`` ref."""
+        m = JOB_REF.match(ref)
+        if m:
+            try:
+                return self.jobs.artifact(m["job"], m["name"])
+            except NotFoundError as exc:
+                raise JobFailed(f"input {ref}: {exc}") from None
+        m = SHA_REF.match(ref)
+        if m:
+            digest = m["digest"]
+            if not self.store.exists(digest):
+                raise JobFailed(f"input {ref}: no such object in the store")
+            rec = self.jobs.find_digest(digest)
+            return rec or ArtifactRecord(
+                name=digest,
+                digest=digest,
+                size=self.store.size(digest),
+                media_type="application/octet-stream",
+            )
+        raise JobFailed(f"not an artifact reference: {ref!r}")
+
+    def resolve(self, ref: str) -> Path:
+        """A verified, read-only path to the bytes of ``ref``."""
+        rec = self.ref_record(ref)
+        try:
+            return self.store.open_verified(rec.digest)
+        except Exception as exc:  # missing or corrupt object
+            raise JobFailed(f"input {ref}: {exc}") from None
+
+    def read_ref(self, ref: str) -> bytes:
+        return self.resolve(ref).read_bytes()
+
+    # -- outputs -------------------------------------------------------------------------
+    def put_bytes(self, name: str, data: bytes, media_type: str | None = None) -> ArtifactRecord:
+        """Store ``data`` as the artifact ``name`` of this job."""
+        if not name or name.startswith("/") or ".." in name.split("/"):
+            raise ValueError(f"bad artifact name {name!r}")
+        info = self.store.put_bytes(data)
+        rec = ArtifactRecord(
+            name=name,
+            digest=info.digest,
+            size=info.size,
+            media_type=media_type or media_type_for(name),
+        )
+        self.artifacts[name] = rec
+        return rec
+
+    def put_file(
+        self, name: str, path: str | Path, media_type: str | None = None
+    ) -> ArtifactRecord:
+        info = self.store.put_file(path)
+        rec = ArtifactRecord(
+            name=name,
+            digest=info.digest,
+            size=info.size,
+            media_type=media_type or media_type_for(name),
+        )
+        self.artifacts[name] = rec
+        return rec
+
+    def put_json(self, name: str, obj: Any) -> ArtifactRecord:
+        """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes)."""
+        text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
+        return self.put_bytes(name, text.encode(), "application/json")
+
+    # -- shards --------------------------------------------------------------------------
+    def map_shards(
+        self,
+        fn: Callable[[Any], Any],
+        items: Sequence[Any],
+        *,
+        keys: Sequence[str] | None = None,
+        label: str = "shard",
+        progress_range: tuple[float, float] = (0.0, 1.0),
+    ) -> list[Any]:
+        """Run ``fn(item)`` for every item through the executor and return the results in
+        item order.
+
+        Each finished shard's result is stored (pickled) in the artifact store and recorded
+        against the job under its key (default: its index), so a re-run of the job after a
+        crash loads finished shards instead of recomputing them. ``fn`` must be a
+        module-level function and its result picklable and deterministic.
+        """
+        keys = list(keys) if keys is not None else [f"{label}-{i:05d}" for i in range(len(items))]
+        if len(keys) != len(items) or len(set(keys)) != len(keys):
+            raise ValueError("map_shards: keys must be unique, one per item")
+        done = self.jobs.shards(self.job_id)
+        results: list[Any] = [None] * len(items)
+        todo: list[int] = []
+        for i, key in enumerate(keys):
+            if key in done and self.store.verify(done[key]):
+                results[i] = pickle.loads(self.store.read(done[key]))
+            else:
+                todo.append(i)
+        lo, hi = progress_range
+        n_done = len(items) - len(todo)
+        if items:
+            self.progress(
+                lo + (hi - lo) * n_done / len(items),
+                f"{label}s: {n_done}/{len(items)} (resumed)" if n_done else None,
+            )
+        for j, result in self.executor.map(fn, [items[i] for i in todo]):
+            i = todo[j]
+            info = self.store.put_bytes(pickle.dumps(result, protocol=5))
+            self.jobs.record_shard(self.job_id, keys[i], info.digest)
+            results[i] = result
+            n_done += 1
+            self.progress(lo + (hi - lo) * n_done / len(items), f"{label}s: {n_done}/{len(items)}")
+        return results

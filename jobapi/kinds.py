@@ -1,0 +1,68 @@
+"""What a job kind is, and the registry that kinds add themselves to.
+
+A job kind is exactly four things: a params model, a runner, a summary hook that turns its
+results into a table, and its tests with tiny smoke params. A kind module ends with one
+registration line::
+
+    register(Kind(name="render", params=RenderParams, runner=run_render, ...))
+
+This module only holds what was registered. Which modules register the built-in kinds is
+decided at the edge, by the explicit list in :mod:`service.kinds`; nothing here imports a
+kind or scans directories.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel
+
+from jobapi.results import ArtifactReader, ResultTable
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
+
+Runner = Callable[[Any, "JobContext"], None]
+#: ``summary(read)``: the kind's result table from its JSON artifacts (``read(name)`` is
+#: the parsed artifact called ``name``, or ``None``), or ``None`` when it has none.
+SummaryHook = Callable[[ArtifactReader], ResultTable | None]
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One job kind.
+
+    Attributes:
+        name: the ``kind`` of a spec, e.g. ``"render"``.
+        params: strict pydantic model of ``params`` (``extra="forbid"``).
+        runner: ``runner(params, ctx)``; writes artifacts through ``ctx``.
+        description: one line for the README table and the OpenAPI description.
+        artifacts: the fixed artifact names (``"<name>.binary"`` style patterns allowed).
+        smoke: tiny params that run in seconds; the parametrised registry test runs them.
+        summary: the result-table hook (:data:`SummaryHook`); the dashboard, the CLI and
+            ``GET /api/jobs/{id}/summary`` show what it returns and know no kind's fields.
+    """
+
+    name: str
+    params: type[BaseModel]
+    runner: Runner
+    description: str
+    artifacts: tuple[str, ...] = ()
+    smoke: dict[str, Any] = field(default_factory=dict)
+    summary: SummaryHook | None = None
+
+
+_KINDS: dict[str, Kind] = {}
+
+
+def register(kind: Kind) -> Kind:
+    """Add ``kind`` to the registry (re-registering the same name replaces it)."""
+    _KINDS[kind.name] = kind
+    return kind
+
+
+def registered() -> dict[str, Kind]:
+    """The kinds registered so far, by name (a copy)."""
+    return dict(_KINDS)

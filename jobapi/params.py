@@ -1,0 +1,65 @@
+"""What params models are built from: the strict base model and the reference types.
+
+References (``../shared/CONTRACT.md``):
+
+- ``job:<job-id>/<artifact-name>``: an artifact of a finished job (:data:`JOB_REF`);
+- ``sha256:<64 lowercase hex>``: an object in the store (:data:`SHA_REF`);
+- ``job:<job-id>`` with no artifact name: a whole job, e.g. a dataset (:data:`JOB_ID_REF`).
+
+In params models use the annotated types :data:`Ref` (an artifact) and :data:`JobRef` (a
+whole job); a kind never writes its own pattern for either.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from pydantic import AfterValidator, BaseModel, ConfigDict
+
+JOB_REF = re.compile(
+    r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)$"
+)
+SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})$")
+JOB_ID_REF = re.compile(r"^job:(?P<job>[0-9a-f]{32})$")
+
+
+class StrictModel(BaseModel):
+    """Base of every params model: unknown fields are errors, values are not coerced
+    across types (``"3"`` is not an int), and models are immutable."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+def is_ref(value: str) -> bool:
+    """Whether ``value`` is a ``job:<id>/<name>`` or ``sha256:`` artifact reference."""
+    return bool(JOB_REF.match(value) or SHA_REF.match(value))
+
+
+def job_id_of(ref: str) -> str:
+    """The 32-hex id of a ``job:<id>`` reference; ``ValueError`` if it is not one."""
+    m = JOB_ID_REF.match(ref)
+    if m is None:
+        raise ValueError(f"not a job reference 'job:<job-id>': {ref!r}")
+    return m["job"]
+
+
+def _check_ref(value: str) -> str:
+    if not is_ref(value):
+        raise ValueError(
+            "must be an artifact reference 'job:<job-id>/<artifact-name>' or "
+            "'sha256:<64 lowercase hex>'"
+        )
+    return value
+
+
+def _check_job_ref(value: str) -> str:
+    if not JOB_ID_REF.match(value):
+        raise ValueError("must be a whole job 'job:<job-id>' (in a batch file 'step:<step-name>')")
+    return value
+
+
+#: An artifact reference field: ``job:<id>/<name>`` or ``sha256:<hex>``.
+Ref = Annotated[str, AfterValidator(_check_ref)]
+#: A whole-job reference field: ``job:<id>`` (a dataset, a set of tables, a run).
+JobRef = Annotated[str, AfterValidator(_check_job_ref)]

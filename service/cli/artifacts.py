@@ -1,0 +1,216 @@
+"""``matforge artifacts``, ``fetch`` and ``import``: from the server, or from a local store
+when ``--data-dir`` is given.
+
+Refs are ``job:<job-id>/<artifact-name>`` or ``sha256:<64 hex>``. Fetched bytes are always
+verified against their digest before the destination file appears (written atomically)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import typer
+from rich.table import Table
+from rich.text import Text
+
+from service.cli.client import BadInput
+from service.cli.state import out_console, print_json, print_line, state_of
+from storage.errors import IntegrityError, NotFoundError
+
+JsonOpt = typer.Option(False, "--json", help="Print one JSON document on stdout.")
+LocalOpt = typer.Option(
+    None,
+    "--data-dir",
+    show_default=False,
+    help="Use the local store in this data directory, not the server.",
+)
+_CHUNK = 1 << 20
+
+
+def human_size(size: int) -> str:
+    value = float(size)
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if value < 1024 or unit == "GiB":
+            return f"{value:.0f} {unit}" if unit == "B" else f"{value:.1f} {unit}"
+        value /= 1024
+    return f"{size} B"
+
+
+def artifacts_table(arts: list[dict[str, Any]]) -> Table:
+    """A Rich table of artifact records: name, size, media type, digest."""
+    table = Table(title="artifacts")
+    for col in ("name", "size", "media type", "digest"):
+        table.add_column(col, justify="right" if col == "size" else "left", overflow="fold")
+    for a in arts:
+        table.add_row(
+            Text(str(a.get("name"))),
+            human_size(int(a.get("size") or 0)),
+            Text(str(a.get("media_type"))),
+            Text(f"sha256:{a.get('digest')}"),
+        )
+    return table
+
+
+def open_local(data_dir: Path, *, create: bool = False) -> tuple[Any, Any]:
+    """``(JobStore, ArtifactStore)`` of a data directory; ``NotFoundError`` (exit 2) when it
+    holds no matforge data and ``create`` is false."""
+    from service.settings import Settings
+    from storage.artifacts import ArtifactStore
+    from storage.jobs import JobStore
+
+    settings = Settings(data_dir=data_dir)
+    if not create and not settings.db_path.is_file():
+        raise NotFoundError(
+            f"{data_dir}: not a matforge data directory (no "
+            f"{settings.db_path.name}); check --data-dir"
+        )
+    return JobStore(settings.db_path), ArtifactStore(settings.store_dir)
+
+
+def parse_ref(ref: str) -> tuple[str | None, str | None, str | None]:
+    """``(job_id, artifact name, digest)`` of a ``job:`` or ``sha256:`` ref; the unused
+    parts are ``None``. Raises :class:`BadInput` for anything else."""
+    from jobapi.params import JOB_REF, SHA_REF
+
+    m = JOB_REF.match(ref)
+    if m:
+        return m["job"], m["name"], None
+    m = SHA_REF.match(ref)
+    if m:
+        return None, None, m["digest"]
+    raise BadInput(
+        f"not an artifact reference: {ref!r}; expected 'job:<job-id>/<name>' or "
+        "'sha256:<64 lowercase hex>'"
+    )
+
+
+def destination(out: Path, name: str) -> Path:
+    """``out`` itself, or ``out/<basename of name>`` when ``out`` is a directory."""
+    return out / Path(name).name if out.is_dir() else out
+
+
+def copy_verified(src: Path, digest: str, dest: Path) -> int:
+    """Copy ``src`` to ``dest`` atomically, hashing on the way; raises ``IntegrityError``
+    (and leaves ``dest`` untouched) when the bytes do not match ``digest``."""
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
+    tmp = Path(tmp_name)
+    h, size = hashlib.sha256(), 0
+    try:
+        with os.fdopen(fd, "wb") as out, open(src, "rb") as fh:
+            for chunk in iter(lambda: fh.read(_CHUNK), b""):
+                h.update(chunk)
+                size += len(chunk)
+                out.write(chunk)
+        if h.hexdigest() != digest:
+            raise IntegrityError(
+                f"object sha256:{digest} is corrupt on disk (digest mismatch)"
+                "; run 'matforge store verify'"
+            )
+        os.replace(tmp, dest)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return size
+
+
+def artifacts(
+    ctx: typer.Context,
+    job_id: str = typer.Argument(..., metavar="ID", help="Job id."),
+    as_json: bool = JsonOpt,
+    data_dir: Path | None = LocalOpt,
+) -> None:
+    """List a job's artifacts: name, digest, size, media type."""
+    from service.cli.client import check_job_id
+
+    local = state_of(ctx).local_dir(data_dir)
+    if local is not None:
+        jobs, _ = open_local(local)
+        job = jobs.get(check_job_id(job_id))
+        arts = [a.public() for a in job.artifacts]
+    else:
+        with state_of(ctx).client() as client:
+            arts = client.artifacts(job_id)
+    if as_json:
+        print_json(arts)
+    elif arts:
+        out_console().print(artifacts_table(arts))
+    else:
+        print_line(f"job {job_id} has no artifacts")
+
+
+def fetch(
+    ctx: typer.Context,
+    ref: str = typer.Argument(..., help="job:<job-id>/<artifact-name> or sha256:<hex>."),
+    output: Path = typer.Option(
+        ...,
+        "--output",
+        "-o",
+        help="File to write (or an existing directory: the artifact's name is used).",
+    ),
+    data_dir: Path | None = LocalOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Download an artifact's bytes (verified against its digest) to a file."""
+    job_id, name, digest = parse_ref(ref)
+    local = state_of(ctx).local_dir(data_dir)
+    if local is not None:
+        jobs, store = open_local(local)
+        if job_id is not None and name is not None:
+            digest = jobs.artifact(job_id, name).digest
+        assert digest is not None
+        dest = destination(output, name or digest)
+        src = store.path(digest)
+        if not src.is_file():
+            raise NotFoundError(f"no object sha256:{digest} in the store at {local}")
+        size = copy_verified(src, digest, dest)
+    else:
+        with state_of(ctx).client() as client:
+            if job_id is not None and name is not None:
+                digest = str(client.artifact(job_id, name)["digest"])
+            assert digest is not None
+            dest = destination(output, name or digest)
+            size = client.fetch(digest, dest)
+    if as_json:
+        print_json({"ref": ref, "digest": digest, "size": size, "path": str(dest)})
+    else:
+        print_line(str(dest))
+
+
+def import_(
+    ctx: typer.Context,
+    path: Path = typer.Argument(..., help="File to import (a MERL .binary, an .exr, ...)."),
+    name: str | None = typer.Option(
+        None, "--name", show_default=False, help="Name to record (default: the file's name)."
+    ),
+    as_json: bool = JsonOpt,
+    data_dir: Path | None = LocalOpt,
+) -> None:
+    """Validate a file's format and put it in the store; prints its sha256: ref."""
+    if not path.is_file():
+        raise BadInput(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    st = state_of(ctx)
+    local = st.local_dir(data_dir)
+    if local is not None:
+        from service.submission import import_file
+
+        jobs, store = open_local(local, create=True)
+        rec = import_file(path, jobs, store, name=name, max_bytes=st.settings.max_upload_bytes)
+        doc: dict[str, Any] = {**rec.public(), "ref": f"sha256:{rec.digest}"}
+    else:
+        with st.client() as client:
+            doc = client.upload(path, name)
+        doc.setdefault("ref", f"sha256:{doc.get('digest')}")
+    if as_json:
+        print_json(doc)
+    else:
+        print_line(str(doc["ref"]))
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``artifacts``, ``fetch`` and ``import`` to the app."""
+    app.command("artifacts")(artifacts)
+    app.command("fetch")(fetch)
+    app.command("import")(import_)

@@ -1,0 +1,303 @@
+"""A small typed HTTP client of the matforge REST API (used by the CLI and the batch runner).
+
+Every failure is one of two types, which the CLI maps to the contract's exit codes:
+
+- :class:`ServerUnreachable` (exit 3): the connection was refused or timed out, the name did
+  not resolve, the server refused the credentials (401/403, :class:`ServerRefused`), or it
+  answered with a 5xx.
+- :class:`BadInput` (exit 2): the server rejected what we sent (400, 404, 413, 422), with the
+  server's one-line ``error`` message; or the input was malformed before anything was sent.
+"""
+
+from __future__ import annotations
+
+import builtins
+import hashlib
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+JOB_ID = re.compile(r"^[0-9a-f]{32}$")
+DIGEST = re.compile(r"^[0-9a-f]{64}$")
+_CHUNK = 1 << 20
+
+
+class ClientError(Exception):
+    """Base of the client's errors; ``str(err)`` is one line a user can act on."""
+
+    exit_code = 1
+
+
+class ServerUnreachable(ClientError):
+    """No usable answer from the server: connection, timeout, refused credentials, 5xx."""
+
+    exit_code = 3
+
+
+class ServerRefused(ServerUnreachable):
+    """The server refused our credentials (401/403): ``MATFORGE_TOKEN`` is missing or wrong.
+    Exit 3, like an unreachable server, but retrying does not help."""
+
+
+class BadInput(ClientError):
+    """The server rejected the request as bad input (or it was malformed before sending).
+
+    ``status`` is the HTTP status (``None`` when the request was never sent) and ``detail``
+    the server's structured ``detail`` field when it gave one.
+    """
+
+    exit_code = 2
+
+    def __init__(self, message: str, status: int | None = None, detail: Any = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.detail = detail
+
+
+def check_job_id(job_id: str) -> str:
+    """Return ``job_id`` if it is a 32-hex job id, else raise :class:`BadInput`."""
+    if not JOB_ID.match(job_id):
+        raise BadInput(f"not a job id: {job_id!r} (expected 32 lowercase hex digits)")
+    return job_id
+
+
+def check_digest(digest: str) -> str:
+    """Return the 64-hex digest of ``digest`` (``sha256:`` prefix optional) or raise."""
+    d = digest.removeprefix("sha256:")
+    if not DIGEST.match(d):
+        raise BadInput(f"not a sha256 digest: {digest!r} (expected 64 lowercase hex digits)")
+    return d
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def error_message(response: httpx.Response) -> str:
+    """The server's one-line ``error`` of a failed response (or a description of it)."""
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if isinstance(body, dict):
+        if isinstance(body.get("error"), str) and body["error"].strip():
+            return _one_line(body["error"])
+        detail = body.get("detail")
+        if isinstance(detail, str) and detail.strip():
+            return _one_line(detail)
+        if isinstance(detail, list) and detail:
+            parts = []
+            for item in detail:
+                if isinstance(item, dict):
+                    loc = ".".join(str(p) for p in item.get("loc", ()) if p != "body")
+                    msg = str(item.get("msg", item))
+                    parts.append(f"{loc}: {msg}" if loc else msg)
+                else:
+                    parts.append(str(item))
+            return _one_line("; ".join(parts))
+    text = _one_line(response.text)[:300]
+    return f"HTTP {response.status_code} {response.reason_phrase}" + (f": {text}" if text else "")
+
+
+class Client:
+    """The REST API of one matforge server.
+
+    Args:
+        server: base URL, e.g. ``http://127.0.0.1:8000``.
+        token: bearer token (``MATFORGE_TOKEN``), or ``None`` for a server without auth.
+        timeout: seconds for connecting and for each read; transfers stream, so a large
+            download is not bounded by it as a whole.
+    """
+
+    def __init__(self, server: str, token: str | None = None, timeout: float = 30.0) -> None:
+        self.server = server.rstrip("/")
+        headers = {"Accept": "application/json"}
+        if token:
+            headers["Authorization"] = f"Bearer {token}"
+        try:
+            self._http = httpx.Client(
+                base_url=self.server,
+                headers=headers,
+                timeout=httpx.Timeout(timeout, connect=min(timeout, 10.0)),
+            )
+        except (httpx.InvalidURL, ValueError) as exc:
+            raise BadInput(f"bad server URL {server!r}: {exc}") from None
+
+    # -- plumbing ------------------------------------------------------------------------
+    def close(self) -> None:
+        """Close the connection pool."""
+        self._http.close()
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _check(self, response: httpx.Response) -> httpx.Response:
+        code = response.status_code
+        if code < 400:
+            return response
+        if code in (401, 403):
+            raise ServerRefused(
+                f"{self.server} refused the request (HTTP {code}): "
+                f"{error_message(response)}; check MATFORGE_TOKEN"
+            )
+        if code >= 500:
+            raise ServerUnreachable(
+                f"{self.server} failed (HTTP {code}): {error_message(response)}"
+            )
+        detail = None
+        try:
+            body = response.json()
+            detail = body.get("detail") if isinstance(body, dict) else None
+        except ValueError:
+            pass
+        raise BadInput(error_message(response), status=code, detail=detail)
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = self._http.request(method, path, **kwargs)
+        except httpx.TimeoutException:
+            raise ServerUnreachable(f"{self.server} did not answer in time") from None
+        except httpx.UnsupportedProtocol as exc:
+            raise BadInput(f"bad server URL {self.server!r}: {exc}") from None
+        except httpx.TransportError as exc:
+            raise ServerUnreachable(
+                f"cannot reach the server at {self.server}: "
+                f"{_one_line(str(exc)) or type(exc).__name__}"
+            ) from None
+        return self._check(response)
+
+    def _json(self, method: str, path: str, **kwargs: Any) -> Any:
+        response = self._request(method, path, **kwargs)
+        try:
+            return response.json()
+        except ValueError:
+            raise ServerUnreachable(
+                f"{self.server} answered {path} with something that is "
+                "not JSON; is this a matforge server?"
+            ) from None
+
+    # -- the API -------------------------------------------------------------------------
+    def health(self) -> dict[str, Any]:
+        """``GET /api/health``: ``{"status": "ok"}``."""
+        result: dict[str, Any] = self._json("GET", "/api/health")
+        return result
+
+    def submit(self, spec: Any) -> dict[str, Any]:
+        """``POST /api/jobs``: queue a spec; returns the job document."""
+        result: dict[str, Any] = self._json("POST", "/api/jobs", json=spec)
+        return result
+
+    def get(self, job_id: str) -> dict[str, Any]:
+        """``GET /api/jobs/{id}``: the job document."""
+        result: dict[str, Any] = self._json("GET", f"/api/jobs/{check_job_id(job_id)}")
+        return result
+
+    def list(
+        self, state: str | None = None, kind: str | None = None
+    ) -> builtins.list[dict[str, Any]]:
+        """``GET /api/jobs``: jobs, newest first, optionally filtered."""
+        params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
+        result = self._json("GET", "/api/jobs", params=params)
+        if isinstance(result, dict) and isinstance(result.get("jobs"), list):
+            result = result["jobs"]
+        return builtins.list(result)
+
+    def cancel(self, job_id: str) -> dict[str, Any]:
+        """``POST /api/jobs/{id}/cancel``: the job, now cancelled (or already finished)."""
+        result: dict[str, Any] = self._json("POST", f"/api/jobs/{check_job_id(job_id)}/cancel")
+        return result
+
+    def summary(self, job_id: str) -> dict[str, Any] | None:
+        """``GET /api/jobs/{id}/summary``: the job's result table document, or ``None``."""
+        result: dict[str, Any] | None = self._json(
+            "GET", f"/api/jobs/{check_job_id(job_id)}/summary"
+        )
+        return result
+
+    def artifacts(self, job_id: str) -> builtins.list[dict[str, Any]]:
+        """``GET /api/jobs/{id}/artifacts``: ``[{"name", "digest", "size", "media_type"}]``."""
+        result = self._json("GET", f"/api/jobs/{check_job_id(job_id)}/artifacts")
+        return builtins.list(result)
+
+    def artifact(self, job_id: str, name: str) -> dict[str, Any]:
+        """The record of artifact ``name`` of a job; :class:`BadInput` if it has none."""
+        arts = self.artifacts(job_id)
+        for art in arts:
+            if art.get("name") == name:
+                return art
+        have = ", ".join(a.get("name", "?") for a in arts) or "none"
+        raise BadInput(f"job {job_id} has no artifact {name!r} (artifacts: {have})")
+
+    def read_bytes(self, digest: str, max_bytes: int = 64 * 1024 * 1024) -> bytes:
+        """``GET /api/artifacts/{digest}`` into memory (small objects such as metrics),
+        verified against the digest."""
+        d = check_digest(digest)
+        data = self._request("GET", f"/api/artifacts/{d}").content
+        if len(data) > max_bytes:
+            raise BadInput(f"sha256:{d} is {len(data)} bytes; fetch it to a file instead")
+        if hashlib.sha256(data).hexdigest() != d:
+            raise ServerUnreachable(
+                f"the bytes received for sha256:{d} do not match the "
+                "digest (corrupt transfer); try again"
+            )
+        return data
+
+    def fetch(self, digest: str, dest: Path) -> int:
+        """Stream ``GET /api/artifacts/{digest}`` to ``dest``; returns the size in bytes.
+
+        The bytes are hashed as they arrive and ``dest`` is written atomically (a temporary
+        file in the same directory, renamed once the digest matched), so ``dest`` never
+        holds unverified bytes.
+        """
+        d = check_digest(digest)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
+        tmp = Path(tmp_name)
+        h, size = hashlib.sha256(), 0
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                try:
+                    with self._http.stream("GET", f"/api/artifacts/{d}") as response:
+                        if response.status_code >= 400:
+                            response.read()
+                            self._check(response)
+                        for chunk in response.iter_bytes(_CHUNK):
+                            h.update(chunk)
+                            size += len(chunk)
+                            fh.write(chunk)
+                except httpx.TimeoutException:
+                    raise ServerUnreachable(f"{self.server} did not answer in time") from None
+                except httpx.TransportError as exc:
+                    raise ServerUnreachable(
+                        f"download of sha256:{d} from {self.server} failed: {_one_line(str(exc))}"
+                    ) from None
+            if h.hexdigest() != d:
+                raise ServerUnreachable(
+                    f"the bytes received for sha256:{d} do not match the "
+                    "digest (corrupt transfer); try again"
+                )
+            os.replace(tmp, dest)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return size
+
+    def upload(self, path: Path, name: str | None = None) -> dict[str, Any]:
+        """``POST /api/artifacts?name=``: stream a file to the server, which validates and
+        stores it; returns ``{"digest", "ref", "size", "media_type"}``."""
+        label = name or path.name
+        with open(path, "rb") as fh:
+            headers = {
+                "Content-Type": "application/octet-stream",
+                "Content-Length": str(os.fstat(fh.fileno()).st_size),
+            }
+            result: dict[str, Any] = self._json(
+                "POST", "/api/artifacts", params={"name": label}, content=fh, headers=headers
+            )
+        return result

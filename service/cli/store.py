@@ -1,0 +1,109 @@
+"""``matforge store verify`` and ``matforge store gc``: maintenance of a local store.
+
+``verify`` re-hashes every object and exits 1 when any is corrupt, listing them with the
+jobs' artifacts they back. ``gc`` removes objects no job, manifest, shard or upload refers
+to (``JobStore.referenced_digests``) once they are older than the grace period; it is a dry
+run unless ``--no-dry-run`` is given.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from service.cli.artifacts import human_size, open_local
+from service.cli.state import EXIT_JOB_FAILED, err_console, error, print_json, state_of
+
+store_app = typer.Typer(
+    help="Maintain a local store: verify objects, collect garbage.", no_args_is_help=True
+)
+
+JsonOpt = typer.Option(False, "--json", help="Print one JSON document on stdout.")
+DataDirOpt = typer.Option(
+    None,
+    "--data-dir",
+    show_default=False,
+    help="Data directory (default: MATFORGE_DATA or ./matforge-data).",
+)
+
+
+@store_app.command("verify")
+def verify(
+    ctx: typer.Context,
+    data_dir: Path | None = DataDirOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Re-hash every object in the store; exit 1 if any is corrupt."""
+    settings = state_of(ctx).settings_for(data_dir)
+    jobs, store = open_local(settings.data_dir)
+    with err_console.status(f"verifying {settings.store_dir}"):
+        report = store.verify_all()
+    corrupt = []
+    for digest in report.corrupt:
+        rec = jobs.find_digest(digest)
+        corrupt.append({"digest": digest, "name": rec.name if rec else None})
+    if as_json:
+        print_json(
+            {"checked": report.checked, "ok": report.ok, "corrupt": corrupt, "stray": report.stray}
+        )
+    else:
+        status = "all intact" if report.ok else f"{len(corrupt)} CORRUPT"
+        print(f"checked {report.checked} objects in {settings.store_dir}: {status}")
+        for path in report.stray:
+            print(f"stray file (not a digest name): {path}")
+    for item in corrupt:
+        error(
+            f"corrupt object sha256:{item['digest']}"
+            + (f" ({item['name']})" if item["name"] else "")
+        )
+    if not report.ok:
+        raise typer.Exit(EXIT_JOB_FAILED)
+
+
+@store_app.command("gc")
+def gc(
+    ctx: typer.Context,
+    data_dir: Path | None = DataDirOpt,
+    grace_hours: float | None = typer.Option(
+        None,
+        "--grace-hours",
+        min=0.0,
+        show_default=False,
+        help="Keep unreferenced objects younger than "
+        "this (default: MATFORGE_GC_GRACE_HOURS "
+        "or 24).",
+    ),
+    dry_run: bool = typer.Option(
+        True, "--dry-run/--no-dry-run", help="Only report what would be removed."
+    ),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Remove unreferenced objects older than the grace period (dry run by default)."""
+    settings = state_of(ctx).settings_for(data_dir)
+    jobs, store = open_local(settings.data_dir)
+    grace = settings.gc_grace_seconds if grace_hours is None else grace_hours * 3600.0
+    report = store.gc(jobs.referenced_digests(), grace, dry_run=dry_run)
+    if as_json:
+        print_json(
+            {
+                "dry_run": report.dry_run,
+                "removed": report.removed,
+                "bytes_freed": report.bytes_freed,
+                "kept_referenced": report.kept_referenced,
+                "kept_recent": report.kept_recent,
+            }
+        )
+        return
+    verb = "would remove" if dry_run else "removed"
+    print(
+        f"{verb} {len(report.removed)} objects ({human_size(report.bytes_freed)}); kept "
+        f"{report.kept_referenced} referenced and {report.kept_recent} younger than "
+        f"{grace / 3600:g} h"
+    )
+    if dry_run and report.removed:
+        err_console.print(
+            "dry run: nothing was removed; pass --no-dry-run to remove them",
+            markup=False,
+            highlight=False,
+        )

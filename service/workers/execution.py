@@ -1,0 +1,186 @@
+"""Running one claimed job: heartbeats, the runner, the manifest, fenced completion.
+
+Used both by the worker processes of ``matforge serve`` and by ``matforge run`` (in
+process). The runner's exceptions are mapped here: :class:`JobFailed` becomes the job's
+one-line ``error``; :class:`JobCancelled` leaves a cancelled job as it is; anything else is
+logged with its traceback and reported as an internal error in one line.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import socket
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from jobapi.context import JobContext
+from jobapi.errors import JobCancelled, JobFailed, SpecError
+from jobapi.executor import Executor
+from service import kinds
+from service.specs import canonical_json, validate_spec
+from service.workers.provenance import code_version, package_versions
+from storage.artifacts import ArtifactStore
+from storage.jobs import HeartbeatStatus, Job, JobStore
+
+log = logging.getLogger("matforge.execution")
+
+
+def worker_id() -> str:
+    """``"<host>:<pid>"`` of this process."""
+    import os
+
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+class Heartbeat:
+    """Renews a job's lease every ``lease/3`` seconds in a background thread and publishes
+    the latest progress; notices cancellation or a lost lease."""
+
+    def __init__(self, jobs: JobStore, job: Job, lease_seconds: float) -> None:
+        assert job.lease_token is not None
+        self.jobs, self.job_id, self.token = jobs, job.id, job.lease_token
+        self.lease = lease_seconds
+        self.status: HeartbeatStatus = "ok"
+        self._progress = 0.0
+        self._message: str | None = None
+        self._dirty = False
+        self._last_push = 0.0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._loop, name=f"heartbeat-{job.id[:8]}", daemon=True
+        )
+
+    # Monitor protocol ---------------------------------------------------------------------
+    def report(self, progress: float, message: str | None) -> None:
+        with self._lock:
+            self._progress, self._dirty = progress, True
+            if message is not None:
+                self._message = message
+        if time.monotonic() - self._last_push > 0.5:  # keep the dashboard lively
+            self.beat()
+
+    @property
+    def last_message(self) -> str | None:
+        """The last message the runner reported, if any."""
+        with self._lock:
+            return self._message
+
+    def cancelled(self) -> bool:
+        return self.status != "ok"
+
+    # ---------------------------------------------------------------------------------------
+    def beat(self) -> None:
+        with self._lock:
+            progress, message, self._dirty = self._progress, self._message, False
+        self._last_push = time.monotonic()
+        try:
+            status = self.jobs.heartbeat(self.job_id, self.token, self.lease, progress, message)
+        except Exception:  # a busy database must not kill the job; the next beat retries
+            log.exception("heartbeat for %s failed", self.job_id)
+            return
+        if status != "ok":
+            self.status = status
+
+    def _loop(self) -> None:
+        interval = max(0.05, self.lease / 3)
+        while not self._stop.wait(interval):
+            self.beat()
+            if self.status != "ok":
+                return
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def execute(
+    job: Job,
+    *,
+    jobs: JobStore,
+    store: ArtifactStore,
+    lease_seconds: float,
+    executor: Executor | None = None,
+    scratch: Path | None = None,
+) -> str:
+    """Run a job this process has claimed; returns its final state as this worker saw it
+    (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``)."""
+    assert job.lease_token is not None
+    started = time.time()
+    hb = Heartbeat(jobs, job, lease_seconds)
+    if scratch is not None:
+        scratch.mkdir(parents=True, exist_ok=True)
+    workdir = Path(tempfile.mkdtemp(prefix=f"job-{job.id[:8]}-", dir=scratch))
+    try:
+        with hb:
+            try:
+                spec = validate_spec(job.spec)
+                kind = kinds.get_kind(spec.kind)
+                ctx = JobContext(
+                    job_id=job.id,
+                    seed=spec.seed,
+                    spec=job.spec,
+                    store=store,
+                    jobs=jobs,
+                    workdir=workdir,
+                    monitor=hb,
+                    executor=executor,
+                )
+                kind.runner(spec.params, ctx)
+                ctx.check_cancelled()
+            except JobCancelled:
+                log.info("job %s stopped: %s", job.id, hb.status)
+                return "cancelled" if hb.status == "cancelled" else "lost"
+            except (JobFailed, SpecError) as exc:
+                jobs.fail(job.id, job.lease_token, _one_line(exc))
+                return "failed"
+            except Exception as exc:
+                log.exception("job %s (%s) crashed", job.id, job.kind)
+                jobs.fail(
+                    job.id,
+                    job.lease_token,
+                    f"internal error in {job.kind}: {type(exc).__name__}: {_one_line(exc)}",
+                )
+                return "failed"
+        finished = time.time()
+        arts = sorted(ctx.artifacts.values(), key=lambda a: a.name)
+        manifest = {
+            "job": job.id,
+            "kind": job.kind,
+            "name": job.name,
+            "spec": job.spec,
+            "spec_hash": job.spec_hash,
+            "seed": spec.seed,
+            "artifacts": [a.public() for a in arts],
+            "code_version": code_version(),
+            "packages": package_versions(),
+            "worker": job.worker,
+            "attempt": job.attempts,
+            "timings": {
+                "started": started,
+                "finished": finished,
+                "run_seconds": finished - started,
+            },
+        }
+        minfo = store.put_bytes((canonical_json(manifest) + "\n").encode())
+        # The runner's last progress line (e.g. a throughput) stays visible after success.
+        last = hb.last_message
+        done = f"done: {last}" if last and last.strip().lower() != "done" else "done"
+        if jobs.complete(job.id, job.lease_token, arts, minfo.digest, message=done[:1000]):
+            return "succeeded"
+        return "cancelled" if jobs.get(job.id).state == "cancelled" else "lost"
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)

@@ -1,0 +1,179 @@
+"""Worker processes: claim jobs under a lease, run them, recycle; and their supervisor.
+
+``python -m service.workers.worker --data-dir D`` runs one worker. It exits by itself after
+``recycle_after_jobs`` jobs, because Mitsuba and Dr.Jit leak memory over long loops; the
+:class:`Supervisor` (started by ``matforge serve``) keeps N workers alive, starting a new
+one when one exits or dies. Heavy work never runs in the web process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from service.settings import Settings
+from service.workers.execution import execute, worker_id
+from service.workers.executors import make_executor
+from storage.artifacts import ArtifactStore
+from storage.jobs import JobStore
+
+log = logging.getLogger("matforge.worker")
+
+
+def run_worker(
+    settings: Settings,
+    *,
+    max_jobs: int | None = None,
+    poll_seconds: float = 0.2,
+    idle_exit_seconds: float | None = None,
+    stop: threading.Event | None = None,
+) -> int:
+    """Claim and run jobs until ``max_jobs`` ran, ``stop`` is set, or the queue stayed empty
+    for ``idle_exit_seconds``. Returns the number of jobs run."""
+    jobs = JobStore(settings.db_path)
+    store = ArtifactStore(settings.store_dir)
+    executor = make_executor("local", settings.pool_processes)
+    me = worker_id()
+    limit = settings.recycle_after_jobs if max_jobs is None else max_jobs
+    ran, idle_since = 0, time.monotonic()
+    log.info("worker %s started (recycle after %d jobs)", me, limit)
+    try:
+        while (limit <= 0 or ran < limit) and not (stop and stop.is_set()):
+            jobs.reap(settings.max_attempts)
+            job = jobs.claim(me, settings.lease_seconds)
+            if job is None:
+                if (
+                    idle_exit_seconds is not None
+                    and time.monotonic() - idle_since > idle_exit_seconds
+                ):
+                    break
+                time.sleep(poll_seconds)
+                continue
+            log.info("worker %s runs job %s (%s), attempt %d", me, job.id, job.kind, job.attempts)
+            state = execute(
+                job,
+                jobs=jobs,
+                store=store,
+                lease_seconds=settings.lease_seconds,
+                executor=executor,
+                scratch=settings.data_dir / "scratch",
+            )
+            log.info("job %s: %s", job.id, state)
+            ran += 1
+            idle_since = time.monotonic()
+    finally:
+        executor.close()
+        jobs.close()
+    return ran
+
+
+class Supervisor:
+    """Keeps ``n`` worker processes alive and reaps expired leases.
+
+    Workers are separate OS processes (``python -m service.workers.worker``), so a crash, an
+    out-of-memory kill or a SIGKILL of one loses only its job's lease, which the reaper
+    turns back into a queued job.
+    """
+
+    def __init__(self, settings: Settings, n: int, check_seconds: float = 0.5) -> None:
+        self.settings = settings
+        self.n = max(0, n)
+        self.check_seconds = check_seconds
+        self.procs: list[subprocess.Popen[bytes]] = []
+        self.started_total = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    def _spawn(self) -> subprocess.Popen[bytes]:
+        cmd = [
+            sys.executable,
+            "-m",
+            "service.workers.worker",
+            "--data-dir",
+            str(self.settings.data_dir),
+        ]
+        env = {**os.environ, **self.settings.to_env()}
+        proc = subprocess.Popen(cmd, env=env, start_new_session=True)
+        self.started_total += 1
+        log.info("started worker pid %d", proc.pid)
+        return proc
+
+    def worker_pids(self) -> list[int]:
+        with self._lock:
+            return [p.pid for p in self.procs if p.poll() is None]
+
+    def check(self) -> None:
+        """Replace exited workers and reap expired leases (called periodically)."""
+        with self._lock:
+            alive = []
+            for p in self.procs:
+                code = p.poll()
+                if code is None:
+                    alive.append(p)
+                elif code == 0:
+                    log.info("worker pid %d recycled", p.pid)
+                else:
+                    log.warning("worker pid %d died (exit %s); replacing it", p.pid, code)
+            while len(alive) < self.n and not self._stop.is_set():
+                alive.append(self._spawn())
+            self.procs = alive
+        try:
+            JobStore(self.settings.db_path).reap(self.settings.max_attempts)
+        except Exception:
+            log.exception("reaper failed")
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.check_seconds):
+            self.check()
+
+    def start(self) -> None:
+        self.check()
+        self._thread = threading.Thread(target=self._loop, name="supervisor", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        if self._thread:
+            self._thread.join(timeout=5)
+        with self._lock:
+            for p in self.procs:
+                if p.poll() is None:
+                    p.send_signal(signal.SIGTERM)
+            deadline = time.monotonic() + timeout
+            for p in self.procs:
+                try:
+                    p.wait(timeout=max(0.1, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    p.kill()
+            self.procs = []
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m service.workers.worker")
+    ap.add_argument("--data-dir", type=Path, default=None)
+    ap.add_argument("--max-jobs", type=int, default=None)
+    args = ap.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
+    )
+    settings = Settings.from_env()
+    if args.data_dir is not None:
+        settings = settings.with_(data_dir=args.data_dir)
+    stop = threading.Event()
+    # SIGTERM: finish nothing new; the running job's lease expires and it is re-queued
+    # if we are killed before it ends. We exit after the current job.
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    run_worker(settings, max_jobs=args.max_jobs, stop=stop)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
