@@ -1,0 +1,240 @@
+"""P-NDF over a pixel footprint: the tiny-example evaluation (Xing et al. 2024, Sec. 6.3) and
+the explicit reference (Yan et al. 2016), numpy references of what the renderer traces.
+
+**Footprint** (Heckbert 1989): a pixel's footprint in texture space is the parallelogram
+spanned by the uv derivatives ``du/dx``, ``du/dy`` (texels per pixel); its Gaussian
+approximation has covariance ``Sigma_P = sigma_pixel^2 [du/dx du/dy][du/dx du/dy]^T`` with
+``sigma_pixel`` :data:`PIXEL_SIGMA` (the pixel filter's standard deviation, in pixels).
+The P-NDF is ``D_P(s) = int N(u; c, Sigma_P) N(u, s) du`` (Eq. 1, a density over projected
+normals ``s``; the footprint is normalised).
+
+**Tiny examples** (Sec. 6.3): for every example instance the footprint meets, its
+footprint weight is split over the instance's tiles by a descent from the top level: a
+tile entirely inside the footprint's support (the ellipse at :data:`SUPPORT_SIGMAS`) and
+owned by the instance contributes ``w_T B_l(tile, s)`` -- its footprint mass times its NDF
+image, bilinear between cell centres; a tile partly inside is split into its four children;
+a partly covered tile of the finest level (and so any footprint smaller than the finest
+tile) is evaluated from its lobes directly by Eq. 1. Transforms map the query into the
+instance's frame (:mod:`materials.glints.surface`).
+
+**Reference** (Yan et al. 2016): Eq. 1 summed over every lobe of an explicit normal map
+near the footprint.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtr, ndtri
+
+from materials.glints.lobes import Lobes, pndf
+from materials.glints.surface import Instance, Surface, Transform
+
+#: Standard deviation of the pixel filter, in pixels (Heckbert's Gaussian footprint).
+PIXEL_SIGMA = 0.5
+#: The footprint's support: the ellipse at this many standard deviations (mass outside:
+#: ``exp(-SUPPORT_SIGMAS^2 / 2)``, 0.2 % at 3.5).
+SUPPORT_SIGMAS = 3.5
+
+
+def heckbert_covariance(
+    duv_dx: np.ndarray, duv_dy: np.ndarray, sigma: float = PIXEL_SIGMA
+) -> np.ndarray:
+    """``Sigma_P`` ``(2, 2)`` of a pixel whose texture derivatives are ``duv_dx``,
+    ``duv_dy`` (texels per pixel); a floor of 1e-8 texel^2 keeps it invertible."""
+    j = np.stack([np.asarray(duv_dx, float), np.asarray(duv_dy, float)], axis=1)
+    return sigma * sigma * (j @ j.T) + 1e-8 * np.eye(2)
+
+
+def box_mass(mean: np.ndarray, cov: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """``int_[lo, hi] N(u; mean, cov) du`` over an axis-aligned box (the quadrature of
+    :func:`materials.glints.ndf_maps.gaussian_cell_masses`: exact in y, Gauss-Legendre in
+    ``t = Phi(x)``)."""
+    sx = math.sqrt(cov[0, 0])
+    t0, t1 = ndtr((lo[0] - mean[0]) / sx), ndtr((hi[0] - mean[0]) / sx)
+    if t1 <= t0:
+        return 0.0
+    nodes, weights = np.polynomial.legendre.leggauss(8)
+    t = np.clip(0.5 * (t0 + t1) + 0.5 * (t1 - t0) * nodes, 1e-300, 1 - 1e-16)
+    x = mean[0] + sx * ndtri(t)
+    beta = cov[0, 1] / cov[0, 0]
+    sd = math.sqrt(max(cov[1, 1] - beta * cov[0, 1], 1e-300))
+    my = mean[1] + beta * (x - mean[0])
+    band = ndtr((hi[1] - my) / sd) - ndtr((lo[1] - my) / sd)
+    return float(0.5 * (t1 - t0) * (weights @ band))
+
+
+@dataclass(frozen=True)
+class TinyExample:
+    """What the tiny-example model stores: the example's lobes, its NDF maps
+    (``[level_0, ...]``, each ``(r, r, R, R)``) and the maps' extent ``e``."""
+
+    lobes: Lobes
+    maps: list[np.ndarray]
+    extent: float
+
+    @property
+    def n(self) -> int:
+        return self.lobes.size
+
+    def lookup(self, level: int, tx: int, ty: int, s: np.ndarray) -> np.ndarray:
+        """``B_l(tile, s)``: the tile's NDF image at local projected normals ``s``
+        ``(M, 2)``, bilinear between cell centres, 0 outside ``[-e, e]^2``."""
+        img = self.maps[level][ty, tx].astype(np.float64)
+        r = img.shape[0]
+        width = 2.0 * self.extent / r
+        p = (np.asarray(s) + self.extent) / width - 0.5
+        i0 = np.floor(p).astype(np.int64)
+        f = p - i0
+        out = np.zeros(len(p))
+        for dy in (0, 1):
+            for dx in (0, 1):
+                ix, iy = i0[:, 0] + dx, i0[:, 1] + dy
+                w = (f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
+                ok = (ix >= 0) & (ix < r) & (iy >= 0) & (iy < r)
+                out[ok] += w[ok] * img[iy[ok], ix[ok]]
+        return out
+
+    def tile_lobes(self, tx: int, ty: int) -> np.ndarray:
+        """Indices of the lobes seeded in finest-level tile ``(tx, ty)``."""
+        t = np.floor(self.lobes.u / 2.0).astype(np.int64)
+        return np.flatnonzero((t[:, 0] == tx) & (t[:, 1] == ty))
+
+
+def _inside_support(c: np.ndarray, inv: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    d = pts - c
+    return np.einsum("ka,ab,kb->k", d, inv, d) <= SUPPORT_SIGMAS**2
+
+
+def _bbox(c: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    half = SUPPORT_SIGMAS * np.sqrt(np.diag(cov))
+    return c - half, c + half
+
+
+def instance_pndf(
+    ex: TinyExample,
+    c: np.ndarray,
+    cov: np.ndarray,
+    s_local: np.ndarray,
+    *,
+    owned: object = None,
+) -> np.ndarray:
+    """The LOD descent over one instance, in its local frame: footprint ``N(c, cov)`` in
+    example texels (the instance's square is ``[0, n)^2``), queries ``s_local`` ``(M, 2)``.
+
+    ``owned(points)`` (optional) says which local points the instance owns (Fig. 3's
+    occlusion); a tile counts as whole only when its corners and centre are owned, and
+    lobes count only where their seeds are owned. Returns ``(M,)`` densities.
+    """
+    own = owned if callable(owned) else None
+    inv = np.linalg.inv(cov)
+    lo_b, hi_b = _bbox(c, cov)
+    out = np.zeros(len(s_local))
+    top = len(ex.maps) - 1
+    stack = [(top, 0, 0)]
+    while stack:
+        level, tx, ty = stack.pop()
+        side = 2 << level
+        lo = np.array([tx * side, ty * side], dtype=np.float64)
+        hi = lo + side
+        if np.any(hi <= lo_b) or np.any(lo >= hi_b):
+            continue  # the support's bounding box misses the tile
+        pts = np.array([lo, [hi[0], lo[1]], [lo[0], hi[1]], hi, 0.5 * (lo + hi)])
+        whole = bool(np.all(_inside_support(c, inv, pts[:4])))
+        if whole and own is not None:
+            whole = bool(np.all(own(pts)))
+        if whole:
+            out += box_mass(c, cov, lo, hi) * ex.lookup(level, tx, ty, s_local)
+        elif level > 0:
+            for cy in (0, 1):
+                for cx in (0, 1):
+                    stack.append((level - 1, 2 * tx + cx, 2 * ty + cy))
+        else:
+            idx = ex.tile_lobes(tx, ty)
+            if own is not None:
+                idx = idx[own(ex.lobes.u[idx])]
+            if len(idx):
+                out += pndf(ex.lobes, c, cov, s_local, index=idx)
+    return out
+
+
+def _tiled_copies(lo: np.ndarray, hi: np.ndarray, n: int) -> list[tuple[int, int]]:
+    k0 = np.floor(lo / n).astype(int)
+    k1 = np.floor(hi / n).astype(int)
+    return [(kx, ky) for ky in range(k0[1], k1[1] + 1) for kx in range(k0[0], k1[0] + 1)]
+
+
+def tiny_pndf(
+    ex: TinyExample, surface: Surface, centre: np.ndarray, cov: np.ndarray, s: np.ndarray
+) -> np.ndarray:
+    """The tiny-example P-NDF of ``surface`` (whose example ``ex`` describes) at global
+    projected normals ``s`` ``(M, 2)``, footprint ``N(centre, cov)`` in global texels."""
+    centre = np.asarray(centre, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    n = ex.n
+    if surface.dist.kind == "tiled":
+        t = surface.dist.transform
+        ainv = t.inverse
+        c_l, cov_l = ainv @ centre, ainv @ cov @ ainv.T
+        s_l = t.slopes_to_local(s)
+        lo, hi = _bbox(c_l, cov_l)
+        out = np.zeros(len(s))
+        for kx, ky in _tiled_copies(lo, hi, n):
+            out += instance_pndf(ex, c_l - np.array([kx, ky]) * n, cov_l, s_l)
+        return t.density_scale * out
+    lo, hi = _bbox(centre, cov)
+    out = np.zeros(len(s))
+    for inst in surface.instances_near(lo, hi):
+        out += _stochastic_instance(ex, surface, inst, centre, cov, s)
+    return out
+
+
+def _stochastic_instance(
+    ex: TinyExample,
+    surface: Surface,
+    inst: Instance,
+    centre: np.ndarray,
+    cov: np.ndarray,
+    s: np.ndarray,
+) -> np.ndarray:
+    t: Transform = inst.transform
+    ainv = t.inverse
+    c_l = (centre - inst.centre) @ ainv.T + 0.5 * ex.n
+    cov_l = ainv @ cov @ ainv.T
+    lo, hi = _bbox(c_l, cov_l)
+    if np.any(hi <= 0) or np.any(lo >= ex.n):
+        return np.zeros(len(s))
+
+    def owned(p_local: np.ndarray) -> np.ndarray:
+        glob = (p_local - 0.5 * ex.n) @ t.a.T + inst.centre
+        mask = np.zeros(len(glob), dtype=bool)
+        for other, m in surface.owner(glob):
+            if np.allclose(other.centre, inst.centre):
+                mask |= m
+        return mask
+
+    return t.density_scale * instance_pndf(ex, c_l, cov_l, t.slopes_to_local(s), owned=owned)
+
+
+def yan_pndf(lobes: Lobes, centre: np.ndarray, cov: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The reference: Eq. 1 over every lobe of an explicit, tiled normal map whose seed lies
+    in the footprint's support box (plus ``5 sigma_h``), all periodic copies included."""
+    centre = np.asarray(centre, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    lo, hi = _bbox(centre, cov)
+    lo, hi = lo - 5 * lobes.sigma_h, hi + 5 * lobes.sigma_h
+    n = lobes.size
+    idx_all, shift_all = [], []
+    for kx, ky in _tiled_copies(lo, hi, n):
+        shift = np.array([kx, ky], dtype=np.float64) * n
+        u = lobes.u + shift
+        sel = np.flatnonzero(np.all((u >= lo) & (u <= hi), axis=1))
+        idx_all.append(sel)
+        shift_all.append(np.broadcast_to(shift, (len(sel), 2)))
+    idx = np.concatenate(idx_all)
+    if not len(idx):
+        return np.zeros(len(s))
+    return pndf(lobes, centre, cov, s, index=idx, shift=np.concatenate(shift_all))
