@@ -43,6 +43,8 @@ class Kind:
         smoke: tiny params that run in seconds; the parametrised registry test runs them.
         summary: the result-table hook (:data:`SummaryHook`); the dashboard, the CLI and
             ``GET /api/jobs/{id}/summary`` show what it returns and know no kind's fields.
+        layout: markdown describing the artifacts' layouts (arrays, shapes, indexing), for
+            the README's table of kinds.
     """
 
     name: str
@@ -52,6 +54,7 @@ class Kind:
     artifacts: tuple[str, ...] = ()
     smoke: dict[str, Any] = field(default_factory=dict)
     summary: SummaryHook | None = None
+    layout: str = ""
 
 
 _KINDS: dict[str, Kind] = {}

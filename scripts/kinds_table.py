@@ -38,6 +38,8 @@ def kinds_markdown() -> str:
         schema = kind.params.model_json_schema()
         arts = ", ".join(f"`{a}`" for a in kind.artifacts) or "(see below)"
         lines.append(f"### `{kind.name}`\n\n{kind.description}\n\nArtifacts: {arts}\n")
+        if kind.layout:
+            lines.append(kind.layout.strip() + "\n")
         lines.append("| param | type | default | description |")
         lines.append("| --- | --- | --- | --- |")
         required = set(schema.get("required", []))

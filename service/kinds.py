@@ -20,6 +20,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "evaluators.score.kind",
     "generators.merl.kind",
     "generators.fabric.kind",
+    "generators.glint.kind",
     "models.brdf.kind",
     "models.brdf.report_kind",
     "models.fabric.kind",

@@ -10,9 +10,8 @@ Conventions, shared by every module of :mod:`materials.glints`:
 
 The six procedural types of the paper's figures are made from periodic height fields, so
 every example tiles without seams; each is seeded, deterministic, and scaled to a target RMS
-slope. A user's own map comes in through :func:`normals_from_rgb` and
-:func:`check_normal_map`, which refuse anything that is not a square power-of-two map of unit
-normals with ``z > 0``.
+slope. A user's own map comes in through :mod:`storage.formats.normal_map`, which refuses
+anything that is not a square power-of-two map of unit normals with ``z > 0``.
 """
 
 from __future__ import annotations
@@ -42,10 +41,6 @@ DEFAULT_SLOPE: dict[str, float] = {
     "leather": 0.3,
     "structured": 0.3,
 }
-#: How far a stored normal may be from unit length: float EXR maps, and 8-bit PNG maps
-#: (quantisation of ``(n + 1) / 2`` to 1/255 moves the length by up to about 0.7 %).
-UNIT_TOL_FLOAT = 1e-3
-UNIT_TOL_8BIT = 0.02
 
 
 def _fft_noise(rng: np.random.Generator, n: int, sx: float, sy: float) -> np.ndarray:
@@ -142,47 +137,3 @@ def procedural_example(
     if not (0.0 <= s <= 2.0):
         raise ValueError(f"slope must lie in [0, 2], got {s}")
     return normals_from_height(_height(kind, rng, size), s)
-
-
-def check_normal_map(normals: np.ndarray, name: str, *, tol: float = UNIT_TOL_FLOAT) -> None:
-    """Refuse a normal map that breaks the conventions: ``ValueError`` whose message starts
-    with ``name`` and says what is wrong (shape, size, length, z)."""
-    a = np.asarray(normals)
-    if a.ndim != 3 or a.shape[2] != 3:
-        raise ValueError(f"{name}: a normal map has shape (n, n, 3), got {a.shape}")
-    if a.shape[0] != a.shape[1]:
-        raise ValueError(f"{name}: a normal map must be square, got {a.shape[1]}x{a.shape[0]}")
-    n = a.shape[0]
-    if n < 2 or n & (n - 1):
-        raise ValueError(f"{name}: the side must be a power of two, got {n}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: the normal map holds NaN or infinite values")
-    length = np.linalg.norm(a.astype(np.float64), axis=-1)
-    worst = float(np.abs(length - 1.0).max())
-    if worst > tol:
-        iy, ix = np.unravel_index(int(np.abs(length - 1.0).argmax()), length.shape)
-        raise ValueError(
-            f"{name}: normals must have unit length (within {tol:g}); texel (x={ix}, y={iy}) "
-            f"has length {length[iy, ix]:.4f}"
-        )
-    if float(a[..., 2].min()) <= 0.0:
-        iy, ix = np.unravel_index(int(a[..., 2].argmin()), a.shape[:2])
-        raise ValueError(
-            f"{name}: tangent-space normals must point up (z > 0); texel (x={ix}, y={iy}) "
-            f"has z = {a[iy, ix, 2]:.4f}"
-        )
-
-
-def normals_from_rgb(rgb: np.ndarray, name: str, *, encoded: bool) -> np.ndarray:
-    """A user's normal map as ``(n, n, 3)`` float32 unit normals, checked.
-
-    ``encoded=True`` for 8-bit images (PNG), which store ``(n + 1) / 2`` in [0, 1]; they are
-    decoded, checked with the quantisation tolerance :data:`UNIT_TOL_8BIT`, and renormalised.
-    ``encoded=False`` for float images (EXR), which store the normals themselves and are
-    checked to :data:`UNIT_TOL_FLOAT`. ``ValueError`` names ``name`` on any violation.
-    """
-    a = np.asarray(rgb, dtype=np.float64)
-    if encoded:
-        a = 2.0 * a - 1.0
-    check_normal_map(a, name, tol=UNIT_TOL_8BIT if encoded else UNIT_TOL_FLOAT)
-    return (a / np.linalg.norm(a, axis=-1, keepdims=True)).astype(np.float32)

@@ -75,11 +75,11 @@ class Lobes:
             "u": self.u.astype(np.float32),
             "s": self.s.astype(np.float32),
             "jacobian": self.jac.astype(np.float32),
-            "weight": np.float32(self.weight),
-            "sigma_h": np.float32(self.sigma_h),
-            "sigma_r": np.float32(self.sigma_r),
-            "size": np.int32(self.size),
-            "rate": np.int32(self.rate),
+            "weight": np.array(self.weight, np.float32),
+            "sigma_h": np.array(self.sigma_h, np.float32),
+            "sigma_r": np.array(self.sigma_r, np.float32),
+            "size": np.array(self.size, np.int32),
+            "rate": np.array(self.rate, np.int32),
         }
 
 

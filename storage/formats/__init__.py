@@ -18,6 +18,7 @@ from storage.errors import FormatError
 from storage.formats.exr import validate_exr
 from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
+from storage.formats.normal_map import validate_normal_map
 from storage.formats.npz import validate_npz
 from storage.formats.png import validate_png
 
@@ -68,6 +69,11 @@ VALIDATORS: dict[str, FileFormat] = {
     ".binary": FileFormat(MEDIA_TYPES[".binary"], validate_merl),
     ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz),
 }
+#: Compound endings checked before the extension: a normal map is an image with a meaning.
+COMPOUND_VALIDATORS: dict[str, FileFormat] = {
+    ".normal.exr": FileFormat(MEDIA_TYPES[".exr"], validate_normal_map),
+    ".normal.png": FileFormat(MEDIA_TYPES[".png"], validate_normal_map),
+}
 
 
 def validate_file(path: Path, name: str) -> str:
@@ -85,8 +91,10 @@ def validate_file(path: Path, name: str) -> str:
     FormatError
         Unsupported extension, or the bytes are not a valid file of that format.
     """
+    lower = name.lower()
     suffix = Path(name).suffix.lower()
-    fmt = VALIDATORS.get(suffix)
+    compound = next((f for end, f in COMPOUND_VALIDATORS.items() if lower.endswith(end)), None)
+    fmt = compound or VALIDATORS.get(suffix)
     if fmt is None:
         known = ", ".join(sorted(VALIDATORS))
         shown = f"'{suffix}'" if suffix else "(no extension)"
@@ -95,4 +103,11 @@ def validate_file(path: Path, name: str) -> str:
     return fmt.media_type
 
 
-__all__ = ["VALIDATORS", "FileFormat", "FormatError", "validate_file", "validate_json"]
+__all__ = [
+    "COMPOUND_VALIDATORS",
+    "VALIDATORS",
+    "FileFormat",
+    "FormatError",
+    "validate_file",
+    "validate_json",
+]

@@ -20,7 +20,8 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
         for name, arr in arrays.items():
             entry = io.BytesIO()
-            np.lib.format.write_array(entry, np.ascontiguousarray(arr), allow_pickle=False)
+            # np.asarray(order="C"), not np.ascontiguousarray, which turns scalars into (1,).
+            np.lib.format.write_array(entry, np.asarray(arr, order="C"), allow_pickle=False)
             zf.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE), entry.getvalue())
     return buf.getvalue()
 
