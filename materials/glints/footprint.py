@@ -8,19 +8,20 @@ approximation has covariance ``Sigma_P = sigma_pixel^2 [du/dx du/dy][du/dx du/dy
 The P-NDF is ``D_P(s) = int N(u; c, Sigma_P) N(u, s) du`` (Eq. 1, a density over projected
 normals ``s``; the footprint is normalised).
 
-**Tiny examples** (Sec. 6.3): for every example instance the footprint meets, its
-footprint weight is split over the instance's tiles by a descent from the top level: a
-tile entirely inside the footprint's support (the ellipse at :data:`SUPPORT_SIGMAS`) and
-owned by the instance contributes ``w_T B_l(tile, s)`` -- its footprint mass times its NDF
-image, bilinear between cell centres; a tile partly inside is split into its four children.
-The paper's footprint is the pixel's parallelogram, over which a covered tile's weight is
-uniform, so its NDF image is exact there; under a Gaussian footprint the weight varies
-across a tile, so a tile also counts as whole only when its side is at most
-:data:`FLATNESS` of the footprint's smallest standard deviation (ours; without it, the
-tile-averaged NDF misweights the lobes by 15-40 % in L1 at footprints of 1-4 texels);
-a partly covered tile of the finest level (and so any footprint smaller than the finest
-tile) is evaluated from its lobes directly by Eq. 1. Transforms map the query into the
-instance's frame (:mod:`materials.glints.surface`).
+**Tiny examples** (Sec. 6.3): the footprint is split over the tiles of the example
+instances it meets, each tile contributing ``w_T B_l(tile, s)``: its exact footprint mass
+times its NDF image (bilinear between cell centres); a footprint smaller than the finest
+tiles is evaluated from the lobes directly by Eq. 1. The paper descends from the top level
+and splits tiles the pixel's parallelogram covers only partly, since over a covered tile a
+box footprint's weight is uniform and the tile's averaged NDF exact. Under Heckbert's
+Gaussian the weight varies across every tile, so what makes a tile usable is that it is
+small against the footprint: its side at most :data:`FLATNESS` of the footprint's smallest
+standard deviation (without this, the tile-averaged NDF misweights the lobes by 15-40 % in
+L1 at footprints of 1-4 texels). Splitting a partly covered tile then changes nothing (its
+weight is its exact mass), so the descent settles on one level per footprint
+(:func:`lod_level`): the coarsest whose tiles are flat under it -- whole examples from the
+top level when the footprint is wide, the lobes when it is below the finest tile. Transforms
+map the query into the instance's frame (:mod:`materials.glints.surface`).
 
 **Reference** (Yan et al. 2016): Eq. 1 summed over every lobe of an explicit normal map
 near the footprint.
@@ -29,6 +30,7 @@ near the footprint.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,14 +113,20 @@ class TinyExample:
         return np.flatnonzero((t[:, 0] == tx) & (t[:, 1] == ty))
 
 
-def _inside_support(c: np.ndarray, inv: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    d = pts - c
-    return np.einsum("ka,ab,kb->k", d, inv, d) <= SUPPORT_SIGMAS**2
-
-
 def _bbox(c: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     half = SUPPORT_SIGMAS * np.sqrt(np.diag(cov))
     return c - half, c + half
+
+
+def lod_level(ex: TinyExample, cov: np.ndarray) -> int:
+    """The level whose tiles are flat under the footprint ``cov`` (example texels): the
+    coarsest with tile side ``2**(l+1) <= FLATNESS * sigma_min``; -1 (the lobes) when even
+    the finest tiles are too large."""
+    sigma_min = math.sqrt(max(float(np.linalg.eigvalsh(cov)[0]), 1e-300))
+    target = FLATNESS * sigma_min
+    if target < 2.0:
+        return -1
+    return min(int(math.floor(math.log2(target))) - 1, len(ex.maps) - 1)
 
 
 def instance_pndf(
@@ -127,47 +135,40 @@ def instance_pndf(
     cov: np.ndarray,
     s_local: np.ndarray,
     *,
-    owned: object = None,
+    owned: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
-    """The LOD descent over one instance, in its local frame: footprint ``N(c, cov)`` in
+    """One instance's share of the P-NDF, in its local frame: footprint ``N(c, cov)`` in
     example texels (the instance's square is ``[0, n)^2``), queries ``s_local`` ``(M, 2)``.
 
-    ``owned(points)`` (optional) says which local points the instance owns (Fig. 3's
-    occlusion); a tile counts as whole only when its corners and centre are owned, and
-    lobes count only where their seeds are owned. Returns ``(M,)`` densities.
+    The level is :func:`lod_level`'s; every tile of it that meets the footprint's support box
+    contributes its exact footprint mass times its NDF image; at level -1 the lobes of the
+    finest tiles there are summed by Eq. 1. ``owned(points)`` (optional) says which local
+    points the instance owns (Fig. 3's occlusion): a tile counts when its centre is owned, a
+    lobe when its seed is. Returns ``(M,)`` densities.
     """
-    own = owned if callable(owned) else None
-    inv = np.linalg.inv(cov)
     lo_b, hi_b = _bbox(c, cov)
     # Lobes reach 5 sigma_h beyond their seeds: tiles that near the support still count.
     lo_b, hi_b = lo_b - 5 * ex.lobes.sigma_h, hi_b + 5 * ex.lobes.sigma_h
-    flat_side = FLATNESS * math.sqrt(float(np.linalg.eigvalsh(cov)[0]))
+    level = lod_level(ex, cov)
+    side = 2 << max(level, 0)
+    r = ex.n // side
+    t0 = np.maximum(np.floor(lo_b / side).astype(int), 0)
+    t1 = np.minimum(np.floor(hi_b / side).astype(int), r - 1)
     out = np.zeros(len(s_local))
-    top = len(ex.maps) - 1
-    stack = [(top, 0, 0)]
-    while stack:
-        level, tx, ty = stack.pop()
-        side = 2 << level
-        lo = np.array([tx * side, ty * side], dtype=np.float64)
-        hi = lo + side
-        if np.any(hi <= lo_b) or np.any(lo >= hi_b):
-            continue  # the support's bounding box misses the tile
-        pts = np.array([lo, [hi[0], lo[1]], [lo[0], hi[1]], hi, 0.5 * (lo + hi)])
-        whole = side <= flat_side and bool(np.all(_inside_support(c, inv, pts[:4])))
-        if whole and own is not None:
-            whole = bool(np.all(own(pts)))
-        if whole:
-            out += box_mass(c, cov, lo, hi) * ex.lookup(level, tx, ty, s_local)
-        elif level > 0:
-            for cy in (0, 1):
-                for cx in (0, 1):
-                    stack.append((level - 1, 2 * tx + cx, 2 * ty + cy))
-        else:
-            idx = ex.tile_lobes(tx, ty)
-            if own is not None:
-                idx = idx[own(ex.lobes.u[idx])]
-            if len(idx):
-                out += pndf(ex.lobes, c, cov, s_local, index=idx)
+    if np.any(t1 < t0):
+        return out
+    tiles = [(tx, ty) for ty in range(t0[1], t1[1] + 1) for tx in range(t0[0], t1[0] + 1)]
+    if level < 0:
+        idx = np.concatenate([ex.tile_lobes(tx, ty) for tx, ty in tiles])
+        if owned is not None:
+            idx = idx[owned(ex.lobes.u[idx])]
+        return pndf(ex.lobes, c, cov, s_local, index=idx) if len(idx) else out
+    centres = (np.array(tiles, dtype=np.float64) + 0.5) * side
+    keep = owned(centres) if owned is not None else np.ones(len(tiles), dtype=bool)
+    for (tx, ty), k in zip(tiles, keep, strict=True):
+        if k:
+            lo = np.array([tx, ty], dtype=np.float64) * side
+            out += box_mass(c, cov, lo, lo + side) * ex.lookup(level, tx, ty, s_local)
     return out
 
 
