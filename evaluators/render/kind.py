@@ -80,12 +80,16 @@ class RenderParams(StrictModel):
          "resolution": [512, 512], "spp": 256}}
     """
 
-    scene: Literal["sphere_env", "sphere_points", "plane_points", "cloth_plane"] = Field(
+    scene: Literal[
+        "sphere_env", "sphere_points", "plane_points", "cloth_plane", "bent_quad", "glint_sphere"
+    ] = Field(
         default="sphere_env",
         description="Built-in scene: 'sphere_env' (unit sphere under "
         "matforge's HDR studio environment), 'sphere_points' (the sphere under three point "
-        "lights), 'plane_points' (a textured plane seen at an angle, three point lights) "
-        "or 'cloth_plane' (a square of cloth under the studio environment and a light).",
+        "lights), 'plane_points' (a textured plane seen at an angle, three point lights), "
+        "'cloth_plane' (a square of cloth under the studio environment and a light), "
+        "'bent_quad' or 'glint_sphere' (a bent sheet or the sphere under four point lights "
+        "and a dim environment, for glints).",
     )
     material: MaterialParam = Field(
         default_factory=lambda: copy.deepcopy(DEFAULT_MATERIAL),

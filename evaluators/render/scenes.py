@@ -18,6 +18,11 @@ scene             what it is
                   :func:`studio_envmap` plus one warm point light, seen from about 40
                   degrees above it (for ``{"fabric": ...}``: the map's ground lights the
                   cloth from below, through it)
+``bent_quad``     Xing et al.'s bent quad: a 3x3 sheet bent about the z axis through 100
+                  degrees (uv in [0, 1]^2), under four sharp point lights and a dim
+                  :func:`studio_envmap` (for ``{"glint": ...}``, Figs. 5, 8, 9)
+``glint_sphere``  the unit sphere (Mitsuba's uv) under the same four point lights and dim
+                  environment (Fig. 8's sphere)
 ================  =========================================================================
 
 Every scene uses a ``perspective`` camera, an ``hdrfilm`` with a **box** reconstruction
@@ -298,6 +303,92 @@ def cloth_plane(
     return scene
 
 
+#: Four sharp point lights, as in Xing et al. 2024's scenes.
+GLINT_LIGHTS = (
+    PointLight(position=(-2.5, 3.0, 2.0), intensity=(40.0, 38.0, 36.0)),
+    PointLight(position=(2.5, 2.5, 2.5), intensity=(20.0, 22.0, 24.0)),
+    PointLight(position=(0.5, 3.5, -2.0), intensity=(25.0, 25.0, 25.0)),
+    PointLight(position=(-1.0, 1.5, 3.5), intensity=(12.0, 12.0, 12.0)),
+)
+BENT_CAMERA = Camera(origin=(0.0, 2.2, 3.6), target=(0.0, -0.3, 0.0), fov=45.0)
+#: Scale of the environment behind the glint scenes (the point lights carry the glints).
+GLINT_ENV_SCALE = 0.25
+
+
+def bent_quad_mesh(mi: types.ModuleType, bsdf: Any, segments: int = 32) -> Any:
+    """A 3 x 3 sheet bent about the z axis through 100 degrees on a radius of 2, apex at the
+    origin, normal up; uv in [0, 1]^2 (u along the bend). A ``mi.Mesh`` carrying ``bsdf``."""
+    import drjit as dr
+
+    nu, nv = segments, 4
+    u, v = np.linspace(0.0, 1.0, nu + 1), np.linspace(0.0, 1.0, nv + 1)
+    uu, vv = np.meshgrid(u, v, indexing="xy")
+    ang = (uu - 0.5) * np.radians(100.0)
+    radius = 1.5 / np.radians(50.0)  # arc length 3
+    pos = np.stack(
+        [radius * np.sin(ang), radius * (np.cos(ang) - 1.0), (0.5 - vv) * 3.0], axis=-1
+    ).reshape(-1, 3)
+    nrm = np.stack([np.sin(ang), np.cos(ang), np.zeros_like(ang)], axis=-1).reshape(-1, 3)
+    uv = np.stack([uu, vv], axis=-1).reshape(-1, 2)
+    faces = []
+    for j in range(nv):
+        for i in range(nu):
+            a = j * (nu + 1) + i
+            faces += [[a, a + 1, a + nu + 2], [a, a + nu + 2, a + nu + 1]]
+    tri = np.asarray(faces, dtype=np.uint32)
+    props = mi.Properties()
+    props["bsdf"] = bsdf if not isinstance(bsdf, dict) else mi.load_dict(bsdf)
+    mesh = mi.Mesh(
+        "bent_quad", len(pos), len(tri), props=props,
+        has_vertex_normals=True, has_vertex_texcoords=True,
+    )  # fmt: skip
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = dr.ravel(mi.Point3f(*pos.T.astype(np.float32)))
+    params["vertex_normals"] = dr.ravel(mi.Normal3f(*nrm.T.astype(np.float32)))
+    params["vertex_texcoords"] = dr.ravel(mi.Point2f(*uv.T.astype(np.float32)))
+    params["faces"] = dr.ravel(mi.Vector3u(*tri.T))
+    params.update()
+    return mesh
+
+
+def _dim_environment(mi: types.ModuleType) -> dict[str, Any]:
+    return {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap()), "scale": GLINT_ENV_SCALE}
+
+
+def bent_quad(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """The bent quad under ``lights`` (by default :data:`GLINT_LIGHTS`) and a dim map."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["quad"] = bent_quad_mesh(mi, bsdf)
+    scene["environment"] = _dim_environment(mi)
+    scene.update(_point_lights(lights))
+    return scene
+
+
+def glint_sphere(
+    mi: types.ModuleType,
+    bsdf: Any,
+    camera: Camera,
+    lights: tuple[PointLight, ...],
+    max_depth: int,
+    resolution: tuple[int, int],
+    spp: int,
+) -> dict[str, Any]:
+    """The unit sphere under ``lights`` (by default :data:`GLINT_LIGHTS`) and a dim map."""
+    scene = _base(mi, camera, max_depth, resolution, spp)
+    scene["sphere"] = {"type": "sphere", "bsdf": bsdf}
+    scene["environment"] = _dim_environment(mi)
+    scene.update(_point_lights(lights))
+    return scene
+
+
 @dataclass(frozen=True)
 class SceneDef:
     """A built-in scene: its builder and its default camera and point lights."""
@@ -335,6 +426,12 @@ SCENES: dict[str, SceneDef] = {
         CLOTH_CAMERA,
         CLOTH_LIGHTS,
         "square of cloth under the studio environment map and a point light",
+    ),
+    "bent_quad": SceneDef(
+        bent_quad, BENT_CAMERA, GLINT_LIGHTS, "bent quad under four point lights, dim map"
+    ),
+    "glint_sphere": SceneDef(
+        glint_sphere, SPHERE_CAMERA, GLINT_LIGHTS, "unit sphere under four point lights, dim map"
     ),
 }
 

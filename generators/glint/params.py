@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import BeforeValidator, Field, model_validator
 
 from jobapi.params import Ref, StrictModel
 from jobapi.presets import preset_note, preset_value
@@ -34,6 +34,12 @@ PRESETS: dict[str, GlintPreset] = {
     "small": GlintPreset(ndf_resolution=32, lobe_rate=2, reference_resolution=512),
     "paper": GlintPreset(ndf_resolution=128, lobe_rate=4, reference_resolution=4096),
 }
+
+
+#: Two numbers; a JSON array fills it even in strict mode.
+Pair = Annotated[
+    tuple[float, float], BeforeValidator(lambda v: tuple(v) if isinstance(v, list) else v)
+]
 
 
 class ProceduralExample(StrictModel):
@@ -72,13 +78,11 @@ class SurfaceSpec(StrictModel):
         default="tiled", description="'tiled' (one transform) or 'stochastic' (noise map)."
     )
     rotation_deg: float = Field(default=0.0, ge=-360, le=360, description="Tiled: rotation.")
-    scale: tuple[float, float] = Field(default=(1.0, 1.0), description="Tiled: (s_x, s_y).")
-    shear: tuple[float, float] = Field(default=(0.0, 0.0), description="Tiled: (h_x, h_y).")
+    scale: Pair = Field(default=(1.0, 1.0), description="Tiled: (s_x, s_y).")
+    shear: Pair = Field(default=(0.0, 0.0), description="Tiled: (h_x, h_y).")
     mirror: bool = Field(default=False, description="Tiled: mirror x.")
-    offset: tuple[float, float] = Field(
-        default=(0.0, 0.0), description="Tilt offset of the normals (t_x, t_y)."
-    )
-    scale_range: tuple[float, float] = Field(
+    offset: Pair = Field(default=(0.0, 0.0), description="Tilt offset of the normals (t_x, t_y).")
+    scale_range: Pair = Field(
         default=(0.8, 1.25), description="Stochastic: range of the random isotropic scale."
     )
     spacing: float | None = Field(

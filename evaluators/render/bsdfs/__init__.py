@@ -9,6 +9,8 @@ plugin                 module                  what it renders
 ``fabric_aggregate``   ``fabric_aggregate``    the woven-fabric aggregate over the pixel
                                                footprint, one Monte Carlo sample per call
 ``fabric_model``       ``fabric_model``        a trained fabric network over the footprint
+``glint``              ``glint``               glinty microstructure over the footprint
+                                               (tiny examples or the Yan et al. reference)
 =====================  ======================  =============================================
 
 Each registers itself per Mitsuba variant through :mod:`evaluators.render.plugins` when its
@@ -17,7 +19,7 @@ Each registers itself per Mitsuba variant through :mod:`evaluators.render.plugin
 
 from __future__ import annotations
 
-from evaluators.render.bsdfs import brdf_model, fabric_aggregate, fabric_model, merl_table
+from evaluators.render.bsdfs import brdf_model, fabric_aggregate, fabric_model, glint, merl_table
 
 #: The plugin modules, in table order.
-PLUGINS = (merl_table, brdf_model, fabric_aggregate, fabric_model)
+PLUGINS = (merl_table, brdf_model, fabric_aggregate, fabric_model, glint)

@@ -12,12 +12,13 @@ key               value                                                         
 ``model``         a trained ``train.brdf`` model's material (or, with ``fabric``,  ``model``
                   a ``train.fabric`` network)
 ``fabric``        the woven-fabric aggregate (Monte Carlo over the footprint)     ``fabric``
+``glint``         glinty microstructure of a ``generate.glint`` job               ``glint``
 ================  =============================================================  ============
 """
 
 from __future__ import annotations
 
-from evaluators.render.sources import fabric, fabric_model, merl, mitsuba, model
+from evaluators.render.sources import fabric, fabric_model, glint, merl, mitsuba, model
 from evaluators.render.sources.common import (
     MaterialParam,
     load_bsdf,
@@ -27,7 +28,7 @@ from evaluators.render.sources.common import (
 )
 
 #: The modules that register the built-in sources, in table order.
-BUILTIN = (mitsuba, merl, model, fabric, fabric_model)
+BUILTIN = (mitsuba, merl, model, fabric, fabric_model, glint)
 
 __all__ = [
     "BUILTIN",

@@ -174,6 +174,32 @@ def _checked(key: str | None, adapter: TypeAdapter[Any], value: Any) -> Any:
         raise _invalid(f"{loc}: {msg}" if loc else msg) from None
 
 
+def inline_schema(model: type[BaseModel]) -> dict[str, Any]:
+    """``model``'s JSON schema with its ``$defs`` inlined where they are referenced: a
+    material value's schema is embedded in the ``material`` schema, which has no ``$defs``
+    of its own."""
+    schema = model.model_json_schema()
+    defs = schema.pop("$defs", {})
+
+    def inline(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                return inline(
+                    {
+                        **defs[ref.rsplit("/", 1)[-1]],
+                        **{k: v for k, v in node.items() if k != "$ref"},
+                    }
+                )
+            return {k: inline(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [inline(v) for v in node]
+        return node
+
+    result: dict[str, Any] = inline(schema)
+    return result
+
+
 class _MaterialSchema:
     """Pydantic hooks of :data:`MaterialParam`: validate against the registry as it is at
     validation time, and describe the registered sources in the JSON schema."""

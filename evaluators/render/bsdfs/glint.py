@@ -1,0 +1,225 @@
+"""Mitsuba BSDF ``glint``: glinty microstructure over the pixel footprint (Xing et al. 2024,
+Sec. 3.1 and 6.4; the Yan et al. 2016 reference).
+
+The BRDF of a footprint P is the microfacet model with the footprint's P-NDF (Sec. 3.1):
+
+    f_P(wi, wo) = D_P(h) G(wi, wo) F(wi . h) / (4 cos_i cos_o),
+
+``h`` the half vector and ``D_P`` the density of projected normals ``s = (h_x, h_y)`` over
+the footprint (which is the NDF per solid angle with ``int D cos_h dw = 1``). ``D_P`` comes
+from one of two evaluators of the same microstructure (:mod:`materials.glints.pndf_drjit`):
+
+- ``tiny_example``: the example's NDF maps at the footprint's level, or its lobes below the
+  finest tile;
+- ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map.
+
+``G`` is the separable Smith term of a GGX lobe whose roughness matches the microstructure's
+slopes (``alpha``), ``F`` a conductor's (complex IOR) or a dielectric's Fresnel term. A
+clearcoat (Sec. 6.4, Eq. 3) is a second layer with its own microstructure and a dielectric
+Fresnel ``F_c``: ``f_s = f_b (1 - F_c(wi . h)) + f_c``.
+
+**Footprint**: the pixel's uv parallelogram from the ``fabric_path`` integrator's ray
+differentials (``si.duv_dx``, ``si.duv_dy``; the BSDF sets ``needs_footprint``), scaled to
+texels by ``texels_per_uv`` and turned into Heckbert's Gaussian; secondary vertices (no
+partials) use a footprint of one example (the example's average NDF).
+
+**Sampling**: the NDF is not sampled exactly; a one-sample mixture of the matching GGX lobe
+(probability 0.9) and the cosine lobe (:class:`~evaluators.render.bsdfs.common.MixtureSampling`,
+the same MIS the MERL and model BSDFs use). ``pdf`` is that mixture's exact density.
+
+**Layers** are prepared by the material source (:mod:`evaluators.render.sources.glint`) and
+handed to the plugin through :func:`put_layers`, which returns the key the ``layers``
+property names: the arrays are Dr.Jit arrays, which Mitsuba properties cannot carry.
+One-sided: 0 when ``wi.z <= 0`` or ``wo.z <= 0``.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
+from evaluators.render.plugins import register_vectorised_bsdf
+from materials.glints.footprint import PIXEL_SIGMA
+from materials.glints.pndf_drjit import JitLobes, JitMaps, Sym2, lobes_pndf, tiny_pndf
+
+#: The plugin name.
+GLINT_BSDF_NAME = "glint"
+#: Probability that ``sample`` draws from the GGX lobe.
+GGX_WEIGHT = 0.9
+#: Most texels (``yan``) or tiles (``tiny_example``) one evaluation visits.
+MAX_ITEMS = 1 << 16
+
+
+@dataclass(frozen=True)
+class GlintLayer:
+    """One microstructure layer, ready to trace.
+
+    ``method`` ``"tiny_example"`` (needs ``maps``) or ``"yan"``; ``lobes`` the example's
+    (tiny) or the exported map's (yan) lobes; ``transform`` ``(A, o)`` of a tiled example
+    (tiny only); ``texel_scale`` map texels per global texel (yan: the export's
+    oversampling; tiny: 1); ``fresnel`` ``("conductor", eta, k)`` with RGB tuples or
+    ``("dielectric", eta)``; ``alpha`` the matching GGX roughness (Smith G, sampling);
+    ``fallback_texels`` the standard deviation (global texels) of the footprint used
+    without ray differentials.
+    """
+
+    method: str
+    lobes: JitLobes
+    maps: JitMaps | None
+    transform: tuple[np.ndarray, np.ndarray]
+    texel_scale: float
+    fresnel: tuple[Any, ...]
+    alpha: float
+    fallback_texels: float
+
+
+_LAYERS: dict[str, tuple[GlintLayer, GlintLayer | None]] = {}
+
+
+def put_layers(key: str, base: GlintLayer, coat: GlintLayer | None = None) -> str:
+    """Register a base layer (and optional clearcoat) under ``key`` for the ``layers``
+    property; returns ``key``."""
+    _LAYERS[key] = (base, coat)
+    return key
+
+
+def register_glint_bsdf(mi: types.ModuleType) -> type:
+    """Register ``glint`` for Mitsuba's (vectorised RGB) variant; returns the class."""
+    return register_vectorised_bsdf(mi, GLINT_BSDF_NAME, _define_class, "glint BSDF")
+
+
+def layer_pndf(
+    mi: types.ModuleType,
+    layer: GlintLayer,
+    c: tuple[Any, Any],
+    cov: Sym2,
+    q: tuple[Any, Any],
+    active: Any,
+) -> Any:
+    """``D_P(q)`` of ``layer`` for a footprint ``N(c, cov)`` in global texels."""
+    k = layer.texel_scale
+    if layer.method == "yan":
+        cs = (c[0] * k, c[1] * k)
+        covs = Sym2(cov.a * (k * k), cov.b * (k * k), cov.d * (k * k))
+        return lobes_pndf(mi, layer.lobes, cs, covs, q, active, max_items=MAX_ITEMS)
+    assert layer.maps is not None
+    return tiny_pndf(
+        mi, layer.maps, layer.lobes, layer.transform, c, cov, q, active, max_items=MAX_ITEMS
+    )  # fmt: skip
+
+
+def _fresnel(mi: types.ModuleType, fresnel: tuple[Any, ...], cos_d: Any) -> Any:
+    if fresnel[0] == "conductor":
+        eta, k = fresnel[1], fresnel[2]
+        ch = [
+            mi.fresnel_conductor(cos_d, mi.Complex2f(float(eta[i]), float(k[i]))) for i in range(3)
+        ]
+        return mi.Color3f(ch[0], ch[1], ch[2])
+    f = mi.fresnel(cos_d, float(fresnel[1]))[0]
+    return mi.Color3f(f, f, f)
+
+
+def _define_class(mi: types.ModuleType) -> type:
+    import drjit as dr
+
+    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+
+    class GlintBSDF(mixture_reflector_base(mi)):  # type: ignore[misc]
+        """Glinty microstructure (plugin ``"glint"``).
+
+        ================  ======  ========  ==============================================
+        parameter         type    default   meaning
+        ================  ======  ========  ==============================================
+        ``layers``        string  --        key of :func:`put_layers` (base, clearcoat)
+        ``texels_per_uv`` float   256       global texels across the uv range [0, 1]
+        ================  ======  ========  ==============================================
+        """
+
+        #: Read by :func:`evaluators.render.integrators.fabric_path.wants`.
+        needs_footprint = True
+
+        def __init__(self, props: Any) -> None:
+            super().__init__(props)
+            key = str(props.get("layers"))
+            if key not in _LAYERS:
+                raise ValueError(f"glint: no prepared layers {key!r} (see put_layers)")
+            self.base, self.coat = _LAYERS[key]
+            self.texels_per_uv = float(props.get("texels_per_uv", 256.0))
+            if not (math.isfinite(self.texels_per_uv) and self.texels_per_uv > 0):
+                raise ValueError("glint: texels_per_uv must be > 0")
+            self.sampling = MixtureSampling(self.base.alpha, GGX_WEIGHT)
+            self.m_flags = flags
+            self.m_components = [flags]
+
+        def _footprint(self, si: Any, fallback: float) -> tuple[tuple[Any, Any], Sym2]:
+            t = self.texels_per_uv
+            cx, cy = si.uv.x * t, si.uv.y * t
+            ax, ay = si.duv_dx.x * t, si.duv_dx.y * t
+            bx, by = si.duv_dy.x * t, si.duv_dy.y * t
+            s2 = PIXEL_SIGMA * PIXEL_SIGMA
+            a = s2 * (ax * ax + bx * bx) + 1e-6
+            b = s2 * (ax * ay + bx * by)
+            d = s2 * (ay * ay + by * by) + 1e-6
+            none = (ax == 0.0) & (ay == 0.0) & (bx == 0.0) & (by == 0.0)
+            f2 = fallback * fallback
+            cov = Sym2(dr.select(none, f2, a), dr.select(none, 0.0, b), dr.select(none, f2, d))
+            return (cx, cy), cov
+
+        def _lobe(self, layer: GlintLayer, si: Any, wi: Any, wo: Any, h: Any, active: Any) -> Any:
+            c, cov = self._footprint(si, layer.fallback_texels)
+            d = layer_pndf(mi, layer, c, cov, (h.x, h.y), active)
+            ggx = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, layer.alpha, False)
+            g = ggx.G(wi, wo, h)
+            cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+            f = _fresnel(mi, layer.fresnel, cos_d)
+            return f * (d * g / (4.0 * wi.z * wo.z))
+
+        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+            raise NotImplementedError  # glints need the interaction (footprint): see eval
+
+        def _value(self, si: Any, wo: Any, active: Any) -> Any:
+            wi = si.wi
+            active = active & (wi.z > 0.0) & (wo.z > 0.0)
+            h = dr.normalize(wi + wo)
+            value = self._lobe(self.base, si, wi, wo, h, active)
+            if self.coat is not None:
+                cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+                f_c = mi.fresnel(cos_d, float(self.coat.fresnel[1]))[0]
+                value = value * (1.0 - f_c) + self._lobe(self.coat, si, wi, wo, h, active)
+            return dr.select(active, value, 0.0)
+
+        # The footprint lives in ``si``, so eval / eval_pdf / sample are written here
+        # rather than through the base class's ``brdf(ctx, wi, wo)``.
+        def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+            active = self.enabled(ctx, active)
+            return self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
+
+        def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+            active = self.enabled(ctx, active)
+            value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
+            return value, self._pdf(si.wi, wo, active)
+
+        def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
+            from evaluators.render.bsdfs.common import sample_record
+
+            active = self.enabled(ctx, active) & (si.wi.z > 0.0)
+            wo = self.sampling.sample(mi, si.wi, sample1, sample2)
+            pdf = self._pdf(si.wi, wo, active)
+            active &= pdf > 0.0
+            value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
+            bs = sample_record(mi, wo, pdf)
+            return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
+
+        def to_string(self) -> str:
+            coat = "" if self.coat is None else f", clearcoat {self.coat.method}"
+            return (
+                f"GlintBSDF[{self.base.method}, alpha={self.base.alpha:.3g}, "
+                f"texels_per_uv={self.texels_per_uv:g}{coat}]"
+            )
+
+    return GlintBSDF

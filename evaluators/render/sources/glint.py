@@ -1,0 +1,272 @@
+"""``{"glint": {...}}``: a glinty microstructure from a ``generate.glint`` job (Xing et al.
+2024), rendered with the tiny-example model or the Yan et al. 2016 reference.
+
+::
+
+    {"glint": {"data": "job:<generate.glint id>", "method": "tiny_example",
+               "texels_per_uv": 256, "conductor": "Al",
+               "clearcoat": {"data": "job:<another generate.glint id>", "ior": 1.5}}}
+
+The microstructure is the job's example under the job's preview ``surface`` (transform
+and distribution), or the ``surface`` given here. ``method`` picks the evaluator of the
+``glint`` BSDF (:mod:`evaluators.render.bsdfs.glint`):
+
+- ``tiny_example``: the job's NDF maps and lobes (tiled distributions; the Dr.Jit twin of
+  the stochastic distribution is not written yet, so stochastic surfaces refuse this method);
+- ``yan``: the surface exported over ``[0, texels_per_uv]^2`` global texels at
+  ``oversample`` texels per example texel (Fig. 9's protocol), its lobes at one seed per
+  exported texel, and Eq. 1 over them.
+
+Both use the same Fresnel term and the same Smith G, whose GGX roughness matches the
+surface's slopes: ``alpha^2 = mean(tan^2 theta) + 2 sigma_r^2`` over a sample of the surface.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import types
+from typing import TYPE_CHECKING, Annotated, Any, Literal
+
+import numpy as np
+from pydantic import AfterValidator, BeforeValidator, Field, PlainSerializer, WithJsonSchema
+
+from evaluators.render.bsdfs.glint import (
+    GLINT_BSDF_NAME,
+    GlintLayer,
+    put_layers,
+    register_glint_bsdf,
+)
+from evaluators.render.sources.common import inline_schema, register_material_source
+from jobapi.errors import FormatError, JobFailed
+from jobapi.params import JobRef, StrictModel
+from materials.glints.lobes import Lobes, make_lobes
+from materials.glints.pndf_drjit import jit_lobes, jit_maps
+from materials.glints.surface import Surface, export_normal_map
+from materials.microfacet import NAMED_CONDUCTORS
+from storage.formats.exr import read_exr
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
+
+
+#: Two numbers; a JSON array fills it even in strict mode.
+Pair = Annotated[
+    tuple[float, float], BeforeValidator(lambda v: tuple(v) if isinstance(v, list) else v)
+]
+
+
+class SurfaceOverride(StrictModel):
+    """The preview surface fields of ``generate.glint`` (see its ``surface`` param)."""
+
+    distribution: Literal["tiled", "stochastic"] = Field(default="tiled", description="Layout.")
+    rotation_deg: float = Field(default=0.0, ge=-360, le=360, description="Tiled: rotation.")
+    scale: Pair = Field(default=(1.0, 1.0), description="Tiled: (s_x, s_y).")
+    shear: Pair = Field(default=(0.0, 0.0), description="Tiled: (h_x, h_y).")
+    mirror: bool = Field(default=False, description="Tiled: mirror x.")
+    offset: Pair = Field(default=(0.0, 0.0), description="Normal tilt offset.")
+    scale_range: Pair = Field(default=(0.8, 1.25), description="Stochastic.")
+    spacing: float | None = Field(default=None, gt=0.0, description="Stochastic spacing.")
+
+
+class CoatSpec(StrictModel):
+    """A clearcoat layer (Sec. 6.4): its own microstructure, a dielectric Fresnel."""
+
+    data: JobRef = Field(description="'job:<id>' of a generate.glint job: the coat's example.")
+    method: Literal["tiny_example", "yan"] | None = Field(
+        default=None, description="Evaluator of the coat (default: the base's)."
+    )
+    ior: float = Field(default=1.5, gt=1.0, le=3.0, description="The coat's refractive index.")
+
+
+class GlintSpec(StrictModel):
+    """One glint material for a render (see the module docstring)."""
+
+    data: JobRef = Field(description="'job:<id>' of a generate.glint job.")
+    method: Literal["tiny_example", "yan"] = Field(
+        default="tiny_example", description="'tiny_example' (Xing et al.) or 'yan' (reference)."
+    )
+    texels_per_uv: float = Field(
+        default=256.0, gt=0.0, le=8192.0, description="Example texels across the uv range."
+    )
+    conductor: str = Field(default="Al", description="Named conductor of the base's Fresnel.")
+    surface: SurfaceOverride | None = Field(
+        default=None, description="Transform and distribution (default: the job's surface)."
+    )
+    surface_seed: int = Field(default=0, ge=0, le=2**31 - 1, description="Stochastic seed.")
+    oversample: int = Field(
+        default=2, ge=1, le=8, description="yan: exported texels per example texel."
+    )
+    clearcoat: CoatSpec | None = Field(default=None, description="Optional clearcoat layer.")
+
+
+def _as_dict(spec: GlintSpec) -> dict[str, Any]:
+    return spec.model_dump(mode="json")
+
+
+#: The pydantic type of the ``glint`` value (validated as :class:`GlintSpec`, kept as JSON).
+GlintValue = Annotated[
+    GlintSpec,
+    AfterValidator(_as_dict),
+    PlainSerializer(dict, return_type=dict[str, Any]),
+    WithJsonSchema(inline_schema(GlintSpec)),
+]
+
+
+def _npz(ctx: JobContext, ref: str) -> dict[str, np.ndarray]:
+    with np.load(io.BytesIO(ctx.read_ref(ref))) as z:
+        return {k: z[k] for k in z.files}
+
+
+def load_dataset(ctx: JobContext, ref: str, field: str) -> dict[str, Any]:
+    """The example, lobes, maps and surface spec of a ``generate.glint`` job."""
+    job_id = ref.removeprefix("job:")
+    job = ctx.input_job(job_id, field, "generate.glint")
+    try:
+        normals = read_exr(ctx.resolve(f"job:{job_id}/example.exr"), "example.exr")
+        nd = _npz(ctx, f"job:{job_id}/ndf.npz")
+        lob = _npz(ctx, f"job:{job_id}/lobes.npz")
+    except FormatError as exc:
+        raise JobFailed(f"{field}: {exc}") from None
+    levels = sorted((k for k in nd if k.startswith("level_")), key=lambda k: int(k[6:]))
+    lobes = Lobes(
+        u=lob["u"].astype(np.float64),
+        s=lob["s"].astype(np.float64),
+        jac=lob["jacobian"].astype(np.float64),
+        size=int(lob["size"]),
+        rate=int(lob["rate"]),
+        sigma_h=float(lob["sigma_h"]),
+        sigma_r=float(lob["sigma_r"]),
+    )
+    return {
+        "normals": normals,
+        "maps": [nd[k] for k in levels],
+        "extent": float(nd["extent"]),
+        "lobes": lobes,
+        "surface": (job.spec.get("params") or {}).get("surface") or {},
+    }
+
+
+def surface_of(data: dict[str, Any], override: SurfaceOverride | None, seed: int) -> Surface:
+    """The microstructure: the example under the job's (or the override's) surface spec."""
+    from materials.glints.surface import Distribution, Transform
+
+    spec = override.model_dump() if override is not None else dict(data["surface"])
+    if spec.get("distribution", "tiled") == "tiled":
+        t = Transform.compose(
+            scale=tuple(spec.get("scale", (1.0, 1.0))),
+            shear=tuple(spec.get("shear", (0.0, 0.0))),
+            rotation_deg=float(spec.get("rotation_deg", 0.0)),
+            mirror=bool(spec.get("mirror", False)),
+            offset=tuple(spec.get("offset", (0.0, 0.0))),
+        )
+        dist = Distribution(kind="tiled", transform=t)
+    else:
+        dist = Distribution(
+            kind="stochastic",
+            spacing=float(spec.get("spacing") or 0.0),
+            scale_range=tuple(spec.get("scale_range", (0.8, 1.25))),
+            seed=seed,
+        )
+    return Surface(data["normals"], dist)
+
+
+def matching_alpha(surface: Surface, sigma_r: float) -> float:
+    """GGX roughness of the surface's slopes: ``sqrt(mean tan^2 + 2 sigma_r^2)`` over a
+    4 x 4-example sample, clipped to [0.02, 1]."""
+    sample = export_normal_map(surface, 4 * surface.n)
+    tan2 = (sample[..., 0] ** 2 + sample[..., 1] ** 2) / sample[..., 2] ** 2
+    return float(np.clip(math.sqrt(float(tan2.mean()) + 2.0 * sigma_r**2), 0.02, 1.0))
+
+
+def make_layer(
+    mi: types.ModuleType,
+    data: dict[str, Any],
+    surface: Surface,
+    method: str,
+    fresnel: tuple[Any, ...],
+    *,
+    texels_per_uv: float,
+    oversample: int,
+    field: str,
+) -> GlintLayer:
+    """A :class:`GlintLayer` for ``method`` over ``surface``."""
+    lobes: Lobes = data["lobes"]
+    alpha = matching_alpha(surface, lobes.sigma_r)
+    fallback = float(surface.n)
+    if method == "tiny_example":
+        if surface.dist.kind != "tiled":
+            raise JobFailed(
+                f"{field}: the tiny-example evaluator renders tiled surfaces; a stochastic "
+                f"surface renders with method 'yan' (its Dr.Jit twin is not written yet)"
+            )
+        t = surface.dist.transform
+        return GlintLayer(
+            method=method,
+            lobes=jit_lobes(mi, lobes),
+            maps=jit_maps(mi, data["maps"], data["extent"]),
+            transform=(t.a, t.offset),
+            texel_scale=1.0,
+            fresnel=fresnel,
+            alpha=alpha,
+            fallback_texels=fallback,
+        )
+    side = int(math.ceil(texels_per_uv))
+    explicit = export_normal_map(surface, side, oversample=oversample)
+    ref = make_lobes(explicit, rate=1, sigma_r=lobes.sigma_r)
+    return GlintLayer(
+        method=method,
+        lobes=jit_lobes(mi, ref),
+        maps=None,
+        transform=(np.eye(2), np.zeros(2)),
+        texel_scale=float(oversample),
+        fresnel=fresnel,
+        alpha=alpha,
+        fallback_texels=fallback,
+    )
+
+
+def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) -> Any:
+    """Resolve ``{"glint": value}`` to an instantiated ``glint`` BSDF."""
+    spec = GlintSpec.model_validate_json(json.dumps(value))  # JSON mode: arrays fill tuples
+    if spec.conductor not in NAMED_CONDUCTORS:
+        raise JobFailed(
+            f"material.glint.conductor: unknown conductor {spec.conductor!r}; known: "
+            f"{', '.join(sorted(NAMED_CONDUCTORS))}"
+        )
+    eta, k = NAMED_CONDUCTORS[spec.conductor]
+    try:
+        register_glint_bsdf(mi)
+    except RuntimeError as exc:
+        raise JobFailed(f"material.glint: {exc}") from None
+    data = load_dataset(ctx, spec.data, "material.glint.data")
+    surface = surface_of(data, spec.surface, spec.surface_seed)
+    base = make_layer(
+        mi, data, surface, spec.method, ("conductor", eta, k),
+        texels_per_uv=spec.texels_per_uv, oversample=spec.oversample, field="material.glint",
+    )  # fmt: skip
+    coat = None
+    if spec.clearcoat is not None:
+        cdata = load_dataset(ctx, spec.clearcoat.data, "material.glint.clearcoat.data")
+        coat = make_layer(
+            mi, cdata, surface_of(cdata, spec.surface, spec.surface_seed),
+            spec.clearcoat.method or spec.method, ("dielectric", spec.clearcoat.ior),
+            texels_per_uv=spec.texels_per_uv, oversample=spec.oversample,
+            field="material.glint.clearcoat",
+        )  # fmt: skip
+    key = hashlib.sha256(json.dumps([ctx.job_id, _as_dict(spec)], sort_keys=True).encode())
+    name = put_layers(key.hexdigest(), base, coat)
+    return mi.load_dict(
+        {"type": GLINT_BSDF_NAME, "layers": name, "texels_per_uv": float(spec.texels_per_uv)}
+    )
+
+
+register_material_source(
+    "glint",
+    resolve_glint,
+    value_type=GlintValue,
+    summary="Glinty microstructure (Xing et al. 2024) from a generate.glint job: data, "
+    "method (tiny_example | yan), texels_per_uv, conductor, surface, clearcoat.",
+)
