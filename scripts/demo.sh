@@ -48,4 +48,11 @@ print(next((a["digest"] for a in json.load(sys.stdin) if a["name"] == "preview.p
     echo "Fabric preview: $URL/api/artifacts/$FABRIC_PNG   (preview.png)"
   fi
 fi
+GLINT_JOB=$(.venv/bin/python -c 'import csv, sys
+rows = [r for r in csv.DictReader(open(sys.argv[1])) if r["step"] == "glint"]
+print(rows[0]["job_id"] if rows and rows[0]["state"] == "succeeded" else "")' \
+  "$DATA/demo-results.csv" 2>/dev/null || true)
+if [ -n "$GLINT_JOB" ]; then
+  echo "Glint example and NDF maps: $URL/jobs/$GLINT_JOB   (example.exr, ndf.npz, preview.png)"
+fi
 echo "Dashboard: $URL/   (the service keeps running; stop it with: kill \$(cat $DATA/serve.pid))"
