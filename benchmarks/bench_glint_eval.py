@@ -1,0 +1,131 @@
+"""Glint evaluation (Xing et al. 2024, Sec. 7): quality, time and memory against Yan et al.
+
+Runs ``scripts/glint_eval.yaml`` step by step in-process (each step through
+:func:`service.submission.run_in_process`, ``step:`` refs resolved as ``matforge batch``
+does) and prints, per example type: HDR-FLIP, PSNR and SSIM of the tiny-example render
+against the 256-spp reference (from the score steps), the time per sample per pixel of
+each (the render kind's own timing of its passes, kernel compilation included, divided by
+spp: "ms per frame" of one sample per pixel), the speed-up, and the memory of each (NDF
+maps plus lobes from ``stats.json``; the reference's lobes of the exported map). Writes all
+of it as JSON to ``--out``.
+
+Run: ``.venv/bin/python benchmarks/bench_glint_eval.py [--data-dir DIR] [--out glint_eval.json]``
+(about 15 minutes on 2 cores: the references dominate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+RECIPE = Path(__file__).resolve().parent.parent / "scripts" / "glint_eval.yaml"
+#: Paper's Table 3 (Deer statue / Bent quad rows) for the same example sizes, for reference.
+PAPER = {
+    "scratches": "32x32 vs 4k: 5.1-9.8x, 85.25 MB vs 3307.5 MB",
+    "isotropic_noise": "16x16 vs 4k: 5.9-9.8x, 5.32 MB vs 3307.5 MB",
+    "anisotropic_noise": "16x16 vs 4k: 5.1-7.6x, 5.32 MB vs 3307.5 MB",
+    "brushed_metal": "32x32 vs 4k: 5.8-9.8x, 21.31 MB vs 3307.5 MB",
+    "leather": "16x16 vs 4k: 6.6x, 5.32 MB vs 3307.5 MB",
+    "structured": "8x8 vs 6k: 6.1-9.8x, 1.31 MB vs 7441.9 MB",
+}
+LOBE_BYTES = 32
+
+
+def run_recipe(data_dir: Path) -> dict[str, Any]:
+    from service.cli.batch import load_batch, substitute_refs
+    from service.settings import Settings
+    from service.specs import STEP_REF
+    from service.submission import run_in_process
+
+    settings = Settings.from_env({}).with_(data_dir=data_dir, pool_processes=1)
+    batch = load_batch(RECIPE)
+    jobs: dict[str, Any] = {}
+    for step in batch.steps:
+
+        def resolve(ref: str) -> str:
+            m = STEP_REF.match(ref)
+            assert m is not None
+            job = jobs[m["step"]]
+            return f"job:{job.id}" if m["name"] is None else f"job:{job.id}/{m['name']}"
+
+        spec = substitute_refs(step.spec, resolve)
+        print(f"  {step.name} ...", file=sys.stderr, flush=True)
+        job = run_in_process(spec, settings)
+        if job.state != "succeeded":
+            sys.exit(f"step {step.name} failed: {job.error}")
+        jobs[step.name] = job
+    return {"settings": settings, "jobs": jobs}
+
+
+def _read(settings: Any, job: Any, name: str) -> Any:
+    from storage.artifacts import ArtifactStore
+
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return json.loads(ArtifactStore(settings.store_dir).read(digest))
+
+
+def _seconds(job: Any) -> float:
+    m = re.search(r"at (\d+) spp in ([0-9.]+) s", job.message or "")
+    if m is None:
+        raise ValueError(f"no timing in {job.message!r}")
+    return float(m.group(2)) / int(m.group(1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data-dir", type=Path, default=None)
+    parser.add_argument("--out", type=Path, default=Path("glint_eval.json"))
+    args = parser.parse_args()
+    data = args.data_dir or Path(tempfile.mkdtemp(prefix="glint_eval-"))
+    ran = run_recipe(data)
+    settings, jobs = ran["settings"], ran["jobs"]
+    rows = []
+    for name in PAPER:
+        metrics = _read(settings, jobs[f"{name}_score"], "metrics.json")["metrics"]["tiny"]
+        stats = _read(settings, jobs[name], "stats.json")
+        spec = jobs[f"{name}_yan"].spec["params"]["material"]["glint"]
+        ref_side = int(spec["texels_per_uv"]) * int(spec.get("oversample", 1))
+        ref_bytes = ref_side * ref_side * LOBE_BYTES
+        t_tiny, t_yan = _seconds(jobs[f"{name}_tiny"]), _seconds(jobs[f"{name}_yan"])
+        rows.append(
+            {
+                "type": name,
+                "example": stats["example"]["size"],
+                "reference": ref_side,
+                "flip": metrics["flip"],
+                "psnr": metrics["psnr"],
+                "ssim": metrics["ssim"],
+                "ms_per_spp_tiny": 1e3 * t_tiny,
+                "ms_per_spp_yan": 1e3 * t_yan,
+                "speedup": t_yan / t_tiny,
+                "bytes_tiny": stats["bytes"]["total"],
+                "bytes_yan": ref_bytes,
+                "paper": PAPER[name],
+            }
+        )
+    print(
+        "| type | example | reference | FLIP | PSNR dB | SSIM | tiny ms/spp | Yan ms/spp "
+        "| speed-up | tiny MiB | Yan MiB | memory | paper (Table 3) |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        print(
+            f"| {r['type']} | {r['example']}x{r['example']} | {r['reference']}^2 | "
+            f"{r['flip']:.3f} | {r['psnr']:.1f} | {r['ssim']:.3f} | {r['ms_per_spp_tiny']:.1f} "
+            f"| {r['ms_per_spp_yan']:.1f} | {r['speedup']:.1f}x | {r['bytes_tiny'] / 2**20:.2f} "
+            f"| {r['bytes_yan'] / 2**20:.0f} | {100 * r['bytes_tiny'] / r['bytes_yan']:.2f} % "
+            f"| {r['paper']} |"
+        )
+    args.out.write_text(json.dumps({"rows": rows, "data_dir": str(data)}, indent=2) + "\n")
+    print(f"\ncommand: .venv/bin/python benchmarks/bench_glint_eval.py; data in {data}")
+
+
+if __name__ == "__main__":
+    main()
