@@ -149,3 +149,25 @@ def test05_bad_params_are_refused_before_queueing(settings: Settings) -> None:
         with pytest.raises(SpecError) as err:
             validate_spec({"kind": "generate.glint", "params": params})
         assert field in str(err.value), (params, err.value)
+
+
+def test06_rest_submission_and_summary(settings: Settings) -> None:
+    """The contract's spec through REST: 201, a worker runs it, the summary has the memory
+    ratio of stats.json."""
+    from service.workers.worker import run_worker
+
+    with TestClient(create_app(settings)) as client:
+        r = client.post("/api/jobs", json=SPEC)
+        assert r.status_code == 201, r.text
+        job_id = r.json()["id"]
+        assert run_worker(settings, max_jobs=1) == 1
+        doc = client.get(f"/api/jobs/{job_id}").json()
+        assert doc["state"] == "succeeded", doc.get("error")
+        table = client.get(f"/api/jobs/{job_id}/summary").json()
+        (row,) = table["rows"].values()
+        jobs = JobStore(settings.db_path)
+        try:
+            stats = json.loads(art(settings, jobs.get(job_id), "stats.json"))
+        finally:
+            jobs.close()
+        assert row["memory_ratio"] == stats["memory_ratio"]  # the same stored value
