@@ -174,8 +174,8 @@ def sample_terms(
             ops, geo, tab, s, t, surf.height, wo, jitter, need=co > 0.0, step=step, max_steps=cap
         )
         wi_up = (wi[0], wi[1], ops.abs(wi[2]))
-        second = jitter + 0.5
-        second = second - ops.floor(second)
+        # The same jitter for both marches: the numerator of Eq. 3 is then exactly symmetric
+        # in (wi, wo) for reflection (reciprocity of f_P A_P), whatever the march resolves.
         v_i = ops.where(
             above,
             visibility(
@@ -186,7 +186,7 @@ def sample_terms(
                 t,
                 surf.height,
                 wi_up,
-                second,
+                jitter,
                 need=above & (c_in > 0.0),
                 step=step,
                 max_steps=cap,

@@ -18,21 +18,35 @@ Conventions (all lengths physical: the unit is one warp cell's width, see ``patt
   ``a = +x, b = +y``; weft: ``a = -y, b = +x``, a proper rotation, so both yarn families
   share one twist handedness. ``xi in [-1, 1]`` runs across the yarn along ``a``,
   ``eta in [-1, 1]`` along the float along ``b``.
-- Angles: ``v = xi * ROLL_MAX`` and ``u = eta * u_max`` (Jin et al.'s linear maps), then
-  ``n_p = R_a(-u) R_b(v) z = (sin v, sin u cos v, cos u cos v)`` and the fibre direction
+- Angles: ``v = xi * ROLL_MAX`` and ``u = eta * u_max`` (Jin et al.'s linear maps); Jin's
+  normal would be ``R_a(-u) R_b(v) z = (sin v, sin u cos v, cos u cos v)`` (we use the
+  height field's, below) and the fibre direction
   ``t_p = R_a(-u) R_b(v) (-sin psi, cos psi, 0)`` =
   ``(-cos v sin psi, cos u cos psi + sin u sin v sin psi, -sin u cos psi + cos u sin v sin psi)``
   in ``(a, b, z)``: orthonormal by construction; ``psi > 0`` turns the fibres from ``+b``
   towards ``-a`` at the yarn's crest.
 - ``ROLL_MAX`` = 80 deg, not Jin et al.'s 90 deg: with 90 deg the yarn edges are vertical and
   Eq. 4's Jacobian ``1 / <n_s . n_p>`` is not integrable across the yarn under the linear
-  ``v(xi)`` map, so Eq. 3-5 would diverge. At 80 deg the steepest slope is ``beta tan 80``.
-- Height field: the exact integral of the slopes of ``n_p`` at ``psi``-free crest lines,
-  ``h = beta [r / ROLL_MAX ln(cos v / cos ROLL_MAX) + l / (2 u_max) ln(cos u / cos u_max)]``
-  with ``r`` the half width and ``l`` the float length: zero at the yarn's edges and float
-  ends, where it dives under the crossing yarn. Along the yarn it matches ``n_p`` exactly;
-  across it exactly at ``u = 0`` (elsewhere ``n_p``'s cross slope is larger by
-  ``1 / cos u``: Jin's normal field is not integrable). ``-ln cos x`` is evaluated by a
+  ``v(xi)`` map, so Eq. 3-5 would diverge. At 80 deg the roll's steepest slope is
+  ``beta tan 80``; the tapers steepen the float's boundary further (:func:`max_slope`).
+- Height field, watertight: Jin et al.'s slopes integrated into two terms, an across
+  term ``c_a a(xi)`` (the integral of ``tan v`` across the half width, ``a = 1`` on the
+  crest line and 0 at the yarn's edges) and a lengthwise term ``c_l b(eta)`` (the integral
+  of ``tan u`` along the float, 0 at its ends), each multiplied by a smoothstep taper of the
+  *other* coordinate that falls from 1 to 0 over the last :data:`TAPER` of the half width
+  or half length: ``h = beta [c_a a(xi) s(eta) + c_l b(eta) s(xi)]``. So the height is zero
+  on the whole float boundary, where the yarn dives under the crossing one, and continuous
+  everywhere (``tests/unit/materials/fabric/test_yarn.py``). The plain sum (the first
+  version, before 2026-12) was zero only at the float's corners: its vertical walls, up to
+  0.5 cells at float ends, blocked light in the visibility march but had no facets in
+  Eq. 4's area integral, so ``A_P(wo)`` fell 2-13 % short of ``cos theta_o`` and 6-14 % of
+  the incoming light vanished (issue 12). Inside the tapers' reach (``|xi|, |eta| <= 1 -
+  TAPER``) the slopes are exactly Jin's ``tan v`` across and ``tan u`` along; near the
+  boundary they steepen (:func:`max_slope` bounds them). The ply normal ``n_p`` is the
+  height field's normal (``(-dh/da, -dh/db, 1)``, normalised), which makes Eq. 5's
+  identity ``A_P = cos theta`` exact over whole tiles; Jin's normal map differs from it
+  by the ``1 / cos u`` of its cross slope (not integrable) and on the tapers. The fibre
+  direction ``t_p`` is Jin's, made orthogonal to ``n_p``. ``-ln cos x`` is evaluated by a
   fixed degree-10 polynomial in ``x^2`` (Chebyshev fit on ``[0, ROLL_MAX]``, absolute error
   below 2e-5, i.e. 5e-6 cells in height): the visibility march evaluates the height up to
   2 x 64 times per sample, and the polynomial costs a fraction of a log and a cosine.
@@ -173,6 +187,24 @@ class _Located(NamedTuple):
     xi: Array  # across the yarn, along a, clamped to [-1, 1]
     eta: Array  # along the float, along b, in [-1, 1]
     crest: Array  # height before beta scaling
+    slope_a: Array  # d crest / d a (physical), before beta scaling
+    slope_b: Array  # d crest / d b (physical), before beta scaling
+
+
+#: Width of the taper that takes each term of the height to zero at the float's boundary,
+#: as a fraction of the half width (across) and of the half length (along).
+TAPER = 0.5
+
+
+def _taper(ops: ArrayOps, x: Array) -> tuple[Array, Array]:
+    """``(s, ds/dx)`` of the smoothstep taper: 1 for ``|x| <= 1 - TAPER``, falling to 0 at
+    ``|x| = 1`` as ``3 t^2 - 2 t^3`` with ``t = (1 - |x|) / TAPER``."""
+    ax = ops.abs(x)
+    tt = ops.minimum(ops.maximum((1.0 - ax) * (1.0 / TAPER), 0.0), 1.0)
+    s = tt * tt * (3.0 - 2.0 * tt)
+    ds_dt = 6.0 * tt * (1.0 - tt)
+    sign = ops.where(x < 0.0, -1.0, 1.0)
+    return s, -sign * ds_dt * (1.0 / TAPER)
 
 
 def _locate(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Array) -> _Located:
@@ -203,12 +235,24 @@ def _locate(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Arra
     half = ops.where(warp_up, (1 - geo.gap) * cw / 2, (1 - geo.gap) * ch / 2)
     um = ops.where(warp_up, uw, uf)
     top = ops.where(warp_up, -math.log(math.cos(uw)), -math.log(math.cos(uf)))
-    per_cell = ops.where(warp_up, ch / (2 * uw), cw / (2 * uf))
-    # Integrated slopes: across tan(v) over the half width, along tan(u) over the float.
+    cell_along = ops.where(warp_up, ch, cw)
     g_roll = -math.log(math.cos(ROLL_MAX))
-    across = half * (1.0 / ROLL_MAX) * ops.maximum(g_roll - neg_log_cos(ops, xi * ROLL_MAX), 0.0)
-    lengthwise = count * per_cell * ops.maximum(top - neg_log_cos(ops, eta * um), 0.0)
-    return _Located(warp_up, in_yarn, xi, eta, across + lengthwise)
+    # Jin's integrated slopes as unit profiles: across a(xi) (tan v), along b(eta) (tan u).
+    v, u = xi * ROLL_MAX, eta * um
+    prof_a = ops.maximum(g_roll - neg_log_cos(ops, v), 0.0) * (1.0 / g_roll)
+    prof_b = ops.maximum(top - neg_log_cos(ops, u), 0.0) / top
+    tan_v = ops.sin(v) / ops.cos(v)
+    tan_u = ops.sin(u) / ops.cos(u)
+    c_a = half * (g_roll / ROLL_MAX)  # the across term's crest height
+    c_l = count * cell_along * top / (2.0 * um)  # the lengthwise term's crest height
+    s_xi, ds_xi = _taper(ops, xi)
+    s_eta, ds_eta = _taper(ops, eta)
+    # Watertight: each term tapers to zero where the other one does (module docstring).
+    crest = c_a * prof_a * s_eta + c_l * prof_b * s_xi
+    deta_db = 2.0 / (count * cell_along)
+    slope_a = -tan_v * s_eta + c_l * prof_b * ds_xi / half
+    slope_b = (c_a * prof_a * ds_eta) * deta_db - tan_u * s_xi
+    return _Located(warp_up, in_yarn, xi, eta, crest, slope_a, slope_b)
 
 
 def height(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Array) -> Array:
@@ -228,16 +272,19 @@ def surface(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Arra
     sp = ops.where(w, math.sin(geo.psi.warp), math.sin(geo.psi.weft))
     cp = ops.where(w, math.cos(geo.psi.warp), math.cos(geo.psi.weft))
     beta = ops.where(w, geo.beta.warp, geo.beta.weft)
-    # Local (a, b, z) components, then to the macro frame: warp (a, b), weft (b, -a).
-    n_a, n_b, n_z = sv, su * cv, cu * cv
+    # The normal of the height field: (-beta dh/da, -beta dh/db, 1) in (a, b, z); Jin's
+    # fibre direction t_p, with slopes scaled by beta, made orthogonal to it.
+    n_a, n_b = -beta * loc.slope_a, -beta * loc.slope_b
     t_a = -cv * sp
     t_b = cu * cp + su * sv * sp
-    t_z = -su * cp + cu * sv * sp
+    t_z = (-su * cp + cu * sv * sp) * beta
     nx, ny = ops.where(w, n_a, n_b), ops.where(w, n_b, -n_a)
     tx, ty = ops.where(w, t_a, t_b), ops.where(w, t_b, -t_a)
-    # Height-field scaling (Table 1, beta): slopes scale by beta.
-    normal, _ = normalize(ops, (beta * nx, beta * ny, n_z))
-    tangent, t_len = normalize(ops, (tx, ty, beta * t_z))
+    normal, _ = normalize(ops, (nx, ny, 1.0 + 0.0 * nx))
+    along_n = tx * normal[0] + ty * normal[1] + t_z * normal[2]
+    tangent, t_len = normalize(
+        ops, (tx - along_n * normal[0], ty - along_n * normal[1], t_z - along_n * normal[2])
+    )
     # beta = 0 with a vertical fibre (impossible for |u|, |v| < 90 deg unless |psi| is
     # extreme) would leave no horizontal direction: fall back to the yarn axis b.
     ok = t_len > 1e-6
@@ -301,14 +348,32 @@ def rasterize(params: FabricParams, resolution: int) -> TileMaps:
 
 
 def max_slope(params: FabricParams) -> float:
-    """Largest ``|n_xy| / n_z`` of the ply normal over the tile (``yarn.surface``).
+    """An upper bound of ``|n_xy| / n_z`` (the height field's gradient) over the tile.
 
-    ``tan^2 = beta^2 (tan^2 v / cos^2 u + tan^2 u)`` grows with ``|u|`` and ``|v|``, so the
-    maximum sits at ``v = ROLL_MAX``, ``u = u_max`` (yarn edges at float ends).
+    With ``|s| <= 1``, ``|ds/dx| <= 1.5 / TAPER`` and unit profiles, the across slope is at
+    most ``tan ROLL_MAX + c_l 1.5 / (TAPER half)`` and the along slope at most
+    ``tan u_max + c_a 1.5 / TAPER * 2 / (count cell)``, for the family's longest (``c_l``)
+    and shortest (``count``) floats; their norm, times ``beta``, bounds the gradient.
     """
     geo = YarnGeometry.from_params(params)
+    pat = params.pattern
+    offset, length = pat.float_tables()
+    cw, ch = geo.cell
+    g_roll = -math.log(math.cos(ROLL_MAX))
     out = 0.0
-    for um, beta in zip(geo.u_max, geo.beta, strict=True):
-        tan2 = math.tan(ROLL_MAX) ** 2 / math.cos(um) ** 2 + math.tan(um) ** 2
-        out = max(out, beta * math.sqrt(tan2))
+    for is_warp in (True, False):
+        on_top = pat.warp_up if is_warp else ~pat.warp_up
+        if not on_top.any():
+            continue
+        um = geo.u_max.warp if is_warp else geo.u_max.weft
+        beta = geo.beta.warp if is_warp else geo.beta.weft
+        half = (1 - geo.gap) * (cw if is_warp else ch) / 2
+        cell_along = ch if is_warp else cw
+        top = -math.log(math.cos(um))
+        longest, shortest = float(length[on_top].max()), float(length[on_top].min())
+        c_a = half * g_roll / ROLL_MAX
+        c_l = longest * cell_along * top / (2.0 * um)
+        across = math.tan(ROLL_MAX) + c_l * 1.5 / (TAPER * half)
+        along = math.tan(um) + c_a * 1.5 / TAPER * 2.0 / (shortest * cell_along)
+        out = max(out, beta * math.hypot(across, along))
     return out

@@ -272,7 +272,6 @@ def test07_values_are_finite_and_non_negative() -> None:
             est = estimate(params, q, samples=64, kernel=kernel, seed=1)  # type: ignore[arg-type]
             for a in (est.mean, est.stderr, est.area, est.area_in):
                 assert np.all(np.isfinite(a)) and np.all(a >= 0)
-            assert np.all(est.area <= 1.5)
 
 
 def furnace(
