@@ -5,12 +5,12 @@ each step runs through :func:`service.submission.run_in_process` with its ``step
 resolved by :func:`service.cli.batch.substitute_refs`, after shrinking the costly params: the
 dataset of ``tests/integration/test_train_fabric.py`` (640 queries per material, 64
 samples), a 300-step fit of its tiny network, renders at 64x64 (ground truth 64 spp instead
-of 256, network 4 spp instead of 16; the 1- and 12-spp baselines as they are).
+of 256, network 4 spp instead of 16; the 1- and 6-spp baselines as they are).
 
 References: each material's Monte Carlo render at 64 spp (the shrunk ground truth), scored
 by the ``score`` steps; for the interpolation endpoints, the plain ``{"model", "fabric"}``
 renders of the two materials. Oracles: every metric is finite and in its range and the
-documented artifacts exist; the Monte Carlo estimator converges (12 spp scores a better
+documented artifacts exist; the Monte Carlo estimator converges (6 spp scores a better
 PSNR, MSE and FLIP than 1 spp against the 64-spp reference, for the seen and the unseen
 material); the interpolated latent at ``t = 0`` and ``t = 1`` renders the same bytes as the
 materials themselves, and ``t = 0.5`` differs from both. The tiny network's quality is not
@@ -41,7 +41,7 @@ SHRINK: dict[str, dict[str, Any]] = {
     "train.fabric": {**TINY, "steps": 300},
     "render": {"resolution": [64, 64]},
 }
-#: The recipe's spp -> the test's (1 and 12 spp stay as they are).
+#: The recipe's spp -> the test's (1 and 6 spp stay as they are).
 SPP = {256: 64, 16: 4}
 RENDER_ARTIFACTS = {"image.exr", "preview.png", "render.json"}
 RANGES = {"flip": (0.0, 1.0), "psnr": (0.0, 200.0), "ssim": (-1.0, 1.0), "mse": (0.0, 10.0)}
@@ -113,7 +113,7 @@ def test01_scores_are_finite_and_monte_carlo_converges(
                 assert math.isfinite(value) and low <= value <= high, (step, label, metric)
     for material in ("seen", "unseen"):
         table = scores(settings, jobs[f"{material}_scores"])
-        # Reference: the 64-spp Monte Carlo render; 12 samples converge further than 1.
+        # Reference: the 64-spp Monte Carlo render; 6 samples converge further than 1.
         assert table["mc_eq"]["psnr"] > table["mc1"]["psnr"] + 3.0, material
         assert table["mc_eq"]["mse"] < table["mc1"]["mse"], material
         assert table["mc_eq"]["flip"] < table["mc1"]["flip"], material
