@@ -55,4 +55,11 @@ print(rows[0]["job_id"] if rows and rows[0]["state"] == "succeeded" else "")' \
 if [ -n "$GLINT_JOB" ]; then
   echo "Glint example and NDF maps: $URL/jobs/$GLINT_JOB   (example.exr, ndf.npz, preview.png)"
 fi
+BTF_JOB=$(.venv/bin/python -c 'import csv, sys
+rows = [r for r in csv.DictReader(open(sys.argv[1])) if r["step"] == "btf"]
+print(rows[0]["job_id"] if rows and rows[0]["state"] == "succeeded" else "")' \
+  "$DATA/demo-results.csv" 2>/dev/null || true)
+if [ -n "$BTF_JOB" ]; then
+  echo "BTF slices: $URL/jobs/$BTF_JOB   (slices-XXXX.npz, btf.json, preview.png)"
+fi
 echo "Dashboard: $URL/   (the service keeps running; stop it with: kill \$(cat $DATA/serve.pid))"

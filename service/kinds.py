@@ -21,6 +21,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "generators.merl.kind",
     "generators.fabric.kind",
     "generators.glint.kind",
+    "generators.btf.kind",
     "models.brdf.kind",
     "models.brdf.report_kind",
     "models.fabric.kind",

@@ -21,6 +21,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from materials.noise import gaussian_noise, worley
+
 #: The procedural example types (Sec. 5.1, Figs. 6-10), in display order.
 TYPES: tuple[str, ...] = (
     "scratches",
@@ -43,23 +45,6 @@ DEFAULT_SLOPE: dict[str, float] = {
 }
 
 
-def _fft_noise(rng: np.random.Generator, n: int, sx: float, sy: float) -> np.ndarray:
-    """Periodic Gaussian-filtered white noise, ``(n, n)``, correlation lengths ``sx``, ``sy``
-    texels (along x = columns, y = rows), zero mean, unit RMS."""
-    white = rng.standard_normal((n, n))
-    fy = np.fft.fftfreq(n)[:, None]
-    fx = np.fft.fftfreq(n)[None, :]
-    kernel = np.exp(-2.0 * math.pi**2 * ((fx * sx) ** 2 + (fy * sy) ** 2))
-    h = np.real(np.fft.ifft2(np.fft.fft2(white) * kernel))
-    h -= h.mean()
-    return h / max(float(h.std()), 1e-12)
-
-
-def _periodic_distance(a: np.ndarray, b: float, n: int) -> np.ndarray:
-    d = np.abs(a - b) % n
-    return np.minimum(d, n - d)
-
-
 def _scratches(rng: np.random.Generator, n: int) -> np.ndarray:
     """A few straight scratches at random angles: V-grooves one to two texels wide."""
     y, x = np.mgrid[0:n, 0:n].astype(np.float64) + 0.5
@@ -77,14 +62,8 @@ def _scratches(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def _leather(rng: np.random.Generator, n: int) -> np.ndarray:
     """Worley cells: height is the distance to the cell border (rounded pebbles)."""
-    cells = max(3, n // 4)
-    pts = rng.uniform(0.0, n, size=(cells, 2))
-    y, x = np.mgrid[0:n, 0:n].astype(np.float64) + 0.5
-    d = np.stack(
-        [np.hypot(_periodic_distance(x, px, n), _periodic_distance(y, py, n)) for px, py in pts]
-    )
-    d.sort(axis=0)
-    return np.sqrt(np.maximum(d[1] - d[0], 0.0))
+    margin, _ = worley(rng, n, max(3, n // 4))
+    return np.sqrt(np.maximum(margin, 0.0))
 
 
 def _structured(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -94,15 +73,15 @@ def _structured(rng: np.random.Generator, n: int) -> np.ndarray:
     fx = (x % period) / period - 0.5
     fy = (y % period) / period - 0.5
     r2 = (fx * fx + fy * fy) / 0.16
-    return -np.sqrt(np.clip(1.0 - r2, 0.0, None)) + 0.05 * _fft_noise(rng, n, 2.0, 2.0)
+    return -np.sqrt(np.clip(1.0 - r2, 0.0, None)) + 0.05 * gaussian_noise(rng, n, 2.0, 2.0)
 
 
 def _height(kind: str, rng: np.random.Generator, n: int) -> np.ndarray:
     makers: dict[str, Callable[[], np.ndarray]] = {
         "scratches": lambda: _scratches(rng, n),
-        "isotropic_noise": lambda: _fft_noise(rng, n, 1.0, 1.0),
-        "anisotropic_noise": lambda: _fft_noise(rng, n, 3.0, 0.8),
-        "brushed_metal": lambda: _fft_noise(rng, n, max(8.0, n / 2), 0.6),
+        "isotropic_noise": lambda: gaussian_noise(rng, n, 1.0, 1.0),
+        "anisotropic_noise": lambda: gaussian_noise(rng, n, 3.0, 0.8),
+        "brushed_metal": lambda: gaussian_noise(rng, n, max(8.0, n / 2), 0.6),
         "leather": lambda: _leather(rng, n),
         "structured": lambda: _structured(rng, n),
     }

@@ -1,0 +1,97 @@
+"""``preview.png`` of a BTF: a grid of slices, and one texel's apparent BRDF unfolded into a
+2D image (light direction down, view direction across), as in Xu et al.'s Fig. 9."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from evaluators.metrics.figures import figure_png
+from evaluators.metrics.tonemap import tonemap
+from materials.btf.directions import to_angles
+
+#: At most this many slices in the grid.
+GRID_SLICES = 36
+#: Longest side of a slice in the grid, texels (larger slices are box-filtered down).
+GRID_TEXELS = 64
+
+
+def grid_indices(count: int, limit: int = GRID_SLICES) -> list[int]:
+    """The slices shown: all of them up to ``limit``, else ``limit`` evenly spaced."""
+    if count <= limit:
+        return list(range(count))
+    return sorted({int(round(v)) for v in np.linspace(0, count - 1, limit)})
+
+
+def shrink(rgb: np.ndarray, side: int = GRID_TEXELS) -> np.ndarray:
+    """Box-filter an ``(H, W, 3)`` slice down by an integer factor to at most ``side``."""
+    f = max(1, math.ceil(max(rgb.shape[:2]) / side))
+    h, w = rgb.shape[0] // f * f, rgb.shape[1] // f * f
+    x = np.asarray(rgb[:h, :w], np.float64)
+    return x.reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3))
+
+
+def unfold(wi: np.ndarray, wo: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The apparent BRDF of one texel as an image ``(n_lights, n_views, 3)``: rows are the
+    distinct light directions, columns the distinct view directions, both in order of first
+    appearance; pairs that were not measured are NaN."""
+
+    def ids(w: np.ndarray) -> tuple[np.ndarray, int]:
+        _, first, inverse = np.unique(
+            np.round(w, 5), axis=0, return_index=True, return_inverse=True
+        )
+        order = np.argsort(np.argsort(first))  # rank of each unique row by first appearance
+        return order[inverse.ravel()], len(first)
+
+    li, nl = ids(np.asarray(wi))
+    vi, nv = ids(np.asarray(wo))
+    img = np.full((nl, nv, 3), np.nan)
+    img[li, vi] = values
+    return img
+
+
+def _display(rgb: np.ndarray) -> np.ndarray:
+    # BTF values are radiance / irradiance: times pi, an albedo of 1 under normal light is 1.
+    return tonemap(np.nan_to_num(rgb, nan=0.0), exposure=math.log2(math.pi), curve="aces")
+
+
+def preview_png(
+    slices: list[tuple[int, np.ndarray]],
+    wi: np.ndarray,
+    wo: np.ndarray,
+    texel_values: np.ndarray,
+    texel: tuple[int, int],
+    title: str,
+) -> bytes:
+    """The figure: left, the grid of ``slices`` (``(index, (h, w, 3))``, labelled with
+    their angles); right, the unfolded apparent BRDF of ``texel`` (``texel_values`` ``(N,
+    3)``, one per slice)."""
+    cols = max(1, math.ceil(math.sqrt(len(slices))))
+    rows = max(1, math.ceil(len(slices) / cols))
+    ti, pi_ = to_angles(wi)
+    to, po = to_angles(wo)
+    brdf = unfold(wi, wo, texel_values)
+
+    def draw(fig: Any, ax: Any) -> None:
+        fig.clf()
+        grid = fig.add_gridspec(rows, cols + max(2, cols // 2 + 1))
+        for k, (i, img) in enumerate(slices):
+            a = fig.add_subplot(grid[k // cols, k % cols])
+            a.imshow(_display(img), origin="lower", interpolation="nearest")
+            a.set_title(f"i {ti[i]:.0f},{pi_[i]:.0f} o {to[i]:.0f},{po[i]:.0f}", fontsize=5, pad=1)
+            a.set_xticks([])
+            a.set_yticks([])
+        b = fig.add_subplot(grid[:, cols:])
+        shown = _display(brdf)
+        shown[np.isnan(brdf).any(axis=2)] = 90
+        b.imshow(shown, interpolation="nearest", aspect="auto")
+        b.set_title(f"texel {texel}: apparent BRDF", fontsize=8)
+        b.set_xlabel("view direction", fontsize=7)
+        b.set_ylabel("light direction", fontsize=7)
+        b.tick_params(labelsize=6)
+        fig.suptitle(title, fontsize=9)
+
+    width = 1.2 * cols + 1.2 * max(2, cols // 2 + 1)
+    return figure_png(draw, size=(max(6.0, width), max(3.5, 1.25 * rows + 0.6)))

@@ -1,0 +1,13 @@
+"""Bidirectional texture functions (Xu et al., "Real-Time Neural Materials on Mobile VR"):
+pure numpy pieces.
+
+Submodules (imported explicitly by their users):
+
+- :mod:`~materials.btf.directions`: the BTF convention, direction sets (``small``, the
+  UBO2014 count) and conversions between angles and unit vectors;
+- :mod:`~materials.btf.surfaces`: seeded procedural surfaces (height, albedo and roughness
+  maps) in the spirit of UBO2014's classes: leather, fabric, wood, stone;
+- :mod:`~materials.btf.lafortune`: the 4-lobe Lafortune baseline (Eq. 6-7) and its fit.
+"""
+
+SUBMODULES: tuple[str, ...] = ("directions", "surfaces")
