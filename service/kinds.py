@@ -22,6 +22,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "generators.fabric.kind",
     "generators.glint.kind",
     "generators.btf.kind",
+    "generators.btf.importer",
     "models.brdf.kind",
     "models.brdf.report_kind",
     "models.fabric.kind",

@@ -26,7 +26,6 @@ sharding or the executor.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,13 +34,13 @@ from evaluators.render.btf.patch import flat_shape, procedural_mesh
 from evaluators.render.btf.slices import SliceRenderer
 from evaluators.render.sources.common import load_bsdf
 from generators.btf.params import BtfGenParams, FlatSurface
-from generators.btf.preview import grid_indices, preview_png, shrink
+from generators.btf.preview import PreviewCollector
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.backend import active_variant, load_mitsuba
 from materials.btf.directions import pair_count_label, to_angles
 from materials.btf.surfaces import SurfaceMaps, procedural_surface
-from storage.formats.btf import index_document, read_shard, shard_bytes, shard_name
+from storage.formats.btf import index_document, shard_bytes, shard_name
 from storage.formats.exr import exr_bytes
 
 if TYPE_CHECKING:
@@ -53,7 +52,7 @@ LAYOUT = """
   float16 with `"dtype": "float16"`), `[row = y, column = x]`, in UBO2014's convention
   `BTF = L_o / E_perp` (1/sr, foreshortening included: a flat Lambertian plane gives
   `albedo / pi * cos(theta_i)`), and `stderr` `(N,)`: each slice's Monte Carlo standard
-  error (RMS over texels and channels).
+  error (RMS over texels and channels; an upper bound with the default stratified jitter).
 - `btf.json`: `resolution` `[H, W]`, `count`, `shards` (`name`, `count`, in slice order),
   `convention`, `units`, `directions` (`[theta_i, phi_i, theta_o, phi_o]` degrees per slice),
   `surface`, `spp`, `max_depth`, `stderr` (mean, max), `mitsuba_variant`.
@@ -77,6 +76,7 @@ class ShardTask:
     spp: int
     max_depth: int
     dtype: str
+    stratified: bool = True
 
 
 _RENDERERS: dict[str, SliceRenderer] = {}
@@ -106,7 +106,7 @@ def render_shard(task: ShardTask) -> bytes:
     rgb = np.empty((len(task.seeds), res, res, 3), dtype=task.dtype)
     stderr = np.empty(len(task.seeds), np.float32)
     for k, seed in enumerate(task.seeds):
-        s = renderer.render(task.wi[k], task.wo[k], res, task.spp, seed)
+        s = renderer.render(task.wi[k], task.wo[k], res, task.spp, seed, stratified=task.stratified)
         rgb[k] = s.rgb
         stderr[k] = s.stderr
     return shard_bytes(task.wi, task.wo, rgb, stderr, task.dtype)
@@ -119,6 +119,17 @@ def surface_maps(params: BtfGenParams, ctx: JobContext) -> SurfaceMaps | None:
         return None
     size = s.size or int(params.value("resolution"))
     return procedural_surface(s.procedural, size, ctx.rng("generate.btf/surface"), relief=s.relief)
+
+
+def stderr_summary(stderr: np.ndarray, values: np.ndarray) -> dict[str, float]:
+    """``btf.json``'s ``stderr``: mean and max of the slices' errors, and the mean relative
+    to the mean BTF value (of the centre texels)."""
+    scale = max(float(np.mean(values)), 1e-12)
+    return {
+        "mean": float(np.mean(stderr)),
+        "max": float(np.max(stderr)),
+        "relative": float(np.mean(stderr)) / scale,
+    }
 
 
 def _gray(x: np.ndarray) -> np.ndarray:
@@ -145,30 +156,16 @@ def run_generate_btf(params: BtfGenParams, ctx: JobContext) -> None:
                 surface=surface, maps=maps, wi=wi[lo:hi], wo=wo[lo:hi],
                 seeds=tuple(seeds[lo:hi]), resolution=res, spp=spp,
                 max_depth=max_depth, dtype=params.dtype,
+                stratified=params.jitter == "stratified",
             )
         )  # fmt: skip
         names.append(shard_name(k))
 
-    starts = np.cumsum([0] + [len(t.seeds) for t in tasks])
-    shown = set(grid_indices(n))
-    centre = (res // 2, res // 2)
-    texel_values = np.zeros((n, 3))
-    grid: dict[int, np.ndarray] = {}
-    stderr = np.zeros(n)
-
-    def collect(k: int, path: Path) -> None:
-        shard = read_shard(path, names[k])
-        for j in range(len(shard)):
-            i = int(starts[k]) + j
-            texel_values[i] = shard.rgb[j, centre[0], centre[1]]
-            stderr[i] = shard.stderr[j]
-            if i in shown:
-                grid[i] = shrink(shard.rgb[j].astype(np.float32))
-
+    preview = PreviewCollector([len(t.seeds) for t in tasks], names, (res, res))
     ctx.progress(0.0, f"{pair_count_label(n)} of {res}x{res} texels at {spp} spp")
     ctx.map_artifact_shards(
         render_shard, tasks, names, media_type="application/x-npz",
-        on_result=collect, label="shard", progress_range=(0.0, 0.95),
+        on_result=preview, label="shard", progress_range=(0.0, 0.95),
     )  # fmt: skip
 
     ti, pi_ = to_angles(wi)
@@ -182,11 +179,11 @@ def run_generate_btf(params: BtfGenParams, ctx: JobContext) -> None:
         directions=angles,
         spp=spp,
         max_depth=max_depth,
+        jitter=params.jitter,
         dtype=params.dtype,
         patch={"side": 1.0, "tiles": 3 if maps is not None else None,
                "maps_size": None if maps is None else maps.size},
-        stderr={"mean": float(np.mean(stderr)), "max": float(np.max(stderr)),
-                "relative": float(np.mean(stderr) / max(float(np.mean(texel_values)), 1e-12))},
+        stderr=stderr_summary(preview.stderr, preview.texel_values),
         mitsuba_variant=active_variant(),
     )  # fmt: skip
     ctx.put_json("btf.json", doc)
@@ -198,8 +195,7 @@ def run_generate_btf(params: BtfGenParams, ctx: JobContext) -> None:
         ctx.put_bytes("roughness.exr", exr_bytes(_gray(maps.roughness)), "image/x-exr")
     label = surface.get("procedural") or surface["bsdf"].get("type", "bsdf")
     title = f"generate.btf: {label}, {pair_count_label(n)}, {res}x{res}, {spp} spp"
-    png = preview_png(sorted(grid.items()), wi, wo, texel_values, centre, title)
-    ctx.put_bytes("preview.png", png, "image/png")
+    ctx.put_bytes("preview.png", preview.png(wi, wo, title), "image/png")
     rel = doc["stderr"]["relative"]
     ctx.progress(1.0, f"{n} slices; Monte Carlo error {100 * rel:.2f} % of the mean (RMS)")
 

@@ -118,6 +118,7 @@ class BtfGenParams(StrictModel):
     ``max_depth``     int                        preset    Mitsuba path depth (2: direct only)
     ``shard_slices``  int                        preset    slices per ``slices-XXXX.npz``
     ``dtype``         float32 | float16          float32   of the stored slices
+    ``jitter``        stratified | independent   strat.    ray positions within a texel
     ``preset``        small | paper              small     defaults of the fields above
     ================  =========================  ========  =====================================
 
@@ -164,6 +165,11 @@ class BtfGenParams(StrictModel):
     dtype: Literal["float32", "float16"] = Field(
         default="float32",
         description="Stored type of the slices ('float16' halves the paper scale's ~44 GB).",
+    )
+    jitter: Literal["stratified", "independent"] = Field(
+        default="stratified",
+        description="Ray positions within a texel: 'stratified' (a Latin hypercube; the "
+        "stated error is then an upper bound) or 'independent' uniform.",
     )
 
     def value(self, name: str) -> Any:

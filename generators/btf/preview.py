@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,7 @@ import numpy as np
 from evaluators.metrics.figures import figure_png
 from evaluators.metrics.tonemap import tonemap
 from materials.btf.directions import to_angles
+from storage.formats.btf import read_shard
 
 #: At most this many slices in the grid.
 GRID_SLICES = 36
@@ -95,3 +97,33 @@ def preview_png(
 
     width = 1.2 * cols + 1.2 * max(2, cols // 2 + 1)
     return figure_png(draw, size=(max(6.0, width), max(3.5, 1.25 * rows + 0.6)))
+
+
+class PreviewCollector:
+    """Gathers what the preview needs while shards stream past (``on_result`` of
+    :meth:`jobapi.context.JobContext.map_artifact_shards`): the centre texel of every slice,
+    the grid's slices (shrunk), and every slice's Monte Carlo error."""
+
+    def __init__(self, counts: list[int], names: list[str], resolution: tuple[int, int]) -> None:
+        self.names = names
+        self.starts = np.cumsum([0, *counts])
+        n = int(self.starts[-1])
+        self.shown = set(grid_indices(n))
+        self.texel = (resolution[0] // 2, resolution[1] // 2)
+        self.texel_values = np.zeros((n, 3))
+        self.stderr = np.zeros(n)
+        self.grid: dict[int, np.ndarray] = {}
+
+    def __call__(self, k: int, path: Path) -> None:
+        shard = read_shard(path, self.names[k])
+        ty, tx = self.texel
+        for j in range(len(shard)):
+            i = int(self.starts[k]) + j
+            self.texel_values[i] = shard.rgb[j, ty, tx]
+            self.stderr[i] = shard.stderr[j]
+            if i in self.shown:
+                self.grid[i] = shrink(shard.rgb[j].astype(np.float32))
+
+    def png(self, wi: np.ndarray, wo: np.ndarray, title: str) -> bytes:
+        """The preview of everything collected."""
+        return preview_png(sorted(self.grid.items()), wi, wo, self.texel_values, self.texel, title)

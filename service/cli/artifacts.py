@@ -18,7 +18,8 @@ from rich.text import Text
 
 from service.cli.client import BadInput
 from service.cli.state import out_console, print_json, print_line, state_of
-from storage.errors import IntegrityError, NotFoundError
+from storage.errors import FormatError, IntegrityError, NotFoundError
+from storage.formats.btf_folder import pack_folder
 
 JsonOpt = typer.Option(False, "--json", help="Print one JSON document on stdout.")
 LocalOpt = typer.Option(
@@ -181,14 +182,29 @@ def fetch(
 
 def import_(
     ctx: typer.Context,
-    path: Path = typer.Argument(..., help="File to import (a MERL .binary, an .exr, ...)."),
+    path: Path = typer.Argument(
+        ..., help="File to import (a MERL .binary, an .exr, ...), or a folder of BTF slices."
+    ),
     name: str | None = typer.Option(
         None, "--name", show_default=False, help="Name to record (default: the file's name)."
     ),
     as_json: bool = JsonOpt,
     data_dir: Path | None = LocalOpt,
 ) -> None:
-    """Validate a file's format and put it in the store; prints its sha256: ref."""
+    """Validate a file's format and put it in the store; prints its sha256: ref.
+
+    A directory of BTF slices (images plus angles.csv or angles.json) is packed into
+    ``<directory>.btf.zip`` first, for ``import.btf``.
+    """
+    if path.is_dir():
+        with tempfile.TemporaryDirectory(prefix="matforge-pack-") as tmp:
+            packed = Path(tmp) / f"{path.resolve().name}.btf.zip"
+            try:
+                pack_folder(path, packed)
+            except FormatError as exc:
+                raise BadInput(str(exc)) from None
+            import_(ctx, packed, name, as_json, data_dir)
+        return
     if not path.is_file():
         raise BadInput(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
     st = state_of(ctx)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from storage.errors import FormatError
+from storage.formats.btf_folder import validate_btf_archive
 from storage.formats.exr import validate_exr
 from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
@@ -73,6 +74,7 @@ VALIDATORS: dict[str, FileFormat] = {
 COMPOUND_VALIDATORS: dict[str, FileFormat] = {
     ".normal.exr": FileFormat(MEDIA_TYPES[".exr"], validate_normal_map),
     ".normal.png": FileFormat(MEDIA_TYPES[".png"], validate_normal_map),
+    ".btf.zip": FileFormat(MEDIA_TYPES[".zip"], validate_btf_archive),
 }
 
 

@@ -7,7 +7,7 @@ A BTF dataset (``generate.btf`` or ``import.btf``) is a list of shards plus one 
   pointing away from the surface), ``rgb`` ``(N, H, W, 3)`` float32 (or float16) slices,
   ``[row = y, column = x]``, in UBO2014's convention ``BTF = L_o / E_perp`` (1/sr,
   foreshortening included), and ``stderr`` ``(N,)`` float32: each slice's Monte Carlo
-  standard error (RMS over texels and channels; ``NaN`` for measured slices).
+  standard error (RMS over texels and channels; ``NaN``, unknown, for measured slices).
 - ``btf.json``: ``{"format": "matforge.btf", "version": 1, "resolution": [H, W], "count":
   N, "shards": [{"name", "count"}, ...], "convention", "units", ...}``; the shards, in
   order, hold the slices ``0 .. N - 1``.
@@ -89,7 +89,7 @@ def read_shard(path: Path, name: str | None = None) -> Shard:
     """The arrays of a shard; ``FormatError`` naming it if anything is missing or wrong
     (shapes, unit directions above the plane, finite non-negative slices)."""
     label = name or str(path)
-    arrays = read_npz(path, label)
+    arrays = read_npz(path, label, nan_ok=("stderr",))
     for key in ("wi", "wo", "rgb", "stderr"):
         if key not in arrays:
             raise FormatError(label, f"missing array {key!r} (a BTF shard has wi, wo, rgb, stderr)")

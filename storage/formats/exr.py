@@ -132,6 +132,13 @@ def validate_exr(path: str | Path, name: str | None = None) -> ExrInfo:
     return info
 
 
+def exr_header_info(path: str | Path, name: str | None = None) -> ExrInfo:
+    """Size and channels from the header alone (no pixels read): a cheap first check of
+    many files. Raises :class:`FormatError` as :func:`validate_exr` does for the header."""
+    label = name or str(path)
+    return _info(_open(Path(path), label, header_only=True), label)
+
+
 def read_exr(path: str | Path, name: str | None = None) -> np.ndarray:
     """Read an RGB OpenEXR image as an ``(H, W, 3)`` float32 array in linear units.
 

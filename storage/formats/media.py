@@ -19,6 +19,7 @@ MEDIA_TYPES: dict[str, str] = {
     ".pt": "application/x-pytorch",
     ".csv": "text/csv",
     ".txt": "text/plain",
+    ".zip": "application/zip",
 }
 
 

@@ -26,9 +26,12 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return buf.getvalue()
 
 
-def read_npz(path: Path, name: str | None = None) -> dict[str, np.ndarray]:
+def read_npz(
+    path: Path, name: str | None = None, *, nan_ok: tuple[str, ...] = ()
+) -> dict[str, np.ndarray]:
     """All arrays of an ``.npz`` (no pickled objects); ``FormatError`` naming the file if it is
-    not a readable npz or holds non-finite floats."""
+    not a readable npz or holds non-finite floats (NaN allowed in the arrays ``nan_ok``
+    names, where it means "unknown"; infinity never)."""
     label = name or str(path)
     if not zipfile.is_zipfile(path):
         raise FormatError(label, "not a .npz archive (no zip structure)")
@@ -38,6 +41,8 @@ def read_npz(path: Path, name: str | None = None) -> dict[str, np.ndarray]:
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise FormatError(label, f"not a readable .npz archive: {exc}") from None
     for key, arr in arrays.items():
+        if key in nan_ok and arr.dtype.kind == "f" and not np.any(np.isinf(arr)):
+            continue
         if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
             raise FormatError(label, f"array {key!r} has non-finite values (NaN or infinity)")
     return arrays

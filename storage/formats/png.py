@@ -89,6 +89,22 @@ def read_png(path: str | Path, name: str | None = None) -> np.ndarray:
         raise FormatError(label, f"unreadable PNG (truncated or corrupt?): {exc}") from None
 
 
+def png_size(path: str | Path, name: str | None = None) -> tuple[int, int]:
+    """``(width, height)`` from the PNG header alone (no pixels decoded)."""
+    p = Path(path)
+    label = name or str(p)
+    try:
+        with open(p, "rb") as fh:
+            if fh.read(len(_MAGIC)) != _MAGIC:
+                raise FormatError(label, "not a PNG file (bad signature)")
+        with Image.open(p, formats=["PNG"]) as img:
+            return int(img.size[0]), int(img.size[1])
+    except FormatError:
+        raise
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError) as exc:
+        raise FormatError(label, f"unreadable PNG header: {exc}") from None
+
+
 def validate_png(path: str | Path, name: str | None = None) -> tuple[int, int]:
     """Check that ``path`` is a readable PNG; returns ``(width, height)``."""
     arr = read_png(path, name)

@@ -1,0 +1,151 @@
+"""``import.btf``: a folder of measured BTF slices (EXR or PNG images plus their angles),
+uploaded as a ``.btf.zip``, turned into the shard layout of ``generate.btf``.
+
+The folder's layout and checks are :mod:`storage.formats.btf_folder`'s (the upload route
+runs the same checks, so a malformed archive is refused before it enters the store). The
+CLI packs a directory for you: ``matforge import path/to/folder`` uploads
+``folder.btf.zip``. Slices keep the list's order; each shard is converted in a worker and
+kept when done (resumable). Artifacts: ``slices-XXXX.npz`` (``stderr`` is NaN: a
+measurement's error is not known), ``btf.json``, ``preview.png``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+from pydantic import Field
+
+from generators.btf.kind import summarize
+from generators.btf.preview import PreviewCollector
+from jobapi.errors import FormatError, JobFailed
+from jobapi.kinds import Kind, register
+from jobapi.params import Ref, StrictModel
+from materials.btf.directions import check_pairs, pair_count_label, to_vector
+from storage.formats.btf import index_document, shard_bytes, shard_name
+from storage.formats.btf_folder import SliceEntry, SliceFolder
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
+
+
+class ImportBtfParams(StrictModel):
+    """Parameters of ``import.btf``.
+
+    Example::
+
+        {"kind": "import.btf", "params": {"archive": "sha256:<digest of leather.btf.zip>",
+         "png": "srgb", "scale": 1.0}}
+    """
+
+    archive: Ref = Field(
+        description="The slice folder as an uploaded '<name>.btf.zip' (`matforge import DIR` "
+        "packs a directory): images plus angles.csv (file,theta_i,phi_i,theta_o,phi_o) or "
+        "angles.json, angles in degrees."
+    )
+    png: Literal["srgb", "linear"] = Field(
+        default="srgb", description="How PNG slices are encoded: 'srgb' (decoded) or 'linear'."
+    )
+    scale: float = Field(
+        default=1.0,
+        gt=0.0,
+        le=1e6,
+        description="Factor from the images' values to the BTF (L_o / E_perp, 1/sr).",
+    )
+    shard_slices: int = Field(default=151, ge=1, le=151 * 151, description="Slices per shard.")
+    dtype: Literal["float32", "float16"] = Field(
+        default="float32", description="Stored type of the slices."
+    )
+
+
+@dataclass(frozen=True)
+class ImportTask:
+    """One shard: which listed images to convert (picklable)."""
+
+    archive: str
+    label: str
+    entries: tuple[SliceEntry, ...]
+    png_srgb: bool
+    scale: float
+    dtype: str
+    resolution: tuple[int, int]
+
+
+def convert_shard(task: ImportTask) -> bytes:
+    """The shard's ``.npz`` bytes: the listed images, scaled, with their directions."""
+    h, w = task.resolution
+    rgb = np.empty((len(task.entries), h, w, 3), dtype=task.dtype)
+    with SliceFolder(Path(task.archive), task.label) as folder:
+        folder.resolution = task.resolution
+        for k, e in enumerate(task.entries):
+            rgb[k] = folder.read(e, png_srgb=task.png_srgb) * np.float32(task.scale)
+    angles = np.asarray([e.angles() for e in task.entries], np.float64)
+    wi, wo = to_vector(angles[:, 0], angles[:, 1]), to_vector(angles[:, 2], angles[:, 3])
+    stderr = np.full(len(task.entries), np.nan, np.float32)
+    return shard_bytes(wi, wo, rgb, stderr, task.dtype)
+
+
+def run_import_btf(params: ImportBtfParams, ctx: JobContext) -> None:
+    """Check the folder, convert its images shard by shard, write the index and preview."""
+    path = ctx.resolve(params.archive)
+    label = ctx.ref_record(params.archive).name
+    try:
+        with SliceFolder(path, label) as folder:
+            resolution = folder.check_images()
+            entries = list(folder.entries)
+    except FormatError as exc:
+        raise JobFailed(f"archive: {exc}") from None
+    angles = np.asarray([e.angles() for e in entries], np.float64)
+    wi, wo = to_vector(angles[:, 0], angles[:, 1]), to_vector(angles[:, 2], angles[:, 3])
+    check_pairs(wi, wo, max_theta=89.0)
+    per = params.shard_slices
+    tasks = [
+        ImportTask(
+            archive=str(path), label=label, entries=tuple(entries[lo : lo + per]),
+            png_srgb=params.png == "srgb", scale=params.scale, dtype=params.dtype,
+            resolution=resolution,
+        )
+        for lo in range(0, len(entries), per)
+    ]  # fmt: skip
+    names = [shard_name(k) for k in range(len(tasks))]
+    preview = PreviewCollector([len(t.entries) for t in tasks], names, resolution)
+    ctx.progress(0.0, f"{pair_count_label(len(entries))} of {resolution[1]}x{resolution[0]}")
+    try:
+        ctx.map_artifact_shards(
+            convert_shard, tasks, names, media_type="application/x-npz",
+            on_result=preview, label="shard", progress_range=(0.0, 0.95),
+        )  # fmt: skip
+    except FormatError as exc:
+        raise JobFailed(f"archive: {exc}") from None
+    doc = index_document(
+        resolution,
+        [(names[k], len(t.entries)) for k, t in enumerate(tasks)],
+        source="import.btf",
+        archive=params.archive,
+        archive_name=label,
+        files=[e.file for e in entries],
+        directions=np.round(angles, 6).tolist(),
+        png=params.png,
+        scale=params.scale,
+        dtype=params.dtype,
+        stderr=None,
+    )
+    ctx.put_json("btf.json", doc)
+    title = f"import.btf: {label}, {pair_count_label(len(entries))}"
+    ctx.put_bytes("preview.png", preview.png(wi, wo, title), "image/png")
+    ctx.progress(1.0, f"{len(entries)} slices in {len(tasks)} shards")
+
+
+register(
+    Kind(
+        name="import.btf",
+        params=ImportBtfParams,
+        runner=run_import_btf,
+        description="Measured BTF slices (a folder of EXR/PNG images with their angles, as "
+        "a decompressed UBO2014 archive gives) into generate.btf's shard layout.",
+        artifacts=("slices-0000.npz", "btf.json", "preview.png"),
+        summary=summarize,
+    )
+)

@@ -1,0 +1,291 @@
+"""A folder of measured BTF slice images, as a user has it after decompressing a UBO2014
+archive: one image per (light, view) pair plus a list of each image's angles.
+
+**Layout** (a directory, or the same packed as a ``.btf.zip``; the list may sit in a
+sub-folder, and image paths are relative to it):
+
+- ``angles.csv`` with the header ``file,theta_i,phi_i,theta_o,phi_o``, or ``angles.json``:
+  a list (or ``{"slices": [...]}``) of ``{"file", "theta_i", "phi_i", "theta_o",
+  "phi_o"}``. Angles in degrees: theta from the normal in ``[0, 89]``, phi from the
+  texture's +x (columns) towards +y (rows). ``i`` is the light, ``o`` the view.
+- the images: OpenEXR (linear RGB) or PNG (8- or 16-bit; sRGB-encoded unless the importer
+  is told they are linear), all of one size, ``[row = y, column = x]`` with row 0 at
+  ``y = 0`` (flip them first if yours start at the top).
+
+Checks (each refusal names the archive and the file): exactly one angle list; every listed
+file present and an image of the common size; no image left unlisted; no pair of angles
+listed twice; angles in range. UBO2014's compressed ``.btf`` itself is not read: its only
+Python reader, ``btf-extractor``, does not build on Python 3.11 with numpy 2.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import tempfile
+import zipfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from storage.errors import FormatError
+from storage.formats.exr import exr_header_info, read_exr
+from storage.formats.png import png_size, read_png
+
+ANGLE_FILES = ("angles.csv", "angles.json")
+IMAGE_SUFFIXES = (".exr", ".png")
+COLUMNS = ("file", "theta_i", "phi_i", "theta_o", "phi_o")
+#: Largest polar angle accepted, degrees.
+MAX_THETA = 89.0
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+@dataclass(frozen=True)
+class SliceEntry:
+    """One listed image: its path relative to the angle list, and its angles (degrees)."""
+
+    file: str
+    theta_i: float
+    phi_i: float
+    theta_o: float
+    phi_o: float
+
+    def angles(self) -> tuple[float, float, float, float]:
+        return (self.theta_i, self.phi_i, self.theta_o, self.phi_o)
+
+
+def _parse_csv(text: str, label: str) -> list[SliceEntry]:
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or tuple(c.strip() for c in rows[0]) != COLUMNS:
+        raise FormatError(label, f"the first line must be the header {','.join(COLUMNS)}")
+    out = []
+    for k, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != 5:
+            raise FormatError(label, f"line {k}: expected 5 fields, got {len(row)}")
+        try:
+            values = [float(c) for c in row[1:]]
+        except ValueError:
+            raise FormatError(label, f"line {k}: angles must be numbers, got {row[1:]}") from None
+        out.append(SliceEntry(row[0].strip(), *values))
+    return out
+
+
+def _parse_json(text: str, label: str) -> list[SliceEntry]:
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FormatError(label, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
+    items = doc.get("slices") if isinstance(doc, dict) else doc
+    if not isinstance(items, list):
+        raise FormatError(label, 'expected a list of slices (or {"slices": [...]})')
+    out = []
+    for k, item in enumerate(items):
+        if not isinstance(item, dict) or set(item) != set(COLUMNS):
+            raise FormatError(label, f"entry {k}: needs exactly the keys {', '.join(COLUMNS)}")
+        try:
+            values = [float(item[c]) for c in COLUMNS[1:]]
+        except (TypeError, ValueError):
+            raise FormatError(label, f"entry {k}: angles must be numbers") from None
+        out.append(SliceEntry(str(item["file"]), *values))
+    return out
+
+
+def _check_entries(entries: list[SliceEntry], label: str) -> None:
+    if not entries:
+        raise FormatError(label, "lists no slices")
+    seen_files: dict[str, int] = {}
+    seen_angles: dict[tuple[float, ...], str] = {}
+    for k, e in enumerate(entries):
+        where = f"{label}: {e.file}"
+        if not e.file or PurePosixPath(e.file).is_absolute() or ".." in PurePosixPath(e.file).parts:
+            raise FormatError(where, "file paths must be relative, inside the folder")
+        if PurePosixPath(e.file).suffix.lower() not in IMAGE_SUFFIXES:
+            raise FormatError(where, "slices must be .exr or .png images")
+        if e.file in seen_files:
+            raise FormatError(where, f"listed twice (entries {seen_files[e.file]} and {k})")
+        seen_files[e.file] = k
+        a = e.angles()
+        if not all(math.isfinite(v) for v in a):
+            raise FormatError(where, "angles must be finite")
+        if not (0.0 <= a[0] <= MAX_THETA and 0.0 <= a[2] <= MAX_THETA):
+            raise FormatError(where, f"theta_i and theta_o must lie in [0, {MAX_THETA:g}] degrees")
+        key = _direction_key(a)
+        if key in seen_angles:
+            raise FormatError(
+                where, f"duplicate angles: the same light and view as {seen_angles[key]}"
+            )
+        seen_angles[key] = e.file
+
+
+def _direction_key(a: tuple[float, float, float, float]) -> tuple[float, ...]:
+    # phi is meaningless at theta = 0: compare unit vectors, not raw angles.
+    vec = []
+    for theta, phi in ((a[0], a[1]), (a[2], a[3])):
+        t, p = math.radians(theta), math.radians(phi)
+        vec += [math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)]
+    return tuple(round(v, 6) + 0.0 for v in vec)
+
+
+class SliceFolder:
+    """An opened slice folder or ``.btf.zip`` (use as a context manager for archives).
+
+    ``entries`` are checked on opening (see the module docstring); :meth:`check_images`
+    reads every header; :meth:`read` gives one slice in linear units.
+    """
+
+    def __init__(self, path: Path, name: str | None = None) -> None:
+        self.path = Path(path)
+        self.label = name or self.path.name
+        self._zip: zipfile.ZipFile | None = None
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        if self.path.is_dir():
+            members = [
+                p.relative_to(self.path).as_posix() for p in self.path.rglob("*") if p.is_file()
+            ]
+        else:
+            if not zipfile.is_zipfile(self.path):
+                raise FormatError(self.label, "not a folder or a zip archive")
+            try:
+                self._zip = zipfile.ZipFile(self.path)
+                members = [i.filename for i in self._zip.infolist() if not i.is_dir()]
+            except (zipfile.BadZipFile, OSError) as exc:
+                raise FormatError(self.label, f"unreadable zip archive: {exc}") from None
+        members = [m for m in members if not PurePosixPath(m).name.startswith(".")]
+        lists = [m for m in members if PurePosixPath(m).name in ANGLE_FILES]
+        if len(lists) != 1:
+            found = ", ".join(lists) if lists else "none"
+            raise FormatError(
+                self.label, f"needs exactly one angles.csv or angles.json (found: {found})"
+            )
+        self.list_name = lists[0]
+        parent = PurePosixPath(self.list_name).parent
+        self.root = "" if str(parent) == "." else f"{parent}/"
+        text = self._read_bytes(self.list_name).decode("utf-8", errors="strict")
+        list_label = f"{self.label}: {self.list_name}"
+        parse = _parse_csv if self.list_name.endswith(".csv") else _parse_json
+        self.entries = parse(text, list_label)
+        _check_entries(self.entries, self.label)
+        present = {m for m in members if m.startswith(self.root)}
+        for e in self.entries:
+            if self.root + e.file not in present:
+                raise FormatError(
+                    f"{self.label}: {e.file}", f"listed in {self.list_name} but missing"
+                )
+        listed = {self.root + e.file for e in self.entries}
+        extra = sorted(
+            m for m in present
+            if PurePosixPath(m).suffix.lower() in IMAGE_SUFFIXES and m not in listed
+        )  # fmt: skip
+        if extra:
+            raise FormatError(
+                f"{self.label}: {extra[0][len(self.root) :]}",
+                f"an image with no angles in {self.list_name}"
+                + (f" (and {len(extra) - 1} more)" if len(extra) > 1 else ""),
+            )
+        self.resolution: tuple[int, int] | None = None
+
+    # -- access ----------------------------------------------------------------------------
+    def _read_bytes(self, member: str) -> bytes:
+        if self._zip is not None:
+            return self._zip.read(member)
+        return (self.path / member).read_bytes()
+
+    def _local(self, entry: SliceEntry) -> Path:
+        member = self.root + entry.file
+        if self._zip is None:
+            return self.path / member
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="matforge-btf-")
+        out = Path(self._tmp.name) / f"slice{PurePosixPath(entry.file).suffix.lower()}"
+        out.write_bytes(self._zip.read(member))
+        return out
+
+    def _size(self, entry: SliceEntry) -> tuple[int, int]:
+        path, where = self._local(entry), f"{self.label}: {entry.file}"
+        if entry.file.lower().endswith(".exr"):
+            info = exr_header_info(path, where)
+            return info.height, info.width
+        w, h = png_size(path, where)
+        return h, w
+
+    def check_images(self) -> tuple[int, int]:
+        """Read every image's header: all must be readable and of one size ``(H, W)``."""
+        first = self.entries[0]
+        size = self._size(first)
+        for e in self.entries[1:]:
+            s = self._size(e)
+            if s != size:
+                raise FormatError(
+                    f"{self.label}: {e.file}",
+                    f"is {s[1]}x{s[0]} pixels, but {first.file} is {size[1]}x{size[0]}",
+                )
+        self.resolution = size
+        return size
+
+    def read(self, entry: SliceEntry, *, png_srgb: bool = True) -> np.ndarray:
+        """One slice, ``(H, W, 3)`` float32, linear (PNG sRGB decoded unless ``png_srgb``
+        is false); ``FormatError`` naming it if unreadable, non-finite or negative."""
+        where = f"{self.label}: {entry.file}"
+        path = self._local(entry)
+        if entry.file.lower().endswith(".exr"):
+            rgb = read_exr(path, where)
+        else:
+            rgb = read_png(path, where)
+            if png_srgb:
+                rgb = srgb_to_linear(rgb)
+        if not np.all(np.isfinite(rgb)):
+            raise FormatError(where, "has non-finite pixels (NaN or infinity)")
+        if np.any(rgb < 0):
+            raise FormatError(where, "has negative pixels")
+        if self.resolution is not None and rgb.shape[:2] != self.resolution:
+            raise FormatError(
+                where, f"is {rgb.shape[1]}x{rgb.shape[0]} pixels, not the common size"
+            )
+        return rgb
+
+    def __iter__(self) -> Iterator[SliceEntry]:
+        return iter(self.entries)
+
+    def close(self) -> None:
+        if self._zip is not None:
+            self._zip.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def __enter__(self) -> SliceFolder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """The sRGB decoding curve (IEC 61966-2-1), float32."""
+    v = np.asarray(v, np.float64)
+    out = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+    return out.astype(np.float32)
+
+
+def validate_btf_archive(path: Path, name: str | None = None) -> None:
+    """Validator for ``*.btf.zip`` uploads: the angle list and every image header."""
+    with SliceFolder(path, name) as folder:
+        folder.check_images()
+
+
+def pack_folder(folder: Path, out: Path) -> Path:
+    """Pack a slice folder into a deterministic ``.btf.zip`` (stored, fixed timestamps,
+    sorted members) after checking its angle list; returns ``out``."""
+    SliceFolder(folder, folder.name).close()  # refuse a malformed folder before packing
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and not p.name.startswith("."))
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_STORED) as zf:
+        for p in files:
+            info = zipfile.ZipInfo(p.relative_to(folder).as_posix(), date_time=_ZIP_DATE)
+            with open(p, "rb") as fh:
+                zf.writestr(info, fh.read())
+    return out
