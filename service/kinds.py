@@ -23,6 +23,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "generators.glint.kind",
     "generators.btf.kind",
     "generators.btf.importer",
+    "models.btf.kind",
     "models.brdf.kind",
     "models.brdf.report_kind",
     "models.fabric.kind",

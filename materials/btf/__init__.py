@@ -7,7 +7,9 @@ Submodules (imported explicitly by their users):
   UBO2014 count) and conversions between angles and unit vectors;
 - :mod:`~materials.btf.surfaces`: seeded procedural surfaces (height, albedo and roughness
   maps) in the spirit of UBO2014's classes: leather, fabric, wood, stone;
-- :mod:`~materials.btf.lafortune`: the 4-lobe Lafortune baseline (Eq. 6-7) and its fit.
+- :mod:`~materials.btf.lafortune`: the 4-lobe Lafortune baseline (Eq. 6-7): the model,
+  its 55-float layout and the fit's starting point (the fit is
+  :mod:`models.btf.lafortune`).
 """
 
-SUBMODULES: tuple[str, ...] = ("directions", "surfaces")
+SUBMODULES: tuple[str, ...] = ("directions", "surfaces", "lafortune")

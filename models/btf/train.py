@@ -1,0 +1,239 @@
+"""Training of the neural BTF models (Xu et al., Sec. 4.3-4.4).
+
+"We apply the Adam optimizer with beta_1 = 0.9, beta_2 = 0.999, and epsilon = 1e-8. We decay
+the learning rate from 5e-4 to 1e-7 using the ReduceLROnPlateau scheduler. It will halve
+the learning rate when the decreased testing L1 error is smaller than a threshold (1e-4) in
+each epoch. For each training step, we take a 2D slice from the BTF dataset under the same
+viewing and lighting angles as one batch. We apply stratified sampling to the neural
+textures." Here exactly that: one slice per step (its texels in one batch), every training
+slice once per epoch in a seeded random order, the textures sampled at a uniform point of
+each texel (:func:`models.btf.networks.texel_grid`), ``ReduceLROnPlateau(factor 0.5,
+patience 0, threshold 1e-4 absolute, min_lr 1e-7)`` stepped on the held-out L1 after each
+epoch (on the training L1 when nothing is held out) -- or every ``check_steps`` steps (see
+:class:`FitConfig`).
+
+**Distillation** (Eq. 5): ``L = L1(y_s, y_gt) + sigma L1(y_s, y_t) + lambda_1 L2(z_s1,
+T_1 z_t1) + lambda_2 L2(z_s2, T_2 z_t2)``, the teacher (a trained NeuMIP Max) frozen and
+evaluated at the same texture points; ``T_1``, ``T_2`` learned linear maps (no bias,
+teacher width -> student width) trained with the student. Taps: the student's ``z_c`` and
+fine hidden layer, the teacher's second and third hidden layers. ``L2`` is the mean
+squared error.
+
+Stability: a non-finite loss fails the job naming the epoch and step. Determinism: run in
+:func:`models.brdf.train.deterministic_torch`; the slice order comes from a numpy
+Generator, the texture jitter from a torch Generator, both seeded by the job.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import nn
+
+from jobapi.errors import JobFailed
+from models.btf.data import BtfDataset
+from models.btf.networks import slice_forward
+
+#: Adam and the scheduler (Sec. 4.4).
+BETAS, EPS = (0.9, 0.999), 1e-8
+LR, MIN_LR, PLATEAU_FACTOR, PLATEAU_THRESHOLD = 5e-4, 1e-7, 0.5, 1e-4
+
+#: ``on_progress(step, steps, train_l1, test_l1)`` at each check; may raise (e.g. to cancel).
+ProgressFn = Callable[[int, int, float, float], None]
+
+
+@dataclass(frozen=True)
+class Distillation:
+    """A frozen ``teacher`` and the weights of Eq. 5 (0.1 each in the paper)."""
+
+    teacher: nn.Module
+    sigma: float = 0.1
+    lambda1: float = 0.1
+    lambda2: float = 0.1
+    taps: tuple[int, int] = (1, 2)
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Epochs, the plateau check's period and the Adam settings (defaults: the paper's).
+
+    ``check_steps``: steps between held-out evaluations (each one a point of the curves and
+    a step of the scheduler); ``None`` is once per epoch, the paper's. At the paper's scale
+    an epoch is 20 000 steps; a small BTF's 32-step epoch would halve the rate after any
+    epoch that gained less than 1e-4, long before the model has learned anything, so the
+    small preset checks every 1024 steps instead."""
+
+    epochs: int
+    check_steps: int | None = None
+    lr: float = LR
+    min_lr: float = MIN_LR
+
+
+@dataclass
+class Curves:
+    """Per check: the step, epoch, mean training loss and L1 since the previous check,
+    held-out L1 and the learning rate after the scheduler's step."""
+
+    step: list[int] = field(default_factory=list)
+    epoch: list[float] = field(default_factory=list)
+    train_loss: list[float] = field(default_factory=list)
+    train_l1: list[float] = field(default_factory=list)
+    test_l1: list[float] = field(default_factory=list)
+    lr: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready lists; no timing (same spec, same bytes)."""
+        return {
+            "step": self.step,
+            "epoch": self.epoch,
+            "train_loss": self.train_loss,
+            "train_l1": self.train_l1,
+            "test_l1": self.test_l1,
+            "lr": self.lr,
+            "definition": "train_loss: Eq. 5 (L1 alone without distillation), mean over the "
+            "steps since the previous check; train_l1: mean L1 to the ground truth over "
+            "those steps (jittered texture samples); test_l1: mean absolute error over the "
+            "held-out slices at texel centres (the training slices when none are held out)",
+        }
+
+
+def _dirs(data: BtfDataset, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+    return torch.from_numpy(data.wi[i]), torch.from_numpy(data.wo[i])
+
+
+@torch.no_grad()
+def mean_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> float:
+    """Mean absolute error of ``net`` over the slices ``indices`` (texel centres, all three
+    channels)."""
+    if len(indices) == 0:
+        return float("nan")
+    total, count = 0.0, 0
+    for i, rgb in data.iter_slices(indices):
+        wi, wo = _dirs(data, i)
+        pred, _ = slice_forward(net, wi, wo)
+        total += float(torch.abs(pred - torch.from_numpy(rgb).reshape(-1, 3)).sum())
+        count += rgb.size
+    return total / count
+
+
+class _Maps(nn.Module):
+    def __init__(self, teacher_width: int, student_width: int, gen: torch.Generator) -> None:
+        super().__init__()
+        self.t1 = nn.Linear(teacher_width, student_width, bias=False)
+        self.t2 = nn.Linear(teacher_width, student_width, bias=False)
+        bound = 1.0 / math.sqrt(teacher_width)
+        with torch.no_grad():
+            self.t1.weight.uniform_(-bound, bound, generator=gen)
+            self.t2.weight.uniform_(-bound, bound, generator=gen)
+
+
+def fit(
+    net: nn.Module,
+    data: BtfDataset,
+    train: np.ndarray,
+    test: np.ndarray,
+    cfg: FitConfig,
+    gen: torch.Generator,
+    order_rng: np.random.Generator,
+    *,
+    distill: Distillation | None = None,
+    on_progress: ProgressFn | None = None,
+) -> Curves:
+    """Train ``net`` on the slices ``train`` for ``cfg.epochs`` epochs (see the module
+    docstring); returns the curves."""
+    started = time.perf_counter()
+    params = list(net.parameters())
+    maps: _Maps | None = None
+    if distill is not None:
+        t_width = _width(distill.teacher)
+        maps = _Maps(t_width, _width(net), gen)
+        params += list(maps.parameters())
+        distill.teacher.eval()
+    opt = torch.optim.Adam(params, lr=cfg.lr, betas=BETAS, eps=EPS)
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+        opt, mode="min", factor=PLATEAU_FACTOR, patience=0, threshold=PLATEAU_THRESHOLD,
+        threshold_mode="abs", min_lr=cfg.min_lr,
+    )  # fmt: skip
+    curves = Curves()
+    scored = test if len(test) else train
+    period = cfg.check_steps or len(train)
+    total = cfg.epochs * len(train)
+    loss_sum = l1_sum = 0.0
+    since = step = 0
+    for epoch in range(1, cfg.epochs + 1):
+        net.train()
+        for i, rgb in data.iter_slices(train, order_rng):
+            wi, wo = _dirs(data, i)
+            target = torch.from_numpy(rgb).reshape(-1, 3)
+            # one jitter draw shared by student and teacher: same texture points
+            state = gen.get_state()
+            pred, taps = slice_forward(net, wi, wo, gen)
+            l1 = torch.mean(torch.abs(pred - target))
+            loss = l1
+            if distill is not None and maps is not None:
+                after = gen.get_state()
+                gen.set_state(state)
+                with torch.no_grad():
+                    y_t, t_hidden = slice_forward(distill.teacher, wi, wo, _student_grid(net, gen))
+                gen.set_state(after)
+                a, b = distill.taps
+                loss = (
+                    l1
+                    + distill.sigma * torch.mean(torch.abs(pred - y_t))
+                    + distill.lambda1 * torch.mean((taps[0] - maps.t1(t_hidden[a])) ** 2)
+                    + distill.lambda2 * torch.mean((taps[1] - maps.t2(t_hidden[b])) ** 2)
+                )
+            if not torch.isfinite(loss):
+                raise JobFailed(f"training diverged: non-finite loss at epoch {epoch}, slice {i}")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            loss_sum += float(loss.detach())
+            l1_sum += float(l1.detach())
+            since += 1
+            step += 1
+            if since == period or step == total:
+                net.eval()
+                test_l1 = mean_l1(net, data, scored)
+                net.train()
+                sched.step(test_l1)
+                curves.step.append(step)
+                curves.epoch.append(step / len(train))
+                curves.train_loss.append(loss_sum / since)
+                curves.train_l1.append(l1_sum / since)
+                curves.test_l1.append(test_l1)
+                curves.lr.append(float(opt.param_groups[0]["lr"]))
+                loss_sum = l1_sum = 0.0
+                since = 0
+                if on_progress is not None:
+                    on_progress(step, total, curves.train_l1[-1], test_l1)
+    net.eval()
+    curves.seconds = time.perf_counter() - started
+    return curves
+
+
+def _width(net: nn.Module) -> int:
+    arch = getattr(net, "arch", None)
+    if arch is None:
+        raise TypeError("not a BTF network (no .arch)")
+    return int(arch.width)
+
+
+def _student_grid(net: nn.Module, gen: torch.Generator) -> torch.Generator:
+    """The generator positioned so the teacher draws the student's *fine* texel points.
+
+    The student draws its coarse block points first, then its texel points; the teacher
+    draws only texel points. Skip the coarse draws so both see the same texel points."""
+    from models.btf.networks import CoarseToFine
+
+    if isinstance(net, CoarseToFine):
+        h, w = net.arch.resolution
+        torch.rand((h // 2) * (w // 2), generator=gen)
+        torch.rand((h // 2) * (w // 2), generator=gen)
+    return gen
