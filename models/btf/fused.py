@@ -1,0 +1,202 @@
+"""BTF models in Dr.Jit: the MLPs fused into the kernel (:mod:`models.fused_mlp`), the neural
+textures as Dr.Jit arrays, one model evaluation per SIMD lane.
+
+Two entry points:
+
+- :meth:`FusedBtf.shade_texture`: every texel of the texture for given directions, the
+  texture-space shading pass of Sec. 4.2. For the student, one lane per 2 x 2 block: the
+  coarse MLP runs once (directions at the block's centre, Sec. 4.1) and the fine MLP four
+  times, so ``M_c`` is amortised over four texels. NeuMIP and Lafortune run one lane per
+  texel. Texels are read at their centres (no filtering: the radiance texture and the
+  neural textures share a resolution).
+- :meth:`FusedBtf.eval`: one evaluation at arbitrary texture coordinates (a Mitsuba BSDF's
+  ``eval``): the neural textures bilinear and periodic (NeuMIP, the student's fine
+  texture), the student's coarse texture at the centre of the 2 x 2 block holding ``uv``,
+  Lafortune's parameters from the nearest texel.
+
+The reference is :class:`models.btf.portable.PortableBtf` (numpy), matched to float32
+precision; ``tests/unit/models/btf/test_btf_networks.py`` checks it.
+"""
+
+from __future__ import annotations
+
+import types
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from materials.btf.lafortune import LOBE_PARAMS, LOBES, M_OFFSET, N_OFFSET, RHO_S_OFFSET
+from models.btf.portable import PortableBtf
+from models.fused_mlp import fused_mlp
+
+
+@dataclass
+class _Texture:
+    """A ``(C, H, W)`` texture as ``C`` flat Dr.Jit arrays (row-major texels)."""
+
+    channels: list[Any]
+    h: int
+    w: int
+
+
+class FusedBtf:
+    """A portable BTF model ready to be traced into Dr.Jit kernels."""
+
+    def __init__(self, model: PortableBtf, mi: types.ModuleType) -> None:
+        import drjit as dr
+
+        self.model = model
+        self.mi = mi
+        self.dr = dr
+        self.kind = model.kind
+        self.h, self.w = model.resolution
+
+        def tex(arr: np.ndarray) -> _Texture:
+            c, h, w = arr.shape
+            flat = np.ascontiguousarray(arr.reshape(c, h * w), dtype=np.float32)
+            return _Texture([mi.Float(flat[k]) for k in range(c)], h, w)
+
+        t = model.textures
+        if self.kind == "neumip":
+            self.texture = tex(t["texture"])
+            names = sorted(k for k in model.layers if k.startswith("hidden")) + ["out"]
+            self.mlp = [model.layers[k] for k in names]
+        elif self.kind == "c2f":
+            self.coarse_tex = tex(t["coarse_texture"])
+            self.fine_tex = tex(t["fine_texture"])
+            self.coarse = [model.layers["coarse1"], model.layers["coarse2"]]
+            self.fine = [model.layers["fine1"], model.layers["fine2"]]
+        else:
+            p = np.asarray(t["params"], np.float32)  # (H, W, 55)
+            self.params = tex(np.moveaxis(p, -1, 0))
+
+    # -- building blocks -----------------------------------------------------------------
+    def _gather(self, tex: _Texture, index: Any) -> list[Any]:
+        return [self.dr.gather(self.mi.Float, c, index) for c in tex.channels]
+
+    def _bilinear(self, tex: _Texture, u: Any, v: Any) -> list[Any]:
+        dr, mi = self.dr, self.mi
+        x = u * tex.w - 0.5
+        y = v * tex.h - 0.5
+        x0, y0 = dr.floor(x), dr.floor(y)
+        fx, fy = x - x0, y - y0
+        i0 = mi.Int32(x0)
+        j0 = mi.Int32(y0)
+        i0 = i0 - tex.w * mi.Int32(dr.floor(mi.Float(i0) / tex.w))
+        j0 = j0 - tex.h * mi.Int32(dr.floor(mi.Float(j0) / tex.h))
+        i1 = dr.select(i0 + 1 >= tex.w, 0, i0 + 1)
+        j1 = dr.select(j0 + 1 >= tex.h, 0, j0 + 1)
+        idx = [mi.UInt32(j * tex.w + i) for j, i in ((j0, i0), (j0, i1), (j1, i0), (j1, i1))]
+        a, b, c, d = (self._gather(tex, k) for k in idx)
+        w00, w01 = (1 - fx) * (1 - fy), fx * (1 - fy)
+        w10, w11 = (1 - fx) * fy, fx * fy
+        return [
+            dr.fma(a_, w00, dr.fma(b_, w01, dr.fma(c_, w10, d_ * w11)))
+            for a_, b_, c_, d_ in zip(a, b, c, d, strict=True)
+        ]
+
+    @staticmethod
+    def _half(dr: Any, wi: list[Any], wo: list[Any]) -> list[Any]:
+        hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
+        inv = dr.rsqrt(dr.maximum(hx * hx + hy * hy + hz * hz, 1e-16))
+        return [hx * inv, hy * inv, hz * inv]
+
+    def _coarse_z(self, feats: list[Any], wi: list[Any], wo: list[Any]) -> list[Any]:
+        return fused_mlp(self.coarse, [*feats, *wi, *wo, *self._half(self.dr, wi, wo)])
+
+    def _out(self, rgb: list[Any]) -> Any:
+        dr = self.dr
+        return self.mi.Color3f(*(dr.maximum(c, 0.0) for c in rgb))
+
+    def _lafortune(self, p: list[Any], wi: list[Any], wo: list[Any]) -> Any:
+        dr, mi = self.dr, self.mi
+        out = [p[0], p[1], p[2]]
+        for j in range(LOBES):
+            o = 3 + LOBE_PARAMS * j
+            m = p[o + M_OFFSET : o + M_OFFSET + 9]
+            q = sum(
+                (wo[a] * (m[3 * a] * wi[0] + m[3 * a + 1] * wi[1] + m[3 * a + 2] * wi[2])
+                 for a in range(3)),
+                start=mi.Float(0.0),
+            )  # fmt: skip
+            n = dr.maximum(p[o + N_OFFSET], 1.0)
+            s = dr.select(q > 0, dr.power(dr.maximum(q, 1e-30), n), 0.0)
+            for c in range(3):
+                out[c] = dr.fma(p[o + RHO_S_OFFSET + c], s, out[c])
+        return self._out([c * wi[2] for c in out])
+
+    # -- evaluation at arbitrary uv --------------------------------------------------------
+    def eval(self, uv: Any, wi: Any, wo: Any) -> Any:
+        """The BTF (foreshortening included) at texture coordinates ``uv`` (``Point2f``,
+        periodic) for light ``wi`` and view ``wo`` (``Vector3f``, local frame, z up):
+        ``Color3f``, lazy."""
+        dr, mi = self.dr, self.mi
+        u = uv[0] - dr.floor(uv[0])
+        v = uv[1] - dr.floor(uv[1])
+        wi_ = [wi[0], wi[1], wi[2]]
+        wo_ = [wo[0], wo[1], wo[2]]
+        if self.kind == "neumip":
+            feats = self._bilinear(self.texture, u, v)
+            return self._out(fused_mlp(self.mlp, [*feats, wi_[0], wi_[1], wo_[0], wo_[1]]))
+        if self.kind == "c2f":
+            ct = self.coarse_tex
+            bi = dr.minimum(mi.UInt32(u * ct.w), ct.w - 1)
+            bj = dr.minimum(mi.UInt32(v * ct.h), ct.h - 1)
+            z = self._coarse_z(self._gather(ct, bj * ct.w + bi), wi_, wo_)
+            fine = self._bilinear(self.fine_tex, u, v)
+            return self._out(fused_mlp(self.fine, [*z, *fine]))
+        i = dr.minimum(mi.UInt32(u * self.w), self.w - 1)
+        j = dr.minimum(mi.UInt32(v * self.h), self.h - 1)
+        return self._lafortune(self._gather(self.params, j * self.w + i), wi_, wo_)
+
+    # -- the texture-space shading pass ----------------------------------------------------
+    def shade_texture(self, wi: Any, wo: Any) -> list[Any]:
+        """Every texel at its centre, for per-texel directions ``wi``, ``wo`` (``Vector3f``
+        of ``H * W`` lanes, row-major texels). The student reads them at each block's
+        top-left texel (callers pass the block centre's directions there) and returns its
+        four texels per lane. Returns a list of ``Color3f``: ``[all texels]`` for NeuMIP
+        and Lafortune; for the student the four ``(H/2 * W/2)``-lane colours of the
+        texels ``(2j + dy, 2i + dx)`` in the order ``(dy, dx) = (0,0), (0,1), (1,0),
+        (1,1)`` (use :meth:`assemble` to get an image)."""
+        dr, mi = self.dr, self.mi
+        if self.kind != "c2f":
+            n = self.h * self.w
+            idx = dr.arange(mi.UInt32, n)
+            wi_ = [wi[0], wi[1], wi[2]]
+            wo_ = [wo[0], wo[1], wo[2]]
+            if self.kind == "neumip":
+                feats = self._gather(self.texture, idx)
+                rgb = fused_mlp(self.mlp, [*feats, wi_[0], wi_[1], wo_[0], wo_[1]])
+                return [self._out(rgb)]
+            return [self._lafortune(self._gather(self.params, idx), wi_, wo_)]
+        hb, wb = self.h // 2, self.w // 2
+        b = dr.arange(mi.UInt32, hb * wb)
+        bj, bi = b // wb, b % wb
+        top_left = (2 * bj) * self.w + 2 * bi
+        wi_b = [dr.gather(mi.Float, wi[k], top_left) for k in range(3)]
+        wo_b = [dr.gather(mi.Float, wo[k], top_left) for k in range(3)]
+        z = self._coarse_z(self._gather(self.coarse_tex, b), wi_b, wo_b)
+        outs = []
+        for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            texel = (2 * bj + dy) * self.w + 2 * bi + dx
+            outs.append(self._out(fused_mlp(self.fine, [*z, *self._gather(self.fine_tex, texel)])))
+        return outs
+
+    def assemble(self, outs: list[Any]) -> np.ndarray:
+        """The ``(H, W, 3)`` float32 image of :meth:`shade_texture`'s result."""
+        if len(outs) == 1:
+            return np.asarray(outs[0], np.float32).T.reshape(self.h, self.w, 3)
+        hb, wb = self.h // 2, self.w // 2
+        img = np.empty((self.h, self.w, 3), np.float32)
+        for (dy, dx), c in zip(((0, 0), (0, 1), (1, 0), (1, 1)), outs, strict=True):
+            img[dy::2, dx::2] = np.asarray(c, np.float32).T.reshape(hb, wb, 3)
+        return img
+
+    def slice(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """One BTF slice (constant directions) through the texture-space pass, ``(H, W, 3)``."""
+        mi = self.mi
+        n = self.h * self.w
+        wi_v = mi.Vector3f(*(mi.Float(np.full(n, float(c), np.float32)) for c in wi))
+        wo_v = mi.Vector3f(*(mi.Float(np.full(n, float(c), np.float32)) for c in wo))
+        return self.assemble(self.shade_texture(wi_v, wo_v))
