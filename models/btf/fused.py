@@ -8,7 +8,7 @@ Two entry points:
   coarse MLP runs once (directions at the block's centre, Sec. 4.1) and the fine MLP four
   times, so ``M_c`` is amortised over four texels. NeuMIP and Lafortune run one lane per
   texel. Texels are read at their centres (no filtering: the radiance texture and the
-  neural textures share a resolution).
+  neural textures share a resolution), lane by lane, without gathers.
 - :meth:`FusedBtf.eval`: one evaluation at arbitrary texture coordinates (a Mitsuba BSDF's
   ``eval``): the neural textures bilinear and periodic (NeuMIP, the student's fine
   texture), the student's coarse texture at the centre of the 2 x 2 block holding ``uv``,
@@ -30,6 +30,9 @@ from materials.btf.lafortune import LOBE_PARAMS, LOBES, M_OFFSET, N_OFFSET, RHO_
 from models.btf.portable import PortableBtf
 from models.fused_mlp import fused_mlp
 
+#: The texels of a 2 x 2 block, ``(dy, dx)``, in the order of the student's outputs.
+BLOCK_TEXELS: tuple[tuple[int, int], ...] = ((0, 0), (0, 1), (1, 0), (1, 1))
+
 
 @dataclass
 class _Texture:
@@ -40,10 +43,21 @@ class _Texture:
     w: int
 
 
+def _float16_type(mi: types.ModuleType) -> Any:
+    """Dr.Jit's half-precision array of Mitsuba's backend."""
+    import drjit
+
+    backend = drjit.cuda if mi.variant().startswith("cuda") else drjit.llvm
+    return backend.Float16
+
+
 class FusedBtf:
     """A portable BTF model ready to be traced into Dr.Jit kernels."""
 
-    def __init__(self, model: PortableBtf, mi: types.ModuleType) -> None:
+    def __init__(self, model: PortableBtf, mi: types.ModuleType, *, half: bool = False) -> None:
+        """``half``: keep the textures (neural features, Lafortune parameters) in float16
+        and widen them to float32 in the kernel, as the paper's half-precision inference
+        stores them; the arithmetic stays float32."""
         import drjit as dr
 
         self.model = model
@@ -51,11 +65,17 @@ class FusedBtf:
         self.dr = dr
         self.kind = model.kind
         self.h, self.w = model.resolution
+        self.half = half
+        store = _float16_type(mi) if half else mi.Float
+        np_type = np.float16 if half else np.float32
+
+        def arr1(a: np.ndarray) -> Any:
+            return store(np.ascontiguousarray(a, dtype=np_type).reshape(-1))
 
         def tex(arr: np.ndarray) -> _Texture:
             c, h, w = arr.shape
-            flat = np.ascontiguousarray(arr.reshape(c, h * w), dtype=np.float32)
-            return _Texture([mi.Float(flat[k]) for k in range(c)], h, w)
+            flat = np.asarray(arr).reshape(c, h * w)
+            return _Texture([arr1(flat[k]) for k in range(c)], h, w)
 
         t = model.textures
         if self.kind == "neumip":
@@ -65,6 +85,13 @@ class FusedBtf:
         elif self.kind == "c2f":
             self.coarse_tex = tex(t["coarse_texture"])
             self.fine_tex = tex(t["fine_texture"])
+            # The texture-space pass reads the fine texture block by block: four planes of
+            # (H/2, W/2) texels, one per position (dy, dx) in the block, so lane b of the
+            # pass reads element b of each plane (a contiguous load, no gather).
+            ft = np.asarray(t["fine_texture"], np.float32)
+            self.fine_planes = [
+                [arr1(ft[c, dy::2, dx::2]) for c in range(ft.shape[0])] for dy, dx in BLOCK_TEXELS
+            ]
             self.coarse = [model.layers["coarse1"], model.layers["coarse2"]]
             self.fine = [model.layers["fine1"], model.layers["fine2"]]
         else:
@@ -73,7 +100,10 @@ class FusedBtf:
 
     # -- building blocks -----------------------------------------------------------------
     def _gather(self, tex: _Texture, index: Any) -> list[Any]:
-        return [self.dr.gather(self.mi.Float, c, index) for c in tex.channels]
+        return [self.mi.Float(self.dr.gather(type(c), c, index)) for c in tex.channels]
+
+    def _wide(self, channels: list[Any]) -> list[Any]:
+        return [self.mi.Float(c) for c in channels] if self.half else list(channels)
 
     def _bilinear(self, tex: _Texture, u: Any, v: Any) -> list[Any]:
         dr, mi = self.dr, self.mi
@@ -152,36 +182,38 @@ class FusedBtf:
 
     # -- the texture-space shading pass ----------------------------------------------------
     def shade_texture(self, wi: Any, wo: Any) -> list[Any]:
-        """Every texel at its centre, for per-texel directions ``wi``, ``wo`` (``Vector3f``
-        of ``H * W`` lanes, row-major texels). The student reads them at each block's
-        top-left texel (callers pass the block centre's directions there) and returns its
-        four texels per lane. Returns a list of ``Color3f``: ``[all texels]`` for NeuMIP
-        and Lafortune; for the student the four ``(H/2 * W/2)``-lane colours of the
-        texels ``(2j + dy, 2i + dx)`` in the order ``(dy, dx) = (0,0), (0,1), (1,0),
-        (1,1)`` (use :meth:`assemble` to get an image)."""
-        dr, mi = self.dr, self.mi
-        if self.kind != "c2f":
-            n = self.h * self.w
-            idx = dr.arange(mi.UInt32, n)
-            wi_ = [wi[0], wi[1], wi[2]]
-            wo_ = [wo[0], wo[1], wo[2]]
-            if self.kind == "neumip":
-                feats = self._gather(self.texture, idx)
-                rgb = fused_mlp(self.mlp, [*feats, wi_[0], wi_[1], wo_[0], wo_[1]])
-                return [self._out(rgb)]
-            return [self._lafortune(self._gather(self.params, idx), wi_, wo_)]
-        hb, wb = self.h // 2, self.w // 2
-        b = dr.arange(mi.UInt32, hb * wb)
-        bj, bi = b // wb, b % wb
-        top_left = (2 * bj) * self.w + 2 * bi
-        wi_b = [dr.gather(mi.Float, wi[k], top_left) for k in range(3)]
-        wo_b = [dr.gather(mi.Float, wo[k], top_left) for k in range(3)]
-        z = self._coarse_z(self._gather(self.coarse_tex, b), wi_b, wo_b)
-        outs = []
-        for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):
-            texel = (2 * bj + dy) * self.w + 2 * bi + dx
-            outs.append(self._out(fused_mlp(self.fine, [*z, *self._gather(self.fine_tex, texel)])))
-        return outs
+        """Every texel at its centre, one lane per texel (NeuMIP, Lafortune) or per 2 x 2
+        block (the student), with the lanes' directions ``wi``, ``wo`` (``Vector3f``;
+        :meth:`lanes` lanes: row-major texels, or row-major blocks for the student, whose
+        directions are taken at the block centre, Sec. 4.1). The textures are read
+        lane by lane (contiguous loads: lane ``k`` is texel / block ``k``). Returns a list of
+        ``Color3f``: ``[all texels]`` for NeuMIP and Lafortune; for the student the four
+        block-lane colours of the texels ``(2j + dy, 2i + dx)`` in :data:`BLOCK_TEXELS`
+        order. :meth:`assemble` makes an image of either."""
+        wi_ = [wi[0], wi[1], wi[2]]
+        wo_ = [wo[0], wo[1], wo[2]]
+        if self.kind == "neumip":
+            feats = self._wide(self.texture.channels)
+            return [self._out(fused_mlp(self.mlp, [*feats, wi_[0], wi_[1], wo_[0], wo_[1]]))]
+        if self.kind == "lafortune":
+            return [self._lafortune(self._wide(self.params.channels), wi_, wo_)]
+        z = self._coarse_z(self._wide(self.coarse_tex.channels), wi_, wo_)
+        return [
+            self._out(fused_mlp(self.fine, [*z, *self._wide(plane)])) for plane in self.fine_planes
+        ]
+
+    def lanes(self) -> int:
+        """Lanes of :meth:`shade_texture`: texels, or 2 x 2 blocks for the student."""
+        return (self.h // 2) * (self.w // 2) if self.kind == "c2f" else self.h * self.w
+
+    def lane_centres(self) -> np.ndarray:
+        """``(lanes, 2)`` uv of each lane's texel centre, or block centre for the student."""
+        if self.kind == "c2f":
+            h, w = self.h // 2, self.w // 2
+        else:
+            h, w = self.h, self.w
+        jj, ii = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+        return np.stack([(ii.ravel() + 0.5) / w, (jj.ravel() + 0.5) / h], axis=1)
 
     def assemble(self, outs: list[Any]) -> np.ndarray:
         """The ``(H, W, 3)`` float32 image of :meth:`shade_texture`'s result."""
@@ -189,14 +221,14 @@ class FusedBtf:
             return np.asarray(outs[0], np.float32).T.reshape(self.h, self.w, 3)
         hb, wb = self.h // 2, self.w // 2
         img = np.empty((self.h, self.w, 3), np.float32)
-        for (dy, dx), c in zip(((0, 0), (0, 1), (1, 0), (1, 1)), outs, strict=True):
+        for (dy, dx), c in zip(BLOCK_TEXELS, outs, strict=True):
             img[dy::2, dx::2] = np.asarray(c, np.float32).T.reshape(hb, wb, 3)
         return img
 
     def slice(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
         """One BTF slice (constant directions) through the texture-space pass, ``(H, W, 3)``."""
         mi = self.mi
-        n = self.h * self.w
+        n = self.lanes()
         wi_v = mi.Vector3f(*(mi.Float(np.full(n, float(c), np.float32)) for c in wi))
         wo_v = mi.Vector3f(*(mi.Float(np.full(n, float(c), np.float32)) for c in wo))
         return self.assemble(self.shade_texture(wi_v, wo_v))

@@ -100,7 +100,11 @@ def test04_amortised_student_equals_per_texel(mi: types.ModuleType) -> None:
     wi = np.repeat(np.repeat(block_wi, 2, axis=0), 2, axis=1).reshape(-1, 3)
     wo = np.repeat(np.repeat(block_wo, 2, axis=0), 2, axis=1).reshape(-1, 3)
     vec = lambda a: mi.Vector3f(*(mi.Float(a[:, k].astype(np.float32)) for k in range(3)))  # noqa: E731
-    amortised = fused.assemble(fused.shade_texture(vec(wi), vec(wo)))
+    assert fused.lanes() == 16
+    np.testing.assert_allclose(fused.lane_centres()[5], [(1 + 0.5) / 4, (1 + 0.5) / 4])
+    amortised = fused.assemble(
+        fused.shade_texture(vec(block_wi.reshape(-1, 3)), vec(block_wo.reshape(-1, 3)))
+    )
     jj, ii = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
     uv = mi.Point2f(mi.Float(((ii + 0.5) / w).ravel()), mi.Float(((jj + 0.5) / h).ravel()))
     per_texel = np.asarray(fused.eval(uv, vec(wi), vec(wo)), np.float32).T.reshape(h, w, 3)
@@ -137,3 +141,14 @@ def test06_fused_lafortune_equals_numpy(mi: types.ModuleType) -> None:
     np.testing.assert_allclose(port.slice(wi, wo), np.maximum(expect, 0), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(FusedBtf(port, mi).slice(wi, wo), np.maximum(expect, 0),
                                rtol=2e-5, atol=1e-7)  # fmt: skip
+
+
+def test07_half_precision_textures(mi: types.ModuleType) -> None:
+    """float16 textures (the paper's half-precision inference) change the result only by
+    the textures' rounding: the same model with its textures rounded to float16 in numpy."""
+    port = _portable(_net("c2f", 8, seed=5))
+    rounded = {k: v.astype(np.float16).astype(np.float32) for k, v in port.textures.items()}
+    ref = read_model(port.doc, rounded)
+    wi, wo = to_vector(25, 80), to_vector(55, 300)
+    np.testing.assert_allclose(FusedBtf(port, mi, half=True).slice(wi, wo), ref.slice(wi, wo),
+                               rtol=1e-5, atol=1e-6)  # fmt: skip
