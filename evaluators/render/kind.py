@@ -192,7 +192,10 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
         lights=tuple(params.lights) if params.lights is not None else None,
         camera=params.camera,
     )
-    scene_dict = build_scene(params.scene, mi, bsdf, setup)
+    try:
+        scene_dict = build_scene(params.scene, mi, bsdf, setup)
+    except ValueError as exc:  # e.g. a material with relief in a scene without a floor
+        raise JobFailed(f"material: {exc}") from None
     # A model material with neural_max_depth needs the depth-aware path tracer (Sec. 5.3);
     # a fabric material needs each pixel's footprint (uv partials at pixel centres).
     try:

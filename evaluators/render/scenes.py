@@ -12,8 +12,10 @@ scene             what it is
                   renders in BRDF papers
 ``sphere_points`` the same sphere and camera under three point lights, black background
 ``plane_points``  an 8x8 square in the y = 0 plane with uv coordinates in [0, 1]^2 (for
-                  textured BTF, glint and fabric materials) filling the view, seen from
-                  45 degrees above the plane, under three point lights
+                  textured BTF, glint and fabric materials; u along +x, v along -z)
+                  filling the view, seen from 45 degrees above the plane, under three
+                  point lights; a ``{"btf_surface": ...}`` material replaces the square
+                  with its relief mesh (as does ``cloth_plane``)
 ``cloth_plane``   a 3x3 square of cloth (uv in [0, 1]^2) in the y = 0 plane under
                   :func:`studio_envmap` plus one warm point light, seen from about 40
                   degrees above it (for ``{"fabric": ...}``: the map's ground lights the
@@ -42,6 +44,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import Field, StrictFloat, model_validator
 
+from evaluators.render.btf.relief import relief_mesh
 from jobapi.params import StrictModel
 
 Vec3 = Annotated[tuple[StrictFloat, StrictFloat, StrictFloat], Field(strict=False)]
@@ -250,11 +253,18 @@ def sphere_points(
     return scene
 
 
-def _floor_square(mi: types.ModuleType, bsdf: Any, half_size: float) -> dict[str, Any]:
-    """A square of side ``2 half_size`` in y = 0, normal +y, uv in [0, 1]^2.
+def _floor_square(mi: types.ModuleType, bsdf: Any, half_size: float) -> Any:
+    """A square of side ``2 half_size`` in y = 0, normal +y, uv in [0, 1]^2 (u along +x,
+    v along -z; shading frame ``(dp/du, dp/dv, n)``).
 
-    Mitsuba's rectangle spans [-1, 1]^2 in z = 0 with normal +z: rotated into y = 0.
+    Mitsuba's rectangle spans [-1, 1]^2 in z = 0 with normal +z: rotated into y = 0. A BSDF
+    carrying a ``relief`` (``{"btf_surface": ...}``) gets the relief mesh of
+    :func:`evaluators.render.btf.relief.relief_mesh` over the same square instead, with the
+    BSDF it wraps.
     """
+    relief = getattr(bsdf, "relief", None)
+    if relief is not None:
+        return relief_mesh(mi, relief, half_size, bsdf.inner)
     return {
         "type": "rectangle",
         "bsdf": bsdf,
@@ -397,6 +407,8 @@ class SceneDef:
     camera: Camera
     lights: tuple[PointLight, ...]
     summary: str
+    #: Whether the scene replaces its floor by a BSDF's ``relief`` (``btf_surface``).
+    relief: bool = False
 
     def camera_for(self, setup: SceneSetup) -> Camera:
         """The camera used with ``setup`` (its override, or the default)."""
@@ -420,12 +432,14 @@ SCENES: dict[str, SceneDef] = {
         PLANE_CAMERA,
         PLANE_LIGHTS,
         "textured plane seen at an angle, three point lights",
+        relief=True,
     ),
     "cloth_plane": SceneDef(
         cloth_plane,
         CLOTH_CAMERA,
         CLOTH_LIGHTS,
         "square of cloth under the studio environment map and a point light",
+        relief=True,
     ),
     "bent_quad": SceneDef(
         bent_quad, BENT_CAMERA, GLINT_LIGHTS, "bent quad under four point lights, dim map"
@@ -439,12 +453,20 @@ SCENES: dict[str, SceneDef] = {
 def build_scene(name: str, mi: types.ModuleType, bsdf: Any, setup: SceneSetup) -> dict[str, Any]:
     """The Mitsuba scene dict of the built-in scene ``name`` with ``bsdf`` on its object.
 
-    ``bsdf`` is a Mitsuba BSDF plugin dict or an instantiated ``mi.BSDF``.
+    ``bsdf`` is a Mitsuba BSDF plugin dict or an instantiated ``mi.BSDF``. A BSDF with a
+    ``relief`` (geometry of its own) is refused, with a ``ValueError``, by scenes that
+    cannot replace their object with it.
     """
     try:
         scene = SCENES[name]
     except KeyError:
         raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}") from None
+    if getattr(bsdf, "relief", None) is not None and not scene.relief:
+        floors = ", ".join(k for k, v in SCENES.items() if v.relief)
+        raise ValueError(
+            f"this material is a surface with relief (geometry), which the scene {name!r} "
+            f"cannot show; render it in {floors}"
+        )
     if setup.spp < 1 or setup.max_depth < 1 or min(setup.resolution) < 1:
         raise ValueError(f"invalid scene setup {setup}")
     return scene.builder(

@@ -9,7 +9,9 @@ Submodules (imported explicitly by their users):
   maps) in the spirit of UBO2014's classes: leather, fabric, wood, stone;
 - :mod:`~materials.btf.lafortune`: the 4-lobe Lafortune baseline (Eq. 6-7): the model,
   its 55-float layout and the fit's starting point (the fit is
-  :mod:`models.btf.lafortune`).
+  :mod:`models.btf.lafortune`);
+- :mod:`~materials.btf.angular`: interpolation between a BTF's measured directions
+  (barycentric over a triangulation of the hemisphere; numpy set-up, Dr.Jit evaluation).
 """
 
-SUBMODULES: tuple[str, ...] = ("directions", "surfaces", "lafortune")
+SUBMODULES: tuple[str, ...] = ("directions", "surfaces", "lafortune", "angular")

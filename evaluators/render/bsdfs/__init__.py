@@ -1,5 +1,5 @@
-"""Our Mitsuba 3 BSDF plugins, one per module; shared machinery in :mod:`.common` and
-:mod:`.fabric_footprint`.
+"""Our Mitsuba 3 BSDF plugins, one per module; shared machinery in :mod:`.common`,
+:mod:`.fabric_footprint` and :mod:`.btf_common`.
 
 =====================  ======================  =============================================
 plugin                 module                  what it renders
@@ -11,6 +11,11 @@ plugin                 module                  what it renders
 ``fabric_model``       ``fabric_model``        a trained fabric network over the footprint
 ``glint``              ``glint``               glinty microstructure over the footprint
                                                (tiny examples or the Yan et al. reference)
+``btf_table``          ``btf_table``           a BTF job's slices, bilinear in space and
+                                               barycentric between measured directions
+``btf_model``          ``btf_model``           a trained BTF model (train.btf), fused
+``btf_surface``        ``btf_surface``         a generate.btf surface's principled BSDF,
+                                               carrying its relief for the floor scenes
 =====================  ======================  =============================================
 
 Each registers itself per Mitsuba variant through :mod:`evaluators.render.plugins` when its
@@ -19,7 +24,25 @@ Each registers itself per Mitsuba variant through :mod:`evaluators.render.plugin
 
 from __future__ import annotations
 
-from evaluators.render.bsdfs import brdf_model, fabric_aggregate, fabric_model, glint, merl_table
+from evaluators.render.bsdfs import (
+    brdf_model,
+    btf_model,
+    btf_surface,
+    btf_table,
+    fabric_aggregate,
+    fabric_model,
+    glint,
+    merl_table,
+)
 
 #: The plugin modules, in table order.
-PLUGINS = (merl_table, brdf_model, fabric_aggregate, fabric_model, glint)
+PLUGINS = (
+    merl_table,
+    brdf_model,
+    fabric_aggregate,
+    fabric_model,
+    glint,
+    btf_table,
+    btf_model,
+    btf_surface,
+)

@@ -13,12 +13,26 @@ key               value                                                         
                   a ``train.fabric`` network)
 ``fabric``        the woven-fabric aggregate (Monte Carlo over the footprint)     ``fabric``
 ``glint``         glinty microstructure of a ``generate.glint`` job               ``glint``
+``btf``           a BTF job's slices as a table (6D interpolation); also the      ``btf``
+                  ``uv_scale`` sibling and the BTF branch of ``model``
+                  (``{"model": "job:<train.btf id>"}``)
+``btf_surface``   the surface a ``generate.btf`` job path-traced (relief mesh     ``btf_surface``
+                  on the floor scenes, or its flat BSDF)
 ================  =============================================================  ============
 """
 
 from __future__ import annotations
 
-from evaluators.render.sources import fabric, fabric_model, glint, merl, mitsuba, model
+from evaluators.render.sources import (
+    btf,
+    btf_surface,
+    fabric,
+    fabric_model,
+    glint,
+    merl,
+    mitsuba,
+    model,
+)
 from evaluators.render.sources.common import (
     MaterialParam,
     load_bsdf,
@@ -28,7 +42,7 @@ from evaluators.render.sources.common import (
 )
 
 #: The modules that register the built-in sources, in table order.
-BUILTIN = (mitsuba, merl, model, fabric, fabric_model, glint)
+BUILTIN = (mitsuba, merl, model, fabric, fabric_model, glint, btf, btf_surface)
 
 __all__ = [
     "BUILTIN",

@@ -17,7 +17,9 @@ Sibling keys: a source may declare a pydantic model of *sibling* keys that sit n
 key in the same object (``"material"`` above). The object then has exactly one source key
 plus any of that source's siblings, and the source's resolver receives the whole validated
 object ``{key: value, **siblings}`` instead of the value alone. Sources without siblings
-keep the strict one-key form. A sibling may share its name with another source
+keep the strict one-key form. The siblings are validated with the source's own value as
+pydantic's validation context (``info.context == {key: value}``), so that what they allow
+may depend on it. A sibling may share its name with another source
 (``{"model": REF, "fabric": {...}}``): when one source key's siblings cover all the other
 source keys present, that source owns the object.
 """
@@ -156,15 +158,21 @@ def _validate_material(value: Any) -> dict[str, Any]:
         for k in rest:
             if k not in source.siblings.model_fields:
                 raise _invalid(f"{k}: not a key of a {key!r} material (allowed: {key}, {allowed})")
-        siblings = _checked(None, source.sibling_adapter, rest)
+        # The source's own (checked) value travels as validation context: a sibling model
+        # may depend on it (``model``: a whole-job ref is a BTF model, which takes no
+        # ``material``).
+        siblings = _checked(None, source.sibling_adapter, rest, context={key: checked[key]})
         checked.update(siblings.model_dump(exclude_none=True))
     return checked
 
 
-def _checked(key: str | None, adapter: TypeAdapter[Any], value: Any) -> Any:
-    """``adapter.validate_python(value, strict=True)``, errors as one ``loc: msg`` line."""
+def _checked(
+    key: str | None, adapter: TypeAdapter[Any], value: Any, context: dict[str, Any] | None = None
+) -> Any:
+    """``adapter.validate_python(value, strict=True)``, errors as one ``loc: msg`` line;
+    ``context`` is pydantic's validation context (``ValidationInfo.context``)."""
     try:
-        return adapter.validate_python(value, strict=True)
+        return adapter.validate_python(value, strict=True, context=context)
     except ValidationError as exc:
         first = exc.errors()[0]
         loc = ".".join(str(p) for p in (key, *first.get("loc", ())) if p is not None)

@@ -29,18 +29,33 @@ Monte Carlo reference (:mod:`evaluators.render.sources.fabric_model`). With it, 
 ``interpolate`` sibling ``{"fabric": {...}, "t": 0.5}`` renders the latent interpolated
 between the two materials (Sec. 6.3 of the woven-fabric paper).
 
+A trained **BTF** model (``train.btf``, Xu et al. 2025) is two files, ``model.json`` and
+``textures.npz``, so it is named by its whole job: ``{"model": "job:<train.btf id>"}``, with
+an optional ``uv_scale`` sibling (see :mod:`evaluators.render.sources.btf`) and none of the
+keys above; it renders through the ``btf_model`` BSDF
+(:mod:`evaluators.render.bsdfs.btf_model`). Whether the reference is a whole job decides
+which siblings are allowed, at spec time (the siblings see it as their validation context).
+
 This module registers the source when imported; :mod:`evaluators.render.kind` must import it so
 that the source exists wherever the ``render`` kind does.
 """
 
 from __future__ import annotations
 
+import json
 import types
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
 
-from pydantic import Field, model_validator
+from pydantic import AfterValidator, Field, ValidationInfo, model_validator
 
 from evaluators.render.bsdfs.brdf_model import MODEL_BSDF_NAME, register_model_bsdf
+from evaluators.render.sources.btf import (
+    BTF_MODEL_FORMAT,
+    UV_SCALE_DESCRIPTION,
+    UvScale,
+    resolve_btf_model,
+)
 from evaluators.render.sources.common import register_material_source
 from evaluators.render.sources.fabric import FabricValue
 from evaluators.render.sources.fabric_model import (
@@ -49,16 +64,36 @@ from evaluators.render.sources.fabric_model import (
     resolve_model_fabric,
 )
 from jobapi.errors import JobFailed
-from jobapi.params import Ref, StrictModel
+from jobapi.params import JOB_ID_REF, StrictModel, is_ref
 from models.brdf.fused import bake_material, read_model
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
 
 
+def _check_model_ref(value: str) -> str:
+    if not (is_ref(value) or JOB_ID_REF.match(value)):
+        raise ValueError(
+            "must be an artifact reference 'job:<job-id>/<artifact-name>' or "
+            "'sha256:<64 lowercase hex>', or for a BTF model the whole train.btf job "
+            "'job:<job-id>'"
+        )
+    return value
+
+
+#: The ``model`` value: an artifact reference, or a whole ``train.btf`` job.
+ModelRef = Annotated[str, AfterValidator(_check_model_ref)]
+
+
+def is_btf_model_ref(ref: str) -> bool:
+    """Whether a ``model`` value names a whole job (a BTF model)."""
+    return bool(JOB_ID_REF.match(ref))
+
+
 class ModelSiblings(StrictModel):
     """The keys next to ``"model"`` in a ``{"model": REF, ...}`` material: exactly one of
-    ``material`` (a BRDF model's material) and ``fabric`` (a fabric model's material)."""
+    ``material`` (a BRDF model's material) and ``fabric`` (a fabric model's material); for
+    a BTF model (``REF`` a whole job), at most ``uv_scale``."""
 
     material: str | None = Field(
         default=None,
@@ -86,8 +121,27 @@ class ModelSiblings(StrictModel):
         "models only (Sec. 5.3 of the hybrid-BRDF paper).",
     )
 
+    uv_scale: UvScale | None = Field(
+        default=None, description="For a train.btf model: " + UV_SCALE_DESCRIPTION
+    )
+
     @model_validator(mode="after")
-    def _one_material(self) -> ModelSiblings:
+    def _one_material(self, info: ValidationInfo) -> ModelSiblings:
+        ref = (info.context or {}).get("model")
+        if isinstance(ref, str) and is_btf_model_ref(ref):
+            given = [k for k in ("material", "fabric", "interpolate", "neural_max_depth")
+                     if getattr(self, k) is not None]  # fmt: skip
+            if given:
+                raise ValueError(
+                    f"{given[0]}: a whole-job reference names a BTF model (train.btf), which "
+                    f"takes only 'uv_scale'; a BRDF or fabric model takes its artifact "
+                    f"reference, e.g. 'job:<id>/model.json'"
+                )
+            return self
+        if self.uv_scale is not None:
+            raise ValueError(
+                "uv_scale: applies to BTF models, named by their whole train.btf job 'job:<id>'"
+            )
         if (self.material is None) == (self.fabric is None):
             raise ValueError(
                 "material: this key is required"
@@ -110,6 +164,8 @@ def resolve_model(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     a model document, the material is not in it, ``neural_max_depth`` is given for a model
     without an analytic part, or Mitsuba runs a variant the BSDF cannot use.
     """
+    if is_btf_model_ref(value["model"]):
+        return resolve_btf_model(value, ctx, mi)
     if "fabric" in value:
         return resolve_model_fabric(value, ctx, mi)
     ref, name = value["model"], value["material"]
@@ -118,6 +174,11 @@ def resolve_model(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     try:
         baked = bake_material(read_model(path), name)
     except ValueError as exc:
+        if _format_of(path) == BTF_MODEL_FORMAT:
+            raise JobFailed(
+                f"material.model: {ref} is a BTF model: name its whole train.btf job "
+                f"{{'model': 'job:<id>'}}, without 'material'"
+            ) from None
         raise JobFailed(f"material.model: {ref}: {exc}") from None
     if depth is not None and not baked.has_analytic:
         raise JobFailed(
@@ -134,14 +195,23 @@ def resolve_model(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     return plugin
 
 
+def _format_of(path: Path) -> Any:
+    """The ``format`` of a JSON document at ``path`` (``None`` if unreadable)."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return doc.get("format") if isinstance(doc, dict) else None
+
+
 register_material_source(
     "model",
     resolve_model,
-    value_type=Ref,
+    value_type=ModelRef,
     siblings=ModelSiblings,
     summary="One material of a trained BRDF model: {'model': REF to a model.json, "
     "'material': NAME, optional 'neural_max_depth': int}; or of a train.fabric model: "
     "{'model': REF to its model.json or model.pt, 'fabric': {...}, optional 'interpolate': "
-    "{'fabric': {...}, 't': 0..1}}; rendered with the "
-    "fused-network BSDF.",
+    "{'fabric': {...}, 't': 0..1}}; or a train.btf model: {'model': 'job:<train.btf id>', "
+    "optional 'uv_scale': s or [s_u, s_v]}; rendered with the fused-network BSDF.",
 )

@@ -49,7 +49,7 @@ def test01_model_source_validation() -> None:
     )
     assert error({"model": REF, "material": "g", "spp": 3}) == (
         "spp: not a key of a 'model' material (allowed: model, material, fabric, interpolate, "
-        "neural_max_depth)"
+        "neural_max_depth, uv_scale)"
     )
 
 
