@@ -1,0 +1,99 @@
+"""``scripts/btf_eval.yaml`` run through the job machinery at tiny sizes.
+
+The batch file is loaded and validated as ``matforge batch`` does, then every step runs
+through :func:`service.submission.run_in_process` with its ``step:`` refs resolved, after
+shrinking: the ``small`` directions (36 pairs) at 8 x 8 texels and 2 spp, one epoch per
+network (a check every 16 steps), Lafortune on 16 slices, renders of 32 x 32 at 4 spp (the
+surface at 16).
+
+Oracles: every step succeeds; each model's metrics are finite with the storage of its
+architecture; every score is finite and in range; and the table render is closer to the
+path-traced surface than the worst model (the table is the 6D reference).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service.cli.batch import load_batch, substitute_refs
+from service.settings import Settings
+from service.specs import STEP_REF
+from service.submission import run_in_process
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job
+
+RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "btf_eval.yaml"
+MODELS = ("lafortune", "neumip", "neumip8", "teacher", "c2f", "c2f_distill")
+
+
+def shrink(spec: dict[str, Any]) -> dict[str, Any]:
+    params = dict(spec["params"])
+    if spec["kind"] == "generate.btf":
+        params.update(directions={"preset": "small"}, resolution=8, spp=2, shard_slices=12)
+    if spec["kind"] == "train.btf":
+        if params["model"] == "lafortune":
+            params.update(lafortune_slices=16, lafortune_iterations=5)
+        else:
+            params.update(epochs=1, check_steps=16)
+    if spec["kind"] == "render":
+        params.update(resolution=[32, 32], spp=16 if params["spp"] > 64 else 4)
+    return {**spec, "params": params}
+
+
+@pytest.fixture(scope="module")
+def chain(
+    tmp_path_factory: pytest.TempPathFactory, mi: types.ModuleType
+) -> tuple[Settings, dict[str, Job]]:
+    settings = Settings.from_env({}).with_(
+        data_dir=tmp_path_factory.mktemp("btf_eval") / "data", pool_processes=1
+    )
+    jobs: dict[str, Job] = {}
+    batch = load_batch(RECIPE)
+    for step in batch.steps:
+
+        def resolve(ref: str) -> str:
+            m = STEP_REF.match(ref)
+            assert m is not None
+            job = jobs[m["step"]]
+            return f"job:{job.id}" if m["name"] is None else f"job:{job.id}/{m['name']}"
+
+        job = run_in_process(shrink(substitute_refs(step.spec, resolve)), settings)
+        assert job.state == "succeeded", (step.name, job.error)
+        jobs[step.name] = job
+    return settings, jobs
+
+
+def _json(settings: Settings, job: Job, name: str) -> Any:
+    (digest,) = [a.digest for a in job.artifacts if a.name == name]
+    return json.loads(ArtifactStore(settings.store_dir).read(digest))
+
+
+def test01_models_and_storage(chain: tuple[Settings, dict[str, Job]]) -> None:
+    settings, jobs = chain
+    per_texel = {"lafortune": 55 * 4, "neumip": 7 * 4, "neumip8": 7 * 4, "teacher": 7 * 4,
+                 "c2f": 8 * 4 + 7, "c2f_distill": 8 * 4 + 7}  # fmt: skip
+    for name in MODELS:
+        m = _json(settings, jobs[name], "metrics.json")
+        assert math.isfinite(m["l1"]) and m["l1"] > 0, name
+        assert m["storage"]["texture_bytes"] == per_texel[name] * 64, name
+    assert _json(settings, jobs["c2f_distill"], "metrics.json")["label"] == "c2f+distill"
+    assert _json(settings, jobs["neumip8"], "metrics.json")["label"] == "neumip (8)"
+
+
+def test02_scores(chain: tuple[Settings, dict[str, Job]]) -> None:
+    settings, jobs = chain
+    for step in ("vs_surface", "vs_table", "sphere_vs_table"):
+        metrics = _json(settings, jobs[step], "metrics.json")["metrics"]
+        assert set(MODELS) <= set(metrics), step
+        for label, vals in metrics.items():
+            assert 0.0 <= vals["flip"] <= 1.0 and -1.0 <= vals["ssim"] <= 1.0, (step, label)
+            assert math.isfinite(vals["psnr"]), (step, label)
+    vs_surface = _json(settings, jobs["vs_surface"], "metrics.json")["metrics"]
+    worst = max(vs_surface[m]["flip"] for m in MODELS)
+    assert vs_surface["table"]["flip"] < worst
