@@ -18,6 +18,7 @@ from jobapi.kinds import Kind, registered
 BUILTIN_MODULES: tuple[str, ...] = (
     "evaluators.render.kind",
     "evaluators.score.kind",
+    "evaluators.tss.kind",
     "generators.merl.kind",
     "generators.fabric.kind",
     "generators.glint.kind",
