@@ -159,6 +159,9 @@ def test05_rest_and_cli(settings: Settings, tmp_path: Path) -> None:
         assert listed["preview.png"]["media_type"] == "image/png"
         page = client.get(f"/api/artifacts/{listed['preview.png']['digest']}")
         assert page.status_code == 200 and page.content[:4] == b"\x89PNG"
+        # the dashboard's job page shows the slice grid and the maps
+        html = client.get(f"/jobs/{job_id}").text
+        assert f"/api/artifacts/{listed['preview.png']['digest']}" in html
     spec_path = tmp_path / "btf.json"
     spec_path.write_text(json.dumps({**SPEC, "seed": 9}))
     cli = [sys.executable, "-c", "from service.cli import main; main()"]

@@ -74,6 +74,14 @@ def test02_networks_learn_lambertian(flat, model: str) -> None:
     assert len(curves["step"]) == 7 and curves["step"][-1] == 200 * 32  # a point per check
     assert curves["test_l1"][-1] < curves["test_l1"][0]
     assert art(settings, job, "reconstructions.png")[:4] == b"\x89PNG"
+    from fastapi.testclient import TestClient
+
+    from service.api import create_app
+
+    with TestClient(create_app(settings)) as client:  # the dashboard shows Fig. 8
+        html = client.get(f"/jobs/{job.id}").text
+    (digest,) = [a.digest for a in job.artifacts if a.name == "reconstructions.png"]
+    assert f"/api/artifacts/{digest}" in html and "curves.png" in html
 
 
 def test03_distillation_from_a_teacher(flat) -> None:
