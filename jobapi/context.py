@@ -217,11 +217,7 @@ class JobContext:
                 todo.append(i)
         lo, hi = progress_range
         n_done = len(items) - len(todo)
-        if items:
-            self.progress(
-                lo + (hi - lo) * n_done / len(items),
-                f"{label}s: {n_done}/{len(items)} (resumed)" if n_done else None,
-            )
+        self._report_resumed(n_done, len(items), label, progress_range)
         for j, result in self.executor.map(fn, [items[i] for i in todo]):
             i = todo[j]
             info = self.store.put_bytes(pickle.dumps(result, protocol=5))
@@ -266,11 +262,7 @@ class JobContext:
                 todo.append(i)
         lo, hi = progress_range
         n_done = len(items) - len(todo)
-        if items:
-            self.progress(
-                lo + (hi - lo) * n_done / len(items),
-                f"{label}s: {n_done}/{len(items)} (resumed)" if n_done else None,
-            )
+        self._report_resumed(n_done, len(items), label, progress_range)
         for j, data in self.executor.map(fn, [items[i] for i in todo]):
             i = todo[j]
             rec = self.put_bytes(names[i], data, media_type)
@@ -282,6 +274,15 @@ class JobContext:
             n_done += 1
             self.progress(lo + (hi - lo) * n_done / len(items), f"{label}s: {n_done}/{len(items)}")
         return [r for r in records if r is not None]
+
+    def _report_resumed(
+        self, n_done: int, n: int, label: str, progress_range: tuple[float, float]
+    ) -> None:
+        if n:
+            lo, hi = progress_range
+            self.progress(
+                lo + (hi - lo) * n_done / n, f"{label}s: {n_done}/{n} (resumed)" if n_done else None
+            )
 
     def _record(self, name: str, digest: str, size: int, media_type: str | None) -> ArtifactRecord:
         rec = ArtifactRecord(

@@ -45,6 +45,7 @@ import numpy as np
 from pydantic import Field, StrictFloat, model_validator
 
 from evaluators.render.btf.relief import relief_mesh
+from evaluators.render.meshes import grid_faces, triangle_mesh
 from jobapi.params import StrictModel
 
 Vec3 = Annotated[tuple[StrictFloat, StrictFloat, StrictFloat], Field(strict=False)]
@@ -328,8 +329,6 @@ GLINT_ENV_SCALE = 0.25
 def bent_quad_mesh(mi: types.ModuleType, bsdf: Any, segments: int = 32) -> Any:
     """A 3 x 3 sheet bent about the z axis through 100 degrees on a radius of 2, apex at the
     origin, normal up; uv in [0, 1]^2 (u along the bend). A ``mi.Mesh`` carrying ``bsdf``."""
-    import drjit as dr
-
     nu, nv = segments, 4
     u, v = np.linspace(0.0, 1.0, nu + 1), np.linspace(0.0, 1.0, nv + 1)
     uu, vv = np.meshgrid(u, v, indexing="xy")
@@ -340,25 +339,8 @@ def bent_quad_mesh(mi: types.ModuleType, bsdf: Any, segments: int = 32) -> Any:
     ).reshape(-1, 3)
     nrm = np.stack([np.sin(ang), np.cos(ang), np.zeros_like(ang)], axis=-1).reshape(-1, 3)
     uv = np.stack([uu, vv], axis=-1).reshape(-1, 2)
-    faces = []
-    for j in range(nv):
-        for i in range(nu):
-            a = j * (nu + 1) + i
-            faces += [[a, a + 1, a + nu + 2], [a, a + nu + 2, a + nu + 1]]
-    tri = np.asarray(faces, dtype=np.uint32)
-    props = mi.Properties()
-    props["bsdf"] = bsdf if not isinstance(bsdf, dict) else mi.load_dict(bsdf)
-    mesh = mi.Mesh(
-        "bent_quad", len(pos), len(tri), props=props,
-        has_vertex_normals=True, has_vertex_texcoords=True,
-    )  # fmt: skip
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(*pos.T.astype(np.float32)))
-    params["vertex_normals"] = dr.ravel(mi.Normal3f(*nrm.T.astype(np.float32)))
-    params["vertex_texcoords"] = dr.ravel(mi.Point2f(*uv.T.astype(np.float32)))
-    params["faces"] = dr.ravel(mi.Vector3u(*tri.T))
-    params.update()
-    return mesh
+    faces = grid_faces(nu + 1, nv + 1)
+    return triangle_mesh(mi, "bent_quad", pos, faces, bsdf, uv=uv, normals=nrm)
 
 
 def _dim_environment(mi: types.ModuleType) -> dict[str, Any]:

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from evaluators.render.meshes import grid_faces, triangle_mesh
 from materials.btf.surfaces import SurfaceMaps
 
 #: Tiles per side of the procedural mesh (odd: the central one is the patch).
@@ -45,11 +46,7 @@ def heightfield_arrays(height: np.ndarray, tiles: int = TILES) -> tuple[np.ndarr
     pos = np.stack([xx, yy, hh], axis=-1).reshape(-1, 3)
     uu, vv = np.meshgrid((idx + 0.5) / n, (idx + 0.5) / n, indexing="xy")
     uv = np.stack([uu, vv], axis=-1).reshape(-1, 2)
-    a = (np.arange(m - 1)[None, :] + (np.arange(m - 1) * m)[:, None]).ravel()
-    faces = np.concatenate(
-        [np.stack([a, a + 1, a + m + 1], axis=1), np.stack([a, a + m + 1, a + m], axis=1)]
-    )
-    return pos, uv, faces.astype(np.uint32)
+    return pos, uv, grid_faces(m, m)
 
 
 def _bitmap(mi: types.ModuleType, arr: np.ndarray) -> dict[str, Any]:
@@ -81,22 +78,9 @@ def procedural_mesh(mi: types.ModuleType, maps: SurfaceMaps, bsdf: Any = None) -
     """The tiled height-field ``mi.Mesh`` of ``maps`` carrying ``bsdf`` (default: its
     :func:`principled_dict`). Shading normals are the faces' (no vertex normals), so the
     geometry the light sees is exactly the one that shadows and masks."""
-    import drjit as dr
-
     pos, uv, faces = heightfield_arrays(maps.height)
-    props = mi.Properties()
     material = principled_dict(mi, maps) if bsdf is None else bsdf
-    props["bsdf"] = mi.load_dict(material) if isinstance(material, dict) else material
-    mesh = mi.Mesh(
-        "btf_patch", len(pos), len(faces), props=props,
-        has_vertex_normals=False, has_vertex_texcoords=True,
-    )  # fmt: skip
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(*pos.T.astype(np.float32)))
-    params["vertex_texcoords"] = dr.ravel(mi.Point2f(*uv.T.astype(np.float32)))
-    params["faces"] = dr.ravel(mi.Vector3u(*faces.T))
-    params.update()
-    return mesh
+    return triangle_mesh(mi, "btf_patch", pos, faces, material, uv=uv)
 
 
 def flat_shape(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:

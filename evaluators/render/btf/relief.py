@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from evaluators.render.meshes import grid_faces, triangle_mesh
+
 #: Most vertices of a relief mesh (about 0.2 GB of Mitsuba geometry).
 MAX_RELIEF_VERTICES = 1 << 22
 
@@ -91,28 +93,10 @@ def relief_arrays(relief: Relief, half_size: float) -> tuple[np.ndarray, ...]:
     pos = np.stack([xx, hh, zz], axis=-1).reshape(-1, 3)
     uu, vv = np.meshgrid(px, py, indexing="xy")
     uv = np.stack([uu, vv], axis=-1).reshape(-1, 2)
-    m, rows = len(px), len(py)
-    a = (np.arange(m - 1)[None, :] + (np.arange(rows - 1) * m)[:, None]).ravel()
-    faces = np.concatenate(
-        [np.stack([a, a + 1, a + m + 1], axis=1), np.stack([a, a + m + 1, a + m], axis=1)]
-    )
-    return pos, uv, faces.astype(np.uint32)
+    return pos, uv, grid_faces(len(px), len(py))
 
 
 def relief_mesh(mi: types.ModuleType, relief: Relief, half_size: float, bsdf: Any) -> Any:
     """The ``mi.Mesh`` of :func:`relief_arrays` carrying ``bsdf`` (a loaded BSDF or dict)."""
-    import drjit as dr
-
     pos, uv, faces = relief_arrays(relief, half_size)
-    props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf) if isinstance(bsdf, dict) else bsdf
-    mesh = mi.Mesh(
-        "btf_relief", len(pos), len(faces), props=props,
-        has_vertex_normals=False, has_vertex_texcoords=True,
-    )  # fmt: skip
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(*pos.T.astype(np.float32)))
-    params["vertex_texcoords"] = dr.ravel(mi.Point2f(*uv.T.astype(np.float32)))
-    params["faces"] = dr.ravel(mi.Vector3u(*faces.T))
-    params.update()
-    return mesh
+    return triangle_mesh(mi, "btf_relief", pos, faces, bsdf, uv=uv)
