@@ -226,7 +226,7 @@ register(
         name="generate.btf",
         params=BtfGenParams,
         runner=run_generate_btf,
-        description="BTF slices (Xu et al. 2024, Sec. 3.1) path-traced with Mitsuba 3 in "
+        description="BTF slices (Xu et al. 2025, Sec. 3.1) path-traced with Mitsuba 3 in "
         "UBO2014's convention: a flat plane of any Mitsuba BSDF or a procedural displaced "
         "surface (leather, fabric, wood, stone), one slice per light x view pair.",
         artifacts=("slices-0000.npz", "btf.json", "height.exr", "preview.png"),
