@@ -39,7 +39,7 @@ class BtfTrainPreset:
 
     epochs: int
     teacher_epochs: int
-    check_steps: int | None
+    plateau_steps: int | None
     holdout: float
     lafortune_iterations: int
     lafortune_slices: int | None
@@ -49,9 +49,9 @@ class BtfTrainPreset:
 #: 32^2). ``paper``: Sec. 4.4, the teacher ~60 epochs and the student at most 150; for a
 #: GPU at UBO2014's 151 x 151 x 400^2.
 PRESETS: dict[str, BtfTrainPreset] = {
-    "small": BtfTrainPreset(epochs=150, teacher_epochs=60, check_steps=1024, holdout=0.1,
+    "small": BtfTrainPreset(epochs=150, teacher_epochs=60, plateau_steps=1024, holdout=0.1,
                             lafortune_iterations=40, lafortune_slices=None),
-    "paper": BtfTrainPreset(epochs=150, teacher_epochs=60, check_steps=None, holdout=0.05,
+    "paper": BtfTrainPreset(epochs=150, teacher_epochs=60, plateau_steps=None, holdout=0.05,
                             lafortune_iterations=60, lafortune_slices=1024),
 }  # fmt: skip
 
@@ -82,7 +82,8 @@ class TrainBtfParams(StrictModel):
     ``width``                   model's       MLP width (25, 128, 8)
     ``distill``                 none          c2f: the teacher and Eq. 5's weights
     ``epochs``                  preset        passes over the training slices
-    ``check_steps``             preset        steps between held-out checks (plateau)
+    ``plateau_steps``           preset        steps between scheduler steps
+    ``check_steps``             plateau       steps between curve points
     ``holdout``                 preset        fraction of slices held out (fixed choice)
     ``lafortune_iterations``    preset        Levenberg-Marquardt iterations
     ``lafortune_slices``        preset        slices the fit uses (all when unset)
@@ -118,11 +119,25 @@ class TrainBtfParams(StrictModel):
         description="Epochs (one step per training slice)" + preset_note(PRESETS, "epochs")
         + " neumip_max defaults to teacher_epochs" + preset_note(PRESETS, "teacher_epochs"),
     )  # fmt: skip
+    plateau_steps: int | None = Field(
+        default=None, ge=1, le=10_000_000,
+        description="Steps between ReduceLROnPlateau steps on the held-out L1; unset: the "
+        "preset's (small 1024, paper once per epoch as in Sec. 4.4)",
+    )  # fmt: skip
     check_steps: int | None = Field(
         default=None, ge=1, le=10_000_000,
-        description="Steps between held-out checks (curve points, scheduler steps); unset: "
-        "the preset's (small 1024, paper once per epoch as in Sec. 4.4)",
+        description="Steps between points of the curves (held-out L1); unset: at the "
+        "scheduler's steps",
     )  # fmt: skip
+
+    def value(self, name: str) -> Any:
+        """The field ``name``, or the preset's value when it is unset."""
+        if name == "epochs" and self.epochs is None and self.model == "neumip_max":
+            return PRESETS[self.preset].teacher_epochs
+        if name == "check_steps":
+            return self.check_steps
+        return preset_value(self, PRESETS, name)
+
     holdout: float | None = Field(
         default=None, ge=0.0, le=0.5,
         description="Fraction of slices held out" + preset_note(PRESETS, "holdout"),
@@ -137,12 +152,6 @@ class TrainBtfParams(StrictModel):
         description="Training slices the Lafortune fit reads (evenly spaced); unset: the "
         "preset's (small: all, paper: 1024)",
     )  # fmt: skip
-
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        if name == "epochs" and self.epochs is None and self.model == "neumip_max":
-            return PRESETS[self.preset].teacher_epochs
-        return preset_value(self, PRESETS, name)
 
     def network_width(self) -> int:
         return int(self.width or WIDTHS[self.model])

@@ -100,8 +100,12 @@ def _fit_network(
 
     gen = torch.Generator().manual_seed(ctx.sub_seed("train.btf/jitter"))
     order = ctx.rng("train.btf/order")
-    check = params.value("check_steps")
-    cfg = FitConfig(epochs=epochs, check_steps=None if check is None else int(check))
+    check, plateau = params.value("check_steps"), params.value("plateau_steps")
+    cfg = FitConfig(
+        epochs=epochs,
+        check_steps=None if check is None else int(check),
+        plateau_steps=None if plateau is None else int(plateau),
+    )
     curves = fit(net, data, train, test, cfg, gen, order,
                  distill=distill, on_progress=report)  # fmt: skip
     return net.eval(), curves
@@ -168,8 +172,9 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
     label = label_of(params)
     training = {
         "params": params.model_dump(mode="json"),
-        "resolved": {n: params.value(n) for n in ("epochs", "check_steps", "holdout",
-                                                   "lafortune_iterations", "lafortune_slices")},
+        "resolved": {n: params.value(n) for n in ("epochs", "check_steps", "plateau_steps",
+                                                   "holdout", "lafortune_iterations",
+                                                   "lafortune_slices")},
         "seed": ctx.seed, "data": params.data, "label": label,
     }  # fmt: skip
     curves: Curves | None = None
