@@ -73,10 +73,13 @@ def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
 def run_in_process(raw: Any, settings: Settings) -> Job:
     """``matforge run``: validate, queue in the local store and run it here, now.
 
-    An identical spec that already succeeded is returned as it is (unless ``force``).
+    An identical spec that already succeeded is returned as it is (unless ``force``). A
+    job left ``running`` by a process that died (its lease expired) is re-queued first, as
+    a server's reaper would, so that it resumes here from its finished shards.
     """
     jobs = JobStore(settings.db_path)
     store = ArtifactStore(settings.store_dir)
+    jobs.reap(settings.max_attempts)
     job, created = submit(raw, jobs, store)
     if not created and job.state == "succeeded":
         return job

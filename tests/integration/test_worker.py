@@ -139,3 +139,19 @@ def test08_supervisor_replaces_dead_and_recycled_workers(settings) -> None:
     finally:
         sup.stop()
     assert sup.worker_pids() == []
+
+
+def test09_run_in_process_resumes_a_job_whose_process_died(toy_kind, settings, jobs, store) -> None:
+    """``matforge run`` after a killed ``matforge run``: the job left ``running`` under an
+    expired lease is re-queued (as the server's reaper does) and resumes from its shards,
+    rather than being returned as a job that is still running."""
+    from service.submission import run_in_process
+
+    job_id = _queue(jobs, store, n=3)
+    claimed = jobs.claim("dead-worker", lease_seconds=0.01, job_id=job_id)
+    assert claimed is not None and claimed.state == "running"
+    jobs.record_shard(job_id, "toy-00001", store.put_bytes(pickle.dumps(-7)).digest)
+    time.sleep(0.05)
+    job = run_in_process({"kind": "toy", "params": {"n": 3}}, settings)
+    assert job.id == job_id and job.state == "succeeded" and job.attempts == 2
+    assert json.loads(store.read(job.artifacts[0].digest))["squares"] == [0, -7, 4]
