@@ -10,7 +10,8 @@ error                                       HTTP   body
 ``FormatError`` (an upload)                  422   ``{"detail", "error"}``, naming the file
 ``NotFoundError``                            404   ``{"detail", "error"}``
 ``TooLargeError``, body over the limit       413   ``{"detail", "error"}``
-``IntegrityError`` (corrupt object)          500   ``{"detail", "error"}``, never a traceback
+``IntegrityError`` (corrupt object)          500   ``{"detail", "error"}``, never a traceback;
+                                                   header ``X-Matforge-Error: integrity``
 ==========================================  =====  ============================================
 
 ``error`` is always one line a user can act on. The web process never runs jobs: workers
@@ -120,11 +121,19 @@ def _validation_error(request: Request, exc: Exception) -> Response:
 
 def _status_handler(status: int) -> Any:
     def handler(request: Request, exc: Exception) -> Response:
-        if isinstance(exc, IntegrityError):
-            log.error("serving %s failed: %s", request.url.path, exc)
         return error_response(request, status, str(exc))
 
     return handler
+
+
+#: Header of a 500 that is a corrupt object on disk, not a server failure: the CLI exits 1
+#: with the message (a failure of the data), not 3 (an unreachable server).
+INTEGRITY_HEADER = "X-Matforge-Error"
+
+
+def _integrity_error(request: Request, exc: Exception) -> Response:
+    log.error("serving %s failed: %s", request.url.path, exc)
+    return error_response(request, 500, str(exc), headers={INTEGRITY_HEADER: "integrity"})
 
 
 def _http_error(request: Request, exc: Exception) -> Response:
@@ -285,7 +294,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(FormatError, _status_handler(422))
     app.add_exception_handler(NotFoundError, _status_handler(404))
     app.add_exception_handler(TooLargeError, _status_handler(413))
-    app.add_exception_handler(IntegrityError, _status_handler(500))
+    app.add_exception_handler(IntegrityError, _integrity_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
     app.add_exception_handler(Exception, _internal_error)
     app.add_middleware(

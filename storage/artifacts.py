@@ -5,11 +5,16 @@ bytes. Writes are atomic (temp file in the same directory, fsync, rename, fsync 
 directory) and objects are made read-only once written. Every read through
 :meth:`ArtifactStore.read` or :meth:`ArtifactStore.open_verified` re-hashes the bytes, so a
 corrupted object is reported, never served.
+
+A write of bytes whose object already exists re-hashes the existing file before it skips the
+write: a damaged object is replaced (atomically, by rename over it) with the good bytes, so
+a re-run or a re-upload repairs it instead of "succeeding" on top of it.
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import re
 import stat
@@ -22,7 +27,9 @@ from typing import BinaryIO
 
 from storage.errors import IntegrityError, NotFoundError
 
-DIGEST_RE = re.compile(r"^[0-9a-f]{64}$")
+log = logging.getLogger("matforge.store")
+
+DIGEST_RE = re.compile(r"[0-9a-f]{64}")
 _CHUNK = 1 << 20
 
 
@@ -30,7 +37,7 @@ def check_digest(digest: str) -> str:
     """Return ``digest`` (64 lowercase hex, an optional ``sha256:`` prefix dropped) or raise
     ``ValueError``. Nothing that fails this pattern ever reaches a file-system path."""
     d = digest[7:] if digest.startswith("sha256:") else digest
-    if not DIGEST_RE.match(d):
+    if not DIGEST_RE.fullmatch(d):
         raise ValueError(f"not a sha256 digest: {digest!r} (expected 64 lowercase hex digits)")
     return d
 
@@ -111,9 +118,24 @@ class ArtifactStore:
             raise NotFoundError(f"no object sha256:{check_digest(digest)} in the store") from None
 
     # -- writing -------------------------------------------------------------------------
+    def _intact(self, digest: str, size: int) -> bool:
+        """Whether an object exists with ``size`` bytes that hash to ``digest``; a damaged
+        one is logged (the caller then replaces it)."""
+        p = self.path(digest)
+        try:
+            if p.stat().st_size == size and self.verify(digest):
+                return True
+        except FileNotFoundError:
+            return False
+        log.warning("object sha256:%s is corrupt on disk; replacing it with good bytes", digest)
+        return False
+
     def _commit(self, tmp_path: Path, digest: str) -> Path:
+        """Move a written temp file into place, unless an intact object is already there.
+        A corrupt object is replaced: ``rename`` over it is atomic, so readers see the old
+        (detectably corrupt) bytes or the new ones, never a mix."""
         final = self.path(digest)
-        if final.is_file():
+        if self._intact(digest, tmp_path.stat().st_size):
             tmp_path.unlink(missing_ok=True)
             return final
         final.parent.mkdir(parents=True, exist_ok=True)
@@ -125,7 +147,7 @@ class ArtifactStore:
     def put_bytes(self, data: bytes) -> ObjectInfo:
         """Store ``data`` atomically; returns its digest and size (idempotent)."""
         digest = hashlib.sha256(data).hexdigest()
-        if self.exists(digest):
+        if self._intact(digest, len(data)):
             return ObjectInfo(digest, len(data))
         fd, name = tempfile.mkstemp(dir=self.tmp, prefix="put-")
         try:
@@ -234,7 +256,7 @@ class ArtifactStore:
         """Re-hash every object. ``stray`` lists files whose names are not digests."""
         checked, corrupt, stray = 0, [], []
         for name, path in self.iter_objects():
-            if not DIGEST_RE.match(name):
+            if not DIGEST_RE.fullmatch(name):
                 stray.append(str(path))
                 continue
             checked += 1

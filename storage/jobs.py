@@ -224,6 +224,24 @@ class JobStore:
             ).fetchone()
         return ArtifactRecord(**dict(row)) if row else None
 
+    def producers(self, digest: str) -> list[str]:
+        """Ids of the jobs that list ``digest`` as an artifact, oldest first."""
+        rows = (
+            self._conn()
+            .execute(
+                "SELECT DISTINCT a.job_id, j.seq FROM artifacts a JOIN jobs j ON j.id = a.job_id "
+                "WHERE a.digest=? ORDER BY j.seq",
+                (digest,),
+            )
+            .fetchall()
+        )
+        return [r[0] for r in rows]
+
+    def running(self) -> list[tuple[str, str | None]]:
+        """``(job id, worker)`` of every running job."""
+        rows = self._conn().execute("SELECT id, worker FROM jobs WHERE state='running'")
+        return [(r[0], r[1]) for r in rows]
+
     def referenced_digests(self) -> set[str]:
         """Every digest a job, manifest, upload or unfinished job's shard refers to (the GC
         roots). Shard results of finished jobs are not roots: such a job never re-runs, and

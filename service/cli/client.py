@@ -5,6 +5,7 @@ Every failure is one of two types, which the CLI maps to the contract's exit cod
 - :class:`ServerUnreachable` (exit 3): the connection was refused or timed out, the name did
   not resolve, the server refused the credentials (401/403, :class:`ServerRefused`), or it
   answered with a 5xx.
+- :class:`CorruptObject` (exit 1): the server's copy of an object is damaged on disk.
 - :class:`BadInput` (exit 2): the server rejected what we sent (400, 404, 413, 422), with the
   server's one-line ``error`` message; or the input was malformed before anything was sent.
 """
@@ -41,6 +42,13 @@ class ServerUnreachable(ClientError):
 class ServerRefused(ServerUnreachable):
     """The server refused our credentials (401/403): ``MATFORGE_TOKEN`` is missing or wrong.
     Exit 3, like an unreachable server, but retrying does not help."""
+
+
+class CorruptObject(ClientError):
+    """The server holds the object but its bytes are damaged (a 500 marked
+    ``X-Matforge-Error: integrity``). Exit 1: the data failed, the server did not."""
+
+    exit_code = 1
 
 
 class BadInput(ClientError):
@@ -146,6 +154,11 @@ class Client:
             raise ServerRefused(
                 f"{self.server} refused the request (HTTP {code}): "
                 f"{error_message(response)}; check MATFORGE_TOKEN"
+            )
+        if code >= 500 and response.headers.get("x-matforge-error") == "integrity":
+            raise CorruptObject(
+                f"{error_message(response)} (on the server at {self.server}; "
+                "'matforge store verify --repair' there restores it where it can)"
             )
         if code >= 500:
             raise ServerUnreachable(

@@ -1,19 +1,23 @@
 """``matforge store verify`` and ``matforge store gc``: maintenance of a local store.
 
 ``verify`` re-hashes every object and exits 1 when any is corrupt, listing them with the
-jobs' artifacts they back. ``gc`` removes objects no job, manifest, shard or upload refers
-to (``JobStore.referenced_digests``) once they are older than the grace period; it is a dry
-run unless ``--no-dry-run`` is given.
+jobs' artifacts they back; with ``--repair`` it restores them where it can
+(:mod:`service.repair`) and exits 1 only if some could not be. ``gc`` removes objects no
+job, manifest, shard or upload refers to (``JobStore.referenced_digests``) once they are
+older than the grace period, and the work directories that killed workers left in
+``<data>/scratch``; it is a dry run unless ``--no-dry-run`` is given.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from service.cli.artifacts import human_size, open_local
 from service.cli.state import EXIT_JOB_FAILED, err_console, error, print_json, state_of
+from storage.scratch import collect_scratch
 
 store_app = typer.Typer(
     help="Maintain a local store: verify objects, collect garbage.", no_args_is_help=True
@@ -32,32 +36,61 @@ DataDirOpt = typer.Option(
 def verify(
     ctx: typer.Context,
     data_dir: Path | None = DataDirOpt,
+    repair: bool = typer.Option(
+        False,
+        "--repair",
+        help="Restore corrupt objects: from a good copy under --source, else by re-running "
+        "the job that produced them; report what cannot be repaired.",
+    ),
+    sources: list[Path] = typer.Option(
+        [],
+        "--source",
+        show_default=False,
+        help="A file or folder to search for good copies (e.g. the originals of uploads); "
+        "may be repeated.",
+    ),
     as_json: bool = JsonOpt,
 ) -> None:
-    """Re-hash every object in the store; exit 1 if any is corrupt."""
+    """Re-hash every object in the store; exit 1 if any is (still) corrupt."""
     settings = state_of(ctx).settings_for(data_dir)
     jobs, store = open_local(settings.data_dir)
     with err_console.status(f"verifying {settings.store_dir}"):
         report = store.verify_all()
-    corrupt = []
+    corrupt: list[dict[str, Any]] = []
     for digest in report.corrupt:
         rec = jobs.find_digest(digest)
         corrupt.append({"digest": digest, "name": rec.name if rec else None})
+    if repair and corrupt:
+        from service.repair import repair as repair_objects
+
+        (settings.data_dir / "scratch").mkdir(parents=True, exist_ok=True)
+        with err_console.status(f"repairing {len(corrupt)} object(s)"):
+            outcomes = repair_objects(report.corrupt, jobs, store, settings, sources)
+        for item, outcome in zip(corrupt, outcomes, strict=True):
+            item.update(repaired=outcome.repaired, how=outcome.how)
+    left = [item for item in corrupt if not item.get("repaired")]
     if as_json:
-        print_json(
-            {"checked": report.checked, "ok": report.ok, "corrupt": corrupt, "stray": report.stray}
-        )
+        doc = {"checked": report.checked, "ok": not left, "corrupt": corrupt}
+        print_json({**doc, "stray": report.stray})
     else:
+        fixed = len(corrupt) - len(left)
         status = "all intact" if report.ok else f"{len(corrupt)} CORRUPT"
-        print(f"checked {report.checked} objects in {settings.store_dir}: {status}")
+        print(
+            f"checked {report.checked} objects in {settings.store_dir}: {status}"
+            + (f", {fixed} repaired" if repair and corrupt else "")
+        )
+        for item in corrupt:
+            if item.get("repaired"):
+                print(f"repaired sha256:{item['digest']}: {item['how']}")
         for path in report.stray:
             print(f"stray file (not a digest name): {path}")
-    for item in corrupt:
+    for item in left:
         error(
             f"corrupt object sha256:{item['digest']}"
             + (f" ({item['name']})" if item["name"] else "")
+            + (f": not repaired: {item['how']}" if "how" in item else "")
         )
-    if not report.ok:
+    if left:
         raise typer.Exit(EXIT_JOB_FAILED)
 
 
@@ -84,6 +117,7 @@ def gc(
     jobs, store = open_local(settings.data_dir)
     grace = settings.gc_grace_seconds if grace_hours is None else grace_hours * 3600.0
     report = store.gc(jobs.referenced_digests(), grace, dry_run=dry_run)
+    scratch = collect_scratch(settings.data_dir / "scratch", jobs.running, dry_run=dry_run)
     if as_json:
         print_json(
             {
@@ -92,6 +126,8 @@ def gc(
                 "bytes_freed": report.bytes_freed,
                 "kept_referenced": report.kept_referenced,
                 "kept_recent": report.kept_recent,
+                "scratch_removed": scratch.removed,
+                "scratch_bytes_freed": scratch.bytes_freed,
             }
         )
         return
@@ -101,7 +137,11 @@ def gc(
         f"{report.kept_referenced} referenced and {report.kept_recent} younger than "
         f"{grace / 3600:g} h"
     )
-    if dry_run and report.removed:
+    print(
+        f"{verb} {len(scratch.removed)} stale work directories of killed workers "
+        f"({human_size(scratch.bytes_freed)}); kept {scratch.kept_active} of running jobs"
+    )
+    if dry_run and (report.removed or scratch.removed):
         err_console.print(
             "dry run: nothing was removed; pass --no-dry-run to remove them",
             markup=False,

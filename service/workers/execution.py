@@ -25,6 +25,7 @@ from service.specs import canonical_json, validate_spec
 from service.workers.provenance import code_version, package_versions
 from storage.artifacts import ArtifactStore
 from storage.jobs import HeartbeatStatus, Job, JobStore
+from storage.scratch import scratch_prefix
 
 log = logging.getLogger("matforge.execution")
 
@@ -123,7 +124,7 @@ def execute(
     hb = Heartbeat(jobs, job, lease_seconds)
     if scratch is not None:
         scratch.mkdir(parents=True, exist_ok=True)
-    workdir = Path(tempfile.mkdtemp(prefix=f"job-{job.id[:8]}-", dir=scratch))
+    workdir = Path(tempfile.mkdtemp(prefix=scratch_prefix(job.id), dir=scratch))
     try:
         with hb:
             try:

@@ -1,0 +1,55 @@
+"""Corrupt objects and the jobs on top of them (issue 15, B1): a forced re-run repairs its
+artifacts instead of succeeding over damaged bytes, and ``repair`` restores objects from a
+good copy or by re-running the producing job, reporting what it cannot repair."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from service.repair import repair
+from service.submission import import_file, run_in_process
+from storage.artifacts import ArtifactStore
+from storage.formats.png import write_png
+from storage.jobs import JobStore
+
+
+def _damage(store: ArtifactStore, digest: str) -> None:
+    p = store.path(digest)
+    os.chmod(p, 0o644)
+    p.write_bytes(p.read_bytes()[:-1] + b"#")
+
+
+def test01_forced_rerun_repairs_the_artifact(toy_kind, settings, jobs, store) -> None:
+    spec = {"kind": "toy", "params": {"n": 2}}
+    first = run_in_process(spec, settings)
+    digest = first.artifacts[0].digest
+    _damage(store, digest)
+    again = run_in_process({**spec, "force": True}, settings)
+    assert again.state == "succeeded" and again.artifacts[0].digest == digest
+    assert store.verify(digest), "the re-run succeeded over the damaged object"
+
+
+def test02_repair_by_rerun_copy_or_report(
+    toy_kind, settings, jobs: JobStore, store: ArtifactStore, tmp_path: Path
+) -> None:
+    job = run_in_process({"kind": "toy", "params": {"n": 2}}, settings)
+    art = job.artifacts[0].digest
+    png = tmp_path / "originals" / "pic.png"
+    png.parent.mkdir()
+    png.write_bytes(write_png(None, np.zeros((4, 4, 3), np.uint8)))
+    up = import_file(png, jobs, store).digest
+    other = tmp_path / "other.png"
+    other.write_bytes(write_png(None, np.ones((4, 4, 3), np.uint8)))
+    lost = import_file(other, jobs, store).digest
+    for d in (art, up, lost):
+        _damage(store, d)
+    assert sorted(store.verify_all().corrupt) == sorted([art, up, lost])
+
+    out = {r.digest: r for r in repair([art, up, lost], jobs, store, settings, [png.parent])}
+    assert out[art].repaired and f"re-ran job {job.id}" in out[art].how
+    assert out[up].repaired and str(png) in out[up].how
+    assert not out[lost].repaired and "other.png" in out[lost].how and "import" in out[lost].how
+    assert store.verify_all().corrupt == [lost]
