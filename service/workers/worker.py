@@ -3,7 +3,9 @@
 ``python -m service.workers.worker --data-dir D`` runs one worker. It exits by itself after
 ``recycle_after_jobs`` jobs, because Mitsuba and Dr.Jit leak memory over long loops; the
 :class:`Supervisor` (started by ``matforge serve``) keeps N workers alive, starting a new
-one when one exits or dies. Heavy work never runs in the web process.
+one when one exits or dies, or when its beat stalls past the lease (a stopped or frozen
+worker, :mod:`~service.workers.liveness`). A worker ends by itself when its supervisor dies.
+Heavy work never runs in the web process.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 from service.settings import Settings
 from service.workers.execution import execute, worker_id
 from service.workers.executors import make_executor
+from service.workers.liveness import Beat, beat_path, stalled_for, watch_parent
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
 
@@ -79,7 +82,8 @@ class Supervisor:
 
     Workers are separate OS processes (``python -m service.workers.worker``), so a crash, an
     out-of-memory kill or a SIGKILL of one loses only its job's lease, which the reaper
-    turns back into a queued job.
+    turns back into a queued job. A worker whose beat stalled past the lease is killed (with
+    its pool processes) and replaced; workers watch this process and end when it dies.
     """
 
     def __init__(self, settings: Settings, n: int, check_seconds: float = 0.5) -> None:
@@ -87,7 +91,9 @@ class Supervisor:
         self.n = max(0, n)
         self.check_seconds = check_seconds
         self.procs: list[subprocess.Popen[bytes]] = []
+        self.started_at: dict[int, float] = {}
         self.started_total = 0
+        self.killed_stalled = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
@@ -99,9 +105,12 @@ class Supervisor:
             "service.workers.worker",
             "--data-dir",
             str(self.settings.data_dir),
+            "--parent-pid",
+            str(os.getpid()),
         ]
         env = {**os.environ, **self.settings.to_env()}
         proc = subprocess.Popen(cmd, env=env, start_new_session=True)
+        self.started_at[proc.pid] = time.time()
         self.started_total += 1
         log.info("started worker pid %d", proc.pid)
         return proc
@@ -110,14 +119,48 @@ class Supervisor:
         with self._lock:
             return [p.pid for p in self.procs if p.poll() is None]
 
+    def _kill_stalled(self, p: subprocess.Popen[bytes]) -> bool:
+        """Kill worker ``p`` (and its process group) if its beat stalled past the lease."""
+        lease = self.settings.lease_seconds
+        age = stalled_for(self.settings.data_dir, p.pid, self.started_at.get(p.pid, 0.0), lease)
+        if age is None:
+            return False
+        log.warning(
+            "worker pid %d has not beaten for %.1f s (lease %g s): stopped or hung; "
+            "killing and replacing it",
+            p.pid,
+            age,
+            lease,
+        )
+        try:
+            os.killpg(p.pid, signal.SIGKILL)  # it leads its session: its pool goes too
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            p.kill()
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            log.error("worker pid %d did not die on SIGKILL", p.pid)
+        self.killed_stalled += 1
+        return True
+
+    def _forget(self, p: subprocess.Popen[bytes]) -> None:
+        self.started_at.pop(p.pid, None)
+        beat_path(self.settings.data_dir, p.pid).unlink(missing_ok=True)
+
     def check(self) -> None:
-        """Replace exited workers and reap expired leases (called periodically)."""
+        """Replace exited or stalled workers and reap expired leases (called periodically)."""
         with self._lock:
             alive = []
             for p in self.procs:
                 code = p.poll()
-                if code is None:
+                if code is None and not self._kill_stalled(p):
                     alive.append(p)
+                    continue
+                self._forget(p)
+                if code is None:
+                    pass  # killed as stalled, logged there
                 elif code == 0:
                     log.info("worker pid %d recycled", p.pid)
                 else:
@@ -153,6 +196,7 @@ class Supervisor:
                     p.wait(timeout=max(0.1, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
                     p.kill()
+                self._forget(p)
             self.procs = []
 
 
@@ -160,6 +204,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m service.workers.worker")
     ap.add_argument("--data-dir", type=Path, default=None)
     ap.add_argument("--max-jobs", type=int, default=None)
+    ap.add_argument(
+        "--parent-pid", type=int, default=None, help="end when this process (the supervisor) dies"
+    )
     args = ap.parse_args(argv)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
@@ -171,7 +218,14 @@ def main(argv: list[str] | None = None) -> int:
     # SIGTERM: finish nothing new; the running job's lease expires and it is re-queued
     # if we are killed before it ends. We exit after the current job.
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    run_worker(settings, max_jobs=args.max_jobs, stop=stop)
+    if args.parent_pid is not None:
+        watch_parent(args.parent_pid)
+    beat = Beat(settings.data_dir, settings.lease_seconds)
+    beat.start()
+    try:
+        run_worker(settings, max_jobs=args.max_jobs, stop=stop)
+    finally:
+        beat.stop()
     return 0
 
 
