@@ -18,10 +18,10 @@ from typing import Annotated
 from pydantic import AfterValidator, BaseModel, ConfigDict
 
 JOB_REF = re.compile(
-    r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)$"
+    r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)\Z"
 )
-SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})$")
-JOB_ID_REF = re.compile(r"^job:(?P<job>[0-9a-f]{32})$")
+SHA_REF = re.compile(r"^sha256:(?P<digest>[0-9a-f]{64})\Z")
+JOB_ID_REF = re.compile(r"^job:(?P<job>[0-9a-f]{32})\Z")
 
 
 class StrictModel(BaseModel):

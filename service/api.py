@@ -38,6 +38,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from jobapi.errors import SpecError
 from service import kinds
 from service.deps import AuthDep, PageAuth, set_token_cookie
+from service.http_methods import MethodsMiddleware
 from service.routes import ROUTERS
 from service.routes.artifacts import PreviewCache
 from service.routes.dashboard import render_error_page, static_files
@@ -297,6 +298,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(IntegrityError, _integrity_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
     app.add_exception_handler(Exception, _internal_error)
+    app.add_middleware(MethodsMiddleware, routes_app=app)
     app.add_middleware(
         BodyLimitMiddleware,
         json_limit=settings.max_body_bytes,

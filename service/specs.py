@@ -17,14 +17,16 @@ import re
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from jobapi.errors import SpecError
 from service import kinds
+from service.spec_text import parse_spec_text
+
+__all__ = ["STEP_REF", "JobSpec", "ValidSpec", "load_spec_file", "parse_spec_text", "validate_spec"]
 
 #: ``step:<step>/<artifact>``, or ``step:<step>`` for the whole job (e.g. a dataset).
-STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._/-]+))?$")
+STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._/-]+))?\Z")
 MAX_SEED = 2**63 - 1
 
 
@@ -37,7 +39,7 @@ class JobSpec(BaseModel):
     name: str | None = Field(default=None, max_length=200)
     seed: int = Field(default=0, ge=0, le=MAX_SEED, strict=True)
     params: dict[str, Any] = Field(default_factory=dict)
-    force: bool = False
+    force: bool = Field(default=False, strict=True)
 
 
 class ValidSpec(BaseModel):
@@ -65,12 +67,53 @@ def _loc(parts: tuple[Any, ...]) -> str:
     return ".".join(str(p) for p in parts)
 
 
+#: The loc parts pydantic gives a union's members: ``function-after[_check_ref(), str]``,
+#: ``list[float]``, ``literal['a']``, plain type names, and model class names.
+_MEMBER_TAG = re.compile(r"[a-z][a-z-]*\[.*\]|str|int|float|bool|none|bytes", re.DOTALL)
+
+
+def _model_names() -> set[str]:
+    names, todo = set(), [BaseModel]
+    while todo:
+        cls = todo.pop()
+        for sub in cls.__subclasses__():
+            if sub.__name__ not in names:
+                names.add(sub.__name__)
+                todo.append(sub)
+    return names
+
+
 def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, str]]:
-    out = []
+    """One ``(field path, message)`` per field. A union's members each fail with their own
+    error, under a loc part naming the member (pydantic internals, e.g.
+    ``function-after[_check_ref(), str]``): those are merged into one message at the
+    union's field, each member's reason after the other."""
+    models = _model_names()
+
+    def is_member(part: Any) -> bool:
+        return isinstance(part, str) and (part in models or bool(_MEMBER_TAG.fullmatch(part)))
+
+    grouped: dict[str, list[str]] = {}
     for err in exc.errors():
-        loc = _loc(tuple(err.get("loc", ())))
-        out.append((f"{prefix}{loc}" if loc else prefix.rstrip("."), err["msg"]))
-    return out
+        loc = tuple(err.get("loc", ()))
+        msg = str(err["msg"]).removeprefix("Value error, ")
+        cut = next((i for i, part in enumerate(loc) if is_member(part)), None)
+        if cut is not None:
+            inner = tuple(part for part in loc[cut + 1 :] if not is_member(part))
+            msg = f"{_loc(inner)}: {msg}" if inner else msg
+            loc = loc[:cut]
+        path = _loc(loc)
+        key = f"{prefix}{path}" if path else prefix.rstrip(".")
+        msgs = grouped.setdefault(key, [])
+        if msg not in msgs:
+            msgs.append(msg)
+    return [
+        (
+            key,
+            msgs[0] if len(msgs) == 1 else "none of its accepted forms fits: " + "; or ".join(msgs),
+        )
+        for key, msgs in grouped.items()
+    ]
 
 
 def canonical_json(obj: Any) -> str:
@@ -127,16 +170,3 @@ def load_spec_file(path: str | Path) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise SpecError([("", f"{p}: cannot read: {exc}")]) from None
     return parse_spec_text(text, str(p))
-
-
-def parse_spec_text(text: str, source: str = "<spec>") -> Any:
-    """Parse JSON (or YAML, a superset) text into a document."""
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        pass
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else "invalid YAML"
-        raise SpecError([("", f"{source}: not valid JSON or YAML: {first}")]) from None

@@ -17,7 +17,7 @@ from service.specs import ValidSpec, validate_spec
 from service.workers.execution import execute, worker_id
 from service.workers.executors import make_executor
 from storage.artifacts import ArtifactStore
-from storage.errors import NotFoundError
+from storage.errors import FormatError, NotFoundError
 from storage.formats import validate_file
 from storage.jobs import ArtifactRecord, Job, JobStore
 
@@ -120,7 +120,15 @@ def import_file(
     size = path.stat().st_size
     if max_bytes is not None and size > max_bytes:
         raise TooLargeError(f"{label}: {size} bytes exceeds the limit of {max_bytes} bytes")
-    media_type = validate_file(path, label)
+    try:
+        media_type = validate_file(path, label)
+    except FormatError as exc:
+        # Readers' messages may quote the path they opened: for an upload, a server temp
+        # file. Users see the name they gave instead.
+        problem = exc.problem
+        for shown in sorted({str(path.resolve()), str(path), path.name}, key=len, reverse=True):
+            problem = problem.replace(shown, label)
+        raise FormatError(label, problem) from None
     info = store.put_file(path)
     jobs.record_upload(info.digest, label, media_type or media_type_for(label), info.size)
     return ArtifactRecord(

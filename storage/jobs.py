@@ -457,7 +457,8 @@ class JobStore:
                         (
                             f"worker {r['worker']} stopped responding (lease expired) on attempt "
                             f"{r['attempts']} of {max_attempts}; giving up. Check the worker log "
-                            "for a crash or out-of-memory kill, then resubmit with force",
+                            "for a crash or out-of-memory kill, then submit the spec again "
+                            "(a failed job is never reused, so no force is needed)",
                             t,
                             t,
                             r["id"],

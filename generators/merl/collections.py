@@ -387,7 +387,7 @@ def material_name(family: str, index: int, label: str | None) -> str:
     name = f"{family}-{index:03d}"
     if label:
         name += "-" + re.sub(r"[^A-Za-z0-9_-]", "_", label)
-    if not SAFE_NAME.match(name):
+    if not SAFE_NAME.fullmatch(name):
         raise ValueError(f"material name {name!r} is not file-system safe")
     return name
 

@@ -297,7 +297,7 @@ def default_name(source: dict[str, Any]) -> str:
     ((key, inner),) = source.items()
     raw = str(inner.get("type" if key == "mitsuba" else "model", "material"))
     name = "".join(c if c.isalnum() or c in "-_" else "_" for c in raw)
-    return name if SAFE_NAME.match(name) else "material"
+    return name if SAFE_NAME.fullmatch(name) else "material"
 
 
 def plan_materials(params: MerlParams, ctx: JobContext) -> list[PlannedMaterial]:

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-_NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
+_NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}\Z")
 _UP_CHARS = frozenset("1Xx#")
 _DOWN_CHARS = frozenset("0.-")
 

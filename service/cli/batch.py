@@ -43,7 +43,7 @@ from service.specs import STEP_REF, load_spec_file, parse_spec_text, validate_sp
 
 log = logging.getLogger("matforge.batch")
 
-STEP_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+STEP_NAME = re.compile(r"^[A-Za-z0-9_.-]+\Z")
 PLACEHOLDER_JOB = "0" * 32
 DEFAULT_KEYS = frozenset({"seed", "force"})
 

@@ -22,8 +22,8 @@ from typing import Any
 
 import httpx
 
-JOB_ID = re.compile(r"^[0-9a-f]{32}$")
-DIGEST = re.compile(r"^[0-9a-f]{64}$")
+JOB_ID = re.compile(r"^[0-9a-f]{32}\Z")
+DIGEST = re.compile(r"^[0-9a-f]{64}\Z")
 _CHUNK = 1 << 20
 
 

@@ -5,15 +5,14 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 
 from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, StoreDep
 from service.schemas import ArtifactPublic, ErrorPublic, JobPublic, JobState
-from service.specs import parse_spec_text
+from service.spec_text import parse_json_text, parse_spec_text
 from service.submission import submit
 from service.summaries import job_summary
-from storage.errors import NotFoundError
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"], dependencies=[AuthDep])
 
@@ -49,16 +48,13 @@ async def spec_body(request: Request) -> Any:
     except UnicodeDecodeError:
         raise SpecError([("body", "the request body is not UTF-8 text")]) from None
     if "yaml" in content_type:
-        return parse_spec_text(text, "request body")
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise SpecError(
-            [("body", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}")]
-        ) from None
+        return parse_spec_text(text, "request body", aliases=False)
+    return parse_json_text(text, "body")
 
 
 SpecBody = Annotated[Any, Depends(spec_body)]
+#: SQLite's largest integer: a larger offset cannot be bound (it was a 500).
+MAX_OFFSET = 2**63 - 1
 _ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorPublic, "description": "no such job"},
     422: {"model": ErrorPublic, "description": "invalid input; `error` names the field"},
@@ -101,7 +97,7 @@ def list_jobs(
     state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
     kind: Annotated[str | None, Query(max_length=64, description="only this kind")] = None,
     limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,
-    offset: Annotated[int, Query(ge=0, description="skip this many (paging)")] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="skip this many (paging)")] = 0,
 ) -> Any:
     """Jobs, newest first (without their artifact lists; see `GET /api/jobs/{id}`)."""
     return [
@@ -137,13 +133,26 @@ def list_artifacts(job_id: JobId, jobs: JobsDep) -> Any:
     return [a.public() for a in jobs.artifacts(job_id)]
 
 
-@router.get("/{job_id}/manifest", responses=_ERRORS, summary="A job's manifest")
+@router.get(
+    "/{job_id}/manifest",
+    responses={
+        **_ERRORS,
+        409: {"model": ErrorPublic, "description": "the job has not succeeded: no manifest yet"},
+    },
+    summary="A job's manifest",
+)
 def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any]:
     """The manifest a finished job wrote: spec, artifacts, code version, package versions,
-    worker, attempt and timings. 404 until the job succeeded."""
+    worker, attempt and timings. 404 for an unknown job; 409 while the job exists but has
+    not succeeded (queued, running, failed, cancelled): it has no manifest yet."""
     job = jobs.get(job_id)
     if not job.manifest_digest:
-        raise NotFoundError(f"job {job_id} is {job.state}; it has no manifest yet")
+        when = (
+            "it is written when the job succeeds"
+            if job.state in ("queued", "running")
+            else ("only a job that succeeded has one")
+        )
+        raise HTTPException(409, f"job {job_id} is {job.state}: no manifest; {when}")
     manifest: dict[str, Any] = json.loads(store.read(job.manifest_digest))
     return manifest
 

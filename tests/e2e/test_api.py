@@ -275,7 +275,7 @@ def test10_manifest(client: TestClient, settings: Settings) -> None:
     )
     queued = client.post("/api/jobs", json=spec(n=60)).json()
     r = client.get(f"/api/jobs/{queued['id']}/manifest")
-    assert r.status_code == 404 and "queued" in r.json()["error"]
+    assert r.status_code == 409 and "queued" in r.json()["error"]
 
 
 def test11_preview_of_exr(client: TestClient, settings: Settings) -> None:
