@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import copy
 import logging
-from collections.abc import Mapping
+from collections.abc import AsyncIterator, Mapping
+from contextlib import asynccontextmanager
 from typing import Any
 
 from fastapi import APIRouter, FastAPI, Request
@@ -44,6 +45,7 @@ from service.routes.artifacts import PreviewCache
 from service.routes.dashboard import render_error_page, static_files
 from service.settings import Settings
 from service.specs import JobSpec
+from service.upload_check import UploadChecker
 from storage.artifacts import ArtifactStore
 from storage.errors import FormatError, IntegrityError, NotFoundError, TooLargeError
 from storage.jobs import JobStore
@@ -273,6 +275,12 @@ def _docs_router(app: FastAPI) -> APIRouter:
 
 
 # -- the app -----------------------------------------------------------------------------
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    yield
+    app.state.upload_checker.close()  # the child process that validates uploads
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The matforge web app over ``settings.data_dir`` (default: from the environment)."""
     settings = settings or Settings.from_env()
@@ -283,11 +291,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,
         redoc_url=None,
         openapi_url=None,
+        lifespan=_lifespan,
     )
     app.state.settings = settings
     app.state.jobs = JobStore(settings.db_path)
     app.state.store = ArtifactStore(settings.store_dir)
     app.state.previews = PreviewCache()
+    app.state.upload_checker = UploadChecker(settings.upload_check_bytes)
     app.openapi = lambda: build_openapi(app)  # type: ignore[method-assign]
 
     app.add_exception_handler(SpecError, _spec_error)

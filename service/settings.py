@@ -52,6 +52,8 @@ class Settings:
     ``MATFORGE_RECYCLE_JOBS``     ``recycle_after_jobs``       20
     ``MATFORGE_MAX_UPLOAD_MB``    ``max_upload_bytes``         512 MiB
     ``MATFORGE_MAX_BODY_KB``      ``max_body_bytes``           1 MiB (JSON bodies)
+    ``MATFORGE_UPLOAD_CHECK_MB``  ``upload_check_bytes``       2 GiB (memory to validate one)
+    ``MATFORGE_ALLOWED_HOSTS``    ``allowed_hosts``            the bound host (and loopback)
     ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
     ``MATFORGE_GC_GRACE_HOURS``   ``gc_grace_seconds``         24 h
     ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
@@ -67,6 +69,8 @@ class Settings:
     recycle_after_jobs: int = 20
     max_upload_bytes: int = 512 * 1024 * 1024
     max_body_bytes: int = 1024 * 1024
+    upload_check_bytes: int = 2048 * 1024 * 1024
+    allowed_hosts: tuple[str, ...] = ()
     pool_processes: int = 2
     gc_grace_seconds: float = 24 * 3600.0
     libllvm_path: str = DEFAULT_LIBLLVM
@@ -87,6 +91,12 @@ class Settings:
             recycle_after_jobs=_int(e, "MATFORGE_RECYCLE_JOBS", 20),
             max_upload_bytes=_int(e, "MATFORGE_MAX_UPLOAD_MB", 512) * 1024 * 1024,
             max_body_bytes=_int(e, "MATFORGE_MAX_BODY_KB", 1024) * 1024,
+            upload_check_bytes=_int(e, "MATFORGE_UPLOAD_CHECK_MB", 2048) * 1024 * 1024,
+            allowed_hosts=tuple(
+                h.strip().lower()
+                for h in (e.get("MATFORGE_ALLOWED_HOSTS") or "").split(",")
+                if h.strip()
+            ),
             pool_processes=max(1, _int(e, "MATFORGE_POOL_PROCESSES", min(2, os.cpu_count() or 1))),
             gc_grace_seconds=_float(e, "MATFORGE_GC_GRACE_HOURS", 24.0) * 3600.0,
             libllvm_path=e.get("DRJIT_LIBLLVM_PATH") or DEFAULT_LIBLLVM,
@@ -103,6 +113,8 @@ class Settings:
             "MATFORGE_RECYCLE_JOBS": str(self.recycle_after_jobs),
             "MATFORGE_MAX_UPLOAD_MB": str(self.max_upload_bytes // (1024 * 1024)),
             "MATFORGE_MAX_BODY_KB": str(self.max_body_bytes // 1024),
+            "MATFORGE_UPLOAD_CHECK_MB": str(self.upload_check_bytes // (1024 * 1024)),
+            "MATFORGE_ALLOWED_HOSTS": ",".join(self.allowed_hosts),
             "MATFORGE_POOL_PROCESSES": str(self.pool_processes),
             "MATFORGE_GC_GRACE_HOURS": repr(self.gc_grace_seconds / 3600.0),
             "DRJIT_LIBLLVM_PATH": self.libllvm_path,

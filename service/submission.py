@@ -5,7 +5,7 @@ Routes and commands stay thin and call these functions.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -108,9 +108,12 @@ def import_file(
     *,
     name: str | None = None,
     max_bytes: int | None = None,
+    validate: Callable[[Path, str], str] = validate_file,
 ) -> ArtifactRecord:
     """Validate a user's file by its format and put it in the store.
 
+    ``validate(path, name) -> media type`` checks the format (the web process passes
+    :meth:`service.upload_check.UploadChecker.validate`, which decodes in a bounded child).
     Raises ``FormatError`` naming the file when it is malformed or of an unknown type, and
     ``TooLargeError`` above ``max_bytes``.
     """
@@ -121,7 +124,7 @@ def import_file(
     if max_bytes is not None and size > max_bytes:
         raise TooLargeError(f"{label}: {size} bytes exceeds the limit of {max_bytes} bytes")
     try:
-        media_type = validate_file(path, label)
+        media_type = validate(path, label)
     except FormatError as exc:
         # Readers' messages may quote the path they opened: for an upload, a server temp
         # file. Users see the name they gave instead.

@@ -15,6 +15,10 @@ class FormatError(StorageError):
         self.problem = problem
         super().__init__(f"{filename}: {problem}")
 
+    def __reduce__(self) -> tuple[type[FormatError], tuple[str, str]]:
+        # Crosses process boundaries (uploads are validated in a child process).
+        return (type(self), (self.filename, self.problem))
+
 
 class IntegrityError(StorageError):
     """An object's bytes do not hash to its digest (corruption on disk)."""

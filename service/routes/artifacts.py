@@ -208,7 +208,10 @@ async def upload(
                 if size > limit:
                     raise TooLargeError(f"{name}: upload exceeds the limit of {limit} bytes")
                 fh.write(chunk)
-        record = await run_in_threadpool(import_file, tmp, jobs, store, name=name, max_bytes=limit)
+        checker = request.app.state.upload_checker
+        record = await run_in_threadpool(
+            import_file, tmp, jobs, store, name=name, max_bytes=limit, validate=checker.validate
+        )
     finally:
         tmp.unlink(missing_ok=True)
     return {

@@ -24,6 +24,9 @@ from storage.errors import FormatError
 
 #: The largest image read or validated, per side, in pixels (a guard against huge headers).
 MAX_SIDE = 32768
+#: The most pixels read or validated (8192 x 4096): checked from the header before any
+#: pixel is decoded, so a small file cannot claim gigabytes of pixels.
+MAX_PIXELS = 1 << 25
 _MAGIC = b"\x76\x2f\x31\x01"
 
 
@@ -103,6 +106,11 @@ def _info(f: OpenEXR.File, name: str) -> ExrInfo:
         raise FormatError(
             name,
             f"image of {width}x{height} pixels exceeds the limit of {MAX_SIDE} pixels per side",
+        )
+    if width * height > MAX_PIXELS:
+        raise FormatError(
+            name,
+            f"image of {width}x{height} pixels exceeds the limit of {MAX_PIXELS} pixels",
         )
     channels = tuple(str(getattr(c, "name", c)) for c in header.get("channels", ()))
     missing = [c for c in ("R", "G", "B") if c not in channels]

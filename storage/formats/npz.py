@@ -11,6 +11,9 @@ import numpy as np
 from storage.errors import FormatError
 
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+#: The most bytes an ``.npz`` may expand to (all members, decompressed): checked from the
+#: zip directory and each array's header before any array is read.
+MAX_NPZ_BYTES = 1 << 30
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
@@ -26,6 +29,46 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return buf.getvalue()
 
 
+def check_npz_headers(path: Path, label: str, max_bytes: int = MAX_NPZ_BYTES) -> None:
+    """Refuse an ``.npz`` from its headers alone: members that decompress to more than
+    ``max_bytes`` in all, or whose array header (shape x itemsize) disagrees with the
+    member's size, e.g. a header claiming ``(2**40,)`` elements. Nothing large is read."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = zf.infolist()
+            total = sum(i.file_size for i in infos)
+            if total > max_bytes:
+                raise FormatError(
+                    label,
+                    f"its arrays decompress to {total} bytes, over the limit of {max_bytes} bytes",
+                )
+            for info in infos:
+                if not info.filename.endswith(".npy"):
+                    continue
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version == (1, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+                    elif version == (2, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+                    else:
+                        raise FormatError(label, f"array {info.filename!r}: .npy {version}")
+                    header = fh.tell()
+                if dtype.hasobject:
+                    raise FormatError(label, f"array {info.filename!r} holds Python objects")
+                claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if claimed != info.file_size - header:
+                    raise FormatError(
+                        label,
+                        f"array {info.filename!r}: its header claims shape {tuple(shape)} of "
+                        f"{dtype} ({claimed} bytes) but it holds {info.file_size - header} bytes",
+                    )
+    except FormatError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, RuntimeError) as exc:
+        raise FormatError(label, f"not a readable .npz archive: {exc}") from None
+
+
 def read_npz(
     path: Path, name: str | None = None, *, nan_ok: tuple[str, ...] = ()
 ) -> dict[str, np.ndarray]:
@@ -35,6 +78,7 @@ def read_npz(
     label = name or str(path)
     if not zipfile.is_zipfile(path):
         raise FormatError(label, "not a .npz archive (no zip structure)")
+    check_npz_headers(Path(path), label)
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}

@@ -21,6 +21,8 @@ from storage.errors import FormatError
 
 #: The largest image read, per side, in pixels (a guard against decompression bombs).
 MAX_SIDE = 32768
+#: The most pixels decoded (8192 x 4096), checked from the header first.
+MAX_PIXELS = 1 << 25
 _MAGIC = b"\x89PNG\r\n\x1a\n"
 _COMPRESS_LEVEL = 6
 
@@ -74,6 +76,11 @@ def read_png(path: str | Path, name: str | None = None) -> np.ndarray:
                     label,
                     f"image of {width}x{height} pixels exceeds the limit "
                     f"of {MAX_SIDE} pixels per side",
+                )
+            if width * height > MAX_PIXELS:
+                raise FormatError(
+                    label,
+                    f"image of {width}x{height} pixels exceeds the limit of {MAX_PIXELS} pixels",
                 )
             img.load()
             return _to_float_rgb(img)
