@@ -46,6 +46,7 @@ from service.routes.dashboard import render_error_page, static_files
 from service.settings import Settings
 from service.specs import JobSpec
 from service.upload_check import UploadChecker
+from service.web_guard import GuardMiddleware, allowed_hosts
 from storage.artifacts import ArtifactStore
 from storage.errors import FormatError, IntegrityError, NotFoundError, TooLargeError
 from storage.jobs import JobStore
@@ -64,7 +65,12 @@ download its artifacts by digest from `GET /api/artifacts/{digest}`. Each job ki
 
 **Auth**: when the server has `MATFORGE_TOKEN` set, every route but `/api/health` needs
 `Authorization: Bearer <token>`. In a browser, open the dashboard once as `/?token=<token>`:
-the page sets an HttpOnly, SameSite=Strict cookie that its fetches and downloads then carry.
+the page sets an HttpOnly, SameSite=Strict cookie (a value derived from the token, not the
+token) that its fetches and downloads then carry.
+
+**Browsers**: the server answers only to the host names it was bound to or configured with
+(`MATFORGE_ALLOWED_HOSTS`), refuses state-changing requests from other sites' pages
+(`Origin`), and takes job specs only as `application/json` or YAML.
 
 **Errors** are JSON `{"error": "<one line>", "detail": ...}`; 422 names the field or file.
 """
@@ -260,7 +266,7 @@ def _docs_router(app: FastAPI) -> APIRouter:
         return JSONResponse(build_openapi(app))
 
     @router.get("/docs", response_class=HTMLResponse)
-    def swagger(cookie_token: PageAuth) -> Response:
+    def swagger(request: Request, cookie_token: PageAuth) -> Response:
         page = get_swagger_ui_html(
             openapi_url="/openapi.json",
             title=f"{TITLE}: API",
@@ -268,7 +274,7 @@ def _docs_router(app: FastAPI) -> APIRouter:
             swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
             swagger_favicon_url="/static/favicon.svg",
         )
-        set_token_cookie(page, cookie_token)
+        set_token_cookie(page, cookie_token, request)
         return page
 
     return router
@@ -281,8 +287,13 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     app.state.upload_checker.close()  # the child process that validates uploads
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """The matforge web app over ``settings.data_dir`` (default: from the environment)."""
+def create_app(settings: Settings | None = None, bind_host: str | None = None) -> FastAPI:
+    """The matforge web app over ``settings.data_dir`` (default: from the environment).
+
+    ``bind_host``: the address the server listens on (``matforge serve`` passes it); with
+    ``settings.allowed_hosts`` it decides which ``Host`` headers are answered
+    (:mod:`service.web_guard`). ``None`` (tests, embedding) checks only configured hosts.
+    """
     settings = settings or Settings.from_env()
     app = FastAPI(
         title=TITLE,
@@ -314,6 +325,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         json_limit=settings.max_body_bytes,
         upload_limit=settings.max_upload_bytes,
     )
+
+    # Outermost: a request from the wrong Host or another site's page goes no further.
+    app.add_middleware(GuardMiddleware, hosts=allowed_hosts(bind_host, settings.allowed_hosts))
 
     for router in ROUTERS:
         app.include_router(router)

@@ -8,7 +8,10 @@ Authentication (only when ``settings.token`` is set): a request is let in when i
 1. ``Authorization: Bearer <token>`` (the CLI and scripts), or
 2. the ``matforge_token`` cookie, which a dashboard page sets when it is opened once as
    ``/?token=<token>`` (the browser then sends it with every fetch, image and download:
-   HttpOnly, ``SameSite=Strict``, so other sites can neither read it nor ride on it).
+   HttpOnly, ``SameSite=Strict``, ``Secure`` over https, so other sites can neither read it
+   nor ride on it). The cookie holds a session value derived from the token
+   (:func:`session_value`, an HMAC), never the token itself: a leaked cookie opens the
+   dashboard and API of this server but is not the master token the CLI uses.
 
 ``?token=`` itself is accepted on the dashboard pages only, never on ``/api/...``, so tokens
 do not end up in API access logs; the page removes it from the address bar at once.
@@ -16,6 +19,7 @@ do not end up in API access logs; the page removes it from the address bar at on
 
 from __future__ import annotations
 
+import hashlib
 import hmac
 from typing import Annotated
 
@@ -84,12 +88,18 @@ def bearer_token(headers: Headers) -> str | None:
     return token.strip()
 
 
+def session_value(token: str) -> str:
+    """The dashboard cookie's value for ``token``: HMAC-SHA256 of a fixed label under the
+    token (hex). It changes when the token does, and the token cannot be recovered from it."""
+    return hmac.new(token.encode(), b"matforge dashboard session v1", hashlib.sha256).hexdigest()
+
+
 def request_authorized(settings: Settings, headers: Headers, cookies: dict[str, str]) -> bool:
     """Whether a request may pass: no token configured, or a matching bearer/cookie."""
     if not settings.token:
         return True
     return token_matches(settings.token, bearer_token(headers)) or token_matches(
-        settings.token, cookies.get(TOKEN_COOKIE)
+        session_value(settings.token), cookies.get(TOKEN_COOKIE)
     )
 
 
@@ -128,10 +138,18 @@ def require_page_auth(
     )
 
 
-def set_token_cookie(response: Response, token: str | None) -> None:
-    """Set the dashboard's session cookie on ``response`` (no-op for ``None``)."""
+def set_token_cookie(response: Response, token: str | None, request: Request) -> None:
+    """Set the dashboard's session cookie (:func:`session_value` of ``token``) on
+    ``response``, ``Secure`` when ``request`` came over https; no-op for ``None``."""
     if token:
-        response.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="strict", path="/")
+        response.set_cookie(
+            TOKEN_COOKIE,
+            session_value(token),
+            httponly=True,
+            samesite="strict",
+            secure=request.url.scheme == "https",
+            path="/",
+        )
 
 
 AuthDep = Depends(require_auth)

@@ -21,6 +21,7 @@ import uvicorn
 
 from service.api import create_app
 from service.settings import Settings
+from service.web_guard import RedactTokens
 from service.workers.worker import Supervisor
 
 log = logging.getLogger("matforge.server")
@@ -76,7 +77,7 @@ def serve(settings: Settings, host: str = "127.0.0.1", port: int = 8000, workers
             level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(name)s %(message)s"
         )
     (settings.data_dir / "scratch").mkdir(parents=True, exist_ok=True)  # workers' job dirs
-    app = create_app(settings)
+    app = create_app(settings, bind_host=host)
     config = uvicorn.Config(
         app,
         host=host,
@@ -85,6 +86,8 @@ def serve(settings: Settings, host: str = "127.0.0.1", port: int = 8000, workers
         timeout_graceful_shutdown=5,
         server_header=False,
     )
+    # After Config, which (re)configures uvicorn's loggers: ?token= never reaches the log.
+    logging.getLogger("uvicorn.access").addFilter(RedactTokens())
     supervisor = Supervisor(settings, workers)
     server = _Server(config, supervisor, token=bool(settings.token))
     # uvicorn re-raises the signal that stopped it once it has shut down; a SIGTERM then

@@ -161,7 +161,7 @@ def index(request: Request, cookie_token: PageAuth) -> Response:
     response = templates.TemplateResponse(
         request, "index.html", {"states": STATES, "kinds": sorted(kinds.all_kinds())}
     )
-    set_token_cookie(response, cookie_token)
+    set_token_cookie(response, cookie_token, request)
     return response
 
 
@@ -171,5 +171,5 @@ def job_page(
 ) -> Response:
     """One job; ``static/js/job.js`` keeps state and progress live until it finishes."""
     response = templates.TemplateResponse(request, "job.html", job_view(jobs.get(job_id), store))
-    set_token_cookie(response, cookie_token)
+    set_token_cookie(response, cookie_token, request)
     return response

@@ -34,15 +34,29 @@ SPEC_BODY_DOC: dict[str, Any] = {
 }
 
 
+#: The content types of a spec body (YAML under its registered and customary names).
+SPEC_TYPES = frozenset(
+    {"application/json", "application/yaml", "application/x-yaml", "text/yaml", "text/x-yaml"}
+)
+
+
 async def spec_body(request: Request) -> Any:
     """The parsed request body of a spec: JSON, or YAML when the content type says so.
 
     A body that does not parse is a :class:`SpecError` (422) like any other bad spec.
     """
+    content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if content_type not in SPEC_TYPES:
+        # A cross-site form can POST text/plain without a CORS preflight: never a spec.
+        shown = repr(content_type) if content_type else "none"
+        raise HTTPException(
+            415,
+            f"Content-Type {shown} is not a job spec's: send application/json "
+            "(or application/yaml)",
+        )
     raw = await request.body()
     if not raw.strip():
         raise SpecError([("body", "empty request body: send a job spec as JSON")])
-    content_type = request.headers.get("content-type", "")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -78,6 +92,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
         },
         201: {"description": "A new job was queued."},
         413: {"model": ErrorPublic, "description": "body over the JSON size limit"},
+        415: {"model": ErrorPublic, "description": "not application/json or YAML"},
         422: _ERRORS[422],
     },
 )
