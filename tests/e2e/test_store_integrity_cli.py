@@ -83,3 +83,15 @@ def test03_gc_removes_stale_scratch_dirs(tmp_path: Path) -> None:
     res = run_cli("store", "gc", "--data-dir", str(data), "--no-dry-run", "--json", env=env)
     assert res.returncode == 0 and res.json()["scratch_removed"] == [stale.name], res
     assert not stale.exists()
+
+
+def test04_reupload_repairs_a_corrupt_object(server: Server, tmp_path: Path) -> None:
+    png = _png(tmp_path / "b.png", 9)
+    ref = run_cli("import", str(png), env=server.env()).stdout.strip()
+    _damage(server.data_dir, ref)
+    assert run_cli("fetch", ref, "-o", str(tmp_path / "x.png"), env=server.env()).returncode == 1
+    again = run_cli("import", str(png), env=server.env())
+    assert again.returncode == 0 and again.stdout.strip() == ref, again
+    res = run_cli("fetch", ref, "-o", str(tmp_path / "y.png"), env=server.env())
+    assert res.returncode == 0, res
+    assert (tmp_path / "y.png").read_bytes() == png.read_bytes()
