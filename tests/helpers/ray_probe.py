@@ -10,10 +10,12 @@ shards an executor ran again (a retry) and where.
 from __future__ import annotations
 
 import hashlib
+import json
 import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pydantic import Field
 
@@ -21,6 +23,9 @@ from jobapi.context import JobContext
 from jobapi.errors import TransientError
 from jobapi.kinds import Kind
 from jobapi.params import StrictModel
+from service.settings import Settings
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job
 
 
 class ProbeParams(StrictModel):
@@ -84,3 +89,19 @@ def run_probe(params: ProbeParams, ctx: JobContext) -> None:
 
 
 PROBE = Kind(name="probe", params=ProbeParams, runner=run_probe, description="test-only kind")
+
+
+def probe_spec(log_dir: Path, **params: Any) -> dict[str, Any]:
+    """A ``probe`` spec (seed 3) whose shards mark their calls in ``log_dir``."""
+    return {"kind": "probe", "seed": 3, "params": {"log_dir": str(log_dir), **params}}
+
+
+def digests(job: Job, skip: frozenset[str] = frozenset({"stats.json"})) -> dict[str, str]:
+    """Artifact name -> digest, less ``skip`` (timings)."""
+    return {a.name: a.digest for a in job.artifacts if a.name not in skip}
+
+
+def manifest(settings: Settings, job: Job) -> dict[str, Any]:
+    """The job's manifest, read from the store."""
+    assert job.manifest_digest is not None
+    return json.loads(ArtifactStore(settings.store_dir).read(job.manifest_digest))

@@ -8,21 +8,18 @@ dashboard), started once and shut down at the end.
 
 from __future__ import annotations
 
-import json
 import pickle
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from jobapi import kinds as jobapi_kinds
 from service import kinds
-from service.settings import Settings
 from service.submission import run_in_process, submit
 from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
-from storage.jobs import Job, JobStore
-from tests.helpers.ray_probe import PROBE, calls
+from storage.jobs import JobStore
+from tests.helpers.ray_probe import PROBE, calls, digests, manifest, probe_spec
 
 pytestmark = pytest.mark.ray
 
@@ -41,19 +38,6 @@ FABRIC: dict[str, Any] = {
 def probe_kind(monkeypatch: pytest.MonkeyPatch) -> None:
     kinds.load_builtin()
     monkeypatch.setitem(jobapi_kinds._KINDS, "probe", PROBE)
-
-
-def digests(job: Job, skip: frozenset[str] = frozenset({"stats.json"})) -> dict[str, str]:
-    return {a.name: a.digest for a in job.artifacts if a.name not in skip}
-
-
-def manifest(settings: Settings, job: Job) -> dict[str, Any]:
-    assert job.manifest_digest is not None
-    return json.loads(ArtifactStore(settings.store_dir).read(job.manifest_digest))
-
-
-def probe_spec(log_dir: Path, **params: Any) -> dict[str, Any]:
-    return {"kind": "probe", "seed": 3, "params": {"log_dir": str(log_dir), **params}}
 
 
 def test01_worker_runs_a_job_on_ray(ray_local, probe_kind, settings, tmp_path) -> None:
