@@ -26,6 +26,7 @@ over Ray's GCS port; run the cluster with ``RAY_AUTH_MODE=token`` (Ray >= 2.52),
 from __future__ import annotations
 
 import logging
+import pickle
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -41,9 +42,15 @@ log = logging.getLogger("matforge.ray")
 LOCAL_OBJECT_STORE_BYTES = 512 * 1024 * 1024
 
 
-def run_shard(fn: Callable[[Any], Any], item: Any) -> Any:
-    """The body of every Ray task: the kind's own shard function on one item."""
-    return fn(item)
+def run_shard(fn: Callable[[Any], Any], item: bytes) -> bytes:
+    """The body of every Ray task: the kind's own shard function on one pickled item, its
+    result pickled.
+
+    Item and result travel as pickles, as through the local pool, rather than through Ray's
+    own serialiser: that one hands numpy arrays over zero-copy and read-only, which code
+    written for the pool (Mitsuba's ``Bitmap(array)``, in-place arithmetic) refuses.
+    """
+    return pickle.dumps(fn(pickle.loads(item)), protocol=5)
 
 
 class RayExecutor:
@@ -139,7 +146,8 @@ class RayExecutor:
         try:
             while next_i < len(items) or pending:
                 while next_i < len(items) and len(pending) < limit:
-                    pending[task.remote(fn_ref, items[next_i])] = next_i
+                    item = pickle.dumps(items[next_i], protocol=5)
+                    pending[task.remote(fn_ref, item)] = next_i
                     next_i += 1
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
@@ -151,7 +159,7 @@ class RayExecutor:
 
     def _result(self, ref: Any, i: int) -> Any:
         try:
-            return ray.get(ref)
+            return pickle.loads(ray.get(ref))
         except RayTaskError as exc:
             # The shard's own exception, as the local pool would raise it; Ray's wrapper
             # adds the remote traceback, which goes to the log, not to the job's error.

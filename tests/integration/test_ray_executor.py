@@ -108,3 +108,31 @@ def test05_generate_fabric_same_bytes_as_the_process_pool(ray_local, settings) -
     assert digests(on_ray) == digests(on_pool)
     assert manifest(settings, on_pool)["executor"] == "process"
     assert manifest(settings, on_ray)["executor"] == "ray"
+
+
+#: The other sharding kinds, cut down: two shards of Mitsuba-rendered BTF slices (their
+#: surface maps are arrays inside the shard items), and a MERL collection of one material
+#: (a full 90 x 90 x 180 table per shard, so one is enough) with measurement noise.
+OTHER_KINDS = {
+    "generate.btf": {
+        "surface": {"procedural": "stone", "size": 8},
+        "directions": [[0, 0, 0, 0], [45, 0, 30, 180]],
+        "resolution": 8,
+        "spp": 2,
+        "shard_slices": 1,
+    },
+    "generate.merl": {
+        "collection": {"families": {"paint": 1}},
+        "measurement": {"noise_sigma": 0.05, "dropout": 0.01},
+    },
+}
+
+
+@pytest.mark.parametrize("kind", sorted(OTHER_KINDS))
+def test06_other_sharding_kinds_same_bytes(ray_local, settings, kind: str) -> None:
+    spec = {"kind": kind, "seed": 7, "params": OTHER_KINDS[kind]}
+    on_pool = run_in_process(spec, settings.with_(executor="process"))
+    on_ray = run_in_process({**spec, "force": True}, settings.with_(executor="ray"))
+    assert on_pool.state == on_ray.state == "succeeded", (on_pool.error, on_ray.error)
+    assert digests(on_ray, frozenset()) == digests(on_pool, frozenset())
+    assert manifest(settings, on_ray)["executor"] == "ray"
