@@ -60,8 +60,9 @@ class RayExecutor:
     ``num_cpus`` CPUs, owned and shut down by this executor); ``max_retries`` bounds the
     re-runs of one shard after a node or worker failure or a transient error;
     ``auth_mode`` is ``RAY_AUTH_MODE`` as configured (only to warn when it is not
-    ``token``). Ray is joined by :meth:`start` (else on the first map), and reused afterwards; a Ray
-    already initialised in this process (a test's fixture) is used as it is.
+    ``token``). Ray is joined by :meth:`start` (else on the first map) and reused
+    afterwards; a Ray already initialised in this process (a test's fixture) is used as it
+    is, and left running by :meth:`close`.
     """
 
     name = "ray"

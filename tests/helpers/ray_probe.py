@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 import uuid
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ class ProbeParams(StrictModel):
     log_dir: str = Field(description="directory of the marker files")
     flaky: bool = Field(default=False, description="each shard's first call fails, transiently")
     bad: bool = Field(default=False, description="every shard raises a ValueError")
+    crash: bool = Field(default=False, description="every shard kills its own process")
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,7 @@ class ProbeItem:
     log_dir: str
     flaky: bool
     bad: bool
+    crash: bool = False
 
 
 def node_id() -> str:
@@ -69,6 +72,8 @@ def probe_shard(item: ProbeItem) -> bytes:
     log_dir = Path(item.log_dir)
     before = len(list(log_dir.glob(f"{item.index}-*")))
     (log_dir / f"{item.index}-{node_id()}-{uuid.uuid4().hex}").touch()
+    if item.crash:
+        os._exit(17)  # a segfault or an OOM kill, as the executor sees it
     if item.bad:
         raise ValueError(f"probe shard {item.index} is bad")
     if item.flaky and before == 0:
@@ -80,7 +85,7 @@ def probe_shard(item: ProbeItem) -> bytes:
 
 def run_probe(params: ProbeParams, ctx: JobContext) -> None:
     items = [
-        ProbeItem(i, ctx.seed, params.sleep, params.log_dir, params.flaky, params.bad)
+        ProbeItem(i, ctx.seed, params.sleep, params.log_dir, params.flaky, params.bad, params.crash)
         for i in range(params.n)
     ]
     ctx.map_artifact_shards(

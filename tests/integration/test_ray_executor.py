@@ -83,6 +83,18 @@ def test03_other_errors_fail_at_once(ray_local, probe_kind, settings, tmp_path) 
     assert all(len(v) == 1 for v in calls(log_dir).values())
 
 
+def test03b_a_shard_that_keeps_crashing_fails_the_job_after_its_retries(
+    ray_local, probe_kind, settings, tmp_path
+) -> None:
+    settings = settings.with_(executor="ray", ray_max_retries=1)
+    log_dir = tmp_path / "calls"
+    log_dir.mkdir()
+    job = run_in_process(probe_spec(log_dir, n=1, crash=True), settings)
+    assert job.state == "failed"
+    assert job.error is not None and "shard 0 lost after 1 retries on Ray" in job.error
+    assert {i: len(v) for i, v in calls(log_dir).items()} == {0: 2}
+
+
 def test04_finished_shards_are_not_redone(ray_local, probe_kind, settings, tmp_path) -> None:
     """Resume on Ray as on the pool: recorded shards are registered again, not recomputed."""
     settings = settings.with_(executor="ray")
