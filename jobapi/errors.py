@@ -9,15 +9,19 @@ from __future__ import annotations
 from storage.errors import FormatError, IntegrityError, NotFoundError, StorageError, TooLargeError
 
 __all__ = [
+    "ExecutorUnavailable",
     "FormatError",
     "IntegrityError",
     "JobCancelled",
     "JobFailed",
     "LeaseLost",
     "NotFoundError",
+    "ShardLost",
     "SpecError",
     "StorageError",
     "TooLargeError",
+    "TRANSIENT_ERRORS",
+    "TransientError",
 ]
 
 
@@ -39,3 +43,28 @@ class JobCancelled(Exception):
 
 class LeaseLost(JobCancelled):
     """The worker no longer holds the job's lease; its results must not be written."""
+
+
+class TransientError(Exception):
+    """Raised by a shard function for a failure worth retrying as it is (a flaky mount, a
+    dropped connection). Executors that retry (Ray) run such a shard again; a deterministic
+    error (``ValueError``, ``FormatError``...) fails the job at once instead."""
+
+
+#: The application errors of a shard that a retrying executor retries: nothing about the
+#: shard's inputs is wrong, so the same call may succeed on a second try or another node.
+TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (
+    TransientError,
+    ConnectionError,
+    TimeoutError,
+    MemoryError,
+)
+
+
+class ShardLost(JobFailed):
+    """The executor could not finish a shard after its retries (its node kept dying)."""
+
+
+class ExecutorUnavailable(RuntimeError):
+    """An executor's backend cannot be started or reached (no Ray cluster at the address).
+    Raised before a job is claimed, so the job stays queued."""

@@ -3,9 +3,11 @@
 A job kind never picks a backend; it calls ``ctx.map_shards(fn, items)`` and the context
 hands the work to an :class:`Executor`. This module is the interface and the in-process
 backend, :class:`InlineExecutor` (tests, tiny jobs); the worker's backends (a pool of
-spawned processes; Ray would be another) live at the edge, in
-:mod:`service.workers.executors`, and implement :meth:`Executor.map` and
-:meth:`Executor.close`. No job kind changes when a backend is added.
+spawned processes, or Ray tasks on a cluster) live at the edge, in
+:mod:`service.workers.executors`, and implement :meth:`Executor.start`,
+:meth:`Executor.map`, :meth:`Executor.describe` and :meth:`Executor.close`. No job kind
+changes when a backend is added, and every backend gives the same results for the same
+items.
 
 Shard functions must be module-level functions (picklable), take one item and return a
 picklable result.
@@ -24,6 +26,16 @@ class Executor(Protocol):
 
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]: ...
 
+    def start(self) -> None:
+        """Acquire what the backend needs before a job is claimed (join a cluster); raises
+        :class:`~jobapi.errors.ExecutorUnavailable` when it cannot."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """Where shards ran, for the job's manifest: ``{"executor": name, "executor_nodes":
+        machines}`` (``process``: 1; ``ray``: the cluster's live nodes)."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -35,6 +47,12 @@ class InlineExecutor:
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
         for i, item in enumerate(items):
             yield i, fn(item)
+
+    def start(self) -> None:
+        pass
+
+    def describe(self) -> dict[str, Any]:
+        return {"executor": self.name, "executor_nodes": 1}
 
     def close(self) -> None:
         pass

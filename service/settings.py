@@ -12,6 +12,8 @@ from pathlib import Path
 
 DEFAULT_SERVER = "http://127.0.0.1:8000"
 DEFAULT_LIBLLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+#: The shard backends ``MATFORGE_EXECUTOR`` may name; the first is the default.
+EXECUTORS: tuple[str, ...] = ("process", "ray")
 
 
 def _int(env: dict[str, str], name: str, default: int) -> int:
@@ -32,6 +34,13 @@ def _float(env: dict[str, str], name: str, default: float) -> float:
         return float(raw)
     except ValueError as exc:
         raise ValueError(f"environment variable {name}={raw!r} is not a number") from exc
+
+
+def _choice(env: dict[str, str], name: str, choices: tuple[str, ...]) -> str:
+    raw = (env.get(name) or choices[0]).strip().lower()
+    if raw not in choices:
+        raise ValueError(f"environment variable {name}={raw!r} is not one of {', '.join(choices)}")
+    return raw
 
 
 @dataclass(frozen=True)
@@ -56,8 +65,19 @@ class Settings:
     ``MATFORGE_ALLOWED_HOSTS``    ``allowed_hosts``            the bound host (and loopback)
     ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
     ``MATFORGE_GC_GRACE_HOURS``   ``gc_grace_seconds``         24 h
+    ``MATFORGE_EXECUTOR``         ``executor``                 ``process`` (or ``ray``)
+    ``RAY_ADDRESS``               ``ray_address``              unset: a private local Ray
+    ``MATFORGE_RAY_MAX_RETRIES``  ``ray_max_retries``          3 (per shard)
+    ``RAY_AUTH_MODE``             ``ray_auth_mode``            unset (Ray's own default)
     ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
     ============================  ===========================  ==============================
+
+    ``executor`` picks the backend of the jobs' shards (:mod:`service.workers.executors`):
+    ``process`` is a pool of ``pool_processes`` local processes; ``ray`` sends shards to the
+    Ray cluster at ``ray_address`` (``host:port`` of its head), or to a private local Ray of
+    ``pool_processes`` CPUs when unset. Ray reads ``RAY_AUTH_MODE`` and ``RAY_AUTH_TOKEN`` /
+    ``RAY_AUTH_TOKEN_PATH`` itself; matforge reads the mode only to warn when it connects
+    to a cluster without token authentication.
     """
 
     data_dir: Path = Path("./matforge-data")
@@ -74,6 +94,10 @@ class Settings:
     pool_processes: int = 2
     gc_grace_seconds: float = 24 * 3600.0
     libllvm_path: str = DEFAULT_LIBLLVM
+    executor: str = "process"
+    ray_address: str | None = None
+    ray_max_retries: int = 3
+    ray_auth_mode: str | None = None
     extra: dict[str, str] = field(default_factory=dict)
 
     @classmethod
@@ -100,6 +124,10 @@ class Settings:
             pool_processes=max(1, _int(e, "MATFORGE_POOL_PROCESSES", min(2, os.cpu_count() or 1))),
             gc_grace_seconds=_float(e, "MATFORGE_GC_GRACE_HOURS", 24.0) * 3600.0,
             libllvm_path=e.get("DRJIT_LIBLLVM_PATH") or DEFAULT_LIBLLVM,
+            executor=_choice(e, "MATFORGE_EXECUTOR", EXECUTORS),
+            ray_address=e.get("RAY_ADDRESS") or None,
+            ray_max_retries=max(0, _int(e, "MATFORGE_RAY_MAX_RETRIES", 3)),
+            ray_auth_mode=e.get("RAY_AUTH_MODE") or None,
         )
 
     def to_env(self) -> dict[str, str]:
@@ -118,7 +146,13 @@ class Settings:
             "MATFORGE_POOL_PROCESSES": str(self.pool_processes),
             "MATFORGE_GC_GRACE_HOURS": repr(self.gc_grace_seconds / 3600.0),
             "DRJIT_LIBLLVM_PATH": self.libllvm_path,
+            "MATFORGE_EXECUTOR": self.executor,
+            "MATFORGE_RAY_MAX_RETRIES": str(self.ray_max_retries),
         }
+        if self.ray_address:
+            env["RAY_ADDRESS"] = self.ray_address
+        if self.ray_auth_mode:
+            env["RAY_AUTH_MODE"] = self.ray_auth_mode
         if self.token:
             env["MATFORGE_TOKEN"] = self.token
         return env

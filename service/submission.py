@@ -15,7 +15,7 @@ from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
 from service.specs import ValidSpec, validate_spec
 from service.workers.execution import execute, worker_id
-from service.workers.executors import make_executor
+from service.workers.executors import executor_for
 from storage.artifacts import ArtifactStore
 from storage.errors import FormatError, NotFoundError
 from storage.formats import validate_file
@@ -84,10 +84,11 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
     if not created and job.state == "succeeded":
         return job
     if job.state == "queued":
+        executor = executor_for(settings)
+        executor.start()  # ExecutorUnavailable before the claim: the job stays queued
         claimed = jobs.claim(worker_id(), settings.lease_seconds, job_id=job.id)
-        if claimed is not None:
-            executor = make_executor("local", settings.pool_processes)
-            try:
+        try:
+            if claimed is not None:
                 execute(
                     claimed,
                     jobs=jobs,
@@ -96,8 +97,8 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
                     executor=executor,
                     scratch=settings.data_dir / "scratch",
                 )
-            finally:
-                executor.close()
+        finally:
+            executor.close()
     return jobs.get(job.id)
 
 

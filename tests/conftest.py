@@ -6,6 +6,7 @@ import time
 import types
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pydantic import Field
@@ -90,3 +91,23 @@ def mi() -> types.ModuleType:
 @pytest.fixture(scope="session")
 def mitsuba_llvm(mi: types.ModuleType) -> None:
     """For tests that only need the LLVM variant to be active."""
+
+
+@pytest.fixture(scope="session")
+def ray_session() -> Iterator[Any]:
+    """The test session's Ray (:class:`tests.helpers.ray_session.RaySession`), shut down,
+    every process of it, when the session ends. Imported here only when a test asks."""
+    from tests.helpers.ray_session import RaySession
+
+    session = RaySession()
+    try:
+        yield session
+    finally:
+        session.shutdown()
+
+
+@pytest.fixture
+def ray_local(ray_session: Any) -> Any:
+    """A local Ray of 2 CPUs, shared by the tests that use it (started once)."""
+    ray_session.local(num_cpus=2)
+    return ray_session

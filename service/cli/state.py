@@ -137,12 +137,14 @@ def setup_logging(verbose: bool, *, server: bool = False) -> None:
 
 def exit_code_for(exc: BaseException) -> tuple[int, str]:
     """The exit code and the message for an exception that reached the top of a command."""
-    from jobapi.errors import SpecError
+    from jobapi.errors import ExecutorUnavailable, SpecError
     from service.cli.batch import BatchError
     from storage.errors import IntegrityError, StorageError
 
     if isinstance(exc, ClientError):
         return exc.exit_code, str(exc)
+    if isinstance(exc, ExecutorUnavailable):  # MATFORGE_EXECUTOR=ray, no cluster there
+        return EXIT_UNREACHABLE, str(exc)
     if isinstance(exc, BatchError | SpecError):
         return EXIT_BAD_INPUT, str(exc)
     if isinstance(exc, IntegrityError):

@@ -19,7 +19,7 @@ from typing import Any
 
 from jobapi.context import JobContext
 from jobapi.errors import JobCancelled, JobFailed, SpecError
-from jobapi.executor import Executor
+from jobapi.executor import Executor, InlineExecutor
 from service import kinds
 from service.specs import canonical_json, validate_spec
 from service.workers.provenance import code_version, package_versions
@@ -169,6 +169,9 @@ def execute(
             "code_version": code_version(),
             "packages": package_versions(),
             "worker": job.worker,
+            # Where the shards ran: "process" (the local pool) or "ray", and how many
+            # machines (Ray: the live nodes when the job finished).
+            **(executor.describe() if executor is not None else InlineExecutor().describe()),
             "attempt": job.attempts,
             "timings": {
                 "started": started,

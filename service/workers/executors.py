@@ -1,7 +1,10 @@
-"""The worker's executor backends: a pool of spawned processes, or inline.
+"""The worker's executor backends: a pool of spawned processes, Ray tasks, or inline.
 
 See :mod:`jobapi.executor` for the interface a backend implements. Shard functions must be
 module-level functions (picklable), take one item and return a picklable result.
+:func:`executor_for` picks the backend that ``MATFORGE_EXECUTOR`` names
+(:class:`~service.settings.Settings`); Ray is imported only when it is chosen
+(:mod:`service.workers.ray_executor`).
 """
 
 from __future__ import annotations
@@ -11,7 +14,9 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
 
+from jobapi.errors import ExecutorUnavailable
 from jobapi.executor import Executor, InlineExecutor
+from service.settings import Settings
 
 
 class LocalPoolExecutor:
@@ -21,7 +26,7 @@ class LocalPoolExecutor:
     fork. At most ``2 * processes`` shards are in flight, so a cancelled job stops quickly.
     """
 
-    name = "local"
+    name = "process"
 
     def __init__(self, processes: int = 2) -> None:
         self.processes = max(1, processes)
@@ -54,16 +59,52 @@ class LocalPoolExecutor:
             for fut in pending:
                 fut.cancel()
 
+    def start(self) -> None:
+        pass  # the pool starts with the first map of more than one shard
+
+    def describe(self) -> dict[str, Any]:
+        return {"executor": self.name, "executor_nodes": 1}
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
 
-def make_executor(name: str = "local", processes: int = 2) -> Executor:
-    """The executor backend called ``name`` (``"local"`` or ``"inline"``)."""
-    if name == "local":
+def make_executor(
+    name: str = "process",
+    processes: int = 2,
+    *,
+    ray_address: str | None = None,
+    ray_max_retries: int = 3,
+    ray_auth_mode: str | None = None,
+) -> Executor:
+    """The executor backend called ``name``: ``"process"`` (alias ``"local"``), ``"ray"``
+    or ``"inline"``. ``processes`` is the pool's size, or the CPUs of a private local Ray
+    when ``ray_address`` is unset."""
+    if name in ("process", "local"):
         return LocalPoolExecutor(processes)
+    if name == "ray":
+        try:
+            from service.workers.ray_executor import RayExecutor
+        except ImportError as exc:
+            raise ExecutorUnavailable(
+                f"MATFORGE_EXECUTOR=ray but Ray is not installed: {exc}"
+            ) from None
+        return RayExecutor(
+            ray_address, num_cpus=processes, max_retries=ray_max_retries, auth_mode=ray_auth_mode
+        )
     if name == "inline":
         return InlineExecutor()
-    raise ValueError(f"unknown executor backend {name!r}; known: local, inline")
+    raise ValueError(f"unknown executor backend {name!r}; known: process, ray, inline")
+
+
+def executor_for(settings: Settings) -> Executor:
+    """The backend that ``settings`` name (``MATFORGE_EXECUTOR``, ``RAY_ADDRESS``)."""
+    return make_executor(
+        settings.executor,
+        settings.pool_processes,
+        ray_address=settings.ray_address,
+        ray_max_retries=settings.ray_max_retries,
+        ray_auth_mode=settings.ray_auth_mode,
+    )

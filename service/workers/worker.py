@@ -20,9 +20,10 @@ import threading
 import time
 from pathlib import Path
 
+from jobapi.errors import ExecutorUnavailable
 from service.settings import Settings
 from service.workers.execution import execute, worker_id
-from service.workers.executors import make_executor
+from service.workers.executors import executor_for
 from service.workers.liveness import Beat, beat_path, stalled_for, watch_parent
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
@@ -42,7 +43,8 @@ def run_worker(
     for ``idle_exit_seconds``. Returns the number of jobs run."""
     jobs = JobStore(settings.db_path)
     store = ArtifactStore(settings.store_dir)
-    executor = make_executor("local", settings.pool_processes)
+    executor = executor_for(settings)
+    executor.start()  # ExecutorUnavailable: exit before claiming, the queue is untouched
     me = worker_id()
     limit = settings.recycle_after_jobs if max_jobs is None else max_jobs
     ran, idle_since = 0, time.monotonic()
@@ -224,6 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     beat.start()
     try:
         run_worker(settings, max_jobs=args.max_jobs, stop=stop)
+    except ExecutorUnavailable as exc:
+        log.error("worker cannot start its executor: %s", exc)
+        return 3
     finally:
         beat.stop()
     return 0

@@ -9,6 +9,8 @@ import signal
 import threading
 import time
 
+import pytest
+
 from service.specs import validate_spec
 from service.submission import submit
 from service.workers.execution import execute
@@ -37,6 +39,7 @@ def test01_worker_runs_job_and_writes_manifest(toy_kind, settings, jobs, store) 
     assert manifest["artifacts"][0]["name"] == "result.json"
     assert {"mitsuba", "drjit", "torch", "numpy"} <= set(manifest["packages"])
     assert manifest["code_version"]
+    assert (manifest["executor"], manifest["executor_nodes"]) == ("process", 1)
 
 
 def test02_same_seed_same_bytes_other_seed_differs(toy_kind, settings, jobs, store) -> None:
@@ -155,3 +158,29 @@ def test09_run_in_process_resumes_a_job_whose_process_died(toy_kind, settings, j
     job = run_in_process({"kind": "toy", "params": {"n": 3}}, settings)
     assert job.id == job_id and job.state == "succeeded" and job.attempts == 2
     assert json.loads(store.read(job.artifacts[0].digest))["squares"] == [0, -7, 4]
+
+
+def test10_unreachable_executor_leaves_the_queue_alone(
+    toy_kind, settings, jobs, store, monkeypatch
+) -> None:
+    """``MATFORGE_EXECUTOR=ray`` with no cluster: the worker exits 3 and ``matforge run``
+    raises before claiming, so the job stays queued for a worker that can reach it."""
+    from jobapi.errors import ExecutorUnavailable
+    from jobapi.executor import InlineExecutor
+    from service import submission
+    from service.workers import worker
+
+    class Unreachable(InlineExecutor):
+        def start(self) -> None:
+            raise ExecutorUnavailable("cannot start or reach 10.9.9.9:6379: refused")
+
+    monkeypatch.setattr(worker, "executor_for", lambda s: Unreachable())
+    monkeypatch.setattr(submission, "executor_for", lambda s: Unreachable())
+    monkeypatch.setenv("MATFORGE_DATA", str(settings.data_dir))
+    monkeypatch.setattr(worker.signal, "signal", lambda *a: None)  # keep pytest's SIGTERM
+    job_id = _queue(jobs, store, n=2)
+    assert worker.main(["--data-dir", str(settings.data_dir), "--max-jobs", "1"]) == 3
+    with pytest.raises(ExecutorUnavailable, match="10.9.9.9"):
+        submission.run_in_process({"kind": "toy", "params": {"n": 2}}, settings)
+    job = jobs.get(job_id)
+    assert job.state == "queued" and job.attempts == 0

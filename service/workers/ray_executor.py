@@ -1,0 +1,187 @@
+"""The Ray backend of :mod:`jobapi.executor`: each shard is a Ray task.
+
+``MATFORGE_EXECUTOR=ray`` selects it (:mod:`service.settings`). The job itself stays in the
+worker process: the context hands ``fn`` and the shard items to :meth:`RayExecutor.map`,
+Ray runs ``fn(item)`` on some node of the cluster, and the result comes back to the job,
+which writes it into the artifact store and records the finished shard exactly as with the
+local pool. So resumption, cancellation and the bytes of every artifact do not depend on the
+backend; only where the arithmetic runs does.
+
+- Items are what the kinds already hand the pool: small parameter records, seeds and paths,
+  never the data set's arrays (a shard *returns* its bytes).
+- A shard whose node dies, or whose worker process crashes, is a system failure: Ray runs it
+  again, at most ``max_retries`` times. A shard that raises one of
+  :data:`jobapi.errors.TRANSIENT_ERRORS` is retried the same way (``retry_exceptions``);
+  any other exception is the shard's own and reaches the job unchanged, as it would from
+  the local pool.
+- At most ``2 x`` the cluster's CPUs are in flight, so a cancelled job stops quickly and the
+  object store holds a bounded number of results.
+
+Security: Ray's Jobs API and dashboard have no auth by default (CVE-2023-48022). matforge
+never starts them (``include_dashboard=False``) and connects to a cluster as a plain driver
+over Ray's GCS port; run the cluster with ``RAY_AUTH_MODE=token`` (Ray >= 2.52), see
+``docs/ray.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import pickle
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+import ray
+from ray.exceptions import RayError, RayTaskError
+
+from jobapi.errors import TRANSIENT_ERRORS, ExecutorUnavailable, ShardLost
+
+log = logging.getLogger("matforge.ray")
+
+#: Object store of a private local Ray (bytes): shards' results are fetched as they finish,
+#: so a few hundred megabytes suffice, and /dev/shm is shared with the rest of the machine.
+LOCAL_OBJECT_STORE_BYTES = 512 * 1024 * 1024
+
+
+def run_shard(fn: Callable[[Any], Any], item: bytes) -> bytes:
+    """The body of every Ray task: the kind's own shard function on one pickled item, its
+    result pickled.
+
+    Item and result travel as pickles, as through the local pool, rather than through Ray's
+    own serialiser: that one hands numpy arrays over zero-copy and read-only, which code
+    written for the pool (Mitsuba's ``Bitmap(array)``, in-place arithmetic) refuses.
+    """
+    return pickle.dumps(fn(pickle.loads(item)), protocol=5)
+
+
+class RayExecutor:
+    """Runs shards as Ray tasks on the cluster at ``address``, or on a private local Ray.
+
+    Parameters: ``address`` is the head's ``host:port`` (``None``: start a local Ray of
+    ``num_cpus`` CPUs, owned and shut down by this executor); ``max_retries`` bounds the
+    re-runs of one shard after a node or worker failure or a transient error;
+    ``auth_mode`` is ``RAY_AUTH_MODE`` as configured (only to warn when it is not
+    ``token``). Ray is joined by :meth:`start` (else on the first map) and reused
+    afterwards; a Ray already initialised in this process (a test's fixture) is used as it
+    is, and left running by :meth:`close`.
+    """
+
+    name = "ray"
+
+    def __init__(
+        self,
+        address: str | None = None,
+        *,
+        num_cpus: int = 2,
+        max_retries: int = 3,
+        auth_mode: str | None = None,
+    ) -> None:
+        self.address = address
+        self.num_cpus = max(1, num_cpus)
+        self.max_retries = max(0, max_retries)
+        self.auth_mode = auth_mode
+        self._owned = False
+        self._task: Any = None
+
+    # -- connection -------------------------------------------------------------------------
+    def start(self) -> None:
+        """Join the cluster (or start the private local Ray) unless Ray is already up;
+        raises :class:`~jobapi.errors.ExecutorUnavailable` when it cannot."""
+        if ray.is_initialized():
+            return
+        if self.address and (self.auth_mode or "").lower() != "token":
+            log.warning(
+                "connecting to the Ray cluster at %s without RAY_AUTH_MODE=token: anyone who "
+                "reaches its ports can run code on it (CVE-2023-48022); see docs/ray.md",
+                self.address,
+            )
+        try:
+            if self.address:
+                ray.init(
+                    address=self.address,
+                    namespace="matforge",
+                    configure_logging=False,
+                    log_to_driver=False,
+                )
+            else:
+                ray.init(
+                    address="local",
+                    num_cpus=self.num_cpus,
+                    include_dashboard=False,
+                    object_store_memory=LOCAL_OBJECT_STORE_BYTES,
+                    namespace="matforge",
+                    configure_logging=False,
+                    log_to_driver=False,
+                )
+        except (ConnectionError, RuntimeError, RayError) as exc:
+            where = self.address or "a local Ray"
+            raise ExecutorUnavailable(f"cannot start or reach {where}: {exc}") from exc
+        self._owned = True
+
+    def _remote(self) -> Any:
+        if self._task is None:
+            self._task = ray.remote(run_shard).options(
+                num_cpus=1,
+                max_retries=self.max_retries,
+                retry_exceptions=list(TRANSIENT_ERRORS),
+            )
+        return self._task
+
+    def cluster_cpus(self) -> int:
+        """The CPUs of the cluster's live nodes (at least 1)."""
+        return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+    def nodes(self) -> int:
+        """The cluster's live nodes."""
+        return sum(1 for n in ray.nodes() if n.get("Alive"))
+
+    # -- Executor -----------------------------------------------------------------------------
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
+        if not items:
+            return
+        self.start()
+        task = self._remote()
+        fn_ref = ray.put(fn)  # once per map, not once per shard
+        limit = 2 * self.cluster_cpus()
+        pending: dict[Any, int] = {}
+        next_i = 0
+        try:
+            while next_i < len(items) or pending:
+                while next_i < len(items) and len(pending) < limit:
+                    item = pickle.dumps(items[next_i], protocol=5)
+                    pending[task.remote(fn_ref, item)] = next_i
+                    next_i += 1
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                for ref in ready:
+                    i = pending.pop(ref)
+                    yield i, self._result(ref, i)
+        finally:
+            for ref in pending:  # a cancelled or failed job: drop the rest of the batch
+                ray.cancel(ref)
+
+    def _result(self, ref: Any, i: int) -> Any:
+        try:
+            return pickle.loads(ray.get(ref))
+        except RayTaskError as exc:
+            # The shard's own exception, as the local pool would raise it; Ray's wrapper
+            # adds the remote traceback, which goes to the log, not to the job's error.
+            log.info("shard %d raised remotely:\n%s", i, exc)
+            cause = exc.cause
+            if isinstance(cause, BaseException):
+                raise cause from None
+            raise
+        except RayError as exc:  # node or worker died more often than max_retries
+            raise ShardLost(
+                f"shard {i} lost after {self.max_retries} retries on Ray: "
+                f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+            ) from None
+
+    def describe(self) -> dict[str, Any]:
+        nodes = self.nodes() if ray.is_initialized() else 0
+        return {"executor": self.name, "executor_nodes": nodes}
+
+    def close(self) -> None:
+        """Shut down the private local Ray (or leave a cluster) if this executor joined it."""
+        if self._owned and ray.is_initialized():
+            ray.shutdown()
+        self._owned = False
+        self._task = None

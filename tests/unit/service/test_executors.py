@@ -1,0 +1,50 @@
+"""Choosing the shard backend from the environment (no Ray is started here)."""
+
+from __future__ import annotations
+
+import pytest
+
+from jobapi.executor import InlineExecutor
+from service.settings import Settings
+from service.workers.executors import LocalPoolExecutor, executor_for, make_executor
+
+
+def test01_default_is_the_local_process_pool() -> None:
+    settings = Settings.from_env({})
+    assert settings.executor == "process" and settings.ray_address is None
+    executor = executor_for(settings)
+    assert isinstance(executor, LocalPoolExecutor)
+    assert executor.describe() == {"executor": "process", "executor_nodes": 1}
+
+
+def test02_ray_with_an_address_and_retries() -> None:
+    from service.workers.ray_executor import RayExecutor
+
+    env = {
+        "MATFORGE_EXECUTOR": "Ray",
+        "RAY_ADDRESS": "10.0.0.5:6379",
+        "MATFORGE_RAY_MAX_RETRIES": "5",
+        "RAY_AUTH_MODE": "token",
+    }
+    settings = Settings.from_env(env)
+    executor = executor_for(settings)
+    assert isinstance(executor, RayExecutor)
+    assert (executor.address, executor.max_retries, executor.auth_mode) == (
+        "10.0.0.5:6379",
+        5,
+        "token",
+    )
+    # A worker started by the supervisor gets the same choice.
+    assert Settings.from_env(settings.to_env()).executor == "ray"
+    assert Settings.from_env(settings.to_env()).ray_address == "10.0.0.5:6379"
+
+
+def test03_unknown_backend_is_refused_with_its_name() -> None:
+    with pytest.raises(ValueError, match="MATFORGE_EXECUTOR='dask'"):
+        Settings.from_env({"MATFORGE_EXECUTOR": "dask"})
+    with pytest.raises(ValueError, match="unknown executor backend 'dask'"):
+        make_executor("dask")
+
+
+def test04_inline_describes_itself() -> None:
+    assert InlineExecutor().describe() == {"executor": "inline", "executor_nodes": 1}
