@@ -28,6 +28,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "models.brdf.kind",
     "models.brdf.report_kind",
     "models.fabric.kind",
+    "evaluators.report.kind",
 )
 
 _lock = threading.Lock()

@@ -11,89 +11,27 @@ from __future__ import annotations
 
 import csv
 import io
-import logging
-import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from jobapi.rows import COLUMNS, JobFacts, ResultRow, RowSource
+from jobapi import row_sources
+from jobapi.row_sources import job_id_of_ref
+from jobapi.rows import COLUMNS, ResultRow
 from service import kinds
 from service.specs import STEP_REF, validate_spec
-from service.summaries import artifact_reader
 from storage.artifacts import ArtifactStore
-from storage.errors import NotFoundError
 from storage.jobs import Job, JobStore
-
-log = logging.getLogger(__name__)
 
 #: Jobs read at most when no job is named (the newest succeeded ones).
 MAX_JOBS = 1000
-_JOB_ID = re.compile(r"^job:(?P<job>[0-9a-f]{32})(?:/.+)?$")
-
-
-def job_facts(job: Job) -> JobFacts:
-    """The :class:`JobFacts` of a queue row."""
-    run_s = None
-    if job.started_at is not None and job.finished_at is not None:
-        run_s = job.finished_at - job.started_at
-    params = job.spec.get("params") if isinstance(job.spec, dict) else None
-    return JobFacts(
-        id=job.id,
-        kind=job.kind,
-        seed=job.seed,
-        name=job.name,
-        params=params if isinstance(params, dict) else {},
-        run_seconds=run_s,
-    )
-
-
-def job_id_of_ref(ref: str) -> str | None:
-    """The job id of ``job:<id>`` or ``job:<id>/<name>``, else ``None``."""
-    m = _JOB_ID.match(ref)
-    return m["job"] if m else None
-
-
-class StoreSource:
-    """A succeeded job of a queue and store, as a rows hook reads it (:class:`RowSource`)."""
-
-    def __init__(self, job: Job, jobs: JobStore, store: ArtifactStore) -> None:
-        self._job, self._jobs, self._store = job, jobs, store
-        self._read = artifact_reader(store, job.artifacts)
-        self.job = job_facts(job)
-
-    def read(self, name: str) -> Any:
-        return self._read(name)
-
-    def source(self, ref: str) -> RowSource | None:
-        job_id = job_id_of_ref(ref)
-        if job_id is None:
-            return None
-        try:
-            job = self._jobs.get(job_id)
-        except NotFoundError:
-            return None
-        return StoreSource(job, self._jobs, self._store) if job.state == "succeeded" else None
 
 
 def job_rows(job: Job, jobs: JobStore, store: ArtifactStore) -> list[ResultRow]:
-    """Every value ``job`` measured (``[]`` for a job that has not succeeded, or a kind
-    without a rows hook). A hook that trips over a malformed artifact is logged and gives
-    no rows, so one bad job does not hide the others' results."""
-    if job.state != "succeeded":
-        return []
-    try:
-        hook = kinds.get_kind(job.kind).rows
-    except KeyError:
-        return []
-    if hook is None:
-        return []
-    try:
-        return hook(StoreSource(job, jobs, store))
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        log.warning("job %s (%s): no result rows: %s: %s", job.id, job.kind,
-                    type(exc).__name__, exc)  # fmt: skip
-        return []
+    """Every value ``job`` measured (:func:`jobapi.row_sources.job_rows`), once the
+    built-in kinds are registered."""
+    kinds.load_builtin()
+    return row_sources.job_rows(job, jobs, store)
 
 
 @dataclass(frozen=True)

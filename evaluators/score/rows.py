@@ -4,7 +4,9 @@ material, for a whole model scored against a set of tables).
 A candidate that is a render's image (``job:<render>/image.exr``) carries that render's
 scene, spp, time, seed and settings (:func:`evaluators.render.rows.render_facts`), so a
 score's rows chart error against samples and seconds directly. A model candidate
-(``{"model": REF, "material": NAME}``) names its material and the model it came from.
+(``{"model": REF, "material": NAME}``) names its material and the model it came from. The
+row's ``dataset`` is the reference ref (a ``generate.merl`` job for a whole model, or the
+reference image).
 """
 
 from __future__ import annotations
@@ -39,9 +41,9 @@ def score_rows(src: RowSource) -> list[ResultRow]:
     candidates = params.get("candidates")
     candidates = candidates if isinstance(candidates, Mapping) else {}
     reference = params.get("reference")
-    # a whole model against a set of tables: the generate job of the tables is the dataset
-    whole_job = isinstance(reference, str) and reference.startswith("job:") and "/" not in reference
-    dataset = reference if whole_job else None
+    # What was scored against: a set of tables (its generate job) or a reference image;
+    # the fronts of report.pareto are drawn per dataset, so each reference is its own.
+    dataset = reference if isinstance(reference, str) else None
     ref_src = src.source(reference) if isinstance(reference, str) else None
     ref_scene = render_facts(ref_src).get("scene") if ref_src is not None else None
     per = doc.get("per_material")
