@@ -11,8 +11,16 @@ from jobapi.rows import COLUMNS, ResultRow, lower_is_better, number
 
 
 def test01_document_and_csv() -> None:
-    row = ResultRow(job="a" * 32, kind="score", metric="flip", value=0.25, lower_is_better=True,
-                    candidate="net16", config={"spp": 16, "source": "model"}, spp=16)  # fmt: skip
+    row = ResultRow(
+        job="a" * 32,
+        kind="score",
+        metric="flip",
+        value=0.25,
+        lower_is_better=True,
+        candidate="net16",
+        config={"spp": 16, "source": "model"},
+        spp=16,
+    )
     doc = row.document()
     assert list(doc) == list(COLUMNS)
     assert doc["config"] == {"spp": 16, "source": "model"} and doc["render_seconds"] is None

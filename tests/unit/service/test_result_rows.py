@@ -17,9 +17,17 @@ A, B, C = "a" * 32, "b" * 32, "c" * 32
 class FakeSource:
     """A job with given params and artifacts; other jobs by id."""
 
-    def __init__(self, kind: str, params: Mapping[str, Any], artifacts: Mapping[str, Any],
-                 *, job_id: str = A, seed: int = 0, seconds: float | None = 2.0,
-                 others: Mapping[str, FakeSource] | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        kind: str,
+        params: Mapping[str, Any],
+        artifacts: Mapping[str, Any],
+        *,
+        job_id: str = A,
+        seed: int = 0,
+        seconds: float | None = 2.0,
+        others: Mapping[str, FakeSource] | None = None,
+    ) -> None:
         self.job = JobFacts(id=job_id, kind=kind, seed=seed, params=params, run_seconds=seconds)
         self._artifacts, self._others = artifacts, others or {}
 
@@ -51,15 +59,28 @@ def test01_score_of_renders_carries_spp_and_time() -> None:
         "max_depth": 2,
         "material": {"model": f"job:{C}/model.pt", "fabric": {"pattern": "twill_3x3"}},
     }
-    gt = FakeSource("render", {**render, "spp": 256, "material": {"fabric": {}}}, {},
-                    job_id=B, seed=1, seconds=30.0)  # fmt: skip
+    gt = FakeSource(
+        "render",
+        {**render, "spp": 256, "material": {"fabric": {}}},
+        {},
+        job_id=B,
+        seed=1,
+        seconds=30.0,
+    )
     net = FakeSource("render", render, {}, job_id=C, seed=2, seconds=1.5)
-    metrics = {"metrics": {"net16": {"flip": 0.1, "psnr": 30.0, "ssim": None},
-                           "other": {"flip": 0.3}}}  # fmt: skip
-    score = FakeSource("score", {"reference": f"job:{B}/image.exr",
-                                 "candidates": {"net16": f"job:{C}/image.exr",
-                                                "other": "sha256:" + "0" * 64}},
-                       {"metrics.json": metrics}, others={B: gt, C: net}, seed=7)  # fmt: skip
+    metrics = {
+        "metrics": {"net16": {"flip": 0.1, "psnr": 30.0, "ssim": None}, "other": {"flip": 0.3}}
+    }
+    score = FakeSource(
+        "score",
+        {
+            "reference": f"job:{B}/image.exr",
+            "candidates": {"net16": f"job:{C}/image.exr", "other": "sha256:" + "0" * 64},
+        },
+        {"metrics.json": metrics},
+        others={B: gt, C: net},
+        seed=7,
+    )
     rows = rows_of(score)
     net_rows = by_metric(rows, candidate="net16")
     assert set(net_rows) == {"flip", "psnr"}  # a null value is no measurement
@@ -73,10 +94,15 @@ def test01_score_of_renders_carries_spp_and_time() -> None:
 
 
 def test02_score_of_a_whole_model_per_material() -> None:
-    metrics = {"metrics": {"m": {"smape": 0.2}},
-               "per_material": {"m": {"gold": {"smape": 0.1}, "blue": {"smape": 0.3}}}}  # fmt: skip
-    src = FakeSource("score", {"reference": f"job:{B}", "candidates": {"m": {"model": "x"}}},
-                     {"metrics.json": metrics})  # fmt: skip
+    metrics = {
+        "metrics": {"m": {"smape": 0.2}},
+        "per_material": {"m": {"gold": {"smape": 0.1}, "blue": {"smape": 0.3}}},
+    }
+    src = FakeSource(
+        "score",
+        {"reference": f"job:{B}", "candidates": {"m": {"model": "x"}}},
+        {"metrics.json": metrics},
+    )
     rows = rows_of(src)
     assert [(r.material, r.value) for r in rows] == [("mean", 0.2), ("gold", 0.1), ("blue", 0.3)]
     assert {r.dataset for r in rows} == {f"job:{B}"}
@@ -103,12 +129,24 @@ def test03_train_brdf() -> None:
         "per_material_params": 11,
         "architecture": {"width": 32, "depth": 3, "latent_dim": 4},
     }
-    speed = {"rows": [{"trained": False, "fused_kernel_ns": 1.0},
-                      {"trained": True, "fused_kernel_ns": 4.09, "fused_ns": 5.26,
-                       "torch_ns": 50.0, "bytes_per_network": 5000}]}  # fmt: skip
-    src = FakeSource("train.brdf", {"dataset": f"job:{B}", "preset": "small", "steps": 300},
-                     {"metrics.json": metrics, "materials.json": info, "speed.json": speed},
-                     seconds=90.0)  # fmt: skip
+    speed = {
+        "rows": [
+            {"trained": False, "fused_kernel_ns": 1.0},
+            {
+                "trained": True,
+                "fused_kernel_ns": 4.09,
+                "fused_ns": 5.26,
+                "torch_ns": 50.0,
+                "bytes_per_network": 5000,
+            },
+        ]
+    }
+    src = FakeSource(
+        "train.brdf",
+        {"dataset": f"job:{B}", "preset": "small", "steps": 300},
+        {"metrics.json": metrics, "materials.json": info, "speed.json": speed},
+        seconds=90.0,
+    )
     rows = rows_of(src)
     gold = by_metric(rows, material="gold")
     assert set(gold) == {"smape", "mae", "smape_analytic"}
@@ -135,8 +173,9 @@ def test04_train_fabric_network_and_baseline() -> None:
         "baseline": {"loss": 0.9, "rgb": {"rel": 0.6}},
     }
     doc = {"materials": [mat], "mean": {"count": 1, "loss": 0.5, "rgb": {"rel": 0.2}}}
-    rows = rows_of(FakeSource("train.fabric", {"dataset": f"job:{B}", "steps": 10},
-                              {"metrics.json": doc}))  # fmt: skip
+    rows = rows_of(
+        FakeSource("train.fabric", {"dataset": f"job:{B}", "steps": 10}, {"metrics.json": doc})
+    )
     net = by_metric(rows, material="twill-0", candidate="network")
     base = by_metric(rows, material="twill-0", candidate="baseline")
     assert {k: r.value for k, r in net.items()} == {"loss": 0.5, "rgb.rel": 0.2, "rgb.mse": 0.01}
@@ -154,16 +193,38 @@ def test05_train_btf_and_tss() -> None:
         "relative_l1": 0.1,
         "storage": {"texture_bytes": 1000, "network_bytes": 200},
     }
-    rows = by_metric(rows_of(FakeSource("train.btf", {"data": f"job:{B}", "model": "c2f"},
-                                        {"metrics.json": doc})))  # fmt: skip
+    rows = by_metric(
+        rows_of(
+            FakeSource("train.btf", {"data": f"job:{B}", "model": "c2f"}, {"metrics.json": doc})
+        )
+    )
     assert set(rows) == {"l1", "l1_train", "relative_l1"}
     assert (rows["l1"].bytes_per_material, rows["l1"].bytes_per_network) == (1000, 200)
-    metrics = {"rows": [{"label": "64/N=2", "resolution": 64, "interval": 2, "pass": "amortised",
-                         "flip_mean": 0.05, "flip_max": 0.08, "psnr_mean": 35.0,
-                         "psnr_min": None, "shading_passes": 2}]}  # fmt: skip
+    metrics = {
+        "rows": [
+            {
+                "label": "64/N=2",
+                "resolution": 64,
+                "interval": 2,
+                "pass": "amortised",
+                "flip_mean": 0.05,
+                "flip_max": 0.08,
+                "psnr_mean": 35.0,
+                "psnr_min": None,
+                "shading_passes": 2,
+            }
+        ]
+    }
     timing = {"rows": {"64/N=2": {"seconds_per_frame": 0.004, "relative_cost": 0.5}}}
-    tss = by_metric(rows_of(FakeSource("evaluate.tss", {"model": f"job:{C}/model.json"},
-                                       {"metrics.json": metrics, "timing.json": timing})))  # fmt: skip
+    tss = by_metric(
+        rows_of(
+            FakeSource(
+                "evaluate.tss",
+                {"model": f"job:{C}/model.json"},
+                {"metrics.json": metrics, "timing.json": timing},
+            )
+        )
+    )
     assert set(tss) == {"flip_mean", "flip_max", "psnr_mean", "relative_cost"}
     assert tss["flip_mean"].ms_per_frame == pytest.approx(4.0)
     assert tss["flip_mean"].candidate == "64/N=2" and tss["flip_mean"].config["interval"] == 2

@@ -16,12 +16,30 @@ from jobapi.rows import ResultRow
 D = "job:" + "d" * 32
 
 
-def brdf_row(job: str, cand: str, value: float, ns: float, *, material: str = "mean",
-             family: str | None = None, floats: int = 11) -> ResultRow:  # fmt: skip
-    return ResultRow(job=job, kind="train.brdf", metric="smape", value=value, lower_is_better=True,
-                     dataset=D, candidate=cand, material=material, family=family,
-                     config={"per_material_params": floats}, ns_per_eval=ns,
-                     bytes_per_material=4.0 * floats)  # fmt: skip
+def brdf_row(
+    job: str,
+    cand: str,
+    value: float,
+    ns: float,
+    *,
+    material: str = "mean",
+    family: str | None = None,
+    floats: int = 11,
+) -> ResultRow:
+    return ResultRow(
+        job=job,
+        kind="train.brdf",
+        metric="smape",
+        value=value,
+        lower_is_better=True,
+        dataset=D,
+        candidate=cand,
+        material=material,
+        family=family,
+        config={"per_material_params": floats},
+        ns_per_eval=ns,
+        bytes_per_material=4.0 * floats,
+    )
 
 
 def study() -> list[ResultRow]:
@@ -94,19 +112,33 @@ def test03_claims_with_reasons() -> None:
     assert missing["holds"] is None and missing["why"] == "no smape rows of tiny"
     with pytest.raises(ValueError, match="relation"):
         check_claim(rows, {"a": "x", "b": "y", "metric": "smape", "relation": ">"})
-    other = [r.with_(config={"per_material_params": 12}) if r.candidate == "neural 16x3" else r
-             for r in rows]  # fmt: skip
+    other = [
+        r.with_(config={"per_material_params": 12}) if r.candidate == "neural 16x3" else r
+        for r in rows
+    ]
     (bad,) = [c for c in brdf_claims(other) if "neural" in c["claim"]]
     assert bad["holds"] is None and "floats differ" in bad["why"]
 
 
 def test04_fabric_claims_per_reference() -> None:
     def score(cand: str, ref: str, flip: float) -> ResultRow:
-        return ResultRow(job="e" * 32, kind="score", metric="flip", value=flip, candidate=cand,
-                         dataset=ref, lower_is_better=True)  # fmt: skip
+        return ResultRow(
+            job="e" * 32,
+            kind="score",
+            metric="flip",
+            value=flip,
+            candidate=cand,
+            dataset=ref,
+            lower_is_better=True,
+        )
 
-    rows = [score("net16", "seen", 0.10), score("mc_eq", "seen", 0.12), score("mc1", "seen", 0.3),
-            score("net16", "unseen", 0.2), score("mc_eq", "unseen", 0.15)]  # fmt: skip
+    rows = [
+        score("net16", "seen", 0.10),
+        score("mc_eq", "seen", 0.12),
+        score("mc1", "seen", 0.3),
+        score("net16", "unseen", 0.2),
+        score("mc_eq", "unseen", 0.15),
+    ]
     got = {c["claim"]: c["holds"] for c in fabric_claims(rows)}
     assert got == {
         "network (16 spp) FLIP < Monte Carlo at equal time against seen": True,
