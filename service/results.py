@@ -115,9 +115,10 @@ def batch_rows(
     where: RowFilter | None = None,
 ) -> BatchResults:
     """The results of a batch's steps (``[{"name", "spec"}]``, specs with ``step:`` refs,
-    as :func:`service.cli.batch.load_batch` reads them), in step order. A step's job is the
-    succeeded job of its spec once its refs name the earlier steps' jobs. Raises
-    ``SpecError`` for a spec that does not validate."""
+    as :func:`service.cli.batch.load_batch` reads them), in step order, a step's candidates
+    in the order its spec gives them. A step's job is the succeeded job of its spec once its
+    refs name the earlier steps' jobs. Raises ``SpecError`` for a spec that does not
+    validate."""
     where = where or RowFilter()
     out = BatchResults()
     found: dict[str, str] = {}
@@ -142,8 +143,20 @@ def batch_rows(
         if job is None:
             continue
         found[name] = job.id
-        out.rows += [r.with_(step=name) for r in job_rows(job, jobs, store) if where.keep(r)]
+        rows = [r.with_(step=name) for r in job_rows(job, jobs, store) if where.keep(r)]
+        out.rows += in_given_order(rows, step.get("spec"))
     return out
+
+
+def in_given_order(rows: list[ResultRow], spec: Any) -> list[ResultRow]:
+    """``rows`` with the candidates in the order the step's spec lists them (its params'
+    ``candidates`` mapping), not the stored, canonical (sorted) one; stable otherwise."""
+    params = spec.get("params") if isinstance(spec, Mapping) else None
+    cands = params.get("candidates") if isinstance(params, Mapping) else None
+    if not isinstance(cands, Mapping):
+        return rows
+    rank = {str(c): i for i, c in enumerate(cands)}
+    return sorted(rows, key=lambda r: rank.get(r.candidate or "", len(rank)))
 
 
 # -- formats -----------------------------------------------------------------------------------
