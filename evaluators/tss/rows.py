@@ -29,7 +29,8 @@ def tss_rows(src: RowSource) -> list[ResultRow]:
         if not isinstance(r, Mapping):
             continue
         label = str(r.get("label"))
-        cost = costs.get(label) if isinstance(costs.get(label), Mapping) else {}
+        found = costs.get(label)
+        cost: Mapping[str, Any] = found if isinstance(found, Mapping) else {}
         spf = number(cost.get("seconds_per_frame"))
         fields = {
             "candidate": label,

@@ -6,6 +6,7 @@ the decoder's."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 
@@ -21,7 +22,8 @@ def train_btf_rows(src: RowSource) -> list[ResultRow]:
     if not isinstance(doc, Mapping):
         return []
     params = src.job.params
-    storage = doc.get("storage") if isinstance(doc.get("storage"), Mapping) else {}
+    found = doc.get("storage")
+    storage: Mapping[str, Any] = found if isinstance(found, Mapping) else {}
     fields = {
         "candidate": str(doc.get("label") or params.get("model")),
         "dataset": dataset_of(params, "data"),
