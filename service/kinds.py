@@ -29,6 +29,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "models.brdf.report_kind",
     "models.fabric.kind",
     "evaluators.report.kind",
+    "evaluators.report.stability",
 )
 
 _lock = threading.Lock()

@@ -211,3 +211,34 @@ def test03_results_table_and_batches(study: tuple[Settings, dict[str, Job]]) -> 
         ("s", "flip"),
         ("s", "psnr"),
     ]
+
+
+def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None:
+    """``report.stability`` over the same runs: each run's stored mean SMAPE, a convergence
+    verdict from its own ``curves.json``, the model checks per material, the seed spread."""
+    from evaluators.metrics.convergence import convergence
+
+    settings, jobs = study
+    runs = [jobs[k] for k in ("a0", "a1", "h0")]
+    spec = {"kind": "report.stability", "params": {"runs": [f"job:{j.id}" for j in runs]}}
+    job = run_in_process(spec, settings)
+    assert job.state == "succeeded", job.error
+    doc = read(settings, job, "stability.json")
+    for run, src in zip(doc["runs"], runs, strict=True):
+        metrics = read(settings, src, "metrics.json")
+        assert run["error"] == metrics["mean"]["smape"] and run["metric"] == "smape"
+        loss = read(settings, src, "curves.json")["train"]["loss"]
+        assert run["convergence"] == convergence(loss)
+        assert [m["name"] for m in run["materials"]] == [m["name"] for m in metrics["materials"]]
+        for m in run["materials"]:
+            assert set(m["nonfinite"]) >= {"grazing", "wi_eq_wo", "wi_below"}
+            assert m["albedo_max"] > 0 and m["reciprocity_error"] >= 0
+    (analytic,) = [c for c in doc["configs"] if c["candidate"] == "analytic"]
+    errors = [r["error"] for r in doc["runs"][:2]]
+    assert analytic["n"] == 2 and analytic["worst"] == max(errors)
+    assert analytic["std"] == pytest.approx(np.std(errors, ddof=1))
+    assert {f["family"] for f in doc["families"]} == {"plastic", "blend"}
+    failed = run_in_process(
+        {"kind": "report.stability", "params": {"runs": [f"job:{jobs['score'].id}"]}}, settings
+    )
+    assert failed.state == "failed" and "report.stability checks" in str(failed.error)
