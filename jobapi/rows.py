@@ -90,6 +90,13 @@ LOWER_IS_BETTER: dict[str, bool] = {
     "relative_cost": True,
     "seconds_per_frame": True,
     "render_seconds": True,
+    "seconds": True,
+    "samples_per_second": False,
+    "bytes": True,
+    "memory_ratio": True,
+    "precompute_seconds": True,
+    "stderr_mean": True,
+    "stderr_relative": True,
 }
 
 

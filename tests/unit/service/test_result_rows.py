@@ -242,3 +242,53 @@ def test06_render_and_missing_artifacts() -> None:
     assert rows_of(FakeSource("render", {}, {}, seconds=None)) == []
     for kind in ("score", "train.brdf", "train.fabric", "train.btf", "evaluate.tss"):
         assert rows_of(FakeSource(kind, {}, {})) == [], kind
+
+
+def test07_generators_measure_their_output() -> None:
+    glint = {
+        "example": {"type": "isotropic_noise", "size": 16},
+        "levels": 4,
+        "bytes": {"total": 4096},
+        "reference": {"bytes": 65536},
+        "memory_ratio": 0.0625,
+        "precompute_seconds": 0.5,
+    }
+    rows = by_metric(rows_of(FakeSource("generate.glint", {}, {"stats.json": glint})))
+    assert {k: r.value for k, r in rows.items()} == {
+        "bytes": 4096,
+        "reference_bytes": 65536,
+        "memory_ratio": 0.0625,
+        "precompute_seconds": 0.5,
+    }
+    assert rows["memory_ratio"].candidate == "isotropic_noise"
+    assert rows["memory_ratio"].lower_is_better is True
+    btf = {
+        "count": 10,
+        "resolution": [32, 32],
+        "spp": 16,
+        "stderr": {"mean": 0.01, "relative": 0.05},
+    }
+    rows = by_metric(rows_of(FakeSource("generate.btf", {"spp": 16}, {"btf.json": btf})))
+    assert {k: (r.value, r.spp) for k, r in rows.items()} == {
+        "stderr_mean": (0.01, 16),
+        "stderr_relative": (0.05, 16),
+    }
+    merl = {
+        "materials": [
+            {
+                "name": "gold",
+                "family": "metal",
+                "source": {"mitsuba": {}},
+                "tabulation": {"max_rel_error": 0.001, "bins": 90},
+            }
+        ]
+    }
+    rows = by_metric(rows_of(FakeSource("generate.merl", {}, {"materials.json": merl})))
+    assert {k: r.value for k, r in rows.items()} == {
+        "tabulation.max_rel_error": 0.001,
+        "tabulation.bins": 90,
+    }
+    stats = {"samples_per_second": 8.0e6, "seconds": 3.0, "backend": "drjit"}
+    rows = by_metric(rows_of(FakeSource("generate.fabric", {}, {"stats.json": stats})))
+    assert rows["samples_per_second"].lower_is_better is False
+    assert rows["seconds"].value == 3.0 and rows["seconds"].candidate == "drjit"
