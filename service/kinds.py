@@ -30,6 +30,7 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "models.fabric.kind",
     "evaluators.report.kind",
     "evaluators.report.stability",
+    "evaluators.report.select",
 )
 
 _lock = threading.Lock()

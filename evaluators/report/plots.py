@@ -61,3 +61,28 @@ def pareto_png(panels: list[dict[str, Any]], title: str) -> bytes:
         fig.suptitle(title, fontsize=10)
 
     return figure_png(draw, (6.0 * cols, 3.6 * rows + 0.4))
+
+
+def select_png(ladders: list[dict[str, Any]], target: float) -> bytes:
+    """Per ladder: the rungs' values as bars in order of increasing cost (labelled with the
+    cost), the target as a dashed line, the chosen rung highlighted."""
+    cols = 1 if len(ladders) == 1 else 2
+    rows = max(1, math.ceil(len(ladders) / cols))
+
+    def draw(fig: Any, ax: Any) -> None:
+        fig.delaxes(ax)
+        for i, lad in enumerate(ladders[:6]):
+            a = fig.add_subplot(rows, cols, i + 1)
+            rungs = lad["rungs"]
+            xs = range(len(rungs))
+            colours = [FRONT if r["candidate"] == lad["chosen"] else DOMINATED for r in rungs]
+            a.bar(xs, [r["value"] for r in rungs], color=colours)
+            a.axhline(target, ls="--", color=LINE, label=f"target {target:g}")
+            names = [f"{r['candidate']}\n{r['cost']:.3g}" for r in rungs]
+            a.set_xticks(list(xs), names, fontsize=7)
+            a.set_xlabel(f"rungs by {lad['cost_label']}", fontsize=8)
+            a.set_ylabel(lad["metric"], fontsize=8)
+            a.set_title(f"{_short(lad['dataset'])}: {lad['chosen'] or 'none'} chosen", fontsize=8)
+            a.legend(fontsize=7)
+
+    return figure_png(draw, (6.0 * cols, 3.6 * rows + 0.3))

@@ -145,7 +145,7 @@ def test02_interpolation_endpoints_render_the_materials(
     assert mid not in (image_a, image_b)
 
 
-def test03_pareto_of_network_against_monte_carlo(
+def test03_pareto_and_select_of_network_against_monte_carlo(
     chain: tuple[Settings, dict[str, Job]], mitsuba_llvm: None
 ) -> None:
     """The recipe's ``report.pareto``: FLIP against render seconds and spp per material,
@@ -171,3 +171,11 @@ def test03_pareto_of_network_against_monte_carlo(
         assert len(claims) == 2
         for c in claims:
             assert c["holds"] == (table["net16"]["flip"] < table[c["b"]]["flip"]), c
+    ladders = json.loads(artifact(settings, jobs["select"], "select.json"))["ladders"]
+    assert len(ladders) == 2
+    for lad in ladders:  # the chosen rung: the cheapest by render time that meets the target
+        meets = [r for r in lad["rungs"] if r["value"] <= 0.15]
+        assert [r["meets"] for r in lad["rungs"]] == [r["value"] <= 0.15 for r in lad["rungs"]]
+        assert lad["chosen"] == (
+            min(meets, key=lambda r: r["cost"])["candidate"] if meets else None
+        )

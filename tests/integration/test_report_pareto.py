@@ -152,7 +152,12 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
 
 def test02_bad_runs(study: tuple[Settings, dict[str, Job]]) -> None:
     settings, jobs = study
-    failed = report(settings, [jobs["gen"]])
+    failed = report(settings, [jobs["gen"]])  # rows, but none of an error with a cost
+    assert failed.state == "failed" and "no error metric with a cost" in str(failed.error)
+    assert "tabulation." in str(failed.error)
+    first = report(settings, [jobs["a0"]])
+    assert first.state == "succeeded", first.error
+    failed = report(settings, [first])  # a report re-states rows: it has none of its own
     assert failed.state == "failed" and "has no result rows" in str(failed.error)
     failed = report(settings, [jobs["a0"], jobs["a0"]])
     assert failed.state == "failed" and "listed twice" in str(failed.error)
@@ -242,3 +247,34 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
         {"kind": "report.stability", "params": {"runs": [f"job:{jobs['score'].id}"]}}, settings
     )
     assert failed.state == "failed" and "report.stability checks" in str(failed.error)
+
+
+def test05_select_the_cheapest_render_that_meets_a_target(
+    study: tuple[Settings, dict[str, Job]],
+) -> None:
+    """``select`` over the scored renders: the rungs by render time, the cheapest that
+    meets a FLIP target set between the two candidates' FLIP."""
+    settings, jobs = study
+    flips = read(settings, jobs["score"], "metrics.json")["metrics"]
+    worse, better = sorted(flips, key=lambda k: flips[k]["flip"], reverse=True)
+    target = (flips[worse]["flip"] + flips[better]["flip"]) / 2
+    spec = {
+        "kind": "select",
+        "params": {
+            "runs": [f"job:{jobs['score'].id}"],
+            "metric": "flip",
+            "target": target,
+            "cost": "spp",
+        },
+    }
+    job = run_in_process(spec, settings)
+    assert job.state == "succeeded", job.error
+    (lad,) = read(settings, job, "select.json")["ladders"]
+    assert [(r["candidate"], r["cost"]) for r in lad["rungs"]] == [("spp1", 1), ("spp2", 2)]
+    assert lad["chosen"] == better and [r["meets"] for r in lad["rungs"]] == [
+        r["candidate"] == better for r in lad["rungs"]
+    ]
+    assert read(settings, job, "select.png")[:8] == PNG
+    spec["params"]["target"] = min(f["flip"] for f in flips.values()) / 2
+    (none,) = read(settings, run_in_process(spec, settings), "select.json")["ladders"]
+    assert none["chosen"] is None and "no rung" in none["why"]
