@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel
 
 from jobapi.results import ArtifactReader, ResultTable
+from jobapi.rows import RowsHook
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -45,6 +46,8 @@ class Kind:
             ``GET /api/jobs/{id}/summary`` show what it returns and know no kind's fields.
         layout: markdown describing the artifacts' layouts (arrays, shapes, indexing), for
             the README's table of kinds.
+        rows: the result-rows hook (:data:`jobapi.rows.RowsHook`): every value the job
+            measured, one row each, for ``GET /api/results`` and ``matforge results``.
     """
 
     name: str
@@ -55,6 +58,7 @@ class Kind:
     smoke: dict[str, Any] = field(default_factory=dict)
     summary: SummaryHook | None = None
     layout: str = ""
+    rows: RowsHook | None = None
 
 
 _KINDS: dict[str, Kind] = {}

@@ -28,6 +28,9 @@ BUILTIN_MODULES: tuple[str, ...] = (
     "models.brdf.kind",
     "models.brdf.report_kind",
     "models.fabric.kind",
+    "evaluators.report.kind",
+    "evaluators.report.stability",
+    "evaluators.report.select",
 )
 
 _lock = threading.Lock()

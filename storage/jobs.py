@@ -179,6 +179,20 @@ class JobStore:
         rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
         return [self._row_to_job(r, with_artifacts=False) for r in rows]
 
+    def succeeded_with_hash(self, spec_hash: str) -> Job | None:
+        """The newest succeeded job of the spec whose canonical hash is ``spec_hash`` (what
+        resubmitting that spec would return), or ``None``."""
+        row = (
+            self._conn()
+            .execute(
+                f"SELECT {_JOB_COLS} FROM jobs WHERE spec_hash=? AND state='succeeded' "
+                "ORDER BY seq DESC LIMIT 1",
+                (spec_hash,),
+            )
+            .fetchone()
+        )
+        return None if row is None else self._row_to_job(row)
+
     def counts(self) -> dict[str, int]:
         rows = self._conn().execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()
         out = dict.fromkeys(STATES, 0)

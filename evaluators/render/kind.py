@@ -30,6 +30,7 @@ from pydantic import Field, model_validator
 
 from evaluators.metrics.tonemap import tonemap
 from evaluators.render.integrators import integrator_for
+from evaluators.render.rows import render_rows
 from evaluators.render.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
 from evaluators.render.sources import MaterialParam, resolve_material
 from jobapi.errors import JobFailed
@@ -327,5 +328,6 @@ register(
         artifacts=("image.exr", "preview.png", "render.json"),
         smoke={"resolution": [32, 32], "spp": 4, "max_depth": 4},
         summary=summarize,
+        rows=render_rows,
     )
 )

@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Any
 from evaluators.score import brdf, images
 from evaluators.score.artifacts import ARTIFACT_KINDS, Loaded, load_input
 from evaluators.score.params import ModelCandidate, ScoreParams
+from evaluators.score.rows import score_rows
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -147,5 +148,6 @@ register(
             "candidates": {"same": "step:render/image.exr"},
         },
         summary=summarize,
+        rows=score_rows,
     )
 )

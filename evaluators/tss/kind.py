@@ -39,6 +39,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from evaluators.tss.params import PLANE_SIDE, TssParams
+from evaluators.tss.rows import tss_rows
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import job_id_of
@@ -264,6 +265,7 @@ register(
         artifacts=("metrics.json", "timing.json", "path.json", "table.png", "frames.png"),
         smoke={"model": "step:train.btf", "frames": 6, "intervals": [0, 2], "image": [32, 32]},
         summary=summarize,
+        rows=tss_rows,
         layout=LAYOUT,
     )
 )

@@ -35,6 +35,7 @@ from evaluators.render.btf.slices import SliceRenderer
 from evaluators.render.sources.common import load_bsdf
 from generators.btf.params import BtfGenParams, FlatSurface
 from generators.btf.preview import PreviewCollector
+from generators.rows import summary_rows
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.backend import active_variant, load_mitsuba
@@ -237,6 +238,7 @@ register(
             "spp": 2,
         },
         summary=summarize,
+        rows=summary_rows(summarize, ("stderr_mean", "stderr_relative")),
         layout=LAYOUT,
     )
 )

@@ -70,6 +70,7 @@ from generators.fabric.preview import (
     preview_png,
 )
 from generators.fabric.queries import design_queries
+from generators.rows import fabric_stats_rows
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate
@@ -349,5 +350,6 @@ register(
             "backend": "numpy",
         },
         summary=summarize,
+        rows=fabric_stats_rows,
     )
 )

@@ -33,6 +33,7 @@ import numpy as np
 
 from generators.glint.params import GlintGenParams, MapExample, ProceduralExample
 from generators.glint.preview import preview_png
+from generators.rows import summary_rows
 from jobapi.errors import FormatError, JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -182,6 +183,9 @@ register(
         artifacts=("example.exr", "ndf.npz", "lobes.npz", "preview.png", "stats.json"),
         smoke={"example": {"procedural": "isotropic_noise", "size": 8}, "ndf_resolution": 16},
         summary=summarize,
+        rows=summary_rows(
+            summarize, ("bytes", "reference_bytes", "memory_ratio", "precompute_seconds")
+        ),
         layout=LAYOUT,
     )
 )

@@ -61,6 +61,7 @@ from generators.merl.collections import (
     SheenDistribution,
     draw_collection,
 )
+from generators.rows import summary_rows
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import StrictModel
@@ -489,5 +490,6 @@ register(
         artifacts=("*.binary", "*.png", "materials.json"),
         smoke={"source": {"analytic": {"model": "ggx", "alpha": 0.3, "material": "Au"}}},
         summary=summarize,
+        rows=summary_rows(summarize, ("missing_bins",), prefix="tabulation."),
     )
 )

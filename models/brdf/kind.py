@@ -53,6 +53,7 @@ from jobapi.kinds import Kind, register
 from jobapi.params import JobRef, Ref, StrictModel
 from jobapi.presets import preset_note, preset_value
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
+from models.brdf.rows import train_brdf_rows
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -358,5 +359,6 @@ register(
             "speed_batch": 1024,
         },
         summary=summarize,
+        rows=train_brdf_rows,
     )
 )

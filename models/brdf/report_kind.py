@@ -166,8 +166,9 @@ def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
         "settings": {
             "accuracy": "mean SMAPE (Eq. 6) over materials per run (metrics.json), then mean "
             "over seeds; std is the sample std (ddof 1)",
-            "cost": "fused Dr.Jit kernel execution ns per evaluation (fused_kernel_ns), "
-            "median over runs; bytes per material = 4 x per-material floats",
+            "cost": "ns_per_eval: fused Dr.Jit kernel execution ns per evaluation "
+            "(speed.json fused_kernel_ns), median over runs; the x axis of pareto.png; "
+            "bytes per material = 4 x per-material floats",
             "front": "not beaten on both mean SMAPE and ns_per_eval by another configuration",
         },
     })  # fmt: skip

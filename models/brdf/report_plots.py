@@ -49,7 +49,7 @@ def pareto_png(points: list[dict[str, Any]], front: list[str], title: str) -> by
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.xaxis.set_minor_formatter(FuncFormatter(_minor_tick))  # 2 and 5 only: no overlap
-        ax.set_xlabel("fused Dr.Jit kernel, ns per evaluation (log)")
+        ax.set_xlabel("ns_per_eval: fused Dr.Jit kernel execution, ns per evaluation (log)")
         ax.set_ylabel("mean SMAPE over materials (Eq. 6)")
         untimed = [p["config"] for p in points if p.get("ns_per_eval") is None]
         ax.set_title(title + (f"\nnot timed: {', '.join(untimed)}" if untimed else ""), fontsize=10)

@@ -28,6 +28,7 @@ from jobapi.kinds import Kind, register
 from jobapi.params import JobRef, StrictModel
 from jobapi.presets import preset_note, preset_value
 from jobapi.results import ArtifactReader, ResultTable
+from models.btf.rows import train_btf_rows
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -201,5 +202,6 @@ register(
         artifacts=("model.json", "textures.npz", "metrics.json", "reconstructions.png"),
         smoke={"data": "step:generate.btf", "model": "c2f", "epochs": 2},
         summary=summarize,
+        rows=train_btf_rows,
     )
 )

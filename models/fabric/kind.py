@@ -39,6 +39,7 @@ from jobapi.kinds import Kind, register
 from jobapi.params import JobRef, Ref, StrictModel
 from jobapi.presets import preset_note, preset_value
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
+from models.fabric.rows import train_fabric_rows
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -247,5 +248,6 @@ register(
             "materials_per_step": 1,
         },
         summary=summarize,
+        rows=train_fabric_rows,
     )
 )

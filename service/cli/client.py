@@ -234,6 +234,17 @@ class Client:
         )
         return result
 
+    def results(self, params: dict[str, Any]) -> builtins.list[dict[str, Any]]:
+        """``GET /api/results``: result rows (``params`` are its query parameters)."""
+        return builtins.list(self._json("GET", "/api/results", params=params))
+
+    def batch_results(self, steps: Any, params: dict[str, Any]) -> dict[str, Any]:
+        """``POST /api/results/batch``: ``{"steps", "rows"}`` of a batch's steps."""
+        result: dict[str, Any] = self._json(
+            "POST", "/api/results/batch", json={"steps": steps}, params=params
+        )
+        return result
+
     def artifacts(self, job_id: str) -> builtins.list[dict[str, Any]]:
         """``GET /api/jobs/{id}/artifacts``: ``[{"name", "digest", "size", "media_type"}]``."""
         result = self._json("GET", f"/api/jobs/{check_job_id(job_id)}/artifacts")

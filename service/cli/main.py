@@ -309,9 +309,11 @@ def batch(
 
 def _register_subcommands() -> None:
     from service.cli import artifacts as cli_artifacts
+    from service.cli import results_command as cli_results
     from service.cli import store as cli_store
 
     cli_artifacts.register(app)
+    cli_results.register(app)
     app.add_typer(cli_store.store_app, name="store")
 
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from service.routes import artifacts, dashboard, jobs, meta
+from service.routes import artifacts, dashboard, jobs, meta, results
 
 ROUTERS: tuple[APIRouter, ...] = (
     meta.health_router,
     meta.router,
     jobs.router,
     artifacts.router,
+    results.router,
     dashboard.router,
 )
 
-__all__ = ["ROUTERS", "artifacts", "dashboard", "jobs", "meta"]
+__all__ = ["ROUTERS", "artifacts", "dashboard", "jobs", "meta", "results"]

@@ -143,3 +143,39 @@ def test02_interpolation_endpoints_render_the_materials(
     assert at0 == image_a and at1 == image_b
     mid = artifact(settings, jobs["interp_lerp"], "image.exr")
     assert mid not in (image_a, image_b)
+
+
+def test03_pareto_and_select_of_network_against_monte_carlo(
+    chain: tuple[Settings, dict[str, Job]], mitsuba_llvm: None
+) -> None:
+    """The recipe's ``report.pareto``: FLIP against render seconds and spp per material,
+    each point the score's own FLIP at its render's spp, and the Sec. 6 claims checked."""
+    settings, jobs = chain
+    doc = json.loads(artifact(settings, jobs["pareto"], "pareto.json"))
+    assert {(p["metric"], p["cost"]) for p in doc["panels"]} == {
+        ("flip", "render_seconds"),
+        ("flip", "spp"),
+    }
+    for material in ("seen", "unseen"):
+        table = scores(settings, jobs[f"{material}_scores"])
+        ref = jobs[f"{material}_scores"].spec["params"]["reference"]
+        (panel,) = [p for p in doc["panels"] if p["dataset"] == ref and p["cost"] == "spp"]
+        got = {p["candidate"]: (p["mean"], p["cost"]) for p in panel["points"]}
+        assert got == {
+            "net16": (table["net16"]["flip"], 4),
+            "net1": (table["net1"]["flip"], 1),
+            "mc1": (table["mc1"]["flip"], 1),
+            "mc_eq": (table["mc_eq"]["flip"], 6),
+        }
+        claims = [c for c in doc["claims"] if c["claim"].endswith(ref)]
+        assert len(claims) == 2
+        for c in claims:
+            assert c["holds"] == (table["net16"]["flip"] < table[c["b"]]["flip"]), c
+    ladders = json.loads(artifact(settings, jobs["select"], "select.json"))["ladders"]
+    assert len(ladders) == 2
+    for lad in ladders:  # the chosen rung: the cheapest by render time that meets the target
+        meets = [r for r in lad["rungs"] if r["value"] <= 0.15]
+        assert [r["meets"] for r in lad["rungs"]] == [r["value"] <= 0.15 for r in lad["rungs"]]
+        assert lad["chosen"] == (
+            min(meets, key=lambda r: r["cost"])["candidate"] if meets else None
+        )

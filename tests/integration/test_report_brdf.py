@@ -140,5 +140,7 @@ def test03_study_batch_file_validates() -> None:
     steps = {s.name: s for s in batch.steps}
     runs = steps["report"].spec["params"]["runs"]
     assert [s.kind for s in batch.steps].count("train.brdf") == len(runs) == 15
+    for name in ("pareto", "stability", "select"):  # the other reports over the same runs
+        assert steps[name].spec["params"]["runs"] == runs
     seeds = sorted(steps[r.removeprefix("step:")].spec["seed"] for r in runs)
     assert seeds == [0] * 5 + [1] * 5 + [2] * 5

@@ -80,3 +80,13 @@ def test04_families_single_out_the_papers_failure_cases() -> None:
         np.std([0.5, 1.5], ddof=1)
     )
     assert doc["worst_family"] == {"hybrid 16x3": "iridescent"}
+
+
+def test05_one_cost_per_meaning() -> None:
+    """A point's cost is ``ns_per_eval``, the kernel's own time (speed.json's
+    ``fused_kernel_ns``), and no other ns figure of the fused evaluator is beside it under
+    another name (issue 13: ``fused_ns`` 5.26 next to ``ns_per_eval`` 4.09)."""
+    configs = group([run("hybrid", "16x3", s, [0.1, 0.2, 0.3], ns=4.0 + s) for s in (0, 1, 2)])
+    (point,) = [c.summary() for c in configs.values()]
+    assert point["ns_per_eval"] == 5.0  # median of 4, 5, 6: the kernel times
+    assert "fused_ns" not in point and point["torch_ns"] == 45.0

@@ -134,3 +134,19 @@ def test11_finished_jobs_shards_are_not_gc_roots(jobs: JobStore) -> None:
     assert "b" * 64 in jobs.referenced_digests()
     jobs.complete(job.id, claimed.lease_token, [], "1" * 64)
     assert "b" * 64 not in jobs.referenced_digests()
+
+
+def test12_succeeded_with_hash_finds_the_newest_succeeded(jobs: JobStore) -> None:
+    """What resubmitting a spec would return, if it succeeded: a batch's step, found again."""
+    assert jobs.succeeded_with_hash("h1") is None
+    first, _ = _submit(jobs)
+    assert jobs.succeeded_with_hash("h1") is None  # queued: not a result yet
+    claimed = jobs.claim("w:1", 30)
+    jobs.complete(first.id, claimed.lease_token, [], "1" * 64)
+    forced, _ = _submit(jobs, force=True)  # queued again: the succeeded one still answers
+    found = jobs.succeeded_with_hash("h1")
+    assert found is not None and found.id == first.id and found.state == "succeeded"
+    claimed = jobs.claim("w:1", 30)
+    jobs.complete(forced.id, claimed.lease_token, [], "1" * 64)
+    assert jobs.succeeded_with_hash("h1").id == forced.id  # type: ignore[union-attr]
+    assert jobs.succeeded_with_hash("h2") is None

@@ -1,0 +1,188 @@
+"""The numbers of ``report.pareto``: error-against-cost panels, families and claims, from
+result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
+
+- A *panel* is one dataset, scene, error metric and cost column. Its *points* are the
+  candidates (``"hybrid 32x3"``, ``"net16"``, ``"mc1"``): all rows of one candidate in the
+  panel, whole-set rows only (``material`` empty or ``"mean"``), are its repeated
+  measurements, one per job (seed); the point's error is their mean, with the sample std and
+  the min and max over seeds (the error bars), and its cost the median of the rows' costs.
+- The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
+  error); every point records which points dominate it.
+- *Families*: per dataset, metric and candidate, the per-material rows grouped by
+  ``family`` (MERL family, fabric pattern): mean over the family's materials per job,
+  then the spread over jobs.
+- *Claims*: ``{"a", "b", "metric", "relation"}`` compare two candidates' mean error over
+  every whole-set row of that metric (optionally one dataset); each comes back with
+  ``holds`` true / false and the numbers, or ``null`` with ``why``.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import defaultdict
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from evaluators.metrics.pareto import dominated_by, front_indices, spread
+from jobapi.rows import ResultRow
+
+#: Error metrics charted when none are asked for, in this order (those present).
+DEFAULT_ERRORS = ("smape", "flip", "flip_mean", "l1", "rgb.rel", "mae")
+#: Cost columns charted when none are asked for, in this order (those present).
+DEFAULT_COSTS = ("ns_per_eval", "bytes_per_material", "ms_per_frame", "render_seconds", "spp")
+#: Axis labels of the cost columns: the column's name, then what it measures.
+COST_LABELS = {
+    "ns_per_eval": "ns_per_eval: fused Dr.Jit kernel execution, ns per evaluation",
+    "bytes_per_material": "bytes_per_material: float32 parameters per material",
+    "bytes_per_network": "bytes_per_network: float32 network weights",
+    "ms_per_frame": "ms_per_frame: kernel ms per displayed frame",
+    "render_seconds": "render_seconds: wall seconds of the render job",
+    "spp": "spp: samples per pixel",
+    "train_seconds": "train_seconds: wall seconds of the training job",
+}
+RELATIONS = ("<", "<=")
+
+
+def whole_set(row: ResultRow) -> bool:
+    """A row about the whole set (no material, or the mean over materials)."""
+    return row.material in (None, "mean")
+
+
+def error_metrics(rows: Iterable[ResultRow], asked: Sequence[str] | None) -> list[str]:
+    """``asked``, or the :data:`DEFAULT_ERRORS` present in ``rows``."""
+    if asked:
+        return list(asked)
+    present = {r.metric for r in rows}
+    return [m for m in DEFAULT_ERRORS if m in present]
+
+
+def cost_columns(rows: Iterable[ResultRow], asked: Sequence[str] | None) -> list[str]:
+    """``asked``, or the :data:`DEFAULT_COSTS` that some row has."""
+    if asked:
+        return list(asked)
+    rows = list(rows)
+    return [c for c in DEFAULT_COSTS if any(getattr(r, c) is not None for r in rows)]
+
+
+def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] | None:
+    by_job: dict[str, list[float]] = defaultdict(list)
+    costs = [float(getattr(r, cost)) for r in rows if getattr(r, cost) is not None]
+    if not costs:
+        return None
+    seeds = {}
+    for r in rows:
+        by_job[r.job].append(r.value)
+        seeds[r.job] = r.seed
+    per_job = [statistics.fmean(v) for v in by_job.values()]
+    s = spread(per_job)
+    return {
+        "candidate": candidate,
+        **s,
+        "cost": statistics.median(costs),
+        "jobs": [f"job:{j}" for j in by_job],
+        "seeds": [seeds[j] for j in by_job],
+        "per_seed": per_job,
+        "kind": rows[0].kind,
+    }
+
+
+def panels(
+    rows: Sequence[ResultRow], metrics: Sequence[str], costs: Sequence[str]
+) -> list[dict[str, Any]]:
+    """One panel per (dataset, scene, metric, cost) with at least one costed point, in the
+    order of first appearance; see the module docstring."""
+    groups: dict[tuple[Any, ...], dict[str, list[ResultRow]]] = {}
+    for r in rows:
+        if r.metric in metrics and whole_set(r) and r.candidate is not None:
+            for cost in costs:
+                key = (r.dataset, r.scene, r.metric, cost)
+                groups.setdefault(key, {}).setdefault(r.candidate, []).append(r)
+    out = []
+    for (dataset, scene, metric, cost), by_cand in groups.items():
+        points = [p for c, rs in by_cand.items() if (p := _point(c, rs, cost)) is not None]
+        if not points:
+            continue
+        xs, ys = [p["cost"] for p in points], [p["mean"] for p in points]
+        on = set(front_indices(xs, ys))
+        beaten = dominated_by(xs, ys)
+        for i, p in enumerate(points):
+            p["front"] = i in on
+            p["dominated_by"] = [points[j]["candidate"] for j in beaten[i]]
+        out.append(
+            {
+                "dataset": dataset,
+                "scene": scene,
+                "metric": metric,
+                "cost": cost,
+                "cost_label": COST_LABELS.get(cost, cost),
+                "points": points,
+                "front": [points[i]["candidate"] for i in front_indices(xs, ys)],
+            }
+        )
+    return out
+
+
+def families(rows: Sequence[ResultRow], metrics: Sequence[str]) -> list[dict[str, Any]]:
+    """Per dataset, metric, candidate and family: the spread over jobs of the family's mean
+    over its materials."""
+    acc: dict[tuple[Any, ...], dict[str, list[float]]] = {}
+    for r in rows:
+        if r.metric in metrics and not whole_set(r) and r.family and r.candidate is not None:
+            key = (r.dataset, r.metric, r.candidate, r.family)
+            acc.setdefault(key, {}).setdefault(r.job, []).append(r.value)
+    out = []
+    for (dataset, metric, candidate, family), by_job in acc.items():
+        per_job = [statistics.fmean(v) for v in by_job.values()]
+        out.append(
+            {
+                "dataset": dataset,
+                "metric": metric,
+                "candidate": candidate,
+                "family": family,
+                "materials": len(next(iter(by_job.values()))),
+                **spread(per_job),
+            }
+        )
+    return out
+
+
+def check_claim(rows: Sequence[ResultRow], claim: Mapping[str, Any]) -> dict[str, Any]:
+    """One claim ``{"a", "b", "metric", "relation" ("<" or "<="), "dataset"?, "claim"?}``:
+    ``a``'s mean error against ``b``'s over their whole-set rows of ``metric``."""
+    a, b, metric = str(claim["a"]), str(claim["b"]), str(claim["metric"])
+    rel = str(claim.get("relation", "<"))
+    if rel not in RELATIONS:
+        raise ValueError(f"claim relation {rel!r}: use one of {', '.join(RELATIONS)}")
+    text = str(claim.get("claim") or f"{a} {metric} {rel} {b} {metric}")
+    dataset = claim.get("dataset")
+    out: dict[str, Any] = {"claim": text, "a": a, "b": b, "metric": metric, "relation": rel}
+
+    def values(cand: str) -> list[float]:
+        return [
+            r.value
+            for r in rows
+            if r.candidate == cand
+            and r.metric == metric
+            and whole_set(r)
+            and (dataset is None or r.dataset == dataset)
+        ]
+
+    va, vb = values(a), values(b)
+    missing = [c for c, v in ((a, va), (b, vb)) if not v]
+    if missing:
+        return {**out, "holds": None, "why": f"no {metric} rows of {', '.join(missing)}"}
+    ma, mb = statistics.fmean(va), statistics.fmean(vb)
+    holds = ma < mb if rel == "<" else ma <= mb
+    why = (
+        f"{a}: {ma:.4g} (mean of {len(va)}) {'' if holds else 'not '}{rel} "
+        f"{b}: {mb:.4g} (mean of {len(vb)})"
+    )
+    return {
+        **out,
+        "holds": holds,
+        "why": why,
+        "a_mean": ma,
+        "b_mean": mb,
+        "a_n": len(va),
+        "b_n": len(vb),
+    }

@@ -1,0 +1,208 @@
+"""The ``report.pareto`` job kind: error against cost over any set of finished jobs.
+
+``runs`` are jobs whose kinds have result rows (:mod:`jobapi.rows`): ``train.brdf`` runs
+(SMAPE against ns/eval and bytes per material), ``score`` jobs of renders (FLIP against
+render seconds and spp, e.g. the fabric recipe's network against Monte Carlo),
+``train.btf`` (L1 against bytes), ``evaluate.tss`` (FLIP against ms per frame). The numbers
+are :mod:`evaluators.report.fronts`'s; the claims are the families' own
+(:mod:`evaluators.report.claims`) and any given in ``claims``.
+
+Artifacts:
+
+- ``pareto.json``: ``panels`` (one per dataset, scene, error metric and cost column: points
+  with their mean error over seeds, std, min, max, per-seed values, cost, ``front`` and
+  ``dominated_by``; the front's candidates by cost; the cost's axis label), ``families``
+  (per-material rows by family), ``claims`` (each with ``holds`` and ``why``), settings;
+- ``pareto.png``: the panels (at most :data:`MAX_DRAWN`), the front joined, dominated points
+  hollow, error bars min to max over seeds;
+- ``rows.json``: every row the report read.
+
+Costs that are timings (``render_seconds``, ``train_seconds``, ``ns_per_eval``) vary from
+run to run, so a report that draws them does too.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal
+
+from pydantic import Field
+
+from evaluators.report.fronts import COST_LABELS
+from jobapi.errors import JobFailed
+from jobapi.kinds import Kind, register, registered
+from jobapi.params import JobRef, StrictModel, job_id_of
+from jobapi.results import ArtifactReader, ResultTable
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
+    from jobapi.rows import ResultRow
+
+FORMAT = "matforge.pareto/1"
+#: Panels drawn in ``pareto.png`` at most (all are in ``pareto.json``).
+MAX_DRAWN = 6
+CostName = Literal[
+    "ns_per_eval",
+    "bytes_per_material",
+    "bytes_per_network",
+    "ms_per_frame",
+    "render_seconds",
+    "spp",
+    "train_seconds",
+]
+
+
+class ClaimSpec(StrictModel):
+    """A claim to check: candidate ``a``'s mean ``metric`` ``relation`` ``b``'s."""
+
+    a: str = Field(min_length=1, max_length=200, description="the candidate claimed better")
+    b: str = Field(min_length=1, max_length=200, description="the candidate it is compared to")
+    metric: str = Field(min_length=1, max_length=64, description="an error metric, e.g. flip")
+    relation: Literal["<", "<="] = Field(default="<", description="'<' or '<='")
+    dataset: str | None = Field(default=None, max_length=200, description="only this dataset")
+    claim: str | None = Field(default=None, max_length=300, description="the claim in words")
+
+
+class ReportParetoParams(StrictModel):
+    """Parameters of ``report.pareto``.
+
+    =================  ====================  ========  =====================================
+    name               type                  default   meaning
+    =================  ====================  ========  =====================================
+    ``runs``           list of ``job:<id>``  required  finished jobs with result rows, 1..256
+    ``metrics``        list of str           (found)   error metrics to chart; default the
+                                                       ones of smape, flip, flip_mean, l1,
+                                                       rgb.rel, mae present
+    ``costs``          list of cost names    (found)   cost columns to chart against
+    ``claims``         list of claims        ``[]``    extra claims to check
+    ``family_claims``  bool                  true      check the families' own claims
+    =================  ====================  ========  =====================================
+
+    Example (in a batch file)::
+
+        {"kind": "report.pareto", "params": {"runs": ["step:seen_scores", "step:unseen_scores"]}}
+    """
+
+    runs: list[JobRef] = Field(
+        min_length=1,
+        max_length=256,
+        description="Jobs to compare: 'job:<id>' each ('step:<name>' in a batch file).",
+    )
+    metrics: list[str] | None = Field(
+        default=None, max_length=16, description="Error metrics to chart (default: found)."
+    )
+    costs: list[CostName] | None = Field(
+        default=None, max_length=7, description="Cost columns to chart (default: found)."
+    )
+    claims: list[ClaimSpec] = Field(
+        default_factory=list,
+        max_length=64,
+        description="Claims to check besides the families' own.",
+    )
+    family_claims: bool = Field(default=True, description="Check the families' own claims.")
+
+
+def gather_rows(params: ReportParetoParams, ctx: JobContext) -> list[ResultRow]:
+    """Every row of every run, in the order of ``runs``."""
+    from jobapi.row_sources import StoreSource
+
+    if len(set(params.runs)) != len(params.runs):
+        raise JobFailed("runs: a job is listed twice")
+    rows: list[ResultRow] = []
+    for i, ref in enumerate(params.runs):
+        job = ctx.input_job(job_id_of(ref), f"runs.{i}")
+        kind = registered().get(job.kind)
+        if kind is None or kind.rows is None:
+            raise JobFailed(f"runs.{i}: job {job.id} is a {job.kind} job, which has no result rows")
+        rows += kind.rows(StoreSource(job, ctx.jobs, ctx.store))
+        ctx.progress(0.6 * (i + 1) / len(params.runs), f"read {i + 1}/{len(params.runs)} runs")
+    return rows
+
+
+def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
+    """Gather the rows, compute the panels, families and claims, and write the artifacts."""
+    from evaluators.report import claims, fronts
+    from evaluators.report.plots import pareto_png
+
+    rows = gather_rows(params, ctx)
+    metrics = fronts.error_metrics(rows, params.metrics)
+    costs = fronts.cost_columns(rows, params.costs)
+    panels = fronts.panels(rows, metrics, costs)
+    if not panels:
+        found = sorted({r.metric for r in rows})
+        raise JobFailed(
+            f"no error metric with a cost to chart: metrics {metrics or 'none'} against "
+            f"{costs or 'no cost'}; the runs measured {', '.join(found) or 'nothing'}"
+        )
+    checked = claims.family_claims(rows) if params.family_claims else []
+    checked += [fronts.check_claim(rows, c.model_dump()) for c in params.claims]
+    ctx.put_json(
+        "pareto.json",
+        {
+            "format": FORMAT,
+            "runs": list(params.runs),
+            "metrics": metrics,
+            "costs": costs,
+            "panels": panels,
+            "families": fronts.families(rows, metrics),
+            "claims": checked,
+            "settings": {
+                "point": "a candidate's whole-set rows (material empty or 'mean') in the panel; "
+                "error: mean over jobs (seeds) of each job's value, std ddof 1, min, max; "
+                "cost: median over the rows",
+                "front": "not beaten on both cost and mean error by another point",
+                "costs": {c: COST_LABELS.get(c, c) for c in costs},
+            },
+        },
+    )
+    ctx.put_json("rows.json", [r.document() for r in rows])
+    ctx.progress(0.9, "drawing")
+    title = f"report.pareto: {len(params.runs)} runs, {len(rows)} rows"
+    ctx.put_bytes("pareto.png", pareto_png(panels[:MAX_DRAWN], title), "image/png")
+    held = [c["claim"] for c in checked if c.get("holds") is False]
+    ctx.progress(1.0, f"{len(panels)} panels; claims not holding: {'; '.join(held) or 'none'}")
+
+
+#: Columns of the result table: one row per panel and point.
+COLUMNS = ("mean", "std", "min", "max", "n", "cost", "front")
+
+
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """One row per panel and point (``"<metric> vs <cost> / <candidate>"``, with the
+    dataset when there are several), and the claims."""
+    doc = read("pareto.json")
+    if not isinstance(doc, dict) or not isinstance(doc.get("panels"), list):
+        return None
+    panels = [p for p in doc["panels"] if isinstance(p, dict)]
+    several = len({(p.get("dataset"), p.get("scene")) for p in panels}) > 1
+    rows = {}
+    for p in panels:
+        where = (
+            f" [{p.get('dataset')}{' ' + p['scene'] if p.get('scene') else ''}]" if several else ""
+        )
+        for pt in p.get("points") or []:
+            label = f"{p.get('metric')} vs {p.get('cost')}{where} / {pt.get('candidate')}"
+            rows[label] = {c: pt.get(c) for c in COLUMNS}
+    claims = [c for c in doc.get("claims") or [] if isinstance(c, dict) and "claim" in c]
+    return ResultTable(
+        title="Error against cost",
+        label_header="Panel / candidate",
+        columns=list(COLUMNS),
+        rows=rows,
+        settings=doc.get("settings"),
+        claims=claims,
+    )
+
+
+register(
+    Kind(
+        name="report.pareto",
+        params=ReportParetoParams,
+        runner=run_report_pareto,
+        description="Error against cost over any finished jobs with result rows (train.*, "
+        "score, evaluate.tss): Pareto fronts per dataset and scene with dominated points, "
+        "seed spread, per-family errors and the families' claims checked.",
+        artifacts=("pareto.json", "pareto.png", "rows.json"),
+        smoke={"runs": ["step:train.brdf"]},
+        summary=summarize,
+    )
+)

@@ -1,0 +1,269 @@
+"""The ``report.stability`` job kind: where trained models fail, run by run.
+
+``runs`` are finished training jobs (``train.brdf``, ``train.fabric``, ``train.btf``). For
+each run, from its own artifacts:
+
+- its error (``train.brdf``: mean SMAPE; ``train.fabric``: the network's mean RGB relative
+  error; ``train.btf``: L1), from its result rows (:mod:`jobapi.rows`);
+- *convergence*: whether its training loss had flattened by the last step, judged over the
+  second half of training (:func:`evaluators.metrics.convergence.convergence` on
+  ``curves.json``): a run whose loss was still falling there is under-trained even if the
+  annealed learning rate flattened its last tenth, and claims about it are premature;
+- for ``train.brdf``, per material (:mod:`models.brdf.stability`): NaN/Inf counts at extreme
+  inputs (grazing, tangent, ``wi = wo``, below the horizon), the largest directional albedo
+  over incident angles (above 1: energy gain) and the reciprocity error.
+
+Per configuration (candidate and kind) over its runs: the seed spread of the error (mean,
+std, worst seed) and how many runs had not converged. Per configuration and material family
+(``train.brdf``, ``train.fabric``): the mean error and the worst family.
+
+Artifacts: ``stability.json`` (``runs``, ``configs``, ``families``, settings).
+Deterministic per spec (no timings).
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+from pydantic import Field
+
+from jobapi.errors import JobFailed
+from jobapi.kinds import Kind, register, registered
+from jobapi.params import JobRef, StrictModel, job_id_of
+from jobapi.results import ArtifactReader, ResultTable
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
+    from jobapi.row_sources import StoreSource
+    from jobapi.rows import ResultRow
+
+FORMAT = "matforge.stability/1"
+#: Per kind: the error metric and candidate of its headline rows, and its loss curve.
+ERRORS: dict[str, tuple[str, str | None]] = {
+    "train.brdf": ("smape", None),
+    "train.fabric": ("rgb.rel", "network"),
+    "train.btf": ("l1", None),
+}
+
+
+class ReportStabilityParams(StrictModel):
+    """Parameters of ``report.stability``.
+
+    =================  ====================  ========  =====================================
+    name               type                  default   meaning
+    =================  ====================  ========  =====================================
+    ``runs``           list of ``job:<id>``  required  train.brdf / train.fabric / train.btf
+    ``tolerance``      float                 0.1       the loss changing by less than this
+                                                       fraction over the second half of
+                                                       training: flattened
+    ``model_checks``   bool                  true      NaN/Inf, energy, reciprocity of
+                                                       train.brdf models
+    =================  ====================  ========  =====================================
+    """
+
+    runs: list[JobRef] = Field(
+        min_length=1, max_length=128, description="Training jobs: 'job:<id>' each."
+    )
+    tolerance: float = Field(
+        default=0.1,
+        ge=0.0,
+        le=1.0,
+        description="Relative change over the second half under which a loss is flat.",
+    )
+    model_checks: bool = Field(
+        default=True, description="Check train.brdf models at extreme inputs."
+    )
+
+
+def loss_curve(kind: str, curves: Any) -> list[float | None]:
+    """The training loss of a ``curves.json`` (``train.brdf``: the ``train`` phase)."""
+    if not isinstance(curves, dict):
+        return []
+    if kind == "train.brdf":
+        curves = curves.get("train") or {}
+    key = "train_loss" if kind == "train.btf" else "loss"
+    values = curves.get(key) if isinstance(curves, dict) else None
+    return list(values) if isinstance(values, list) else []
+
+
+def headline(kind: str, rows: Sequence[ResultRow]) -> tuple[str, float | None, str | None]:
+    """``(metric, the run's whole-set error, candidate)`` from its rows."""
+    metric, cand = ERRORS[kind]
+    for r in rows:
+        if r.metric == metric and r.material in (None, "mean") and cand in (None, r.candidate):
+            return metric, r.value, r.candidate
+    return metric, None, cand
+
+
+def _brdf_materials(src: StoreSource, ctx: JobContext, job_id: str) -> list[dict[str, Any]]:
+    from models.brdf.portable import load_checkpoint
+    from models.brdf.stability import material_checks
+
+    try:
+        model, names, families = load_checkpoint(ctx.read_ref(f"job:{job_id}/model.pt"))
+    except (ValueError, KeyError, RuntimeError) as exc:
+        raise JobFailed(f"runs: job {job_id}: model.pt does not load: {exc}") from None
+    model.eval()
+    return [
+        {"name": n, "family": f, **material_checks(model, i)}
+        for i, (n, f) in enumerate(zip(names, families, strict=True))
+    ]
+
+
+def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
+    """Check every run and write ``stability.json``."""
+    from evaluators.metrics.convergence import convergence
+    from jobapi.row_sources import StoreSource
+
+    if len(set(params.runs)) != len(params.runs):
+        raise JobFailed("runs: a job is listed twice")
+    runs, all_rows = [], []
+    for i, ref in enumerate(params.runs):
+        job = ctx.input_job(job_id_of(ref), f"runs.{i}")
+        kind = registered().get(job.kind)
+        if job.kind not in ERRORS or kind is None or kind.rows is None:
+            raise JobFailed(
+                f"runs.{i}: job {job.id} is a {job.kind} job; report.stability "
+                f"checks {', '.join(ERRORS)}"
+            )
+        src = StoreSource(job, ctx.jobs, ctx.store)
+        rows = kind.rows(src)
+        all_rows += rows
+        metric, error, cand = headline(job.kind, rows)
+        run: dict[str, Any] = {
+            "run": ref,
+            "kind": job.kind,
+            "candidate": cand,
+            "seed": job.seed,
+            "metric": metric,
+            "error": error,
+            "convergence": convergence(
+                loss_curve(job.kind, src.read("curves.json")), tolerance=params.tolerance
+            ),
+        }
+        if job.kind == "train.brdf" and params.model_checks:
+            run["materials"] = _brdf_materials(src, ctx, job.id)
+            mats = run["materials"]
+            run["nonfinite_total"] = sum(m["nonfinite_total"] for m in mats)
+            run["albedo_max"] = max(m["albedo_max"] for m in mats)
+            run["energy_gain"] = [m["name"] for m in mats if m["energy_gain"]]
+            run["reciprocity_error"] = statistics.fmean(m["reciprocity_error"] for m in mats)
+        runs.append(run)
+        ctx.progress(0.9 * (i + 1) / len(params.runs), f"checked {i + 1}/{len(params.runs)}")
+    ctx.put_json(
+        "stability.json",
+        {
+            "format": FORMAT,
+            "runs": runs,
+            "configs": configs(runs),
+            "families": families(all_rows),
+            "settings": {
+                "convergence": f"flattened: the loss's last tenth within {params.tolerance:g} "
+                "of its tenth around the middle of training (curves.json); the last tenth "
+                "alone is flat under an annealed learning rate",
+                "albedo": "pi x mean f over 4096 stratified cosine-weighted wo, max over "
+                "channels and incident angles; > 1.01 is an energy gain",
+                "reciprocity": "mean |f(wi,wo) - f(wo,wi)| / (|f(wi,wo)| + |f(wo,wi)|)",
+            },
+        },
+    )
+    flat = sum(1 for r in runs if r["convergence"]["flattened"] is False)
+    ctx.progress(1.0, f"{len(runs)} runs; {flat} still falling at the last step")
+
+
+def configs(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (kind, candidate): seed spread of the error, the worst seed, unconverged runs."""
+    groups: dict[tuple[str, Any], list[dict[str, Any]]] = {}
+    for r in runs:
+        groups.setdefault((r["kind"], r["candidate"]), []).append(r)
+    out = []
+    for (kind, cand), rs in groups.items():
+        scored = [r for r in rs if r["error"] is not None]
+        vals = [r["error"] for r in scored]
+        worst = max(scored, key=lambda r: r["error"]) if scored else None
+        out.append(
+            {
+                "kind": kind,
+                "candidate": cand,
+                "n": len(rs),
+                "mean": statistics.fmean(vals) if vals else None,
+                "std": statistics.stdev(vals) if len(vals) > 1 else 0.0 if vals else None,
+                "worst_seed": worst["seed"] if worst else None,
+                "worst": worst["error"] if worst else None,
+                "not_converged": sum(1 for r in rs if r["convergence"]["flattened"] is False),
+            }
+        )
+    return out
+
+
+def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
+    """Per (kind, candidate, family): mean error over materials and runs of the kind's
+    headline metric."""
+    acc: dict[tuple[str, Any, str], list[float]] = {}
+    for r in rows:
+        metric, cand = ERRORS.get(r.kind, ("", None))
+        if r.metric == metric and r.family and cand in (None, r.candidate):
+            acc.setdefault((r.kind, r.candidate, r.family), []).append(r.value)
+    return [
+        {
+            "kind": k,
+            "candidate": c,
+            "family": f,
+            "metric": ERRORS[k][0],
+            "mean": statistics.fmean(v),
+            "worst": max(v),
+            "n": len(v),
+        }
+        for (k, c, f), v in acc.items()
+    ]
+
+
+#: Columns of the result table, one row per run.
+COLUMNS = (
+    "seed",
+    "metric",
+    "error",
+    "flattened",
+    "relative_drop",
+    "nonfinite_total",
+    "albedo_max",
+    "reciprocity_error",
+)
+
+
+def summarize(read: ArtifactReader) -> ResultTable | None:
+    """One row per run (``"<candidate> / seed <s>"``)."""
+    doc = read("stability.json")
+    if not isinstance(doc, dict) or not isinstance(doc.get("runs"), list):
+        return None
+    rows = {}
+    for r in doc["runs"]:
+        if isinstance(r, dict):
+            conv = r.get("convergence") or {}
+            row = {c: r.get(c) for c in COLUMNS}
+            row.update(flattened=conv.get("flattened"), relative_drop=conv.get("relative_drop"))
+            rows[f"{r.get('candidate')} / seed {r.get('seed')} ({r.get('run')})"] = row
+    return ResultTable(
+        title="Stability",
+        label_header="Run",
+        columns=list(COLUMNS),
+        rows=rows,
+        settings=doc.get("settings"),
+    )
+
+
+register(
+    Kind(
+        name="report.stability",
+        params=ReportStabilityParams,
+        runner=run_stability,
+        description="Where trained models fail: seed spread and worst seed, per-family "
+        "errors, whether each training loss had flattened, and for BRDF models NaN/Inf at "
+        "extreme inputs, directional albedo above 1 and reciprocity error.",
+        artifacts=("stability.json",),
+        smoke={"runs": ["step:train.brdf"]},
+        summary=summarize,
+    )
+)

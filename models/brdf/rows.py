@@ -1,0 +1,82 @@
+"""Result rows of ``train.brdf`` (:mod:`jobapi.rows`).
+
+One row per material and metric of ``metrics.json`` (``smape``, ``mae`` and, for models
+with an analytic part, ``smape_analytic`` and ``mae_analytic``), the same metrics of the
+mean over materials (``material`` ``"mean"``), and the trained size's speed
+(``fused_kernel_ns``, ``fused_ns``, ``torch_ns`` of ``speed.json``). Every row carries the
+configuration (``candidate`` ``"hybrid 32x3"`` as :class:`models.brdf.study.Run` names it),
+the dataset (the ``generate.merl`` job) and the costs: ``ns_per_eval`` is the trained
+size's ``fused_kernel_ns``, bytes per material 4 x the per-material floats, bytes per
+network from ``speed.json``, ``train_seconds`` the job's wall time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+
+#: The metrics of a material's row in ``metrics.json``.
+METRICS = ("smape", "mae", "smape_analytic", "mae_analytic")
+#: The speed metrics of ``speed.json``'s trained-size row.
+SPEED_METRICS = ("fused_kernel_ns", "fused_ns", "torch_ns")
+
+
+def config_label(model: str, width: int, depth: int) -> str:
+    """``"analytic"`` or ``"<model> <width>x<depth>"``: a configuration's name."""
+    return "analytic" if model == "analytic" else f"{model} {width}x{depth}"
+
+
+def _trained_speed(doc: Any) -> Mapping[str, Any] | None:
+    if not isinstance(doc, Mapping):
+        return None
+    return next((r for r in doc.get("rows") or [] if isinstance(r, Mapping) and r.get("trained")),
+                None)  # fmt: skip
+
+
+def train_brdf_rows(src: RowSource) -> list[ResultRow]:
+    """The rows of a finished ``train.brdf`` job (see the module docstring)."""
+    metrics, info = src.read("metrics.json"), src.read("materials.json")
+    if not isinstance(metrics, Mapping) or not isinstance(info, Mapping):
+        return []
+    arch = info.get("architecture") or {}
+    model = str(info.get("model") or metrics.get("model"))
+    width, depth = int(arch.get("width", 0)), int(arch.get("depth", 0))
+    floats = info.get("per_material_params")
+    params = src.job.params
+    config = {
+        "model": model,
+        "width": width,
+        "depth": depth,
+        "latent_dim": arch.get("latent_dim"),
+        "per_material_params": floats,
+        "preset": params.get("preset"),
+        "steps": params.get("steps"),
+    }
+    speed = _trained_speed(src.read("speed.json"))
+    common: dict[str, Any] = {
+        "candidate": config_label(model, width, depth),
+        "dataset": dataset_of(params, "dataset"),
+        "config": config,
+        "ns_per_eval": number(speed.get("fused_kernel_ns")) if speed else None,
+        "bytes_per_material": 4.0 * floats if isinstance(floats, int) else None,
+        "bytes_per_network": number(speed.get("bytes_per_network")) if speed else None,
+        "train_seconds": src.job.run_seconds,
+    }
+    rows: list[ResultRow] = []
+    materials = [m for m in metrics.get("materials") or [] if isinstance(m, Mapping)]
+    for m in materials:
+        fields = {**common, "material": str(m.get("name")), "family": m.get("family"),
+                  "config": {**config, "split": m.get("split")}}  # fmt: skip
+        rows += [
+            base_row(src, k, v, **fields) for k in METRICS if (v := number(m.get(k))) is not None
+        ]
+    mean = metrics.get("mean")
+    if isinstance(mean, Mapping):
+        rows += [base_row(src, k, v, material="mean", **common)
+                 for k in METRICS if (v := number(mean.get(k))) is not None]  # fmt: skip
+    if speed:
+        rows += [base_row(src, k, v, **common)
+                 for k in SPEED_METRICS if (v := number(speed.get(k))) is not None]  # fmt: skip
+    return rows

@@ -1,0 +1,35 @@
+"""Result rows of ``train.btf`` (:mod:`jobapi.rows`): the model's L1 errors of
+``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
+storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
+the decoder's."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+
+#: The metrics of ``metrics.json``.
+METRICS = ("l1", "l1_train", "l1_heldout", "relative_l1")
+#: Params of the spec that describe the model, in ``config``.
+CONFIG_KEYS = ("model", "preset", "width", "epochs", "distill")
+
+
+def train_btf_rows(src: RowSource) -> list[ResultRow]:
+    """The rows of a finished ``train.btf`` job."""
+    doc = src.read("metrics.json")
+    if not isinstance(doc, Mapping):
+        return []
+    params = src.job.params
+    found = doc.get("storage")
+    storage: Mapping[str, Any] = found if isinstance(found, Mapping) else {}
+    fields = {
+        "candidate": str(doc.get("label") or params.get("model")),
+        "dataset": dataset_of(params, "data"),
+        "config": {k: params[k] for k in CONFIG_KEYS if params.get(k) is not None},
+        "bytes_per_material": number(storage.get("texture_bytes")),
+        "bytes_per_network": number(storage.get("network_bytes")),
+        "train_seconds": src.job.run_seconds,
+    }
+    return [base_row(src, k, v, **fields) for k in METRICS if (v := number(doc.get(k))) is not None]

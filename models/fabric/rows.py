@@ -1,0 +1,55 @@
+"""Result rows of ``train.fabric`` (:mod:`jobapi.rows`): the held-out errors of
+``metrics.json``, one row per material (and the mean, ``material`` ``"mean"``) and metric.
+
+Metrics are the flattened keys of a material's row: ``loss`` (Eq. 11), ``rgb.rel``,
+``rgb.mse``, ``C_warp.rel``, ... The per-material mean predictor's errors (``baseline.*``)
+are rows of their own candidate, ``"baseline"``, beside the network's, ``"network"``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from jobapi.results import flatten
+from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+
+#: Keys of a material's row that are counts, not measurements.
+NOT_METRICS = frozenset({"queries", "count"})
+#: Params of the spec that describe the network, in ``config``.
+CONFIG_KEYS = ("preset", "steps", "encoder_width", "decoder_width", "latent_dim", "map_resolution")
+
+
+def _rows_of(src: RowSource, values: Mapping[str, Any], fields: dict[str, Any]) -> list[ResultRow]:
+    rows = []
+    for key, raw in flatten(values).items():
+        value = number(raw)
+        if value is None or key in NOT_METRICS:
+            continue
+        candidate, metric = (
+            ("baseline", key[9:]) if key.startswith("baseline.") else ("network", key)
+        )
+        rows.append(base_row(src, metric, value, candidate=candidate, **fields))
+    return rows
+
+
+def train_fabric_rows(src: RowSource) -> list[ResultRow]:
+    """The rows of a finished ``train.fabric`` job (see the module docstring)."""
+    doc = src.read("metrics.json")
+    if not isinstance(doc, Mapping):
+        return []
+    params = src.job.params
+    common: dict[str, Any] = {
+        "dataset": dataset_of(params, "dataset"),
+        "config": {k: params[k] for k in CONFIG_KEYS if params.get(k) is not None},
+        "train_seconds": src.job.run_seconds,
+    }
+    rows: list[ResultRow] = []
+    for m in doc.get("materials") or []:
+        if isinstance(m, Mapping):
+            fields = {**common, "material": str(m.get("name")), "family": m.get("pattern")}
+            rows += _rows_of(src, {k: v for k, v in m.items() if k not in ("name", "pattern")},
+                             fields)  # fmt: skip
+    if isinstance(doc.get("mean"), Mapping):
+        rows += _rows_of(src, doc["mean"], {**common, "material": "mean"})
+    return rows

@@ -1,0 +1,218 @@
+"""``matforge results [JOB|BATCH...] [--out x.csv|x.json]``: the long-format results table.
+
+Each argument is a job id or a batch file (the YAML/JSON that ``matforge batch`` ran): a
+job gives its rows, a batch its steps' rows in step order (each row names its ``step``),
+arguments in the order given. No argument: every succeeded job's rows (the newest 1,000
+jobs). Rows come from the server (``GET /api/results``, ``POST /api/results/batch``), or
+with ``--data-dir`` from a local store; the columns are :data:`jobapi.rows.COLUMNS`, one
+row per measured value, easy to pivot. The terminal shows a condensed table; ``--out``
+writes every column, ``--json`` prints the rows as one JSON list.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import typer
+from rich.table import Table
+from rich.text import Text
+
+from service.cli.client import BadInput
+from service.cli.state import (
+    EXIT_BAD_INPUT,
+    err_console,
+    error,
+    print_json,
+    state_of,
+    table_console,
+)
+
+#: Columns of the terminal table (``--out`` writes all of them).
+SHOWN = (
+    "job",
+    "step",
+    "kind",
+    "candidate",
+    "material",
+    "scene",
+    "metric",
+    "value",
+    "spp",
+    "render_seconds",
+    "ns_per_eval",
+    "train_seconds",
+)
+JOB_ID_CHARS = frozenset("0123456789abcdef")
+
+
+def is_batch_file(arg: str) -> bool:
+    """Whether ``arg`` names a batch file (an existing ``.yaml``/``.yml``/``.json`` file)."""
+    return Path(arg).suffix.lower() in (".yaml", ".yml", ".json") and Path(arg).is_file()
+
+
+def check_job_arg(arg: str) -> str:
+    """A job id argument, lower-cased; :class:`BadInput` for anything else."""
+    job = arg.strip().lower().removeprefix("job:")
+    if len(job) != 32 or not set(job) <= JOB_ID_CHARS:
+        raise BadInput(f"{arg!r}: neither a job id (32 hex digits) nor a batch file (.yaml/.json)")
+    return job
+
+
+def _filters(
+    kind: str | None,
+    dataset: str | None,
+    metric: list[str],
+    candidate: str | None,
+    scene: str | None,
+) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "kind": kind,
+        "dataset": dataset,
+        "candidate": candidate,
+        "scene": scene,
+        "metric": metric or None,
+    }
+    return {k: v for k, v in out.items() if v}
+
+
+def _batch_steps(path: Path) -> list[dict[str, Any]]:
+    from service.cli.batch import load_batch
+
+    plan = load_batch(path)
+    return [{"name": s.name, "spec": s.spec} for s in plan.steps]
+
+
+def _warn_missing(source: str, steps: list[dict[str, Any]]) -> None:
+    missing = [str(s.get("step")) for s in steps if s.get("state") != "succeeded"]
+    if missing:
+        err_console.print(
+            f"{source}: no succeeded job for step(s) {', '.join(missing)} (run the batch first)",
+            markup=False,
+            highlight=False,
+        )
+
+
+def collect_local(data_dir: Path, args: list[str], filters: dict[str, Any]) -> list[dict[str, Any]]:
+    """The rows of ``args`` from the local store in ``data_dir``."""
+    from service.cli.artifacts import open_local
+    from service.results import RowFilter, batch_rows, select_rows
+
+    jobs, store = open_local(data_dir)
+    where = RowFilter(
+        kind=filters.get("kind"),
+        dataset=filters.get("dataset"),
+        metric=tuple(filters.get("metric") or ()),
+        candidate=filters.get("candidate"),
+        scene=filters.get("scene"),
+    )
+    if not args:
+        return [r.document() for r in select_rows(jobs, store, where=where)]
+    rows: list[dict[str, Any]] = []
+    for arg in args:
+        if is_batch_file(arg):
+            result = batch_rows(_batch_steps(Path(arg)), jobs, store, where)
+            _warn_missing(arg, result.steps)
+            rows += [r.document() for r in result.rows]
+        else:
+            rows += [
+                r.document()
+                for r in select_rows(jobs, store, job_ids=[check_job_arg(arg)], where=where)
+            ]
+    return rows
+
+
+def collect_remote(
+    ctx: typer.Context, args: list[str], filters: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """The rows of ``args`` from the server."""
+    rows: list[dict[str, Any]] = []
+    with state_of(ctx).client() as client:
+        if not args:
+            return client.results(filters)
+        for arg in args:
+            if is_batch_file(arg):
+                doc = client.batch_results(_batch_steps(Path(arg)), filters)
+                _warn_missing(arg, list(doc.get("steps") or []))
+                rows += list(doc.get("rows") or [])
+            else:
+                rows += client.results({**filters, "job": [check_job_arg(arg)]})
+    return rows
+
+
+def write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+    """``.csv`` (columns :data:`jobapi.rows.COLUMNS`, config as JSON) or ``.json`` (a list)."""
+    from jobapi.rows import ResultRow
+    from service.results import rows_csv
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() == ".json":
+        path.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
+    else:
+        path.write_text(rows_csv(ResultRow(**r) for r in rows), encoding="utf-8")
+
+
+def _cell(col: str, value: Any) -> str:
+    if value is None:
+        return ""
+    if col == "job":
+        return str(value)[:12]
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def rows_table(rows: list[dict[str, Any]]) -> Table:
+    """A condensed Rich table: the :data:`SHOWN` columns that have a value."""
+    cols = [c for c in SHOWN if any(r.get(c) is not None for r in rows)]
+    table = Table(title=f"{len(rows)} result rows")
+    for col in cols:
+        numeric = col in ("value", "spp") or col.endswith(("_seconds", "_eval"))
+        table.add_column(col, justify="right" if numeric else "left", overflow="fold")
+    for r in rows:
+        table.add_row(*(Text(_cell(c, r.get(c))) for c in cols))
+    return table
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``results`` to the app."""
+
+    @app.command()
+    def results(
+        ctx: typer.Context,
+        args: list[str] = typer.Argument(
+            None, metavar="[JOB|BATCH]...", help="Job ids and batch files (default: all jobs)."
+        ),
+        out: Path | None = typer.Option(
+            None, "--out", "-o", help="Write the rows to this .csv or .json file."
+        ),
+        kind: str | None = typer.Option(None, "--kind", help="Only rows of this job kind."),
+        dataset: str | None = typer.Option(None, "--dataset", help="Only this dataset."),
+        metric: list[str] = typer.Option([], "--metric", help="Only this metric (repeatable)."),
+        candidate: str | None = typer.Option(None, "--candidate", help="Only this candidate."),
+        scene: str | None = typer.Option(None, "--scene", help="Only this scene."),
+        data_dir: Path | None = typer.Option(
+            None, "--data-dir", show_default=False, help="Read a local store, not the server."
+        ),
+        as_json: bool = typer.Option(False, "--json", help="Print the rows as one JSON list."),
+    ) -> None:
+        """Every measured value as one row (job, kind, dataset, scene, candidate, config,
+        metric, value, lower-is-better, seed, costs); a batch's rows in step order."""
+        if out is not None and out.suffix.lower() not in (".csv", ".json"):
+            error(f"--out {out}: must end in .csv or .json")
+            raise typer.Exit(EXIT_BAD_INPUT)
+        filters = _filters(kind, dataset, metric, candidate, scene)
+        local = state_of(ctx).local_dir(data_dir)
+        arg_list = list(args or [])
+        if local is not None:
+            rows = collect_local(local, arg_list, filters)
+        else:
+            rows = collect_remote(ctx, arg_list, filters)
+        if out is not None:
+            write_rows(out, rows)
+            err_console.print(f"{len(rows)} rows written to {out}", markup=False, highlight=False)
+        if as_json:
+            print_json(rows)
+        else:
+            table_console(to_stderr=out is not None).print(rows_table(rows))

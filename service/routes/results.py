@@ -1,0 +1,159 @@
+"""``/api/results``: every measured value as one long-format row, JSON or CSV.
+
+``GET /api/results`` reads the named jobs (``job=``, repeatable, in that order) or the
+newest succeeded ones; ``POST /api/results/batch`` takes a batch's steps and answers their
+rows in step order. Rows come from :mod:`service.results`; the columns are
+:data:`jobapi.rows.COLUMNS`. CSV when ``format=csv`` or when ``Accept`` prefers
+``text/csv``; JSON otherwise.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Request, Response
+from pydantic import BaseModel, ConfigDict, Field
+
+from jobapi.rows import ResultRow
+from service.deps import JOB_ID_PATTERN, AuthDep, JobsDep, StoreDep
+from service.results import MAX_JOBS, RowFilter, batch_rows, rows_csv, select_rows
+from service.schemas import ErrorPublic
+
+router = APIRouter(prefix="/api/results", tags=["results"], dependencies=[AuthDep])
+CSV = "text/csv"
+
+
+class ResultRowPublic(BaseModel):
+    """One measured value (see ``jobapi.rows`` for the cost columns' meaning)."""
+
+    job: str
+    step: str | None = None
+    kind: str
+    dataset: str | None = None
+    scene: str | None = None
+    candidate: str | None = None
+    material: str | None = None
+    family: str | None = None
+    config: dict[str, Any] = Field(default_factory=dict)
+    metric: str
+    value: float
+    lower_is_better: bool | None = None
+    seed: int | None = None
+    ns_per_eval: float | None = Field(None, description="fused Dr.Jit kernel ns per evaluation")
+    ms_per_frame: float | None = None
+    bytes_per_material: float | None = None
+    bytes_per_network: float | None = None
+    train_seconds: float | None = Field(None, description="wall seconds of the training job")
+    spp: int | None = None
+    render_seconds: float | None = Field(None, description="wall seconds of the render job")
+
+
+class BatchStep(BaseModel):
+    """A step of a batch file: its name and its spec (``step:`` refs allowed)."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str = Field(min_length=1, max_length=200)
+    spec: dict[str, Any]
+
+
+class BatchQuery(BaseModel):
+    """The body of ``POST /api/results/batch``: the batch's steps, in order."""
+
+    model_config = ConfigDict(extra="forbid")
+    steps: list[BatchStep] = Field(min_length=1, max_length=1000)
+
+
+class StepPublic(BaseModel):
+    step: str
+    kind: str | None
+    job: str | None
+    state: Literal["succeeded", "missing"]
+
+
+class BatchResultsPublic(BaseModel):
+    steps: list[StepPublic]
+    rows: list[ResultRowPublic]
+
+
+Format = Annotated[
+    Literal["json", "csv"] | None,
+    Query(description="`csv` or `json`; default: `Accept: text/csv` gives CSV, else JSON"),
+]
+KindQ = Annotated[str | None, Query(max_length=64, description="only rows of this job kind")]
+DatasetQ = Annotated[
+    str | None, Query(max_length=200, description="only this dataset (a ref or its job id)")
+]
+MetricQ = Annotated[list[str], Query(max_length=64, description="only these metrics")]
+CandidateQ = Annotated[str | None, Query(max_length=200, description="only this candidate")]
+SceneQ = Annotated[str | None, Query(max_length=64, description="only this scene")]
+_CSV_DOC: dict[int | str, dict[str, Any]] = {
+    200: {"content": {CSV: {"schema": {"type": "string"}}}},
+    404: {"model": ErrorPublic, "description": "no such job"},
+    422: {"model": ErrorPublic, "description": "invalid input"},
+}
+
+
+def _wants_csv(request: Request, fmt: str | None) -> bool:
+    if fmt is not None:
+        return fmt == "csv"
+    accept = request.headers.get("accept", "")
+    return CSV in accept and "application/json" not in accept
+
+
+def _csv(rows: list[ResultRow]) -> Response:
+    return Response(rows_csv(rows), media_type=f"{CSV}; charset=utf-8")
+
+
+@router.get("", response_model=list[ResultRowPublic], responses=_CSV_DOC, summary="Result rows")
+def get_results(
+    request: Request,
+    jobs: JobsDep,
+    store: StoreDep,
+    job: Annotated[
+        list[Annotated[str, Field(pattern=JOB_ID_PATTERN)]],
+        Query(max_length=1000, description="only these jobs (ids), in this order"),
+    ] = [],  # noqa: B006 (FastAPI copies query defaults)
+    kind: KindQ = None,
+    dataset: DatasetQ = None,
+    metric: MetricQ = [],  # noqa: B006
+    candidate: CandidateQ = None,
+    scene: SceneQ = None,
+    limit: Annotated[
+        int, Query(ge=1, le=MAX_JOBS, description="newest succeeded jobs read, without job=")
+    ] = MAX_JOBS,
+    format: Format = None,
+) -> Any:
+    """Every value the jobs measured, one row each: job, kind, dataset, scene, candidate,
+    material, config, metric, value, lower_is_better, seed and the costs."""
+    where = RowFilter(kind=kind, dataset=dataset, metric=tuple(metric), candidate=candidate,
+                      scene=scene)  # fmt: skip
+    rows = select_rows(jobs, store, job_ids=job, where=where, max_jobs=limit)
+    if _wants_csv(request, format):
+        return _csv(rows)
+    return [r.document() for r in rows]
+
+
+@router.post(
+    "/batch", response_model=BatchResultsPublic, responses=_CSV_DOC, summary="A batch's rows"
+)
+def post_batch_results(
+    body: BatchQuery,
+    request: Request,
+    jobs: JobsDep,
+    store: StoreDep,
+    kind: KindQ = None,
+    dataset: DatasetQ = None,
+    metric: MetricQ = [],  # noqa: B006
+    candidate: CandidateQ = None,
+    scene: SceneQ = None,
+    format: Format = None,
+) -> Any:
+    """The rows of a batch's steps in step order (each row names its `step`), and each
+    step's job: the succeeded job of its spec once its `step:` refs name the earlier
+    steps' jobs (`missing` if there is none). A spec that does not validate is a 422."""
+    where = RowFilter(kind=kind, dataset=dataset, metric=tuple(metric), candidate=candidate,
+                      scene=scene)  # fmt: skip
+    result = batch_rows([s.model_dump() for s in body.steps], jobs, store, where)
+    if _wants_csv(request, format):
+        return _csv(result.rows)
+    return result.document()

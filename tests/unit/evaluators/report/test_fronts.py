@@ -1,0 +1,147 @@
+"""The numbers of ``report.pareto`` (:mod:`evaluators.report.fronts`, ``.claims``) over
+hand-made rows: points as seed means with their spread, the front by brute force, families,
+and claims with a reason each."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from evaluators.report.claims import brdf_claims, fabric_claims
+from evaluators.report.fronts import check_claim, cost_columns, error_metrics, families, panels
+from jobapi.rows import ResultRow
+
+D = "job:" + "d" * 32
+
+
+def brdf_row(
+    job: str,
+    cand: str,
+    value: float,
+    ns: float,
+    *,
+    material: str = "mean",
+    family: str | None = None,
+    floats: int = 11,
+) -> ResultRow:
+    return ResultRow(
+        job=job,
+        kind="train.brdf",
+        metric="smape",
+        value=value,
+        lower_is_better=True,
+        dataset=D,
+        candidate=cand,
+        material=material,
+        family=family,
+        config={"per_material_params": floats},
+        ns_per_eval=ns,
+        bytes_per_material=4.0 * floats,
+    )
+
+
+def study() -> list[ResultRow]:
+    seeds = {
+        "analytic": ([0.30, 0.34], 2.0),
+        "hybrid 16x3": ([0.10, 0.14, 0.12], 40.0),
+        "neural 16x3": ([0.28, 0.30, 0.61], 35.0),
+        "hybrid 32x3": ([0.20, 0.22], 100.0),
+    }
+    rows, n = [], itertools.count()
+    for cand, (vals, ns) in seeds.items():
+        for v in vals:
+            job = f"{next(n):032x}"
+            rows.append(brdf_row(job, cand, v, ns + 0.1 * len(rows)))  # costs vary by run
+            rows.append(brdf_row(job, cand, v - 0.05, ns, material="m1", family="metal"))
+            rows.append(brdf_row(job, cand, v + 0.05, ns, material="m2", family="plastic"))
+    return rows
+
+
+def test01_points_are_seed_spreads_and_the_front_is_the_brute_force_one() -> None:
+    rows = study()
+    (panel, bytes_panel) = panels(rows, ["smape"], ["ns_per_eval", "bytes_per_material"])
+    assert (panel["dataset"], panel["metric"], panel["cost"]) == (D, "smape", "ns_per_eval")
+    assert panel["cost_label"].startswith("ns_per_eval: fused Dr.Jit kernel")
+    pts = {p["candidate"]: p for p in panel["points"]}
+    neural = pts["neural 16x3"]
+    assert neural["n"] == 3 and neural["max"] == 0.61 and neural["min"] == 0.28
+    assert neural["mean"] == pytest.approx(np.mean([0.28, 0.30, 0.61]))
+    assert neural["std"] == pytest.approx(np.std([0.28, 0.30, 0.61], ddof=1))
+    ns = [r.ns_per_eval for r in rows if r.candidate == "neural 16x3" and r.material == "mean"]
+    assert neural["cost"] == pytest.approx(np.median(ns))
+    for p in panel["points"]:  # brute force on (cost, mean)
+        beaten = [
+            q["candidate"]
+            for q in panel["points"]
+            if q is not p
+            and q["cost"] <= p["cost"]
+            and q["mean"] <= p["mean"]
+            and (q["cost"] < p["cost"] or q["mean"] < p["mean"])
+        ]
+        assert p["dominated_by"] == beaten and p["front"] == (not beaten)
+    assert panel["front"] == ["analytic", "hybrid 16x3"]
+    assert neural["dominated_by"] == ["analytic"] and not neural["front"]  # cheaper, better
+    assert pts["hybrid 32x3"]["dominated_by"] == ["hybrid 16x3"]
+    assert bytes_panel["cost"] == "bytes_per_material"  # all 44 bytes: the least error wins
+    assert bytes_panel["front"] == ["hybrid 16x3"]
+
+
+def test02_defaults_and_families() -> None:
+    rows = study()
+    assert error_metrics(rows, None) == ["smape"] and error_metrics(rows, ["mae"]) == ["mae"]
+    assert cost_columns(rows, None) == ["ns_per_eval", "bytes_per_material"]
+    fams = {(f["candidate"], f["family"]): f for f in families(rows, ["smape"])}
+    metal = fams[("neural 16x3", "metal")]
+    assert metal["n"] == 3 and metal["materials"] == 1
+    assert metal["mean"] == pytest.approx(np.mean([0.23, 0.25, 0.56]))
+    assert panels(rows, ["flip"], ["ns_per_eval"]) == []
+
+
+def test03_claims_with_reasons() -> None:
+    rows = study()
+    claims = {c["claim"]: c for c in brdf_claims(rows)}
+    assert claims["hybrid 16x3 mean SMAPE < analytic"]["holds"] is True
+    eq = claims["hybrid 16x3 mean SMAPE <= neural 16x3 at equal per-material parameters"]
+    assert eq["holds"] is True and eq["b_n"] == 3 and "neural 16x3" in eq["why"]
+    assert "hybrid 32x3 mean SMAPE < analytic" in claims
+    worse = check_claim(rows, {"a": "hybrid 32x3", "b": "hybrid 16x3", "metric": "smape"})
+    assert worse["holds"] is False and "not <" in worse["why"]
+    missing = check_claim(rows, {"a": "hybrid 16x3", "b": "tiny", "metric": "smape"})
+    assert missing["holds"] is None and missing["why"] == "no smape rows of tiny"
+    with pytest.raises(ValueError, match="relation"):
+        check_claim(rows, {"a": "x", "b": "y", "metric": "smape", "relation": ">"})
+    other = [
+        r.with_(config={"per_material_params": 12}) if r.candidate == "neural 16x3" else r
+        for r in rows
+    ]
+    (bad,) = [c for c in brdf_claims(other) if "neural" in c["claim"]]
+    assert bad["holds"] is None and "floats differ" in bad["why"]
+
+
+def test04_fabric_claims_per_reference() -> None:
+    def score(cand: str, ref: str, flip: float) -> ResultRow:
+        return ResultRow(
+            job="e" * 32,
+            kind="score",
+            metric="flip",
+            value=flip,
+            candidate=cand,
+            dataset=ref,
+            lower_is_better=True,
+        )
+
+    rows = [
+        score("net16", "seen", 0.10),
+        score("mc_eq", "seen", 0.12),
+        score("mc1", "seen", 0.3),
+        score("net16", "unseen", 0.2),
+        score("mc_eq", "unseen", 0.15),
+    ]
+    got = {c["claim"]: c["holds"] for c in fabric_claims(rows)}
+    assert got == {
+        "network (16 spp) FLIP < Monte Carlo at equal time against seen": True,
+        "network (16 spp) FLIP < Monte Carlo at 1 spp against seen": True,
+        "network (16 spp) FLIP < Monte Carlo at equal time against unseen": False,
+    }

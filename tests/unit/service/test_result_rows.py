@@ -1,0 +1,294 @@
+"""The rows hooks of the kinds (:attr:`jobapi.kinds.Kind.rows`) over hand-made artifacts:
+one row per value, each with the facts of what it measured and its costs."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import pytest
+
+from jobapi.rows import JobFacts, ResultRow, RowSource
+from service import kinds
+
+A, B, C = "a" * 32, "b" * 32, "c" * 32
+
+
+class FakeSource:
+    """A job with given params and artifacts; other jobs by id."""
+
+    def __init__(
+        self,
+        kind: str,
+        params: Mapping[str, Any],
+        artifacts: Mapping[str, Any],
+        *,
+        job_id: str = A,
+        seed: int = 0,
+        seconds: float | None = 2.0,
+        others: Mapping[str, FakeSource] | None = None,
+    ) -> None:
+        self.job = JobFacts(id=job_id, kind=kind, seed=seed, params=params, run_seconds=seconds)
+        self._artifacts, self._others = artifacts, others or {}
+
+    def read(self, name: str) -> Any:
+        return self._artifacts.get(name)
+
+    def source(self, ref: str) -> RowSource | None:
+        return self._others.get(ref.removeprefix("job:").split("/")[0])
+
+
+def rows_of(src: FakeSource) -> list[ResultRow]:
+    hook = kinds.get_kind(src.job.kind).rows
+    assert hook is not None
+    return hook(src)
+
+
+def by_metric(rows: list[ResultRow], **where: Any) -> dict[str, ResultRow]:
+    picked = [r for r in rows if all(getattr(r, k) == v for k, v in where.items())]
+    out = {r.metric: r for r in picked}
+    assert len(out) == len(picked), "one row per metric expected"
+    return out
+
+
+def test01_score_of_renders_carries_spp_and_time() -> None:
+    render = {
+        "scene": "cloth_plane",
+        "spp": 16,
+        "resolution": [64, 64],
+        "max_depth": 2,
+        "material": {"model": f"job:{C}/model.pt", "fabric": {"pattern": "twill_3x3"}},
+    }
+    gt = FakeSource(
+        "render",
+        {**render, "spp": 256, "material": {"fabric": {}}},
+        {},
+        job_id=B,
+        seed=1,
+        seconds=30.0,
+    )
+    net = FakeSource("render", render, {}, job_id=C, seed=2, seconds=1.5)
+    metrics = {
+        "metrics": {"net16": {"flip": 0.1, "psnr": 30.0, "ssim": None}, "other": {"flip": 0.3}}
+    }
+    score = FakeSource(
+        "score",
+        {
+            "reference": f"job:{B}/image.exr",
+            "candidates": {"net16": f"job:{C}/image.exr", "other": "sha256:" + "0" * 64},
+        },
+        {"metrics.json": metrics},
+        others={B: gt, C: net},
+        seed=7,
+    )
+    rows = rows_of(score)
+    net_rows = by_metric(rows, candidate="net16")
+    assert set(net_rows) == {"flip", "psnr"}  # a null value is no measurement
+    flip = net_rows["flip"]
+    assert (flip.value, flip.lower_is_better, flip.spp, flip.render_seconds) == (0.1, True, 16, 1.5)
+    assert flip.scene == "cloth_plane" and flip.seed == 2 and flip.kind == "score"
+    assert flip.config["source"] == "model" and flip.dataset == f"job:{B}/image.exr"
+    assert net_rows["psnr"].lower_is_better is False
+    other = by_metric(rows, candidate="other")["flip"]  # not a render: the reference's scene
+    assert other.scene == "cloth_plane" and other.spp is None and other.seed == 7
+
+
+def test02_score_of_a_whole_model_per_material() -> None:
+    metrics = {
+        "metrics": {"m": {"smape": 0.2}},
+        "per_material": {"m": {"gold": {"smape": 0.1}, "blue": {"smape": 0.3}}},
+    }
+    src = FakeSource(
+        "score",
+        {"reference": f"job:{B}", "candidates": {"m": {"model": "x"}}},
+        {"metrics.json": metrics},
+    )
+    rows = rows_of(src)
+    assert [(r.material, r.value) for r in rows] == [("mean", 0.2), ("gold", 0.1), ("blue", 0.3)]
+    assert {r.dataset for r in rows} == {f"job:{B}"}
+
+
+def test03_train_brdf() -> None:
+    metrics = {
+        "model": "hybrid",
+        "materials": [
+            {
+                "name": "gold",
+                "family": "metal",
+                "split": "train",
+                "smape": 0.4,
+                "mae": 0.1,
+                "smape_analytic": 0.5,
+                "mae_analytic": None,
+            }
+        ],
+        "mean": {"smape": 0.4, "mae": 0.1, "smape_analytic": 0.5, "mae_analytic": None},
+    }
+    info = {
+        "model": "hybrid",
+        "per_material_params": 11,
+        "architecture": {"width": 32, "depth": 3, "latent_dim": 4},
+    }
+    speed = {
+        "rows": [
+            {"trained": False, "fused_kernel_ns": 1.0},
+            {
+                "trained": True,
+                "fused_kernel_ns": 4.09,
+                "fused_ns": 5.26,
+                "torch_ns": 50.0,
+                "bytes_per_network": 5000,
+            },
+        ]
+    }
+    src = FakeSource(
+        "train.brdf",
+        {"dataset": f"job:{B}", "preset": "small", "steps": 300},
+        {"metrics.json": metrics, "materials.json": info, "speed.json": speed},
+        seconds=90.0,
+    )
+    rows = rows_of(src)
+    gold = by_metric(rows, material="gold")
+    assert set(gold) == {"smape", "mae", "smape_analytic"}
+    assert gold["smape"].family == "metal" and gold["smape"].config["split"] == "train"
+    assert set(by_metric(rows, material="mean")) == {"smape", "mae", "smape_analytic"}
+    speed_rows = by_metric(rows, material=None)
+    assert {k: r.value for k, r in speed_rows.items()} == {
+        "fused_kernel_ns": 4.09,
+        "fused_ns": 5.26,
+        "torch_ns": 50.0,
+    }
+    for r in rows:  # one cost per meaning: ns_per_eval is the kernel's time everywhere
+        assert (r.candidate, r.ns_per_eval, r.bytes_per_material) == ("hybrid 32x3", 4.09, 44.0)
+        assert (r.bytes_per_network, r.train_seconds, r.dataset) == (5000, 90.0, f"job:{B}")
+
+
+def test04_train_fabric_network_and_baseline() -> None:
+    mat = {
+        "name": "twill-0",
+        "pattern": "twill_3x3",
+        "queries": 100,
+        "loss": 0.5,
+        "rgb": {"rel": 0.2, "mse": 0.01},
+        "baseline": {"loss": 0.9, "rgb": {"rel": 0.6}},
+    }
+    doc = {"materials": [mat], "mean": {"count": 1, "loss": 0.5, "rgb": {"rel": 0.2}}}
+    rows = rows_of(
+        FakeSource("train.fabric", {"dataset": f"job:{B}", "steps": 10}, {"metrics.json": doc})
+    )
+    net = by_metric(rows, material="twill-0", candidate="network")
+    base = by_metric(rows, material="twill-0", candidate="baseline")
+    assert {k: r.value for k, r in net.items()} == {"loss": 0.5, "rgb.rel": 0.2, "rgb.mse": 0.01}
+    assert {k: r.value for k, r in base.items()} == {"loss": 0.9, "rgb.rel": 0.6}
+    assert net["rgb.rel"].family == "twill_3x3" and net["rgb.rel"].lower_is_better is True
+    assert set(by_metric(rows, material="mean", candidate="network")) == {"loss", "rgb.rel"}
+
+
+def test05_train_btf_and_tss() -> None:
+    doc = {
+        "label": "c2f",
+        "l1": 0.02,
+        "l1_train": 0.019,
+        "l1_heldout": None,
+        "relative_l1": 0.1,
+        "storage": {"texture_bytes": 1000, "network_bytes": 200},
+    }
+    rows = by_metric(
+        rows_of(
+            FakeSource("train.btf", {"data": f"job:{B}", "model": "c2f"}, {"metrics.json": doc})
+        )
+    )
+    assert set(rows) == {"l1", "l1_train", "relative_l1"}
+    assert (rows["l1"].bytes_per_material, rows["l1"].bytes_per_network) == (1000, 200)
+    metrics = {
+        "rows": [
+            {
+                "label": "64/N=2",
+                "resolution": 64,
+                "interval": 2,
+                "pass": "amortised",
+                "flip_mean": 0.05,
+                "flip_max": 0.08,
+                "psnr_mean": 35.0,
+                "psnr_min": None,
+                "shading_passes": 2,
+            }
+        ]
+    }
+    timing = {"rows": {"64/N=2": {"seconds_per_frame": 0.004, "relative_cost": 0.5}}}
+    tss = by_metric(
+        rows_of(
+            FakeSource(
+                "evaluate.tss",
+                {"model": f"job:{C}/model.json"},
+                {"metrics.json": metrics, "timing.json": timing},
+            )
+        )
+    )
+    assert set(tss) == {"flip_mean", "flip_max", "psnr_mean", "relative_cost"}
+    assert tss["flip_mean"].ms_per_frame == pytest.approx(4.0)
+    assert tss["flip_mean"].candidate == "64/N=2" and tss["flip_mean"].config["interval"] == 2
+
+
+def test06_render_and_missing_artifacts() -> None:
+    render = FakeSource("render", {"scene": "sphere_env", "spp": 4, "material": {"merl": "x"}}, {})
+    (row,) = rows_of(render)
+    assert (row.metric, row.value, row.spp, row.config["source"]) == (
+        "render_seconds",
+        2.0,
+        4,
+        "merl",
+    )
+    assert rows_of(FakeSource("render", {}, {}, seconds=None)) == []
+    for kind in ("score", "train.brdf", "train.fabric", "train.btf", "evaluate.tss"):
+        assert rows_of(FakeSource(kind, {}, {})) == [], kind
+
+
+def test07_generators_measure_their_output() -> None:
+    glint = {
+        "example": {"type": "isotropic_noise", "size": 16},
+        "levels": 4,
+        "bytes": {"total": 4096},
+        "reference": {"bytes": 65536},
+        "memory_ratio": 0.0625,
+        "precompute_seconds": 0.5,
+    }
+    rows = by_metric(rows_of(FakeSource("generate.glint", {}, {"stats.json": glint})))
+    assert {k: r.value for k, r in rows.items()} == {
+        "bytes": 4096,
+        "reference_bytes": 65536,
+        "memory_ratio": 0.0625,
+        "precompute_seconds": 0.5,
+    }
+    assert rows["memory_ratio"].candidate == "isotropic_noise"
+    assert rows["memory_ratio"].lower_is_better is True
+    btf = {
+        "count": 10,
+        "resolution": [32, 32],
+        "spp": 16,
+        "stderr": {"mean": 0.01, "relative": 0.05},
+    }
+    rows = by_metric(rows_of(FakeSource("generate.btf", {"spp": 16}, {"btf.json": btf})))
+    assert {k: (r.value, r.spp) for k, r in rows.items()} == {
+        "stderr_mean": (0.01, 16),
+        "stderr_relative": (0.05, 16),
+    }
+    merl = {
+        "materials": [
+            {
+                "name": "gold",
+                "family": "metal",
+                "source": {"mitsuba": {}},
+                "tabulation": {"max_rel_error": 0.001, "bins": 90},
+            }
+        ]
+    }
+    rows = by_metric(rows_of(FakeSource("generate.merl", {}, {"materials.json": merl})))
+    assert {k: r.value for k, r in rows.items()} == {
+        "tabulation.max_rel_error": 0.001,
+        "tabulation.bins": 90,
+    }
+    stats = {"samples_per_second": 8.0e6, "seconds": 3.0, "backend": "drjit"}
+    rows = by_metric(rows_of(FakeSource("generate.fabric", {}, {"stats.json": stats})))
+    assert rows["samples_per_second"].lower_is_better is False
+    assert rows["seconds"].value == 3.0 and rows["seconds"].candidate == "drjit"
