@@ -247,9 +247,22 @@ def sphere_points(
     resolution: tuple[int, int],
     spp: int,
 ) -> dict[str, Any]:
-    """Unit sphere under point lights (by default :data:`SPHERE_LIGHTS`), black background."""
+    """Unit sphere under point lights (by default :data:`SPHERE_LIGHTS`), black background.
+
+    The sphere's pole points up (+y) and its uv seam (``phi = 0``) away from the default
+    camera: Mitsuba's sphere has its pole on local +z, which would face the camera, and a
+    texture (a BTF, Xu et al. Fig. 17's sphere) would converge to a pinwheel at the centre
+    of the view. Rotations leave the geometry, and so isotropic materials, unchanged.
+    """
     scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["sphere"] = {"type": "sphere", "bsdf": bsdf}
+    scene["sphere"] = {
+        "type": "sphere",
+        "bsdf": bsdf,
+        # Applied right to left: local +z (pole) to +y, then local +x (seam) to -z.
+        "to_world": mi.ScalarTransform4f()
+        .rotate([0.0, 1.0, 0.0], 90.0)
+        .rotate([1.0, 0.0, 0.0], -90.0),
+    }
     scene.update(_point_lights(lights))
     return scene
 
