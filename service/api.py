@@ -8,6 +8,7 @@ error                                       HTTP   body
 ==========================================  =====  ============================================
 ``SpecError``, request validation, bad JSON  422   ``{"detail": [{"loc", "msg"}], "error"}``
 ``FormatError`` (an upload)                  422   ``{"detail", "error"}``, naming the file
+``AmbiguousIdError`` (a short job id)        422   ``{"detail", "error"}``, listing matches
 ``NotFoundError``                            404   ``{"detail", "error"}``
 ``TooLargeError``, body over the limit       413   ``{"detail", "error"}``
 ``IntegrityError`` (corrupt object)          500   ``{"detail", "error"}``, never a traceback
@@ -43,7 +44,13 @@ from service.routes.dashboard import render_error_page, static_files
 from service.settings import Settings
 from service.specs import JobSpec
 from storage.artifacts import ArtifactStore
-from storage.errors import FormatError, IntegrityError, NotFoundError, TooLargeError
+from storage.errors import (
+    AmbiguousIdError,
+    FormatError,
+    IntegrityError,
+    NotFoundError,
+    TooLargeError,
+)
 from storage.jobs import JobStore
 
 log = logging.getLogger("matforge.api")
@@ -283,6 +290,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(SpecError, _spec_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(FormatError, _status_handler(422))
+    app.add_exception_handler(AmbiguousIdError, _status_handler(422))
     app.add_exception_handler(NotFoundError, _status_handler(404))
     app.add_exception_handler(TooLargeError, _status_handler(413))
     app.add_exception_handler(IntegrityError, _status_handler(500))

@@ -5,6 +5,7 @@ Routes and commands stay thin and call these functions.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,8 +18,9 @@ from service.specs import ValidSpec, validate_spec
 from service.workers.execution import execute, worker_id
 from service.workers.executors import make_executor
 from storage.artifacts import ArtifactStore
-from storage.errors import NotFoundError
+from storage.errors import AmbiguousIdError, NotFoundError
 from storage.formats import validate_file
+from storage.job_queries import resolve_job_id
 from storage.jobs import ArtifactRecord, Job, JobStore
 
 
@@ -56,9 +58,43 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
         raise SpecError(errors)
 
 
+#: ``job:<short id>/<name>``: a ref whose job id is a prefix (expanded before validation).
+SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)$")
+
+
+def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
+    """``raw`` with every ``job:<prefix>/<name>`` in its params written with the full job
+    id, so that a spec's identity (its hash) does not depend on how short the user typed
+    the id. Raises ``SpecError`` naming the field for an unknown or ambiguous prefix."""
+    if not isinstance(raw, dict) or not isinstance(raw.get("params"), dict):
+        return raw
+    errors: list[tuple[str, str]] = []
+
+    def expand(value: Any, loc: str) -> Any:
+        if isinstance(value, dict):
+            return {k: expand(v, f"{loc}.{k}") for k, v in value.items()}
+        if isinstance(value, list):
+            return [expand(v, f"{loc}.{i}") for i, v in enumerate(value)]
+        m = SHORT_JOB_REF.match(value) if isinstance(value, str) else None
+        if m is None:
+            return value
+        try:
+            return f"job:{resolve_job_id(jobs, m['job'])}{m['rest']}"
+        except (NotFoundError, AmbiguousIdError) as exc:
+            errors.append((loc, f"{value}: {exc}"))
+            return value
+
+    params = expand(raw["params"], "params")
+    if errors:
+        raise SpecError(errors)
+    return {**raw, "params": params}
+
+
 def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
-    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``."""
-    spec = validate_spec(raw)
+    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
+
+    Job refs in the params may use a unique prefix of the job id."""
+    spec = validate_spec(expand_short_refs(raw, jobs))
     check_refs(spec, jobs, store)
     return jobs.submit(
         kind=spec.kind,

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from storage.errors import NotFoundError
+from storage.job_queries import JOB_SORTS, job_filter
 from storage.job_records import (
     FINAL_STATES,
     STATES,
@@ -161,23 +162,37 @@ class JobStore:
             raise NotFoundError(f"no job {job_id!r}")
         return self._row_to_job(row)
 
+    def ids_with_prefix(self, prefix: str, limit: int = 6) -> list[str]:
+        """Up to ``limit`` job ids starting with ``prefix`` (lowercase hex), oldest first."""
+        rows = self._conn().execute(
+            "SELECT id FROM jobs WHERE id >= ? AND id < ? ORDER BY seq LIMIT ?",
+            (prefix, prefix + "g", limit),
+        )
+        return [r[0] for r in rows]
+
     def list_jobs(
-        self, state: str | None = None, kind: str | None = None, limit: int = 200, offset: int = 0
+        self,
+        state: str | None = None,
+        kind: str | None = None,
+        limit: int = 200,
+        offset: int = 0,
+        *,
+        name: str | None = None,
+        sort: str = "-created",
     ) -> list[Job]:
-        """Jobs, newest first, optionally filtered by state and kind."""
-        where, args = [], []
-        if state:
-            where.append("state=?")
-            args.append(state)
-        if kind:
-            where.append("kind=?")
-            args.append(kind)
-        sql = f"SELECT {_JOB_COLS} FROM jobs"
-        if where:
-            sql += " WHERE " + " AND ".join(where)
-        sql += " ORDER BY seq DESC LIMIT ? OFFSET ?"
+        """Jobs in the order ``sort`` names (a key of :data:`JOB_SORTS`; by default newest
+        first), filtered by state, kind and a case-insensitive substring of the name."""
+        where, args = job_filter(state=state, kind=kind, name=name)
+        sql = f"SELECT {_JOB_COLS} FROM jobs{where} ORDER BY {JOB_SORTS[sort]} LIMIT ? OFFSET ?"
         rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
         return [self._row_to_job(r, with_artifacts=False) for r in rows]
+
+    def count_jobs(
+        self, state: str | None = None, kind: str | None = None, *, name: str | None = None
+    ) -> int:
+        """How many jobs :meth:`list_jobs` would page through with these filters."""
+        where, args = job_filter(state=state, kind=kind, name=name)
+        return int(self._conn().execute(f"SELECT COUNT(*) FROM jobs{where}", args).fetchone()[0])
 
     def counts(self) -> dict[str, int]:
         rows = self._conn().execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()

@@ -167,9 +167,10 @@ def index(request: Request, cookie_token: PageAuth) -> Response:
 
 @router.get("/jobs/{job_id}", response_class=HTMLResponse)
 def job_page(
-    request: Request, job_id: JobId, cookie_token: PageAuth, jobs: JobsDep, store: StoreDep
+    request: Request, cookie_token: PageAuth, job_id: JobId, jobs: JobsDep, store: StoreDep
 ) -> Response:
-    """One job; ``static/js/job.js`` keeps state and progress live until it finishes."""
+    """One job; ``static/js/job.js`` keeps state and progress live until it finishes.
+    (``cookie_token`` comes first: the token is checked before the short id is looked up.)"""
     response = templates.TemplateResponse(request, "job.html", job_view(jobs.get(job_id), store))
     set_token_cookie(response, cookie_token)
     return response

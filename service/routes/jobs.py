@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi import APIRouter, Depends, Request, Response
 
 from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, StoreDep
-from service.schemas import ArtifactPublic, ErrorPublic, JobPublic, JobState
+from service.job_list import JobListDep
+from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
 from service.specs import parse_spec_text
 from service.submission import submit
 from service.summaries import job_summary
@@ -96,17 +97,14 @@ def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep
 
 
 @router.get("", response_model=list[JobPublic], summary="List jobs, newest first")
-def list_jobs(
-    jobs: JobsDep,
-    state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
-    kind: Annotated[str | None, Query(max_length=64, description="only this kind")] = None,
-    limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,
-    offset: Annotated[int, Query(ge=0, description="skip this many (paging)")] = 0,
-) -> Any:
-    """Jobs, newest first (without their artifact lists; see `GET /api/jobs/{id}`)."""
-    return [
-        j.document() for j in jobs.list_jobs(state=state, kind=kind, limit=limit, offset=offset)
-    ]
+def list_jobs(jobs: JobsDep, query: JobListDep, response: Response) -> Any:
+    """Jobs, newest first unless `sort` says otherwise (without their artifact lists; see
+    `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the
+    filters, for paging with `limit` and `offset`."""
+    q = query
+    response.headers["X-Total-Count"] = str(jobs.count_jobs(q.state, q.kind, name=q.name))
+    found = jobs.list_jobs(q.state, q.kind, q.limit, q.offset, name=q.name, sort=q.sort)
+    return [j.document() for j in found]
 
 
 @router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS, summary="A job")
