@@ -1,23 +1,56 @@
-/* The jobs list: polls /api/jobs and /api/stats every second. */
+/* The jobs list: polls /api/jobs (one page, filtered and sorted by the server) and
+   /api/stats every second. Filters, sort and page live in the address (?name=&state=&kind=
+   &sort=&page=), so a view can be bookmarked and shared. */
 "use strict";
 
 (() => {
   const POLL_MS = 1000;
+  const PAGE_SIZE = 50;
+  const SEARCH_DELAY_MS = 250;
   const body = document.getElementById("jobs-body");
   const statusLine = document.getElementById("status-line");
+  const nameInput = document.getElementById("f-name");
   const stateSelect = document.getElementById("f-state");
   const kindSelect = document.getElementById("f-kind");
   const chips = document.querySelectorAll("#counts .chip");
+  const headers = document.querySelectorAll("#jobs-table th[data-sort]");
+  const prev = document.getElementById("page-prev");
+  const next = document.getElementById("page-next");
+  const pageInfo = document.getElementById("page-info");
   let timer = null;
+  let searchTimer = null;
+  let total = 0;
 
-  const params = new URLSearchParams(window.location.search);
-  stateSelect.value = params.get("state") || "";
-  kindSelect.value = params.get("kind") || "";
+  const initial = new URLSearchParams(window.location.search);
+  nameInput.value = initial.get("name") || "";
+  stateSelect.value = initial.get("state") || "";
+  const urlKind = initial.get("kind") || "";
+  if (urlKind && ![...kindSelect.options].some((o) => o.value === urlKind)) {
+    // keep an unknown kind from the address as the filter: the API's 422 then names it
+    kindSelect.append(MF.el("option", { value: urlKind, text: `${urlKind} (unknown)` }));
+  }
+  kindSelect.value = urlKind;
+  let sort = initial.get("sort") || "-created";
+  let page = Math.max(1, parseInt(initial.get("page") || "1", 10) || 1);
 
-  function filters() {
+  /** The view's query (what the address bar shows). */
+  function viewQuery() {
     const q = new URLSearchParams();
+    if (nameInput.value.trim()) q.set("name", nameInput.value.trim());
     if (stateSelect.value) q.set("state", stateSelect.value);
     if (kindSelect.value) q.set("kind", kindSelect.value);
+    if (sort !== "-created") q.set("sort", sort);
+    if (page > 1) q.set("page", String(page));
+    return q;
+  }
+
+  /** The API's query for the current page. */
+  function apiQuery() {
+    const q = viewQuery();
+    q.delete("page");
+    q.set("sort", sort);
+    q.set("limit", String(PAGE_SIZE));
+    q.set("offset", String((page - 1) * PAGE_SIZE));
     return q;
   }
 
@@ -42,7 +75,7 @@
 
   function render(jobs) {
     if (!jobs.length) {
-      const filtered = stateSelect.value || kindSelect.value;
+      const filtered = nameInput.value.trim() || stateSelect.value || kindSelect.value;
       body.replaceChildren(MF.el("tr", { class: "empty" }, MF.el("td", {
         colspan: "7",
         text: filtered ? "No jobs match these filters." :
@@ -51,6 +84,21 @@
       return;
     }
     body.replaceChildren(...jobs.map(row));
+  }
+
+  function renderPager(shown) {
+    const first = total ? (page - 1) * PAGE_SIZE + 1 : 0;
+    pageInfo.textContent = total ? `${first}–${first + shown - 1} of ${total}` : "";
+    prev.disabled = page <= 1;
+    next.disabled = page * PAGE_SIZE >= total;
+  }
+
+  function renderSort() {
+    const key = sort.replace(/^-/, "");
+    for (const th of headers) {
+      const on = th.getAttribute("data-sort") === key;
+      th.setAttribute("aria-sort", on ? (sort.startsWith("-") ? "descending" : "ascending") : "none");
+    }
   }
 
   function renderCounts(stats) {
@@ -63,35 +111,74 @@
     }
   }
 
+  async function listJobs() {
+    const response = await fetch(`/api/jobs?${apiQuery()}`, {
+      credentials: "same-origin", headers: { Accept: "application/json" },
+    });
+    const body = await response.json().catch(() => null);
+    if (!response.ok) throw new Error((body && body.error) || `HTTP ${response.status}`);
+    total = parseInt(response.headers.get("X-Total-Count") || String(body.length), 10);
+    return body;
+  }
+
   async function refresh() {
-    const q = filters();
-    q.set("limit", "200");
     try {
-      const [jobs, stats] = await Promise.all([MF.api(`/api/jobs?${q}`), MF.api("/api/stats")]);
+      const [jobs, stats] = await Promise.all([listJobs(), MF.api("/api/stats")]);
+      if (!jobs.length && page > 1 && total > 0) {  // the page emptied: go to the last one
+        page = Math.ceil(total / PAGE_SIZE);
+        changed();
+        return;
+      }
       render(jobs);
+      renderPager(jobs.length);
       renderCounts(stats);
       statusLine.textContent = `live · updated ${new Date().toLocaleTimeString()}`;
     } catch (err) {
       statusLine.textContent = `cannot refresh: ${err.message}`;
+      body.replaceChildren(MF.el("tr", { class: "empty" }, MF.el("td", {
+        colspan: "7", class: "error", text: err.message,
+      })));
     }
     timer = window.setTimeout(refresh, POLL_MS);
   }
 
   function changed() {
-    const q = filters();
-    const query = q.toString();
+    const query = viewQuery().toString();
     window.history.replaceState(null, "", window.location.pathname + (query ? `?${query}` : ""));
+    renderSort();
     window.clearTimeout(timer);
     refresh();
   }
 
-  stateSelect.addEventListener("change", changed);
-  kindSelect.addEventListener("change", changed);
+  function refilter() {
+    page = 1;
+    changed();
+  }
+
+  nameInput.addEventListener("input", () => {
+    window.clearTimeout(searchTimer);
+    searchTimer = window.setTimeout(refilter, SEARCH_DELAY_MS);
+  });
+  stateSelect.addEventListener("change", refilter);
+  kindSelect.addEventListener("change", refilter);
   for (const chip of chips) {
     chip.addEventListener("click", () => {
       stateSelect.value = chip.getAttribute("data-state");
-      changed();
+      refilter();
     });
   }
+  for (const th of headers) {
+    th.querySelector("button").addEventListener("click", () => {
+      const key = th.getAttribute("data-sort");
+      const descFirst = key === "created" || key === "duration" || key === "progress";
+      if (sort === key) sort = `-${key}`;
+      else if (sort === `-${key}`) sort = key;
+      else sort = descFirst ? `-${key}` : key;
+      refilter();
+    });
+  }
+  prev.addEventListener("click", () => { page = Math.max(1, page - 1); changed(); });
+  next.addEventListener("click", () => { page += 1; changed(); });
+  renderSort();
   refresh();
 })();

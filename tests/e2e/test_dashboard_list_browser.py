@@ -1,0 +1,222 @@
+"""The job list and result tables in headless Chromium (issue 14 §3): search by name,
+sortable columns, paging past 200 jobs, an unknown filter named in the page, and a
+train.fabric-sized metrics table that stays on the page.
+
+The server, the browser page and its problem log come from
+:mod:`tests.e2e.test_dashboard_browser`; this module prepares its own data directory
+(230 jobs) and registers its own test kind in the server process.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from pydantic import Field
+
+from evaluators.metrics.tonemap import tonemap
+from jobapi import kinds as jobapi_kinds
+from jobapi.context import JobContext
+from jobapi.kinds import Kind
+from jobapi.params import StrictModel
+from service import kinds
+from service.settings import Settings
+from service.submission import submit
+from service.workers.worker import run_worker
+from storage.artifacts import ArtifactStore
+from storage.formats.png import write_png
+from storage.jobs import JobStore
+
+from .test_dashboard_browser import CHROMIUM, ROOT, SHOTS, TOKEN, page  # noqa: F401
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
+]
+
+N_QUEUED = 230
+
+
+class WideParams(StrictModel):
+    """Params of the test-only kind."""
+
+    size: int = Field(default=16, ge=4, le=64, description="preview side in pixels")
+
+
+def run_wide(params: WideParams, ctx: JobContext) -> None:
+    """A tiny preview and a metrics.json laid out as train.fabric writes it (every column)."""
+    from models.fabric.kind import FABRIC_COLUMNS
+
+    s = params.size
+    y, x = np.mgrid[0:s, 0:s].astype(np.float32) / s
+    ctx.put_bytes("preview.png", write_png(None, tonemap(np.stack([x, y, x * y], axis=-1))))
+
+    def material(i: int, name: str) -> dict[str, Any]:
+        values: dict[str, Any] = {"name": name, "pattern": "twill_3x3_long_pattern_name"}
+        for j, col in enumerate(FABRIC_COLUMNS[1:]):
+            values[col] = 1234.5678 * (i + 1) / (j + 1)
+        return values
+
+    mats = [material(i, f"fabric_material_with_a_long_name_{i}") for i in range(3)]
+    mean = {k: v for k, v in material(9, "mean").items() if k not in ("name", "pattern")}
+    ctx.put_json("metrics.json", {"materials": mats, "mean": mean, "settings": {}})
+
+
+def wide_kind() -> Kind:
+    """The test-only kind (the server registers it too: its page asks the summary hook)."""
+    from models.fabric.kind import summarize
+
+    return Kind(
+        name="test_wide",
+        params=WideParams,
+        runner=run_wide,
+        description="test-only kind with train.fabric's result table",
+        summary=summarize,
+    )
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """One finished ``test_wide`` job and 230 queued jobs named ``sample NNN``."""
+    kinds.load_builtin()
+    kind = wide_kind()
+    jobapi_kinds.register(kind)
+    data = tmp_path_factory.mktemp("dashboard-list") / "data"
+    (data / "scratch").mkdir(parents=True)
+    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
+    try:
+        done, _ = submit({"kind": kind.name, "name": "wide table", "params": {}}, jobs, store)
+        assert run_worker(settings, max_jobs=1) == 1
+        for i in range(N_QUEUED):
+            jobs.submit(
+                kind="render",
+                name=f"sample {i:03d}" if i % 10 else f"Special sample {i:03d}",
+                seed=i,
+                spec_hash=f"{i:064x}",
+                spec={"kind": "render", "seed": i, "params": {}},
+            )
+        yield {"data": data, "done": jobs.get(done.id), "jobs": jobs}
+    finally:
+        jobs.close()
+        jobapi_kinds._KINDS.pop(kind.name, None)
+
+
+@pytest.fixture(scope="module")
+def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``serve()`` on a free port, with a token and no workers; yields its URL."""
+    log_path = tmp_path_factory.mktemp("server-log") / "server.log"
+    code = (
+        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
+        "from service.server import serve; from service.settings import Settings; "
+        "from service import kinds; from jobapi.kinds import register; "
+        "from tests.e2e.test_dashboard_list_browser import wide_kind; "
+        "kinds.load_builtin(); register(wide_kind()); "
+        "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
+        "host='127.0.0.1', port=0, workers=0)"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
+    env["MATFORGE_TOKEN"] = TOKEN
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code, str(prepared["data"]), str(ROOT)],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    try:
+        url = None
+        deadline = time.monotonic() + 60
+        while url is None and time.monotonic() < deadline and proc.poll() is None:
+            m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
+            url = m.group(1).rstrip("/") if m else None
+            time.sleep(0.1)
+        assert url, f"server did not start:\n{log_path.read_text()}"
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def row_names(pg: Any) -> list[str]:
+    return [n.strip() for n in pg.locator("#jobs-body .job-name").all_inner_texts()]
+
+
+def test01_search_sort_and_pages(page: Any, server: str) -> None:  # noqa: F811
+    pg = page
+    pg.goto(f"{server}/?token={TOKEN}")
+    pg.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0")
+    assert len(row_names(pg)) == 50
+    assert row_names(pg)[0] == "sample 229"
+    assert pg.locator("#page-info").inner_text() == f"1–50 of {N_QUEUED + 1}"
+    # page past 200 jobs: the oldest appear on the last page
+    for _ in range(4):
+        pg.click("#page-next")
+    pg.wait_for_function("() => document.querySelector('#page-info').textContent.startsWith('201')")
+    pg.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length === 31")
+    assert row_names(pg)[-1] == "wide table" and "page=5" in pg.url
+    assert pg.locator("#page-next").is_disabled()
+    # sort by name, ascending then descending
+    pg.click('th[data-sort="name"] button')
+    pg.wait_for_function("() => document.querySelector('#page-info').textContent.startsWith('1–')")
+    pg.wait_for_function(
+        "() => document.querySelector('#jobs-body .job-name').textContent === 'sample 001'"
+    )
+    assert pg.locator('th[data-sort="name"]').get_attribute("aria-sort") == "ascending"
+    pg.click('th[data-sort="name"] button')
+    pg.wait_for_function(
+        "() => document.querySelector('#jobs-body .job-name').textContent === 'wide table'"
+    )
+    assert "sort=-name" in pg.url
+    # search by name (any case, part of it)
+    pg.fill("#f-name", "special")
+    pg.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length === 23")
+    assert all(n.startswith("Special sample") for n in row_names(pg))
+    assert "name=special" in pg.url and pg.locator("#page-info").inner_text() == "1–23 of 23"
+    pg.screenshot(path=str(SHOTS / "matforge-dashboard-list.png"), full_page=True)
+    assert pg.problems == [], pg.problems
+
+
+def test02_unknown_filter_is_named(page: Any, server: str) -> None:  # noqa: F811
+    page.goto(f"{server}/?kind=scor&token={TOKEN}")
+    page.wait_for_function(
+        "() => document.querySelector('#status-line').textContent.includes('kind')"
+    )
+    assert "unknown kind 'scor'" in page.locator("#status-line").inner_text()
+    page.problems[:] = [p for p in page.problems if "HTTP 422" not in p and "422" not in p]
+    assert page.problems == [], page.problems
+
+
+def test03_wide_metrics_table_stays_on_the_page(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+) -> None:
+    page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
+    table = page.locator("#metrics-table")
+    table.wait_for()
+    assert table.locator("thead th").count() >= 10
+    fits = page.evaluate(
+        """() => {
+            const t = document.querySelector('#metrics-table');
+            const wrap = t.parentElement;
+            return {table: t.scrollWidth, wrap: wrap.clientWidth,
+                    doc: document.documentElement.scrollWidth, win: window.innerWidth};
+        }"""
+    )
+    assert fits["table"] <= fits["wrap"] and fits["doc"] <= fits["win"], fits
+    page.screenshot(path=str(SHOTS / "matforge-dashboard-wide-table.png"), full_page=True)
+    assert page.problems == [], page.problems
