@@ -258,3 +258,29 @@ def test09_batch_parallel_and_continue_on_error(server: Server, tmp_path: Path) 
     stop = run_cli("batch", str(f), "--json", env=server.env())
     assert stop.returncode == 1, stop
     assert [r["state"] for r in stop.json()] == ["succeeded", "failed", "skipped", "skipped"]
+
+
+def test10_mitsuba_names_are_checked_before_queueing(idle: Server, tmp_path: Path) -> None:
+    """Issue 14 §6: a plugin typo or an unknown named conductor exits 2 and queues nothing;
+    a render without a material says which default it used."""
+    with idle.http() as http:
+        before = http.get("/api/jobs", params={"limit": 1}).headers["x-total-count"]
+    for material, needle in (
+        ({"type": "roughconductr"}, "did you mean 'roughconductor'"),
+        ({"type": "roughconductor", "material": "Gold"}, "did you mean 'Au'"),
+    ):
+        spec = spec_file(
+            tmp_path / "typo.json", {**render(900), "params": {"material": {"mitsuba": material}}}
+        )
+        res = run_cli("submit", str(spec), env=idle.env())
+        assert res.returncode == 2, res
+        assert "params.material" in res.stderr and needle in res.stderr, res
+    with idle.http() as http:
+        assert http.get("/api/jobs", params={"limit": 1}).headers["x-total-count"] == before
+    plain = {"kind": "render", "params": {"resolution": [16, 16], "spp": 2}}
+    data = ["--data-dir", str(tmp_path / "d")]
+    res = run_cli(
+        "run", str(spec_file(tmp_path / "plain.json", plain)), "--json", *data, env=idle.env()
+    )
+    assert res.returncode == 0, res
+    assert "default grey diffuse (reflectance 0.5)" in res.json()["message"]
