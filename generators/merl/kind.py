@@ -62,7 +62,7 @@ from generators.merl.collections import (
     draw_collection,
 )
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Axis, Figure, Kind, register
 from jobapi.params import StrictModel
 from jobapi.results import ArtifactReader, ResultTable, flatten, used_columns
 from materials.analytic import ANALYTIC_MODELS, build_analytic
@@ -489,5 +489,13 @@ register(
         artifacts=("*.binary", "*.png", "materials.json"),
         smoke={"source": {"analytic": {"model": "ggx", "alpha": 0.3, "material": "Au"}}},
         summary=summarize,
+        figures=(
+            Figure(
+                "*.png",
+                caption="Half/difference slice at φd = 90° (Burley 2012), Reinhard tone map.",
+                x=Axis("θh (square-root spacing)", "0°", "90°"),
+                y=Axis("θd", "0°", "90°"),
+            ),
+        ),
     )
 )

@@ -19,11 +19,13 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from markupsafe import Markup, escape
 from starlette.datastructures import Headers
 from starlette.requests import HTTPConnection
 from starlette.responses import JSONResponse
 from starlette.types import Receive, Scope, Send
 
+from jobapi.kinds import Figure
 from service import kinds
 from service.deps import (
     JobId,
@@ -82,9 +84,14 @@ def fmt_epoch(t: Any) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
 
+def breakable(name: Any) -> Markup:
+    """A column name that may wrap after its dots (``baseline.rgb.rel``), HTML-escaped."""
+    return Markup(escape(str(name)).replace(".", Markup(".<wbr>")))
+
+
 templates = Jinja2Templates(directory=DASHBOARD_DIR / "templates")
 templates.env.filters.update(
-    num=fmt_number, filesize=fmt_filesize, seconds=fmt_seconds, epoch=fmt_epoch
+    num=fmt_number, filesize=fmt_filesize, seconds=fmt_seconds, epoch=fmt_epoch, wbr=breakable
 )
 
 
@@ -119,9 +126,18 @@ def render_error_page(request: Request, status: int, message: str) -> Response:
     )
 
 
-def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
-    """Image previews: PNGs as they are, EXRs through the preview route; FLIP maps last."""
-    out = []
+def _figure(kind: str, name: str) -> Figure | None:
+    try:
+        return kinds.get_kind(kind).figure(name)
+    except KeyError:  # a kind no longer registered
+        return None
+
+
+def _images(artifacts: list[ArtifactRecord], kind: str = "") -> list[dict[str, Any]]:
+    """Image previews: PNGs as they are, EXRs through the preview route. The kind's lead
+    picture comes first (:attr:`jobapi.kinds.Figure.lead`), FLIP maps last; a picture the
+    kind describes as a plot carries its axes."""
+    out: list[dict[str, Any]] = []
     for a in artifacts:
         if a.media_type in IMAGE_TYPES:
             src = f"/api/artifacts/{a.digest}"
@@ -131,15 +147,20 @@ def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
             continue
         is_flip = Path(a.name).name.startswith("flip_")
         caption = a.name + (" (tone-mapped preview)" if src.endswith("preview.png") else "")
+        figure = _figure(kind, a.name)
         out.append(
             {
                 "name": a.name,
                 "src": src,
                 "caption": caption,
-                "group": "flip" if is_flip else "image",
+                "group": "flip" if is_flip else "lead" if figure and figure.lead else "image",
+                "note": figure.caption if figure else "",
+                "x": figure.x if figure else None,
+                "y": figure.y if figure else None,
             }
         )
-    return sorted(out, key=lambda i: (i["group"] == "flip", i["name"]))
+    order = {"lead": 0, "image": 1, "flip": 2}
+    return sorted(out, key=lambda i: (order[i["group"]], i["name"]))
 
 
 def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
@@ -150,7 +171,7 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
         "spec_json": json.dumps(job.spec, indent=2, sort_keys=True),
         "manifest": manifest if isinstance(manifest, dict) else None,
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
-        "images": _images(job.artifacts),
+        "images": _images(job.artifacts, job.kind),
         "metrics": job_summary(job, store),
     }
 

@@ -25,7 +25,7 @@ from pydantic import Field
 from evaluators.metrics.tonemap import tonemap
 from jobapi import kinds as jobapi_kinds
 from jobapi.context import JobContext
-from jobapi.kinds import Kind
+from jobapi.kinds import Axis, Figure, Kind
 from jobapi.params import StrictModel
 from service import kinds
 from service.settings import Settings
@@ -57,7 +57,9 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
 
     s = params.size
     y, x = np.mgrid[0:s, 0:s].astype(np.float32) / s
-    ctx.put_bytes("preview.png", write_png(None, tonemap(np.stack([x, y, x * y], axis=-1))))
+    ctx.put_bytes("slice.png", write_png(None, tonemap(np.stack([x, y, x * y], axis=-1))))
+    y, x = np.mgrid[0:100, 0:400].astype(np.float32) / 400
+    ctx.put_bytes("preview.png", write_png(None, tonemap(np.stack([x, x, y], axis=-1))))
 
     def material(i: int, name: str) -> dict[str, Any]:
         values: dict[str, Any] = {"name": name, "pattern": "twill_3x3_long_pattern_name"}
@@ -80,6 +82,10 @@ def wide_kind() -> Kind:
         runner=run_wide,
         description="test-only kind with train.fabric's result table",
         summary=summarize,
+        figures=(
+            Figure("preview.png", caption="the lead picture", lead=True),
+            Figure("slice*.png", x=Axis("θh", "0°", "90°"), y=Axis("θd", "0°", "90°")),
+        ),
     )
 
 
@@ -219,4 +225,33 @@ def test03_wide_metrics_table_stays_on_the_page(
     )
     assert fits["table"] <= fits["wrap"] and fits["doc"] <= fits["win"], fits
     page.screenshot(path=str(SHOTS / "matforge-dashboard-wide-table.png"), full_page=True)
+    assert page.problems == [], page.problems
+
+
+def test04_pictures_lead_axes_and_square_pixels(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+) -> None:
+    """Issue 14 §4: the kind's lead picture first at its full size, a plot with labelled
+    axes, and no upscaling blur on a small picture."""
+    page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('figure img')]"
+        ".every(i => i.complete && i.naturalWidth > 0)"
+    )
+    names = page.locator("figure[data-name]").evaluate_all("fs => fs.map(f => f.dataset.name)")
+    assert names[0] == "preview.png", names
+    lead = page.locator(".lead img")
+    assert lead.evaluate("i => [i.clientWidth, i.naturalWidth]") == [400, 400]
+    assert "the lead picture" in page.locator(".lead figcaption").inner_text()
+    plot = page.locator('figure[data-name="slice.png"]')
+    assert "θh" in plot.locator(".axis-x").inner_text()
+    assert "θd" in plot.locator(".axis-y").inner_text()
+    assert plot.locator(".axis-x span").first.inner_text() == "0°"
+    small = plot.locator("img")
+    assert small.evaluate("i => i.naturalWidth < i.clientWidth")
+    assert small.evaluate("i => getComputedStyle(i).imageRendering") == "pixelated"
+    assert lead.evaluate("i => getComputedStyle(i).imageRendering") != "pixelated"
+    page.screenshot(path=str(SHOTS / "matforge-dashboard-pictures.png"), full_page=True)
     assert page.problems == [], page.problems

@@ -14,6 +14,18 @@
 
   MF.localTimes();
 
+  /** Pictures shown larger than they are get square pixels, not a blur (small renders,
+      BRDF slices, FLIP maps of tiny images). */
+  function pixelate(img) {
+    img.classList.toggle("pixelated", img.naturalWidth > 0 && img.naturalWidth < img.clientWidth);
+  }
+  const pictures = document.querySelectorAll("figure img");
+  for (const img of pictures) {
+    if (img.complete) pixelate(img);
+    img.addEventListener("load", () => pixelate(img));
+  }
+  window.addEventListener("resize", () => pictures.forEach(pixelate));
+
   function show(job) {
     const pct = Math.round((job.progress || 0) * 100);
     stateBadge.className = `badge state-${job.state}`;

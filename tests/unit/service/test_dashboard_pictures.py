@@ -1,0 +1,38 @@
+"""How the job page orders and labels pictures (issue 14 §4), from the kinds' figures:
+generate.fabric's preview first (the lead picture), generate.merl's slices with axes."""
+
+from __future__ import annotations
+
+from service import kinds
+from service.routes.dashboard import _images, breakable
+from storage.jobs import ArtifactRecord
+
+
+def png(name: str) -> ArtifactRecord:
+    return ArtifactRecord(name=name, digest="0" * 64, size=1, media_type="image/png")
+
+
+def test01_fabric_preview_leads() -> None:
+    kinds.load_builtin()
+    arts = [png("a_map.png"), png("preview.png"), png("flip_x.png")]
+    images = _images(arts, "generate.fabric")
+    assert [i["name"] for i in images] == ["preview.png", "a_map.png", "flip_x.png"]
+    assert [i["group"] for i in images] == ["lead", "image", "flip"]
+    assert "Fig. 2" in images[0]["note"]
+    plain = _images(arts, "no.such.kind")  # an unregistered kind: names in order, no lead
+    assert [i["group"] for i in plain] == ["image", "image", "flip"]
+
+
+def test02_merl_slices_have_labelled_axes() -> None:
+    kinds.load_builtin()
+    (image,) = _images([png("gold.png")], "generate.merl")
+    assert image["x"].label.startswith("θh") and (image["x"].start, image["x"].end) == (
+        "0°",
+        "90°",
+    )
+    assert image["y"].label == "θd" and image["group"] == "image"
+
+
+def test03_column_names_break_after_dots() -> None:
+    assert str(breakable("baseline.rgb.rel")) == "baseline.<wbr>rgb.<wbr>rel"
+    assert str(breakable("<b>.x")) == "&lt;b&gt;.<wbr>x"
