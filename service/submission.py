@@ -5,7 +5,6 @@ Routes and commands stay thin and call these functions.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,7 @@ from jobapi.context import media_type_for
 from jobapi.errors import SpecError
 from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
-from service.specs import ValidSpec, validate_spec
+from service.specs import SHORT_JOB_REF, ValidSpec, validate_spec
 from service.workers.execution import execute, worker_id
 from service.workers.executors import make_executor
 from storage.artifacts import ArtifactStore
@@ -56,10 +55,6 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
             errors.append((loc, f"{value}: no such object in the store"))
     if errors:
         raise SpecError(errors)
-
-
-#: ``job:<short id>/<name>``: a ref whose job id is a prefix (expanded before validation).
-SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)$")
 
 
 def expand_short_refs(raw: Any, jobs: JobStore) -> Any:

@@ -76,7 +76,7 @@ def parse_ref(ref: str) -> tuple[str | None, str | None, str | None]:
     """``(job_id, artifact name, digest)`` of a ``job:`` or ``sha256:`` ref; the unused
     parts are ``None``. Raises :class:`BadInput` for anything else."""
     from jobapi.params import JOB_REF, SHA_REF
-    from service.submission import SHORT_JOB_REF
+    from service.specs import SHORT_JOB_REF
 
     m = JOB_REF.match(ref)
     if m:

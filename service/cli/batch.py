@@ -36,7 +36,13 @@ from typing import Any
 
 from jobapi.errors import SpecError
 from jobapi.results import ResultTable
-from service.specs import STEP_REF, load_spec_file, parse_spec_text, validate_spec
+from service.specs import (
+    SHORT_JOB_REF,
+    STEP_REF,
+    load_spec_file,
+    parse_spec_text,
+    validate_spec,
+)
 
 log = logging.getLogger("matforge.batch")
 
@@ -132,6 +138,19 @@ def substitute_refs(obj: Any, resolve: Callable[[str], str]) -> Any:
         return {k: substitute_refs(v, resolve) for k, v in obj.items()}
     if isinstance(obj, list):
         return [substitute_refs(v, resolve) for v in obj]
+    return obj
+
+
+def pad_short_job_refs(obj: Any) -> Any:
+    """A copy of ``obj`` with each ``job:<short id>/<name>`` padded to a full-length id, for
+    validating a spec here; the server resolves the prefix when the step is submitted."""
+    if isinstance(obj, str):
+        m = SHORT_JOB_REF.match(obj)
+        return f"job:{m['job'].ljust(32, '0')}{m['rest']}" if m else obj
+    if isinstance(obj, dict):
+        return {k: pad_short_job_refs(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [pad_short_job_refs(v) for v in obj]
     return obj
 
 
@@ -256,7 +275,7 @@ def parse_batch(
         if not ok:
             continue
         try:
-            valid = validate(substitute_refs(spec, _placeholder))
+            valid = validate(pad_short_job_refs(substitute_refs(spec, _placeholder)))
         except SpecError as exc:
             problems.extend(
                 f"{where}: {loc}: {msg}" if loc else f"{where}: {msg}" for loc, msg in exc.errors

@@ -473,3 +473,14 @@ def test_bare_step_ref_means_the_whole_job() -> None:
     assert m is not None and m["step"] == "tables" and m["name"] is None
     assert _placeholder("step:tables") == "job:" + _placeholder("step:t/x")[4:36]
     assert _placeholder("step:t/x").endswith("/x")
+
+
+def test_short_job_refs_pass_local_validation() -> None:
+    """A step may name an existing job by a unique prefix of its id (the server resolves
+    it on submission); the batch's own check sees a well-formed ref."""
+    from service.cli.batch import pad_short_job_refs
+
+    batch = parse({"steps": [{"name": "s", "spec": score("job:3f2a9c/image.exr")}]})
+    assert batch.steps[0].spec["params"]["reference"] == "job:3f2a9c/image.exr"  # kept as written
+    padded = pad_short_job_refs({"a": ["job:3f2a9c/x.exr", "job:" + "1" * 32 + "/y"]})
+    assert padded == {"a": ["job:3f2a9c" + "0" * 26 + "/x.exr", "job:" + "1" * 32 + "/y"]}
