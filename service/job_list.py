@@ -25,6 +25,7 @@ class JobListQuery:
     state: str | None = None
     kind: str | None = None
     name: str | None = None
+    batch: str | None = None
     sort: str = "-created"
     limit: int = 200
     offset: int = 0
@@ -52,6 +53,10 @@ def job_list_query(
         str | None,
         Query(max_length=200, description="only jobs whose name contains this (any case)"),
     ] = None,
+    batch: Annotated[
+        str | None,
+        Query(max_length=200, description="only jobs of this batch run (its exact label)"),
+    ] = None,
     sort: Annotated[
         str,
         Query(
@@ -71,7 +76,13 @@ def job_list_query(
     if sort not in JOB_SORTS:
         raise _unknown("sort", sort, list(JOB_SORTS))
     return JobListQuery(
-        state=state, kind=kind or None, name=name or None, sort=sort, limit=limit, offset=offset
+        state=state,
+        kind=kind or None,
+        name=name or None,
+        batch=batch or None,
+        sort=sort,
+        limit=limit,
+        offset=offset,
     )
 
 

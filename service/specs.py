@@ -41,6 +41,12 @@ class JobSpec(BaseModel):
     seed: int = Field(default=0, ge=0, le=MAX_SEED, strict=True)
     params: dict[str, Any] = Field(default_factory=dict)
     force: bool = False
+    batch: str | None = Field(
+        default=None,
+        max_length=200,
+        description="a label grouping jobs submitted together (`matforge batch` sets it); "
+        "like `name`, not part of the spec's identity",
+    )
 
 
 class ValidSpec(BaseModel):
@@ -53,6 +59,7 @@ class ValidSpec(BaseModel):
     seed: int
     force: bool
     params: BaseModel
+    batch: str | None = None
     canonical: str
     spec_hash: str
 
@@ -61,6 +68,8 @@ class ValidSpec(BaseModel):
         doc = json.loads(self.canonical)
         if self.name is not None:
             doc["name"] = self.name
+        if self.batch is not None:
+            doc["batch"] = self.batch
         return doc
 
 
@@ -114,6 +123,7 @@ def validate_spec(raw: Any) -> ValidSpec:
         name=env.name,
         seed=env.seed,
         force=env.force,
+        batch=env.batch,
         params=params,
         canonical=canonical,
         spec_hash=digest,

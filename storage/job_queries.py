@@ -39,11 +39,19 @@ def _like_escape(text: str) -> str:
 
 
 def job_filter(
-    *, state: str | None = None, kind: str | None = None, name: str | None = None
+    *,
+    state: str | None = None,
+    kind: str | None = None,
+    name: str | None = None,
+    batch: str | None = None,
 ) -> tuple[str, list[str]]:
     """``(" WHERE ...", args)`` for the list filters (``("", [])`` when none is set);
-    ``name`` matches any job whose name contains it, ignoring case."""
+    ``name`` matches any job whose name contains it, ignoring case; ``batch`` is the exact
+    batch label of the job's spec."""
     where, args = [], []
+    if batch:
+        where.append("json_extract(spec, '$.batch')=?")
+        args.append(batch)
     if state:
         where.append("state=?")
         args.append(state)

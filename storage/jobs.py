@@ -178,20 +178,26 @@ class JobStore:
         offset: int = 0,
         *,
         name: str | None = None,
+        batch: str | None = None,
         sort: str = "-created",
     ) -> list[Job]:
         """Jobs in the order ``sort`` names (a key of :data:`JOB_SORTS`; by default newest
         first), filtered by state, kind and a case-insensitive substring of the name."""
-        where, args = job_filter(state=state, kind=kind, name=name)
+        where, args = job_filter(state=state, kind=kind, name=name, batch=batch)
         sql = f"SELECT {_JOB_COLS} FROM jobs{where} ORDER BY {JOB_SORTS[sort]} LIMIT ? OFFSET ?"
         rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
         return [self._row_to_job(r, with_artifacts=False) for r in rows]
 
     def count_jobs(
-        self, state: str | None = None, kind: str | None = None, *, name: str | None = None
+        self,
+        state: str | None = None,
+        kind: str | None = None,
+        *,
+        name: str | None = None,
+        batch: str | None = None,
     ) -> int:
         """How many jobs :meth:`list_jobs` would page through with these filters."""
-        where, args = job_filter(state=state, kind=kind, name=name)
+        where, args = job_filter(state=state, kind=kind, name=name, batch=batch)
         return int(self._conn().execute(f"SELECT COUNT(*) FROM jobs{where}", args).fetchone()[0])
 
     def counts(self) -> dict[str, int]:

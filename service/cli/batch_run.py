@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -71,6 +72,7 @@ class _Run:
     outcome: BatchOutcome
     parallel: int
     continue_on_error: bool
+    label: str
     stopped: bool = False
 
     def result(self, i: int) -> StepResult:
@@ -102,6 +104,7 @@ class _Run:
         self.progress.start_task(task)  # the elapsed time counts from here
         try:
             spec = _resolve(step, self.by_name())
+            spec.setdefault("batch", self.label)
             doc, created = self.client.submit_created(spec)
         except ClientError as exc:
             self.fail(i, "error", str(exc), exc.exit_code)
@@ -148,15 +151,24 @@ def run_batch(
     poll_seconds: float = 0.5,
     parallel: int = 1,
     continue_on_error: bool = False,
+    label: str | None = None,
 ) -> BatchOutcome:
     """Run the steps with a progress bar each (see the module docstring for ``parallel``
-    and ``continue_on_error``); steps that never started stay ``skipped``."""
+    and ``continue_on_error``); steps that never started stay ``skipped``.
+
+    Each new job gets the batch run's ``label`` (default: the file's name and the UTC
+    time) as its spec's ``batch``, unless its spec sets one: the dashboard groups by it.
+    """
+    if label is None:
+        label = f"{Path(batch.source).name} {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime())}"
     outcome = BatchOutcome([StepResult(step=s.name, kind=s.kind) for s in batch.steps])
     with make_progress(console) as progress:
         tasks = [add_job_task(progress, f"{s.name} ({s.kind})", start=False) for s in batch.steps]
         for task in tasks:
             progress.update(task, state="pending")
-        run = _Run(batch, client, progress, tasks, outcome, max(1, parallel), continue_on_error)
+        run = _Run(
+            batch, client, progress, tasks, outcome, max(1, parallel), continue_on_error, label
+        )
         poller = Poller(client)
         pending = list(range(len(batch.steps)))
         running: dict[int, str] = {}

@@ -102,8 +102,11 @@ def list_jobs(jobs: JobsDep, query: JobListDep, response: Response) -> Any:
     `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the
     filters, for paging with `limit` and `offset`."""
     q = query
-    response.headers["X-Total-Count"] = str(jobs.count_jobs(q.state, q.kind, name=q.name))
-    found = jobs.list_jobs(q.state, q.kind, q.limit, q.offset, name=q.name, sort=q.sort)
+    total = jobs.count_jobs(q.state, q.kind, name=q.name, batch=q.batch)
+    response.headers["X-Total-Count"] = str(total)
+    found = jobs.list_jobs(
+        q.state, q.kind, q.limit, q.offset, name=q.name, batch=q.batch, sort=q.sort
+    )
     return [j.document() for j in found]
 
 

@@ -102,3 +102,18 @@ def test04_short_ids(client: TestClient) -> None:
     assert client.get("/api/jobs/XYZ").status_code == 422  # not hex at all
     unknown = "0" * 32 if not doc["id"].startswith("0") else "1" * 32
     assert client.get(f"/api/jobs/{unknown}").status_code == 404
+
+
+def test05_batch_label(client: TestClient) -> None:
+    """A spec's ``batch`` label groups jobs; like ``name`` it is not part of the identity."""
+    a = client.post("/api/jobs", json={**render(1), "batch": "run one"}).json()
+    b = client.post("/api/jobs", json={**render(2), "batch": "run one"}).json()
+    client.post("/api/jobs", json=render(3))
+    again = client.post("/api/jobs", json={**render(1), "batch": "run two"})
+    assert again.status_code == 200 and again.json()["id"] == a["id"]
+    assert again.json()["batch"] == "run one"  # the job keeps its first batch
+    got = client.get("/api/jobs", params={"batch": "run one"})
+    assert [j["id"] for j in got.json()] == [b["id"], a["id"]]
+    assert got.headers["x-total-count"] == "2"
+    assert client.get("/api/jobs", params={"batch": "run two"}).json() == []
+    assert a["batch"] == "run one" and a["spec"]["batch"] == "run one"

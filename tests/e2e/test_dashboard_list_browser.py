@@ -108,7 +108,8 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
                 name=f"sample {i:03d}" if i % 10 else f"Special sample {i:03d}",
                 seed=i,
                 spec_hash=f"{i:064x}",
-                spec={"kind": "render", "seed": i, "params": {}},
+                spec={"kind": "render", "seed": i, "params": {}}
+                | ({"batch": "nightly 2026-12-01"} if i >= N_QUEUED - 5 else {}),
             )
         yield {"data": data, "done": jobs.get(done.id), "jobs": jobs}
     finally:
@@ -254,4 +255,31 @@ def test04_pictures_lead_axes_and_square_pixels(
     assert small.evaluate("i => getComputedStyle(i).imageRendering") == "pixelated"
     assert lead.evaluate("i => getComputedStyle(i).imageRendering") != "pixelated"
     page.screenshot(path=str(SHOTS / "matforge-dashboard-pictures.png"), full_page=True)
+    assert page.problems == [], page.problems
+
+
+def test05_group_by_batch_with_thumbnails(page: Any, server: str) -> None:  # noqa: F811
+    page.goto(f"{server}/?token={TOKEN}")
+    page.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0")
+    page.check("#f-group")
+    page.wait_for_function("() => document.querySelectorAll('#jobs-body tr.group').length === 2")
+    labels = page.locator("#jobs-body tr.group .group-label").all_inner_texts()
+    assert labels == ["nightly 2026-12-01", "not in a batch"]
+    assert "group=1" in page.url
+    page.locator('tr.group[data-batch="nightly 2026-12-01"] button').click()
+    page.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length === 5")
+    assert "batch=nightly" in page.url and page.locator("#batch-filter").is_visible()
+    assert page.locator("#page-info").inner_text() == "1–5 of 5"
+    page.click("#batch-clear")
+    page.wait_for_function(
+        "() => document.querySelectorAll('#jobs-body tr[data-id]').length === 50"
+    )
+    # a succeeded job shows its preview as a thumbnail
+    page.fill("#f-name", "wide")
+    page.wait_for_function(
+        "() => { const i = document.querySelector('#jobs-body img.thumb');"
+        " return i && i.complete && i.naturalWidth > 0; }"
+    )
+    assert page.locator("#jobs-body tr[data-id]").count() == 1
+    page.screenshot(path=str(SHOTS / "matforge-dashboard-groups.png"), full_page=False)
     assert page.problems == [], page.problems

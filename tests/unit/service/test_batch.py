@@ -333,6 +333,8 @@ def test20_run_resolves_refs_and_flattens_metrics(tmp_path: Path) -> None:
     assert [r.state for r in outcome.results] == ["succeeded"] * 3
     params = client.submitted[2]["params"]
     assert params["reference"] == f"job:{1:032x}/image.exr"
+    labels = {spec["batch"] for spec in client.submitted}  # one batch run, one label
+    assert len(labels) == 1 and labels.pop().startswith("b.yaml ")
     assert params["candidates"] == {
         "a": f"job:{2:032x}/image.exr",
         "b": f"job:{2:032x}/preview.png",

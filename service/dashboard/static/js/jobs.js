@@ -17,6 +17,11 @@
   const prev = document.getElementById("page-prev");
   const next = document.getElementById("page-next");
   const pageInfo = document.getElementById("page-info");
+  const groupBox = document.getElementById("f-group");
+  const batchFilter = document.getElementById("batch-filter");
+  const batchName = document.getElementById("batch-name");
+  /** Thumbnail URL of a succeeded job (null: it has no picture), by job id. */
+  const thumbs = new Map();
   let timer = null;
   let searchTimer = null;
   let total = 0;
@@ -30,6 +35,8 @@
     kindSelect.append(MF.el("option", { value: urlKind, text: `${urlKind} (unknown)` }));
   }
   kindSelect.value = urlKind;
+  groupBox.checked = initial.get("group") === "1";
+  let batch = initial.get("batch") || "";
   let sort = initial.get("sort") || "-created";
   let page = Math.max(1, parseInt(initial.get("page") || "1", 10) || 1);
 
@@ -39,6 +46,8 @@
     if (nameInput.value.trim()) q.set("name", nameInput.value.trim());
     if (stateSelect.value) q.set("state", stateSelect.value);
     if (kindSelect.value) q.set("kind", kindSelect.value);
+    if (batch) q.set("batch", batch);
+    if (groupBox.checked) q.set("group", "1");
     if (sort !== "-created") q.set("sort", sort);
     if (page > 1) q.set("page", String(page));
     return q;
@@ -48,20 +57,54 @@
   function apiQuery() {
     const q = viewQuery();
     q.delete("page");
+    q.delete("group");
     q.set("sort", sort);
     q.set("limit", String(PAGE_SIZE));
     q.set("offset", String((page - 1) * PAGE_SIZE));
     return q;
   }
 
+  /** The picture to show small for a job: its preview.png, else its first image that is
+      not a FLIP map (an EXR through its tone-mapped preview). */
+  function pickThumb(artifacts) {
+    const images = artifacts.filter((a) => !a.name.split("/").pop().startsWith("flip_"));
+    const png = images.find((a) => a.name === "preview.png") ||
+      images.find((a) => a.media_type === "image/png" || a.media_type === "image/jpeg");
+    if (png) return `/api/artifacts/${png.digest}`;
+    const exr = images.find((a) => a.media_type === "image/x-exr");
+    return exr ? `/api/artifacts/${exr.digest}/preview.png` : null;
+  }
+
+  /** Look up the thumbnails of succeeded jobs not seen yet (a finished job's artifacts
+      never change, so each is asked for once). */
+  function loadThumbs(jobs) {
+    for (const job of jobs) {
+      if (job.state !== "succeeded" || thumbs.has(job.id)) continue;
+      thumbs.set(job.id, null);
+      MF.api(`/api/jobs/${job.id}/artifacts`).then((arts) => {
+        const src = pickThumb(arts);
+        thumbs.set(job.id, src);
+        const cell = body.querySelector(`tr[data-id="${job.id}"] .thumb-slot`);
+        if (src && cell) cell.replaceChildren(thumb(src));
+      }).catch(() => thumbs.delete(job.id));
+    }
+  }
+
+  function thumb(src) {
+    return MF.el("img", { class: "thumb", src, alt: "", loading: "lazy" });
+  }
+
   function row(job) {
     const title = job.name || job.kind;
     const failed = job.state === "failed" && job.error;
+    const src = thumbs.get(job.id);
     return MF.el(
       "tr", { "data-id": job.id, "data-state": job.state },
-      MF.el("td", {},
-        MF.el("a", { class: "job-name", href: `/jobs/${job.id}`, text: title }),
-        MF.el("span", { class: "job-id", text: job.id.slice(0, 12) })),
+      MF.el("td", {}, MF.el("div", { class: "job-cell" },
+        MF.el("span", { class: "thumb-slot" }, src ? thumb(src) : null),
+        MF.el("span", {},
+          MF.el("a", { class: "job-name", href: `/jobs/${job.id}`, text: title }),
+          MF.el("span", { class: "job-id", text: job.id.slice(0, 12) })))),
       MF.el("td", { text: job.kind }),
       MF.el("td", {}, MF.badge(job.state)),
       MF.el("td", {}, MF.progress(job)),
@@ -75,7 +118,7 @@
 
   function render(jobs) {
     if (!jobs.length) {
-      const filtered = nameInput.value.trim() || stateSelect.value || kindSelect.value;
+      const filtered = nameInput.value.trim() || stateSelect.value || kindSelect.value || batch;
       body.replaceChildren(MF.el("tr", { class: "empty" }, MF.el("td", {
         colspan: "7",
         text: filtered ? "No jobs match these filters." :
@@ -83,7 +126,29 @@
       })));
       return;
     }
-    body.replaceChildren(...jobs.map(row));
+    if (!groupBox.checked) {
+      body.replaceChildren(...jobs.map(row));
+      return;
+    }
+    const groups = new Map();  // batch label (or "") -> jobs, in order of first appearance
+    for (const job of jobs) {
+      const key = job.batch || "";
+      if (!groups.has(key)) groups.set(key, []);
+      groups.get(key).push(job);
+    }
+    const rows = [];
+    for (const [label, members] of groups) {
+      const head = MF.el("td", { colspan: "7" },
+        MF.el("span", { class: "group-label", text: label || "not in a batch" }),
+        MF.el("span", { class: "muted small", text: ` · ${members.length} job(s) on this page` }));
+      if (label) {
+        const only = MF.el("button", { type: "button", class: "btn btn-small", text: "only this batch" });
+        only.addEventListener("click", () => { batch = label; refilter(); });
+        head.append(" ", only);
+      }
+      rows.push(MF.el("tr", { class: "group", "data-batch": label }, head), ...members.map(row));
+    }
+    body.replaceChildren(...rows);
   }
 
   function renderPager(shown) {
@@ -130,6 +195,7 @@
         return;
       }
       render(jobs);
+      loadThumbs(jobs);
       renderPager(jobs.length);
       renderCounts(stats);
       statusLine.textContent = `live · updated ${new Date().toLocaleTimeString()}`;
@@ -146,6 +212,8 @@
     const query = viewQuery().toString();
     window.history.replaceState(null, "", window.location.pathname + (query ? `?${query}` : ""));
     renderSort();
+    batchFilter.hidden = !batch;
+    batchName.textContent = batch;
     window.clearTimeout(timer);
     refresh();
   }
@@ -159,6 +227,8 @@
     window.clearTimeout(searchTimer);
     searchTimer = window.setTimeout(refilter, SEARCH_DELAY_MS);
   });
+  groupBox.addEventListener("change", changed);
+  document.getElementById("batch-clear").addEventListener("click", () => { batch = ""; refilter(); });
   stateSelect.addEventListener("change", refilter);
   kindSelect.addEventListener("change", refilter);
   for (const chip of chips) {
@@ -180,5 +250,7 @@
   prev.addEventListener("click", () => { page = Math.max(1, page - 1); changed(); });
   next.addEventListener("click", () => { page += 1; changed(); });
   renderSort();
+  batchFilter.hidden = !batch;
+  batchName.textContent = batch;
   refresh();
 })();
