@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from service.routes import artifacts, dashboard, jobs, meta
+from service.routes import artifacts, compare, dashboard, jobs, meta
 
 ROUTERS: tuple[APIRouter, ...] = (
     meta.health_router,
@@ -13,6 +13,7 @@ ROUTERS: tuple[APIRouter, ...] = (
     jobs.router,
     artifacts.router,
     dashboard.router,
+    compare.router,
 )
 
-__all__ = ["ROUTERS", "artifacts", "dashboard", "jobs", "meta"]
+__all__ = ["ROUTERS", "artifacts", "compare", "dashboard", "jobs", "meta"]

@@ -133,7 +133,7 @@ def _figure(kind: str, name: str) -> Figure | None:
         return None
 
 
-def _images(artifacts: list[ArtifactRecord], kind: str = "") -> list[dict[str, Any]]:
+def picture_views(artifacts: list[ArtifactRecord], kind: str = "") -> list[dict[str, Any]]:
     """Image previews: PNGs as they are, EXRs through the preview route. The kind's lead
     picture comes first (:attr:`jobapi.kinds.Figure.lead`), FLIP maps last; a picture the
     kind describes as a plot carries its axes."""
@@ -171,7 +171,7 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
         "spec_json": json.dumps(job.spec, indent=2, sort_keys=True),
         "manifest": manifest if isinstance(manifest, dict) else None,
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
-        "images": _images(job.artifacts, job.kind),
+        "images": picture_views(job.artifacts, job.kind),
         "metrics": job_summary(job, store),
     }
 

@@ -32,6 +32,7 @@ from service.settings import Settings
 from service.submission import submit
 from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
+from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
 from storage.jobs import JobStore
 
@@ -60,6 +61,8 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
     ctx.put_bytes("slice.png", write_png(None, tonemap(np.stack([x, y, x * y], axis=-1))))
     y, x = np.mgrid[0:100, 0:400].astype(np.float32) / 400
     ctx.put_bytes("preview.png", write_png(None, tonemap(np.stack([x, x, y], axis=-1))))
+    hdr = np.stack([x, y, 1 - x], axis=-1).astype(np.float32) * (s / 16.0) ** 2
+    ctx.put_bytes("image.exr", exr_bytes(hdr[:, ::8][:24] * 4.0))  # (24, 50, 3) linear
 
     def material(i: int, name: str) -> dict[str, Any]:
         values: dict[str, Any] = {"name": name, "pattern": "twill_3x3_long_pattern_name"}

@@ -4,7 +4,7 @@ generate.fabric's preview first (the lead picture), generate.merl's slices with 
 from __future__ import annotations
 
 from service import kinds
-from service.routes.dashboard import _images, breakable
+from service.routes.dashboard import breakable, picture_views
 from storage.jobs import ArtifactRecord
 
 
@@ -15,17 +15,17 @@ def png(name: str) -> ArtifactRecord:
 def test01_fabric_preview_leads() -> None:
     kinds.load_builtin()
     arts = [png("a_map.png"), png("preview.png"), png("flip_x.png")]
-    images = _images(arts, "generate.fabric")
+    images = picture_views(arts, "generate.fabric")
     assert [i["name"] for i in images] == ["preview.png", "a_map.png", "flip_x.png"]
     assert [i["group"] for i in images] == ["lead", "image", "flip"]
     assert "Fig. 2" in images[0]["note"]
-    plain = _images(arts, "no.such.kind")  # an unregistered kind: names in order, no lead
+    plain = picture_views(arts, "no.such.kind")  # an unregistered kind: names in order, no lead
     assert [i["group"] for i in plain] == ["image", "image", "flip"]
 
 
 def test02_merl_slices_have_labelled_axes() -> None:
     kinds.load_builtin()
-    (image,) = _images([png("gold.png")], "generate.merl")
+    (image,) = picture_views([png("gold.png")], "generate.merl")
     assert image["x"].label.startswith("θh") and (image["x"].start, image["x"].end) == (
         "0°",
         "90°",

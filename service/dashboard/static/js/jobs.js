@@ -20,6 +20,10 @@
   const groupBox = document.getElementById("f-group");
   const batchFilter = document.getElementById("batch-filter");
   const batchName = document.getElementById("batch-name");
+  const compareButton = document.getElementById("compare-btn");
+  const compareClear = document.getElementById("compare-clear");
+  /** Jobs ticked for the compare view (kept across pages and refreshes). */
+  const picked = new Set();
   /** Thumbnail URL of a succeeded job (null: it has no picture), by job id. */
   const thumbs = new Map();
   let timer = null;
@@ -94,6 +98,23 @@
     return MF.el("img", { class: "thumb", src, alt: "", loading: "lazy" });
   }
 
+  function renderPicked() {
+    compareButton.textContent = `Compare selected (${picked.size})`;
+    compareButton.disabled = picked.size < 2;
+    compareClear.hidden = picked.size === 0;
+  }
+
+  function pickBox(job) {
+    const box = MF.el("input", { type: "checkbox", class: "pick", value: job.id,
+                                 "aria-label": `select ${job.name || job.kind} to compare`,
+                                 checked: picked.has(job.id) });
+    box.addEventListener("change", () => {
+      if (box.checked) picked.add(job.id); else picked.delete(job.id);
+      renderPicked();
+    });
+    return box;
+  }
+
   function row(job) {
     const title = job.name || job.kind;
     const failed = job.state === "failed" && job.error;
@@ -101,6 +122,7 @@
     return MF.el(
       "tr", { "data-id": job.id, "data-state": job.state },
       MF.el("td", {}, MF.el("div", { class: "job-cell" },
+        pickBox(job),
         MF.el("span", { class: "thumb-slot" }, src ? thumb(src) : null),
         MF.el("span", {},
           MF.el("a", { class: "job-name", href: `/jobs/${job.id}`, text: title }),
@@ -144,7 +166,9 @@
       if (label) {
         const only = MF.el("button", { type: "button", class: "btn btn-small", text: "only this batch" });
         only.addEventListener("click", () => { batch = label; refilter(); });
-        head.append(" ", only);
+        const compare = MF.el("a", { class: "btn btn-small", text: "compare this batch",
+                                     href: `/compare?batch=${encodeURIComponent(label)}` });
+        head.append(" ", only, " ", compare);
       }
       rows.push(MF.el("tr", { class: "group", "data-batch": label }, head), ...members.map(row));
     }
@@ -226,6 +250,14 @@
   nameInput.addEventListener("input", () => {
     window.clearTimeout(searchTimer);
     searchTimer = window.setTimeout(refilter, SEARCH_DELAY_MS);
+  });
+  compareButton.addEventListener("click", () => {
+    window.location.href = `/compare?jobs=${[...picked].map((id) => id.slice(0, 12)).join(",")}`;
+  });
+  compareClear.addEventListener("click", () => {
+    picked.clear();
+    for (const box of body.querySelectorAll("input.pick")) box.checked = false;
+    renderPicked();
   });
   groupBox.addEventListener("change", changed);
   document.getElementById("batch-clear").addEventListener("click", () => { batch = ""; refilter(); });
