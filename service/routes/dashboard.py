@@ -35,6 +35,7 @@ from service.deps import (
     request_authorized,
     set_token_cookie,
 )
+from service.metric_directions import best_labels, direction
 from service.summaries import job_summary, read_json
 from storage.artifacts import ArtifactStore
 from storage.jobs import STATES, ArtifactRecord, Job
@@ -163,6 +164,19 @@ def picture_views(artifacts: list[ArtifactRecord], kind: str = "") -> list[dict[
     return sorted(out, key=lambda i: (order[i["group"]], i["name"]))
 
 
+def _with_directions(table: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The result table with each column's better direction and its best row, for the
+    table's highlight and the charts (see :mod:`service.metric_directions`)."""
+    if not table:
+        return table
+    names = list(table.get("names") or [])
+    return {
+        **table,
+        "better": {n: direction(n) for n in names},
+        "best": best_labels(table.get("rows") or {}, names),
+    }
+
+
 def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
     manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
@@ -172,7 +186,7 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
         "manifest": manifest if isinstance(manifest, dict) else None,
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
         "images": picture_views(job.artifacts, job.kind),
-        "metrics": job_summary(job, store),
+        "metrics": _with_directions(job_summary(job, store)),
     }
 
 

@@ -272,6 +272,10 @@ def test02_job_page(page: Any, server: str, prepared: dict[str, Any]) -> None:
     assert any(s.endswith("/preview.png") and "/api/artifacts/" in s for s in srcs)
     assert page.locator("#metrics-table tbody tr").count() == 2
     assert page.locator("#metrics-charts canvas").count() == 3
+    # PSNR (higher is better) does not start at 0; FLIP (an error) does
+    scale = "c => Chart.getChart(c).scales.y.min"
+    assert page.locator('canvas[data-metric="psnr"]').evaluate(scale) > 0
+    assert page.locator('canvas[data-metric="flip"]').evaluate(scale) == 0
     assert "numpy" in page.locator("table.packages").inner_text()
     assert '"test_gallery"' in page.locator("pre.code").first.inner_text()
     page.screenshot(path=str(SHOTS / "matforge-dashboard-job.png"), full_page=True)

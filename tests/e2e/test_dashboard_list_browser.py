@@ -68,6 +68,7 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
         values: dict[str, Any] = {"name": name, "pattern": "twill_3x3_long_pattern_name"}
         for j, col in enumerate(FABRIC_COLUMNS[1:]):
             values[col] = 1234.5678 * (i + 1) / (j + 1)
+        values["queries"] = 20480  # the same for every material: no chart
         return values
 
     mats = [material(i, f"fabric_material_with_a_long_name_{i}") for i in range(3)]
@@ -285,4 +286,33 @@ def test05_group_by_batch_with_thumbnails(page: Any, server: str) -> None:  # no
     )
     assert page.locator("#jobs-body tr[data-id]").count() == 1
     page.screenshot(path=str(SHOTS / "matforge-dashboard-groups.png"), full_page=False)
+    assert page.problems == [], page.problems
+
+
+def test06_charts_fit_the_data(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+) -> None:
+    """Issue 14 §2: no chart for a constant column, a metric's baseline beside it, the best
+    row highlighted and the better direction named."""
+    page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
+    page.locator("#metrics-charts canvas").first.wait_for()
+    charts = page.locator("#metrics-charts canvas")
+    metrics = charts.evaluate_all("cs => cs.map(c => c.dataset.metric)")
+    assert "queries" not in metrics and "pattern" not in metrics  # constant, text
+    assert "loss" in metrics and "baseline.loss" not in metrics
+    loss = page.locator('canvas[data-metric="loss"]')
+    info = loss.evaluate(
+        "c => { const ch = Chart.getChart(c); return {sets: ch.data.datasets.map(d => d.label),"
+        " title: ch.options.plugins.title.text, best: ch.options.plugins.subtitle.text}; }"
+    )
+    assert info["sets"] == ["model", "baseline"], info
+    assert info["title"] == "loss (lower is better ↓)"
+    assert info["best"] == "best: fabric_material_with_a_long_name_0"
+    best = page.locator("#metrics-table td.best")
+    assert best.count() >= 5
+    row = page.locator("#metrics-table tbody tr").first
+    assert row.locator("td.best").count() >= 5  # the first material is best on every error
+    assert "↓" in page.locator("#metrics-table thead").inner_text()
     assert page.problems == [], page.problems
