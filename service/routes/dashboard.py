@@ -177,6 +177,12 @@ def _with_directions(table: dict[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
+#: JSON artifacts the job page draws as interactive charts (``static/js/plots.js``), by
+#: name: ``curves.json`` (series against ``step``) and ``pareto.json`` (cost against
+#: accuracy per configuration, with the front).
+PLOTTED = ("curves.json", "pareto.json")
+
+
 def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
     manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
@@ -187,6 +193,11 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
         "images": picture_views(job.artifacts, job.kind),
         "metrics": _with_directions(job_summary(job, store)),
+        "plots": {
+            a.name.removesuffix(".json"): f"/api/artifacts/{a.digest}"
+            for a in job.artifacts
+            if a.name in PLOTTED
+        },
     }
 
 

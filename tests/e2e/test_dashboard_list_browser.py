@@ -44,6 +44,8 @@ pytestmark = [
 ]
 
 N_QUEUED = 230
+#: The run of the chart's beaten point: clicking it opens this job's page (there is none).
+OTHER_RUN = "job:" + "ab" * 16
 
 
 class WideParams(StrictModel):
@@ -71,6 +73,31 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
         values["queries"] = 20480  # the same for every material: no chart
         return values
 
+    steps = list(range(10, 210, 10))
+    ctx.put_json(
+        "curves.json",
+        {
+            "step": steps,
+            "loss": [10.0 / k for k in steps],
+            "mse": {"C_warp": [1.0 / k for k in steps], "S_warp": [2.0 / k for k in steps]},
+            "lr": [1e-3 * 0.99**k for k in steps],
+        },
+    )
+    run = f"job:{ctx.job_id}"
+    ctx.put_json(
+        "pareto.json",
+        {
+            "points": [
+                {"config": "hybrid 16x3", "model": "hybrid", "ns_per_eval": 2.0,
+                 "smape_mean": 0.20, "smape_std": 0.02, "pareto": True, "runs": [run]},
+                {"config": "hybrid 32x3", "model": "hybrid", "ns_per_eval": 100.0,
+                 "smape_mean": 0.12, "smape_std": 0.01, "pareto": True, "runs": [run]},
+                {"config": "neural 16x3", "model": "neural", "ns_per_eval": 30.0,
+                 "smape_mean": 0.30, "smape_std": 0.05, "pareto": False, "runs": [OTHER_RUN]},
+            ],
+            "front": ["hybrid 16x3", "hybrid 32x3"],
+        },
+    )  # fmt: skip
     mats = [material(i, f"fabric_material_with_a_long_name_{i}") for i in range(3)]
     mean = {k: v for k, v in material(9, "mean").items() if k not in ("name", "pattern")}
     ctx.put_json("metrics.json", {"materials": mats, "mean": mean, "settings": {}})
@@ -316,3 +343,54 @@ def test06_charts_fit_the_data(
     assert row.locator("td.best").count() >= 5  # the first material is best on every error
     assert "↓" in page.locator("#metrics-table thead").inner_text()
     assert page.problems == [], page.problems
+
+
+def test07_curves_and_pareto_charts(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+) -> None:
+    """Issue 14 §2: curves.json and pareto.json drawn with Chart.js: the front highlighted,
+    seed spread as error bars, the configuration on hover, its run's job on click."""
+    job_id = prepared["done"].id
+    page.goto(f"{server}/jobs/{job_id}?token={TOKEN}")
+    page.wait_for_function(
+        "() => Chart.getChart(document.getElementById('curves-chart'))"
+        " && Chart.getChart(document.getElementById('pareto-chart'))"
+    )
+    sets = page.locator("#curves-chart").evaluate(
+        "c => Chart.getChart(c).data.datasets.map(d => d.label)"
+    )
+    assert sets == ["loss", "mse.C_warp", "mse.S_warp", "lr"]
+    scales = page.locator("#curves-chart").evaluate(
+        "c => { const s = Chart.getChart(c).scales; return [s.y.type, s.lr.type]; }"
+    )
+    assert scales == ["logarithmic", "logarithmic"]  # the losses span decades
+    pareto = page.locator("#pareto-chart")
+    info = pareto.evaluate(
+        "c => { const ch = Chart.getChart(c); return {sets: ch.data.datasets.map(d =>"
+        " [d.label, d.data.length]), x: ch.scales.x.type}; }"
+    )
+    assert info["sets"] == [["front", 2], ["on the front", 2], ["beaten", 1]]
+    assert info["x"] == "logarithmic"  # 2 to 100 ns: over a decade
+    # hover the beaten point: its configuration shows
+    where = pareto.evaluate(
+        "c => { const ch = Chart.getChart(c); const p = ch.getDatasetMeta(2).data[0];"
+        " return {x: p.x, y: p.y}; }"
+    )
+    pareto.scroll_into_view_if_needed()
+    box = pareto.bounding_box()
+    assert box is not None
+    page.mouse.move(box["x"] + where["x"], box["y"] + where["y"])
+    page.wait_for_function(
+        "() => Chart.getChart(document.getElementById('pareto-chart'))"
+        ".tooltip.getActiveElements().length > 0"
+    )
+    title = pareto.evaluate("c => Chart.getChart(c).tooltip.title")
+    assert title == ["neural 16x3"]
+    page.screenshot(path=str(SHOTS / "matforge-pareto.png"), full_page=True)
+    assert page.problems == [], page.problems
+    # click: the point's run (a job this server does not have: its 404 page)
+    page.mouse.click(box["x"] + where["x"], box["y"] + where["y"])
+    page.wait_for_url(f"**/jobs/{OTHER_RUN[4:]}", timeout=10_000)
+    page.problems.clear()
