@@ -26,6 +26,7 @@ from starlette.responses import JSONResponse
 from starlette.types import Receive, Scope, Send
 
 from jobapi.kinds import Figure
+from jobapi.params import JOB_REF, SHA_REF
 from service import kinds
 from service.deps import (
     JobId,
@@ -38,7 +39,8 @@ from service.deps import (
 from service.metric_directions import best_labels, direction
 from service.summaries import job_summary, read_json
 from storage.artifacts import ArtifactStore
-from storage.jobs import STATES, ArtifactRecord, Job
+from storage.errors import NotFoundError
+from storage.jobs import STATES, ArtifactRecord, Job, JobStore
 
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
 router = APIRouter(include_in_schema=False)
@@ -177,13 +179,45 @@ def _with_directions(table: dict[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
+def _param_strings(obj: Any, path: str = "") -> list[tuple[str, str]]:
+    if isinstance(obj, str):
+        return [(path, obj)]
+    if isinstance(obj, dict):
+        return [x for k, v in obj.items() for x in _param_strings(v, f"{path}.{k}" if path else k)]
+    if isinstance(obj, list):
+        return [x for i, v in enumerate(obj) for x in _param_strings(v, f"{path}.{i}")]
+    return []
+
+
+def input_pictures(job: Job, jobs: JobStore) -> list[dict[str, Any]]:
+    """The pictures a job's params refer to (a score's reference and candidates, say),
+    each labelled with its param and linked to the job that made it; a ``reference``
+    first."""
+    out = []
+    for loc, value in _param_strings(job.spec.get("params") or {}):
+        m, record, source = JOB_REF.match(value), None, None
+        try:
+            if m:
+                record, source = jobs.artifact(m["job"], m["name"]), m["job"]
+            elif (s := SHA_REF.match(value)) is not None:
+                record = jobs.find_digest(s["digest"])
+        except NotFoundError:
+            continue
+        if record is None:
+            continue
+        views = picture_views([record])
+        if views:
+            out.append({**views[0], "param": loc, "job": source, "ref": value})
+    return sorted(out, key=lambda i: (i["param"].split(".")[0] != "reference", i["param"]))
+
+
 #: JSON artifacts the job page draws as interactive charts (``static/js/plots.js``), by
 #: name: ``curves.json`` (series against ``step``) and ``pareto.json`` (cost against
 #: accuracy per configuration, with the front).
 PLOTTED = ("curves.json", "pareto.json")
 
 
-def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
+def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
     manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
     return {
@@ -192,6 +226,7 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
         "manifest": manifest if isinstance(manifest, dict) else None,
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
         "images": picture_views(job.artifacts, job.kind),
+        "inputs": input_pictures(job, jobs) if jobs is not None else [],
         "metrics": _with_directions(job_summary(job, store)),
         "plots": {
             a.name.removesuffix(".json"): f"/api/artifacts/{a.digest}"
@@ -217,6 +252,7 @@ def job_page(
 ) -> Response:
     """One job; ``static/js/job.js`` keeps state and progress live until it finishes.
     (``cookie_token`` comes first: the token is checked before the short id is looked up.)"""
-    response = templates.TemplateResponse(request, "job.html", job_view(jobs.get(job_id), store))
+    view = job_view(jobs.get(job_id), store, jobs)
+    response = templates.TemplateResponse(request, "job.html", view)
     set_token_cookie(response, cookie_token)
     return response

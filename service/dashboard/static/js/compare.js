@@ -126,6 +126,7 @@
     ab.hidden = mode !== "ab";
     document.body.classList.toggle("mode-ab", mode === "ab");
     exposureBox.hidden = !panels.some((p) => { const i = picture(p); return i && i.hdr; });
+    document.getElementById("c-colorbar").hidden = !artifactSelect.value.split("/").pop().startsWith("flip_");
     fillAB();
     if (mode === "grid") renderGrid(); else renderAB();
     applyView();
