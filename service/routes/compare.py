@@ -4,8 +4,9 @@
 The page shows one artifact name at a time (``image.exr``, ``preview.png``, ...) for every
 job that has it: side by side with linked zoom and pan, or two of them under an A/B
 slider; pixels stay square when zoomed, and HDR images (EXR, through the preview route)
-get an exposure slider. The server only gathers the jobs and their pictures;
-``static/js/compare.js`` does the rest.
+get an exposure slider. Jobs with ``curves.json`` (training runs) get their curves overlaid
+in one chart, a series at a time. The server only gathers the jobs, their pictures and
+curves; ``static/js/compare.js`` does the rest.
 """
 
 from __future__ import annotations
@@ -49,8 +50,10 @@ def panel(job: Job) -> dict[str, Any]:
     exr = {a.name for a in job.artifacts if a.media_type == EXR_TYPE or a.name.endswith(".exr")}
     for image in picture_views(job.artifacts, job.kind):
         pictures.append({"name": image["name"], "src": image["src"], "hdr": image["name"] in exr})
+    curves = next((a for a in job.artifacts if a.name == "curves.json"), None)
     return {
         "id": job.id,
+        "curves": f"/api/artifacts/{curves.digest}" if curves else None,
         "short": job.id[:12],
         "title": job.name or job.kind,
         "kind": job.kind,

@@ -138,3 +138,28 @@ def test03_bad_ids_are_named(page: Any, server: str) -> None:  # noqa: F811
     assert response is not None and response.status == 404
     assert "no job 'zzz'" in page.locator("body").inner_text()
     page.problems.clear()  # the 404 itself is expected
+
+
+def test04_training_curves_overlaid(
+    page: Any,  # noqa: F811
+    server: str,  # noqa: F811
+    prepared: dict[str, Any],
+) -> None:
+    """Issue 14 §2: several runs' curves.json in one chart, a series at a time."""
+    ids = prepared["ids"]
+    page.goto(f"{server}/compare?jobs={','.join(i[:10] for i in ids)}&token={TOKEN}")
+    page.wait_for_function(
+        "() => { const c = Chart.getChart(document.getElementById('c-curves-chart'));"
+        " return c && c.data.datasets.length === 3; }"
+    )
+    assert page.locator("#c-series").input_value() == "loss"
+    page.select_option("#c-series", "mse.C_warp")
+    title = page.locator("#c-curves-chart").evaluate(
+        "c => Chart.getChart(c).options.plugins.title.text"
+    )
+    assert title == "mse.C_warp: 3 run(s)"
+    labels = page.locator("#c-curves-chart").evaluate(
+        "c => Chart.getChart(c).data.datasets.map(d => d.label)"
+    )
+    assert [label.split(" (")[0] for label in labels] == ["size 8", "size 16", "size 24"]
+    assert page.problems == [], page.problems

@@ -161,4 +161,62 @@
     view.scale = 1; view.x = 0; view.y = 0; applyView();
   });
   render();
+  overlayCurves();
+
+  /** Training runs: one series of every job's curves.json in one chart (several runs
+      overlaid), picked from the series they have. */
+  async function overlayCurves() {
+    const box = document.getElementById("c-curves");
+    if (!box || typeof window.Chart === "undefined") return;
+    const runs = panels.filter((p) => p.curves);
+    const docs = await Promise.all(runs.map((p) => MF.api(p.curves).catch(() => null)));
+    const series = new Map();  // name -> [[panel, steps, values], ...]
+    runs.forEach((p, i) => {
+      const doc = docs[i];
+      if (!doc || !Array.isArray(doc.step)) return;
+      const add = (name, values) => {
+        if (!Array.isArray(values) || values.length !== doc.step.length) return;
+        if (!series.has(name)) series.set(name, []);
+        series.get(name).push([p, doc.step, values]);
+      };
+      for (const [key, value] of Object.entries(doc)) {
+        if (key === "step") continue;
+        if (Array.isArray(value)) add(key, value);
+        else if (value && typeof value === "object") {
+          for (const [sub, list] of Object.entries(value)) add(`${key}.${sub}`, list);
+        }
+      }
+    });
+    const select = document.getElementById("c-series");
+    const names = [...series.keys()].sort((a, b) => series.get(b).length - series.get(a).length);
+    select.replaceChildren(...names.map((n) => MF.el("option", { value: n, text: n })));
+    if (names.includes("loss")) select.value = "loss";
+    const colours = ["#2f5bd3", "#d64545", "#1f9d55", "#c98a0b", "#7a5af8", "#0e9384"];
+    const chart = new window.Chart(document.getElementById("c-curves-chart"), {
+      type: "line",
+      data: { datasets: [] },
+      options: {
+        responsive: true, maintainAspectRatio: false, animation: false, parsing: false,
+        interaction: { mode: "nearest", axis: "x", intersect: false },
+        scales: { x: { type: "linear", title: { display: true, text: "step" } }, y: { type: "linear" } },
+        plugins: { title: { display: true, text: "" } },
+      },
+    });
+    function draw() {
+      const lines = series.get(select.value) || [];
+      chart.data.datasets = lines.map(([p, steps, values], i) => ({
+        label: `${p.title} (${p.short})`,
+        data: steps.map((x, j) => ({ x, y: typeof values[j] === "number" ? values[j] : null })),
+        borderColor: colours[i % colours.length], backgroundColor: colours[i % colours.length],
+        pointRadius: 0, borderWidth: 1.6, spanGaps: true,
+      }));
+      const all = lines.flatMap(([, , v]) => v).filter((v) => typeof v === "number");
+      const positive = all.length && all.every((v) => v > 0);
+      chart.options.scales.y.type = positive && Math.max(...all) / Math.min(...all) >= 30 ? "logarithmic" : "linear";
+      chart.options.plugins.title.text = `${select.value}: ${lines.length} run(s)`;
+      chart.update();
+    }
+    select.addEventListener("change", draw);
+    draw();
+  }
 })();
