@@ -25,9 +25,10 @@ from service import kinds
 
 #: ``step:<step>/<artifact>``, or ``step:<step>`` for the whole job (e.g. a dataset).
 STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._/-]+))?$")
-#: ``job:<short id>/<name>``: a job ref whose id is a prefix (1 to 31 hex digits). The server
-#: writes it out in full before validating (:func:`service.submission.expand_short_refs`).
-SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)$")
+#: ``job:<short id>/<name>`` or ``job:<short id>``: a job ref whose id is a prefix (1 to 31
+#: hex digits). The server writes it out in full before validating
+#: (:func:`service.submission.expand_short_refs`).
+SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)?$")
 MAX_SEED = 2**63 - 1
 
 

@@ -58,9 +58,10 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
 
 
 def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
-    """``raw`` with every ``job:<prefix>/<name>`` in its params written with the full job
-    id, so that a spec's identity (its hash) does not depend on how short the user typed
-    the id. Raises ``SpecError`` naming the field for an unknown or ambiguous prefix."""
+    """``raw`` with every ``job:<prefix>/<name>`` (or ``job:<prefix>``) in its params written
+    with the full job id, so that a spec's identity (its hash) does not depend on how short
+    the user typed the id. Raises ``SpecError`` naming the field for an unknown or
+    ambiguous prefix."""
     if not isinstance(raw, dict) or not isinstance(raw.get("params"), dict):
         return raw
     errors: list[tuple[str, str]] = []
@@ -74,7 +75,7 @@ def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
         if m is None:
             return value
         try:
-            return f"job:{resolve_job_id(jobs, m['job'])}{m['rest']}"
+            return f"job:{resolve_job_id(jobs, m['job'])}{m['rest'] or ''}"
         except (NotFoundError, AmbiguousIdError) as exc:
             errors.append((loc, f"{value}: {exc}"))
             return value

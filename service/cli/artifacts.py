@@ -82,7 +82,7 @@ def parse_ref(ref: str) -> tuple[str | None, str | None, str | None]:
     if m:
         return m["job"], m["name"], None
     m = SHORT_JOB_REF.match(ref)
-    if m and JOB_REF.match(f"job:{'0' * 32}{m['rest']}"):
+    if m and m["rest"] and JOB_REF.match(f"job:{'0' * 32}{m['rest']}"):
         return m["job"], m["rest"][1:], None
     m = SHA_REF.match(ref)
     if m:

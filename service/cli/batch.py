@@ -146,7 +146,7 @@ def pad_short_job_refs(obj: Any) -> Any:
     validating a spec here; the server resolves the prefix when the step is submitted."""
     if isinstance(obj, str):
         m = SHORT_JOB_REF.match(obj)
-        return f"job:{m['job'].ljust(32, '0')}{m['rest']}" if m else obj
+        return f"job:{m['job'].ljust(32, '0')}{m['rest'] or ''}" if m else obj
     if isinstance(obj, dict):
         return {k: pad_short_job_refs(v) for k, v in obj.items()}
     if isinstance(obj, list):

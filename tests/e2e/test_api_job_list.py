@@ -117,3 +117,27 @@ def test05_batch_label(client: TestClient) -> None:
     assert got.headers["x-total-count"] == "2"
     assert client.get("/api/jobs", params={"batch": "run two"}).json() == []
     assert a["batch"] == "run one" and a["spec"]["batch"] == "run one"
+
+
+def test06_short_refs_in_specs_are_written_out(client: TestClient, tmp_path: Path) -> None:
+    """``job:<prefix>/<name>`` and ``job:<prefix>`` in params get the full id before the spec
+    is hashed; an unknown prefix is a 422 naming the field."""
+    from service.submission import expand_short_refs
+
+    made = client.post("/api/jobs", json=render(5)).json()
+    jobs = JobStore(tmp_path / "jobs.sqlite3")
+    raw = {
+        "kind": "x",
+        "params": {"a": f"job:{made['id'][:6]}/image.exr", "b": [f"job:{made['id'][:7]}"]},
+    }
+    out = expand_short_refs(raw, jobs)
+    assert out["params"] == {"a": f"job:{made['id']}/image.exr", "b": [f"job:{made['id']}"]}
+    assert raw["params"]["a"].startswith("job:") and len(raw["params"]["a"]) < 30  # not modified
+    unknown = "0" if not made["id"].startswith("0") else "1"
+    bad = {
+        **render(6),
+        "params": {**render(6)["params"], "material": {"merl": f"job:{unknown * 5}/x.binary"}},
+    }
+    r = client.post("/api/jobs", json=bad)
+    assert r.status_code == 422 and "params.material.merl" in r.json()["error"], r.text
+    assert "no job" in r.json()["error"]
