@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from storage.errors import NotFoundError
-from storage.job_queries import JOB_SORTS, job_filter
+from storage.job_queries import JOB_COLS as _JOB_COLS
+from storage.job_queries import JobListing
 from storage.job_records import (
     FINAL_STATES,
     STATES,
@@ -84,12 +85,6 @@ CREATE TABLE IF NOT EXISTS uploads (
 );
 """
 
-_JOB_COLS = (
-    "id, kind, name, seed, spec_hash, spec, state, progress, message, error, worker, "
-    "attempts, lease_token, lease_expires, created_at, started_at, finished_at, "
-    "updated_at, manifest_digest"
-)
-
 
 _WRITE_LOCKS: dict[str, threading.RLock] = {}
 _WRITE_LOCKS_GUARD = threading.Lock()
@@ -101,9 +96,10 @@ def _process_write_lock(path: Path) -> threading.RLock:
         return _WRITE_LOCKS.setdefault(key, threading.RLock())
 
 
-class JobStore:
+class JobStore(JobListing):
     """SQLite-backed job queue. Safe to share between threads (one connection per thread)
-    and between processes (SQLite file locking; WAL lets readers run beside a writer)."""
+    and between processes (SQLite file locking; WAL lets readers run beside a writer). Its
+    list queries are in :class:`storage.job_queries.JobListing`."""
 
     def __init__(self, path: str | Path, busy_timeout_s: float = 30.0) -> None:
         self.path = Path(path)
@@ -161,44 +157,6 @@ class JobStore:
         if row is None:
             raise NotFoundError(f"no job {job_id!r}")
         return self._row_to_job(row)
-
-    def ids_with_prefix(self, prefix: str, limit: int = 6) -> list[str]:
-        """Up to ``limit`` job ids starting with ``prefix`` (lowercase hex), oldest first."""
-        rows = self._conn().execute(
-            "SELECT id FROM jobs WHERE id >= ? AND id < ? ORDER BY seq LIMIT ?",
-            (prefix, prefix + "g", limit),
-        )
-        return [r[0] for r in rows]
-
-    def list_jobs(
-        self,
-        state: str | None = None,
-        kind: str | None = None,
-        limit: int = 200,
-        offset: int = 0,
-        *,
-        name: str | None = None,
-        batch: str | None = None,
-        sort: str = "-created",
-    ) -> list[Job]:
-        """Jobs in the order ``sort`` names (a key of :data:`JOB_SORTS`; by default newest
-        first), filtered by state, kind and a case-insensitive substring of the name."""
-        where, args = job_filter(state=state, kind=kind, name=name, batch=batch)
-        sql = f"SELECT {_JOB_COLS} FROM jobs{where} ORDER BY {JOB_SORTS[sort]} LIMIT ? OFFSET ?"
-        rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
-        return [self._row_to_job(r, with_artifacts=False) for r in rows]
-
-    def count_jobs(
-        self,
-        state: str | None = None,
-        kind: str | None = None,
-        *,
-        name: str | None = None,
-        batch: str | None = None,
-    ) -> int:
-        """How many jobs :meth:`list_jobs` would page through with these filters."""
-        where, args = job_filter(state=state, kind=kind, name=name, batch=batch)
-        return int(self._conn().execute(f"SELECT COUNT(*) FROM jobs{where}", args).fetchone()[0])
 
     def counts(self) -> dict[str, int]:
         rows = self._conn().execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()
