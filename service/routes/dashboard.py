@@ -217,6 +217,18 @@ def input_pictures(job: Job, jobs: JobStore) -> list[dict[str, Any]]:
 PLOTTED = ("curves.json", "pareto.json")
 
 
+def _live_plots(job: Job) -> dict[str, str]:
+    """While a job of a kind that makes ``curves.json`` runs: the route of its live curves
+    (``static/js/plots.js`` polls it until the page reloads with the artifact)."""
+    if job.finished:
+        return {}
+    try:
+        makes = kinds.get_kind(job.kind).artifacts
+    except KeyError:
+        return {}
+    return {"live-curves": f"/api/jobs/{job.id}/live/curves.json"} if "curves.json" in makes else {}
+
+
 def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
     manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
@@ -232,7 +244,8 @@ def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> di
             a.name.removesuffix(".json"): f"/api/artifacts/{a.digest}"
             for a in job.artifacts
             if a.name in PLOTTED
-        },
+        }
+        or _live_plots(job),
     }
 
 

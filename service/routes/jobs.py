@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Request, Response
 
+from jobapi.context import LIVE_PREFIX
 from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, StoreDep
 from service.job_list import JobListDep
@@ -147,6 +148,15 @@ def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any
         raise NotFoundError(f"job {job_id} is {job.state}; it has no manifest yet")
     manifest: dict[str, Any] = json.loads(store.read(job.manifest_digest))
     return manifest
+
+
+@router.get("/{job_id}/live/{name}", responses=_ERRORS, summary="A running job's live document")
+def get_live(job_id: JobId, name: str, jobs: JobsDep, store: StoreDep) -> Any:
+    """The latest JSON document a running job published under `name` (e.g. `curves.json`,
+    its training curves so far), for live charts; `null` when it published none yet (or
+    has finished: then its artifact of that name is what counts)."""
+    digest = jobs.shards(job_id).get(LIVE_PREFIX + name)
+    return None if digest is None else json.loads(store.read(digest))
 
 
 @router.get("/{job_id}/summary", responses=_ERRORS, summary="A job's result table")

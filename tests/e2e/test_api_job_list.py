@@ -141,3 +141,27 @@ def test06_short_refs_in_specs_are_written_out(client: TestClient, tmp_path: Pat
     r = client.post("/api/jobs", json=bad)
     assert r.status_code == 422 and "params.material.merl" in r.json()["error"], r.text
     assert "no job" in r.json()["error"]
+
+
+def test07_live_documents_of_a_running_job(client: TestClient, tmp_path: Path) -> None:
+    """A running job publishes its curves so far; GET /api/jobs/{id}/live/{name} serves the
+    latest (``null`` before the first), and publications are rate-limited."""
+    from jobapi.context import JobContext
+    from storage.artifacts import ArtifactStore
+
+    doc = client.post("/api/jobs", json=render(9)).json()
+    jobs, store = JobStore(tmp_path / "jobs.sqlite3"), ArtifactStore(tmp_path / "store")
+    assert jobs.claim("t:1", 30.0, job_id=doc["id"]) is not None
+    ctx = JobContext(
+        job_id=doc["id"], seed=9, spec=doc["spec"], store=store, jobs=jobs, workdir=tmp_path
+    )
+    live = f"/api/jobs/{doc['id'][:8]}/live/curves.json"
+    assert client.get(live).json() is None
+    assert ctx.publish("curves.json", {"step": [1], "loss": [2.0]})
+    assert not ctx.publish("curves.json", {"step": [1, 2], "loss": [2.0, 1.0]})  # too soon
+    assert client.get(live).json() == {"step": [1], "loss": [2.0]}
+    assert ctx.publish("curves.json", {"step": [1, 2], "loss": [2.0, 1.0]}, min_interval_s=0)
+    assert client.get(live).json()["step"] == [1, 2]
+    assert not ctx.publish("curves.json", {"loss": [float("nan")]}, min_interval_s=0)
+    assert client.get(f"/api/jobs/{doc['id']}/live/other.json").json() is None
+    assert ctx.artifacts == {}  # live documents are not artifacts

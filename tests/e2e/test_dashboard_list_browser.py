@@ -9,6 +9,7 @@ The server, the browser page and its problem log come from
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -112,6 +113,7 @@ def wide_kind() -> Kind:
         params=WideParams,
         runner=run_wide,
         description="test-only kind with train.fabric's result table",
+        artifacts=("preview.png", "slice.png", "image.exr", "curves.json", "pareto.json"),
         summary=summarize,
         figures=(
             Figure("preview.png", caption="the lead picture", lead=True),
@@ -394,3 +396,41 @@ def test07_curves_and_pareto_charts(
     page.mouse.click(box["x"] + where["x"], box["y"] + where["y"])
     page.wait_for_url(f"**/jobs/{OTHER_RUN[4:]}", timeout=10_000)
     page.problems.clear()
+
+
+def test08_live_curves_of_a_running_job(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+) -> None:
+    """Issue 14 §2: a running training job's curves grow on its page."""
+    from jobapi.context import LIVE_PREFIX
+
+    jobs: JobStore = prepared["jobs"]
+    store = ArtifactStore(prepared["data"] / "store")
+    job, _ = jobs.submit(
+        kind="test_wide", name="training", seed=99, spec_hash="c" * 64, spec={"params": {}}
+    )
+    claimed = jobs.claim("test-host:1", 120.0, job_id=job.id)
+    assert claimed is not None and claimed.lease_token
+
+    def publish(n: int) -> None:
+        doc = {"step": list(range(1, n + 1)), "loss": [1.0 / k for k in range(1, n + 1)]}
+        info = store.put_bytes(json.dumps(doc).encode())
+        jobs.record_shard(job.id, LIVE_PREFIX + "curves.json", info.digest)
+
+    publish(3)
+    page.goto(f"{server}/jobs/{job.id}?token={TOKEN}")
+    points = (
+        "n => { const c = Chart.getChart(document.getElementById('curves-chart'));"
+        " return c && c.data.datasets[0].data.length === n; }"
+    )
+    page.wait_for_function(points, arg=3)
+    publish(7)
+    page.wait_for_function(points, arg=7, timeout=10_000)
+    title = page.locator("#curves-chart").evaluate(
+        "c => Chart.getChart(c).options.plugins.title.text"
+    )
+    assert title == "Training curves, live: step 7"
+    jobs.cancel(job.id)
+    assert page.problems == [], page.problems

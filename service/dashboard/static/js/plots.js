@@ -22,7 +22,7 @@
     return canvas;
   }
 
-  function curves(doc) {
+  function curves(doc, canvas = null, live = false) {
     const steps = doc.step;
     if (!Array.isArray(steps) || !steps.length) return;
     const series = [];
@@ -52,13 +52,17 @@
       });
     }
     const values = main.flatMap(([, v]) => v);
-    new window.Chart(card("training curves", "curves-chart"), {
+    const target = canvas || card("training curves", "curves-chart");
+    const previous = window.Chart.getChart(target);
+    if (previous) previous.destroy();
+    new window.Chart(target, {
       type: "line",
       data: { datasets },
       options: {
         responsive: true, maintainAspectRatio: false, animation: false, parsing: false,
         interaction: { mode: "nearest", axis: "x", intersect: false },
-        plugins: { title: { display: true, text: "Training curves (curves.json)" } },
+        plugins: { title: { display: true, text: live ?
+          `Training curves, live: step ${steps[steps.length - 1]}` : "Training curves (curves.json)" } },
         scales: {
           x: { type: "linear", title: { display: true, text: "step" } },
           y: { type: spansDecades(values, 30) ? "logarithmic" : "linear",
@@ -171,6 +175,28 @@
     }
   }
 
+  /** A running job: poll its published curves until the page reloads with the artifact. */
+  function live() {
+    const src = box.dataset.liveCurves;
+    if (!src) return;
+    const canvas = card("training curves (live)", "curves-chart");
+    const note = MF.el("p", { class: "muted small", id: "live-note", text: "no curves published yet" });
+    box.append(note);
+    async function poll() {
+      try {
+        const response = await fetch(src, { credentials: "same-origin", headers: { Accept: "application/json" } });
+        const doc = response.ok ? await response.json() : null;
+        if (doc) {
+          curves(doc, canvas, true);
+          note.textContent = `live · updated ${new Date().toLocaleTimeString()}`;
+        }
+      } catch (_) { /* the next poll tries again */ }
+      window.setTimeout(poll, 2000);
+    }
+    poll();
+  }
+
   load("pareto", pareto);
   load("curves", curves);
+  live();
 })();
