@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import pickle
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -23,6 +25,10 @@ from jobapi.params import JOB_REF, SHA_REF
 from storage.artifacts import ArtifactStore
 from storage.formats.media import media_type_for
 from storage.jobs import ArtifactRecord, Job, JobStore
+
+#: Shard key prefix of a published live document (``:`` never occurs in an artifact name,
+#: so these keys cannot meet the shard keys of :meth:`JobContext.map_artifact_shards`).
+LIVE_PREFIX = "live:"
 
 
 class Monitor(Protocol):
@@ -76,6 +82,7 @@ class JobContext:
         self.monitor: Monitor = monitor or NullMonitor()
         self.executor: Executor = executor or InlineExecutor()
         self.artifacts: dict[str, ArtifactRecord] = {}
+        self._published: dict[str, float] = {}
 
     # -- randomness ----------------------------------------------------------------------
     def rng(self, stream: int | str = 0) -> np.random.Generator:
@@ -185,6 +192,28 @@ class JobContext:
         """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes)."""
         text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
         return self.put_bytes(name, text.encode(), "application/json")
+
+    def publish(self, name: str, obj: Any, *, min_interval_s: float = 1.0) -> bool:
+        """Publish ``obj`` (JSON) as the live state of ``name`` while the job runs, e.g. its
+        training curves so far, for the dashboard (``GET /api/jobs/{id}/live/{name}``).
+
+        A later publication replaces an earlier one; publications closer than
+        ``min_interval_s`` to the previous one are dropped (returns ``False``), and so is a
+        document that is not valid JSON (NaN): live views are best effort. Nothing here is
+        an artifact: when the job succeeds its artifacts are what count, and the live
+        documents are no longer kept.
+        """
+        now = time.monotonic()
+        if now - self._published.get(name, -math.inf) < min_interval_s:
+            return False
+        try:
+            text = json.dumps(obj, sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError):
+            return False
+        info = self.store.put_bytes(text.encode())
+        self.jobs.record_shard(self.job_id, LIVE_PREFIX + name, info.digest)
+        self._published[name] = now
+        return True
 
     # -- shards --------------------------------------------------------------------------
     def map_shards(

@@ -13,6 +13,7 @@ kind or scans directories.
 
 from __future__ import annotations
 
+import fnmatch
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -32,6 +33,36 @@ SummaryHook = Callable[[ArtifactReader], ResultTable | None]
 
 
 @dataclass(frozen=True)
+class Axis:
+    """An axis of a picture: what runs along it and its values at the two ends (left to
+    right, or top to bottom)."""
+
+    label: str
+    start: str = ""
+    end: str = ""
+
+
+@dataclass(frozen=True)
+class Figure:
+    """How the dashboard shows a kind's image artifacts whose name matches ``pattern``
+    (``fnmatch``, e.g. ``"*.png"``).
+
+    Attributes:
+        pattern: artifact names this applies to.
+        caption: a sentence shown under the picture.
+        x: the horizontal axis, when the picture is a plot of two coordinates.
+        y: the vertical axis (top to bottom).
+        lead: the kind's most telling picture: shown first, at its full size.
+    """
+
+    pattern: str
+    caption: str = ""
+    x: Axis | None = None
+    y: Axis | None = None
+    lead: bool = False
+
+
+@dataclass(frozen=True)
 class Kind:
     """One job kind.
 
@@ -48,6 +79,8 @@ class Kind:
             the README's table of kinds.
         rows: the result-rows hook (:data:`jobapi.rows.RowsHook`): every value the job
             measured, one row each, for ``GET /api/results`` and ``matforge results``.
+        figures: how the dashboard shows its pictures (:class:`Figure`): which comes first,
+            and the axes of those that are plots.
     """
 
     name: str
@@ -59,6 +92,11 @@ class Kind:
     summary: SummaryHook | None = None
     layout: str = ""
     rows: RowsHook | None = None
+    figures: tuple[Figure, ...] = ()
+
+    def figure(self, artifact: str) -> Figure | None:
+        """The first of :attr:`figures` whose pattern matches an artifact name, if any."""
+        return next((f for f in self.figures if fnmatch.fnmatchcase(artifact, f.pattern)), None)
 
 
 _KINDS: dict[str, Kind] = {}

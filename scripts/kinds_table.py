@@ -14,39 +14,22 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from service import kinds
-
-
-def _type(prop: dict) -> str:
-    if "enum" in prop:
-        return " \\| ".join(f"`{v}`" for v in prop["enum"])
-    if "const" in prop:
-        return f"`{prop['const']}`"
-    if "anyOf" in prop:
-        return " or ".join(_type(p) for p in prop["anyOf"])
-    if "$ref" in prop:
-        return prop["$ref"].rsplit("/", 1)[-1]
-    t = prop.get("type", "object")
-    if t == "array":
-        return "array"
-    return str(t)
+from service.kind_docs import param_rows
 
 
 def kinds_markdown() -> str:
     """The markdown table of kinds and their parameters."""
     lines = []
     for kind in sorted(kinds.all_kinds().values(), key=lambda k: k.name):
-        schema = kind.params.model_json_schema()
         arts = ", ".join(f"`{a}`" for a in kind.artifacts) or "(see below)"
         lines.append(f"### `{kind.name}`\n\n{kind.description}\n\nArtifacts: {arts}\n")
         if kind.layout:
             lines.append(kind.layout.strip() + "\n")
         lines.append("| param | type | default | description |")
         lines.append("| --- | --- | --- | --- |")
-        required = set(schema.get("required", []))
-        for name, prop in schema.get("properties", {}).items():
-            default = "required" if name in required else f"`{prop.get('default')!r}`"
-            desc = " ".join(str(prop.get("description", "")).split()).replace("|", "\\|")
-            lines.append(f"| `{name}` | {_type(prop)} | {default} | {desc} |")
+        for name, type_, default, desc in param_rows(kind, markdown=True):
+            cell = desc.replace("|", "\\|")
+            lines.append(f"| `{name}` | {type_} | {default} | {cell} |")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
 

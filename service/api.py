@@ -8,6 +8,7 @@ error                                       HTTP   body
 ==========================================  =====  ============================================
 ``SpecError``, request validation, bad JSON  422   ``{"detail": [{"loc", "msg"}], "error"}``
 ``FormatError`` (an upload)                  422   ``{"detail", "error"}``, naming the file
+``AmbiguousIdError`` (a short job id)        422   ``{"detail", "error"}``, listing matches
 ``NotFoundError``                            404   ``{"detail", "error"}``
 ``TooLargeError``, body over the limit       413   ``{"detail", "error"}``
 ``IntegrityError`` (corrupt object)          500   ``{"detail", "error"}``, never a traceback;
@@ -48,7 +49,13 @@ from service.specs import JobSpec
 from service.upload_check import UploadChecker
 from service.web_guard import GuardMiddleware, allowed_hosts
 from storage.artifacts import ArtifactStore
-from storage.errors import FormatError, IntegrityError, NotFoundError, TooLargeError
+from storage.errors import (
+    AmbiguousIdError,
+    FormatError,
+    IntegrityError,
+    NotFoundError,
+    TooLargeError,
+)
 from storage.jobs import JobStore
 
 log = logging.getLogger("matforge.api")
@@ -314,6 +321,7 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
     app.add_exception_handler(SpecError, _spec_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(FormatError, _status_handler(422))
+    app.add_exception_handler(AmbiguousIdError, _status_handler(422))
     app.add_exception_handler(NotFoundError, _status_handler(404))
     app.add_exception_handler(TooLargeError, _status_handler(413))
     app.add_exception_handler(IntegrityError, _integrity_error)

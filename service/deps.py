@@ -28,10 +28,11 @@ from starlette.datastructures import Headers
 
 from service.settings import Settings
 from storage.artifacts import ArtifactStore
+from storage.job_queries import resolve_job_id
 from storage.jobs import JobStore
 
 TOKEN_COOKIE = "matforge_token"
-JOB_ID_PATTERN = r"^[0-9a-f]{32}$"
+JOB_ID_PATTERN = r"^[0-9a-f]{1,32}$"
 DIGEST_PATTERN = r"^(sha256:)?[0-9a-f]{64}$"
 
 
@@ -57,14 +58,26 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 JobsDep = Annotated[JobStore, Depends(get_jobs)]
 StoreDep = Annotated[ArtifactStore, Depends(get_store)]
 
-JobId = Annotated[
-    str,
-    Path(
-        pattern=JOB_ID_PATTERN,
-        description="job id: 32 lowercase hex digits",
-        examples=["0f3c9a7e5b2d4c1e8a6f0b9d7c3e2a1f"],
-    ),
-]
+
+def resolve_path_job_id(
+    job_id: Annotated[
+        str,
+        Path(
+            pattern=JOB_ID_PATTERN,
+            description=(
+                "job id: 32 lowercase hex digits, or any unique prefix of one (as git's "
+                "short ids); an ambiguous prefix is a 422 that lists the matches"
+            ),
+            examples=["0f3c9a7e5b2d4c1e8a6f0b9d7c3e2a1f", "0f3c9a7e5b2d"],
+        ),
+    ],
+    jobs: JobsDep,
+) -> str:
+    """The full id of the job a path names by its id or a unique prefix of it."""
+    return resolve_job_id(jobs, job_id)
+
+
+JobId = Annotated[str, Depends(resolve_path_job_id)]
 Digest = Annotated[
     str,
     Path(

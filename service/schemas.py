@@ -56,6 +56,9 @@ class JobPublic(PublicModel):
     id: str = Field(description="32 lowercase hex digits")
     kind: str
     name: str | None = None
+    batch: str | None = Field(
+        default=None, description="label of the batch run that submitted it (`matforge batch`)"
+    )
     state: JobState
     progress: float = Field(description="0..1")
     message: str = Field(description="one line: what the job is doing")

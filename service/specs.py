@@ -27,6 +27,10 @@ __all__ = ["STEP_REF", "JobSpec", "ValidSpec", "load_spec_file", "parse_spec_tex
 
 #: ``step:<step>/<artifact>``, or ``step:<step>`` for the whole job (e.g. a dataset).
 STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._/-]+))?\Z")
+#: ``job:<short id>/<name>`` or ``job:<short id>``: a job ref whose id is a prefix (1 to 31
+#: hex digits). The server writes it out in full before validating
+#: (:func:`service.submission.expand_short_refs`).
+SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)?\Z")
 MAX_SEED = 2**63 - 1
 
 
@@ -40,6 +44,12 @@ class JobSpec(BaseModel):
     seed: int = Field(default=0, ge=0, le=MAX_SEED, strict=True)
     params: dict[str, Any] = Field(default_factory=dict)
     force: bool = Field(default=False, strict=True)
+    batch: str | None = Field(
+        default=None,
+        max_length=200,
+        description="a label grouping jobs submitted together (`matforge batch` sets it); "
+        "like `name`, not part of the spec's identity",
+    )
 
 
 class ValidSpec(BaseModel):
@@ -52,6 +62,7 @@ class ValidSpec(BaseModel):
     seed: int
     force: bool
     params: BaseModel
+    batch: str | None = None
     canonical: str
     spec_hash: str
 
@@ -60,6 +71,8 @@ class ValidSpec(BaseModel):
         doc = json.loads(self.canonical)
         if self.name is not None:
             doc["name"] = self.name
+        if self.batch is not None:
+            doc["batch"] = self.batch
         return doc
 
 
@@ -154,6 +167,7 @@ def validate_spec(raw: Any) -> ValidSpec:
         name=env.name,
         seed=env.seed,
         force=env.force,
+        batch=env.batch,
         params=params,
         canonical=canonical,
         spec_hash=digest,

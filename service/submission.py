@@ -13,12 +13,13 @@ from jobapi.context import media_type_for
 from jobapi.errors import SpecError
 from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
-from service.specs import ValidSpec, validate_spec
+from service.specs import SHORT_JOB_REF, ValidSpec, validate_spec
 from service.workers.execution import execute, worker_id
 from service.workers.executors import executor_for
 from storage.artifacts import ArtifactStore
-from storage.errors import FormatError, NotFoundError
+from storage.errors import AmbiguousIdError, FormatError, NotFoundError
 from storage.formats import validate_file
+from storage.job_queries import resolve_job_id
 from storage.jobs import ArtifactRecord, Job, JobStore
 
 
@@ -56,9 +57,40 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
         raise SpecError(errors)
 
 
+def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
+    """``raw`` with every ``job:<prefix>/<name>`` (or ``job:<prefix>``) in its params written
+    with the full job id, so that a spec's identity (its hash) does not depend on how short
+    the user typed the id. Raises ``SpecError`` naming the field for an unknown or
+    ambiguous prefix."""
+    if not isinstance(raw, dict) or not isinstance(raw.get("params"), dict):
+        return raw
+    errors: list[tuple[str, str]] = []
+
+    def expand(value: Any, loc: str) -> Any:
+        if isinstance(value, dict):
+            return {k: expand(v, f"{loc}.{k}") for k, v in value.items()}
+        if isinstance(value, list):
+            return [expand(v, f"{loc}.{i}") for i, v in enumerate(value)]
+        m = SHORT_JOB_REF.match(value) if isinstance(value, str) else None
+        if m is None:
+            return value
+        try:
+            return f"job:{resolve_job_id(jobs, m['job'])}{m['rest'] or ''}"
+        except (NotFoundError, AmbiguousIdError) as exc:
+            errors.append((loc, f"{value}: {exc}"))
+            return value
+
+    params = expand(raw["params"], "params")
+    if errors:
+        raise SpecError(errors)
+    return {**raw, "params": params}
+
+
 def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
-    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``."""
-    spec = validate_spec(raw)
+    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
+
+    Job refs in the params may use a unique prefix of the job id."""
+    spec = validate_spec(expand_short_refs(raw, jobs))
     check_refs(spec, jobs, store)
     return jobs.submit(
         kind=spec.kind,

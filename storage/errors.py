@@ -30,3 +30,16 @@ class NotFoundError(StorageError):
 
 class TooLargeError(StorageError):
     """An upload exceeds the configured size cap."""
+
+
+class AmbiguousIdError(StorageError):
+    """A short job id (a prefix) matches more than one job; ``matches`` lists some."""
+
+    def __init__(self, prefix: str, matches: list[str]) -> None:
+        self.prefix = prefix
+        self.matches = matches
+        shown = ", ".join(m[:12] for m in matches[:5])
+        more = " ..." if len(matches) > 5 else ""
+        super().__init__(
+            f"job id prefix {prefix!r} is ambiguous: it matches {shown}{more}; give more digits"
+        )

@@ -67,6 +67,7 @@ class Job:
             "id": self.id,
             "kind": self.kind,
             "name": self.name,
+            "batch": self.spec.get("batch") if isinstance(self.spec, dict) else None,
             "state": self.state,
             "progress": self.progress,
             "message": self.message,

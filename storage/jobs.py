@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from storage.errors import NotFoundError
+from storage.job_queries import JOB_COLS as _JOB_COLS
+from storage.job_queries import JobListing
 from storage.job_records import (
     FINAL_STATES,
     STATES,
@@ -83,12 +85,6 @@ CREATE TABLE IF NOT EXISTS uploads (
 );
 """
 
-_JOB_COLS = (
-    "id, kind, name, seed, spec_hash, spec, state, progress, message, error, worker, "
-    "attempts, lease_token, lease_expires, created_at, started_at, finished_at, "
-    "updated_at, manifest_digest"
-)
-
 
 _WRITE_LOCKS: dict[str, threading.RLock] = {}
 _WRITE_LOCKS_GUARD = threading.Lock()
@@ -100,9 +96,10 @@ def _process_write_lock(path: Path) -> threading.RLock:
         return _WRITE_LOCKS.setdefault(key, threading.RLock())
 
 
-class JobStore:
+class JobStore(JobListing):
     """SQLite-backed job queue. Safe to share between threads (one connection per thread)
-    and between processes (SQLite file locking; WAL lets readers run beside a writer)."""
+    and between processes (SQLite file locking; WAL lets readers run beside a writer). Its
+    list queries are in :class:`storage.job_queries.JobListing`."""
 
     def __init__(self, path: str | Path, busy_timeout_s: float = 30.0) -> None:
         self.path = Path(path)
@@ -160,24 +157,6 @@ class JobStore:
         if row is None:
             raise NotFoundError(f"no job {job_id!r}")
         return self._row_to_job(row)
-
-    def list_jobs(
-        self, state: str | None = None, kind: str | None = None, limit: int = 200, offset: int = 0
-    ) -> list[Job]:
-        """Jobs, newest first, optionally filtered by state and kind."""
-        where, args = [], []
-        if state:
-            where.append("state=?")
-            args.append(state)
-        if kind:
-            where.append("kind=?")
-            args.append(kind)
-        sql = f"SELECT {_JOB_COLS} FROM jobs"
-        if where:
-            sql += " WHERE " + " AND ".join(where)
-        sql += " ORDER BY seq DESC LIMIT ? OFFSET ?"
-        rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
-        return [self._row_to_job(r, with_artifacts=False) for r in rows]
 
     def succeeded_with_hash(self, spec_hash: str) -> Job | None:
         """The newest succeeded job of the spec whose canonical hash is ``spec_hash`` (what

@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 PATHS_PER_PASS = 1 << 22
 #: Upper bound on width * height * spp (about 80 minutes on two cores).
 MAX_PATHS = 1 << 36
-DEFAULT_MATERIAL = {
+DEFAULT_MATERIAL: dict[str, Any] = {
     "mitsuba": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
 }
 Side = Annotated[int, Field(ge=8, le=4096)]
@@ -65,7 +65,7 @@ class RenderParams(StrictModel):
     ``scene``       built-in scene name  ``sphere_env``  ``sphere_env``, ``sphere_points``,
                                                          ``plane_points``, ``cloth_plane``
     ``material``    ``{source: value}``  grey diffuse    e.g. ``{"mitsuba": {"type":
-                                                         "roughconductor", "alpha": 0.2}}``
+                                         (0.5)           "roughconductor", "alpha": 0.2}}``
     ``resolution``  ``[width, height]``  ``[256, 256]``  pixels, each 8..4096
     ``spp``         int                  64              samples per pixel, 1..65536
     ``max_depth``   int                  8               longest path, in segments, 1..64
@@ -94,8 +94,10 @@ class RenderParams(StrictModel):
     )
     material: MaterialParam = Field(
         default_factory=lambda: copy.deepcopy(DEFAULT_MATERIAL),
+        json_schema_extra={"default": DEFAULT_MATERIAL},
         description="The material on the scene's object: an object with exactly one "
-        'material source key, e.g. {"mitsuba": {<Mitsuba 3 BSDF plugin dict>}}.',
+        'material source key, e.g. {"mitsuba": {<Mitsuba 3 BSDF plugin dict>}}. '
+        "Default: grey diffuse (reflectance 0.5); the job's message says when it was used.",
     )
     resolution: Annotated[tuple[Side, Side], Field(strict=False)] = Field(
         default=(256, 256), description="Image size [width, height] in pixels, each 8..4096."
@@ -249,10 +251,12 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
         mpaths,
         variant,
     )
+    default = params.material == DEFAULT_MATERIAL
     ctx.progress(
         1.0,
         f"rendered {width}x{height} at {params.spp} spp in {seconds:.2f} s "
-        f"({mpaths:.1f} Mpaths/s, {variant})",
+        f"({mpaths:.1f} Mpaths/s, {variant})"
+        + ("; no material given: the default grey diffuse (reflectance 0.5)" if default else ""),
     )
 
 

@@ -71,7 +71,7 @@ from generators.fabric.preview import (
 )
 from generators.fabric.queries import design_queries
 from generators.rows import fabric_stats_rows
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.params import FabricParams, sample_params
@@ -342,6 +342,14 @@ register(
         description="Woven-fabric training set (Chen et al. 2024, Sec. 5.1): aggregated BSDF "
         "components C/S warp/weft with standard errors at stratified footprint queries.",
         artifacts=("shard-*.npz", "materials.json", "maps/*.exr", "stats.json", "preview.png"),
+        figures=(
+            Figure(
+                "preview.png",
+                caption="As Fig. 2 of Chen et al.: C and S, warp and weft (columns) over one "
+                "tile, one row per pattern.",
+                lead=True,
+            ),
+        ),
         smoke={
             "patterns": ["plain"],
             "queries_per_material": 64,

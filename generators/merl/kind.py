@@ -63,7 +63,7 @@ from generators.merl.collections import (
 )
 from generators.rows import summary_rows
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Axis, Figure, Kind, register
 from jobapi.params import StrictModel
 from jobapi.results import ArtifactReader, ResultTable, flatten, used_columns
 from materials.analytic import ANALYTIC_MODELS, build_analytic
@@ -491,5 +491,13 @@ register(
         smoke={"source": {"analytic": {"model": "ggx", "alpha": 0.3, "material": "Au"}}},
         summary=summarize,
         rows=summary_rows(summarize, ("missing_bins",), prefix="tabulation."),
+        figures=(
+            Figure(
+                "*.png",
+                caption="Half/difference slice at φd = 90° (Burley 2012), Reinhard tone map.",
+                x=Axis("θh (square-root spacing)", "0°", "90°"),
+                y=Axis("θd", "0°", "90°"),
+            ),
+        ),
     )
 )

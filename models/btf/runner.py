@@ -107,7 +107,8 @@ def _fit_network(
         plateau_steps=None if plateau is None else int(plateau),
     )
     curves = fit(net, data, train, test, cfg, gen, order,
-                 distill=distill, on_progress=report)  # fmt: skip
+                 distill=distill, on_progress=report,
+                 on_curves=lambda c: ctx.publish("curves.json", c.as_dict()))  # fmt: skip
     return net.eval(), curves
 
 

@@ -149,9 +149,11 @@ def fit(
     *,
     distill: Distillation | None = None,
     on_progress: ProgressFn | None = None,
+    on_curves: Callable[[Curves], object] | None = None,
 ) -> Curves:
     """Train ``net`` on the slices ``train`` for ``cfg.epochs`` epochs (see the module
-    docstring); returns the curves."""
+    docstring); returns the curves. ``on_curves(curves)`` is called at each check (the
+    live chart)."""
     started = time.perf_counter()
     params = list(net.parameters())
     maps: _Maps | None = None
@@ -220,6 +222,8 @@ def fit(
                 curves.lr.append(float(opt.param_groups[0]["lr"]))
                 loss_sum = l1_sum = 0.0
                 since = 0
+                if on_curves is not None:
+                    on_curves(curves)
                 if on_progress is not None:
                     on_progress(step, total, curves.train_l1[-1], test_l1)
     net.eval()

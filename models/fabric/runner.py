@@ -109,6 +109,7 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
             ),
             batch_gen,
             on_progress=report,
+            on_curves=lambda c: ctx.publish("curves.json", c.as_dict()),  # live, for the page
         )
         net = net.to("cpu").eval()
         fit_seconds = time.perf_counter() - started

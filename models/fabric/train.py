@@ -133,8 +133,10 @@ def fit(
     generator: torch.Generator,
     *,
     on_progress: ProgressFn | None = None,
+    on_curves: Callable[[Curves], object] | None = None,
 ) -> Curves:
-    """Train ``net`` in place on ``data``; returns the loss curve (see the module docstring)."""
+    """Train ``net`` in place on ``data``; returns the loss curve (see the module docstring).
+    ``on_curves(curves)`` is called each time a point is added (the live chart)."""
     params = list(net.parameters())
     opt = torch.optim.SGD(
         params,
@@ -181,6 +183,8 @@ def fit(
                 curves.components[c].append(v)
             curves.lr.append(lr)
             loss_sum, comp_sum, n_sum = 0.0, torch.zeros(4, dtype=torch.float64), 0
+            if on_curves is not None:
+                on_curves(curves)
         if on_progress is not None and (step % report_every == 0 or step == steps):
             on_progress(step, steps, loss)
     net.eval()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -75,15 +76,19 @@ def parse_ref(ref: str) -> tuple[str | None, str | None, str | None]:
     """``(job_id, artifact name, digest)`` of a ``job:`` or ``sha256:`` ref; the unused
     parts are ``None``. Raises :class:`BadInput` for anything else."""
     from jobapi.params import JOB_REF, SHA_REF
+    from service.specs import SHORT_JOB_REF
 
     m = JOB_REF.match(ref)
     if m:
         return m["job"], m["name"], None
+    m = SHORT_JOB_REF.match(ref)
+    if m and m["rest"] and JOB_REF.match(f"job:{'0' * 32}{m['rest']}"):
+        return m["job"], m["rest"][1:], None
     m = SHA_REF.match(ref)
     if m:
         return None, None, m["digest"]
     raise BadInput(
-        f"not an artifact reference: {ref!r}; expected 'job:<job-id>/<name>' or "
+        f"not an artifact reference: {ref!r}; expected 'job:<job-id or prefix>/<name>' or "
         "'sha256:<64 lowercase hex>'"
     )
 
@@ -111,25 +116,53 @@ def copy_verified(src: Path, digest: str, dest: Path) -> int:
                 f"object sha256:{digest} is corrupt on disk (digest mismatch)"
                 "; run 'matforge store verify'"
             )
+        os.chmod(tmp, default_file_mode())
         os.replace(tmp, dest)
     finally:
         tmp.unlink(missing_ok=True)
     return size
 
 
+def default_file_mode() -> int:
+    """The mode a new file gets under the user's umask (``0o666 & ~umask``): fetched files
+    are written through a private temporary file (0600), then given this mode."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def copy_to_stdout(src: Path, digest: str) -> int:
+    """Stream ``src`` to stdout, hashing on the way; raises ``IntegrityError`` at the end
+    when the bytes did not match ``digest`` (stdout cannot be written atomically)."""
+    out = sys.stdout.buffer
+    h, size = hashlib.sha256(), 0
+    with open(src, "rb") as fh:
+        for chunk in iter(lambda: fh.read(_CHUNK), b""):
+            h.update(chunk)
+            size += len(chunk)
+            out.write(chunk)
+    out.flush()
+    if h.hexdigest() != digest:
+        raise IntegrityError(
+            f"object sha256:{digest} is corrupt on disk (digest mismatch); the bytes written "
+            "to stdout are not to be trusted; run 'matforge store verify'"
+        )
+    return size
+
+
 def artifacts(
     ctx: typer.Context,
-    job_id: str = typer.Argument(..., metavar="ID", help="Job id."),
+    job_id: str = typer.Argument(..., metavar="ID", help="Job id (or a unique prefix)."),
     as_json: bool = JsonOpt,
     data_dir: Path | None = LocalOpt,
 ) -> None:
     """List a job's artifacts: name, digest, size, media type."""
-    from service.cli.client import check_job_id
+    from storage.job_queries import resolve_job_id
 
     local = state_of(ctx).local_dir(data_dir)
     if local is not None:
         jobs, _ = open_local(local)
-        job = jobs.get(check_job_id(job_id))
+        job = jobs.get(resolve_job_id(jobs, job_id))
         arts = [a.public() for a in job.artifacts]
     else:
         with state_of(ctx).client() as client:
@@ -144,36 +177,54 @@ def artifacts(
 
 def fetch(
     ctx: typer.Context,
-    ref: str = typer.Argument(..., help="job:<job-id>/<artifact-name> or sha256:<hex>."),
+    ref: str = typer.Argument(
+        ..., help="job:<job-id or unique prefix>/<artifact-name> or sha256:<hex>."
+    ),
     output: Path = typer.Option(
         ...,
         "--output",
         "-o",
-        help="File to write (or an existing directory: the artifact's name is used).",
+        help="File to write (or an existing directory: the artifact's name is used), "
+        "or - for stdout.",
     ),
     data_dir: Path | None = LocalOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Download an artifact's bytes (verified against its digest) to a file."""
+    """Download an artifact's bytes (verified against its digest) to a file or stdout.
+
+    A file is written atomically once verified, with the mode your umask gives new files.
+    With ``-o -`` the bytes stream to stdout and a digest mismatch exits 1 at the end.
+    """
+    to_stdout = str(output) == "-"
+    if to_stdout and as_json:
+        raise BadInput("--json and -o - both write to stdout; use one of them")
     job_id, name, digest = parse_ref(ref)
     local = state_of(ctx).local_dir(data_dir)
     if local is not None:
+        from storage.job_queries import resolve_job_id
+
         jobs, store = open_local(local)
         if job_id is not None and name is not None:
-            digest = jobs.artifact(job_id, name).digest
+            digest = jobs.artifact(resolve_job_id(jobs, job_id), name).digest
         assert digest is not None
-        dest = destination(output, name or digest)
         src = store.path(digest)
         if not src.is_file():
             raise NotFoundError(f"no object sha256:{digest} in the store at {local}")
+        if to_stdout:
+            copy_to_stdout(src, digest)
+            return
+        dest = destination(output, name or digest)
         size = copy_verified(src, digest, dest)
     else:
         with state_of(ctx).client() as client:
             if job_id is not None and name is not None:
                 digest = str(client.artifact(job_id, name)["digest"])
             assert digest is not None
+            if to_stdout:
+                client.fetch_to(digest, sys.stdout.buffer)
+                return
             dest = destination(output, name or digest)
-            size = client.fetch(digest, dest)
+            size = client.fetch(digest, dest, mode=default_file_mode())
     if as_json:
         print_json({"ref": ref, "digest": digest, "size": size, "path": str(dest)})
     else:

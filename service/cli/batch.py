@@ -20,8 +20,9 @@ are unique and match ``[A-Za-z0-9_.-]+``, every ``step:`` ref names an earlier s
 spec passes :func:`service.specs.validate_spec` with its step refs replaced by placeholder
 ``job:`` refs. Errors name the file, the step and the field.
 
-The results (one flat row per step, metrics flattened to ``<label>.<metric>`` columns)
-are built, written and shown by :mod:`service.cli.results`.
+Steps are run by :mod:`service.cli.batch_run` (in order, or N independent steps at a
+time). The results (one flat row per step, metrics flattened to ``<label>.<metric>``
+columns) are built, written and shown by :mod:`service.cli.results`.
 """
 
 from __future__ import annotations
@@ -33,13 +34,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console
-
 from jobapi.errors import SpecError
 from jobapi.results import ResultTable
-from service.cli.client import BadInput, Client, ClientError
-from service.cli.follow import follow, make_progress
-from service.specs import STEP_REF, load_spec_file, parse_spec_text, validate_spec
+from service.specs import (
+    SHORT_JOB_REF,
+    STEP_REF,
+    load_spec_file,
+    parse_spec_text,
+    validate_spec,
+)
 
 log = logging.getLogger("matforge.batch")
 
@@ -135,6 +138,19 @@ def substitute_refs(obj: Any, resolve: Callable[[str], str]) -> Any:
         return {k: substitute_refs(v, resolve) for k, v in obj.items()}
     if isinstance(obj, list):
         return [substitute_refs(v, resolve) for v in obj]
+    return obj
+
+
+def pad_short_job_refs(obj: Any) -> Any:
+    """A copy of ``obj`` with each ``job:<short id>/<name>`` padded to a full-length id, for
+    validating a spec here; the server resolves the prefix when the step is submitted."""
+    if isinstance(obj, str):
+        m = SHORT_JOB_REF.match(obj)
+        return f"job:{m['job'].ljust(32, '0')}{m['rest'] or ''}" if m else obj
+    if isinstance(obj, dict):
+        return {k: pad_short_job_refs(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [pad_short_job_refs(v) for v in obj]
     return obj
 
 
@@ -259,7 +275,7 @@ def parse_batch(
         if not ok:
             continue
         try:
-            valid = validate(substitute_refs(spec, _placeholder))
+            valid = validate(pad_short_job_refs(substitute_refs(spec, _placeholder)))
         except SpecError as exc:
             problems.extend(
                 f"{where}: {loc}: {msg}" if loc else f"{where}: {msg}" for loc, msg in exc.errors
@@ -286,80 +302,3 @@ def load_batch(path: str | Path, *, validate: Callable[[Any], Any] = validate_sp
     except SpecError as exc:
         raise BatchError([str(exc)]) from None
     return parse_batch(doc, str(p), base_dir=p.parent, validate=validate)
-
-
-# -- running ---------------------------------------------------------------------------------
-def _resolve(step: Step, results: dict[str, StepResult]) -> dict[str, Any]:
-    def resolve(ref: str) -> str:
-        m = STEP_REF.match(ref)
-        assert m is not None
-        prior = results[m["step"]]
-        if m["name"] is None:
-            return f"job:{prior.job_id}"
-        names = [a.get("name") for a in prior.artifacts]
-        if m["name"] not in names:
-            have = ", ".join(str(n) for n in names) or "none"
-            raise BadInput(
-                f"step {step.name!r}: {ref}: step {m['step']!r} (job "
-                f"{prior.job_id}) has no artifact {m['name']!r}; it has: {have}"
-            )
-        return f"job:{prior.job_id}/{m['name']}"
-
-    resolved: dict[str, Any] = substitute_refs(step.spec, resolve)
-    return resolved
-
-
-def _summary(client: Client, result: StepResult) -> None:
-    """The step's result table (its kind's summary hook, through the REST API) and its
-    numeric cells as ``<label>.<column>`` metrics."""
-    assert result.job_id is not None
-    try:
-        doc = client.summary(result.job_id)
-        if doc is not None:
-            result.table = ResultTable.from_document(doc)
-            result.metrics = result.table.flat()
-    except (ClientError, ValueError) as exc:
-        log.warning("step %s: cannot read its result table: %s", result.step, exc)
-
-
-def run_batch(
-    batch: Batch, client: Client, console: Console, *, poll_seconds: float = 0.5
-) -> BatchOutcome:
-    """Run the steps in order with a progress bar each; stop at the first step that does
-    not succeed (later steps stay ``skipped``)."""
-    outcome = BatchOutcome([StepResult(step=s.name, kind=s.kind) for s in batch.steps])
-    by_name = {r.step: r for r in outcome.results}
-    with make_progress(console) as progress:
-        tasks = [
-            progress.add_task(
-                f"{s.name} ({s.kind})", total=1.0, state="pending", message="", start=False
-            )
-            for s in batch.steps
-        ]
-        for step, result, task in zip(batch.steps, outcome.results, tasks, strict=True):
-            progress.start_task(task)  # the elapsed time counts from here
-            try:
-                spec = _resolve(step, by_name)
-                doc = client.submit(spec)
-                result.job_id = str(doc["id"])
-                progress.update(
-                    task, state=str(doc.get("state", "queued")), message=result.job_id[:12]
-                )
-                doc = follow(client, result.job_id, progress, task, poll_seconds=poll_seconds)
-            except ClientError as exc:
-                result.state, result.error = "error", f"{exc}"
-                progress.update(task, state="error", message=str(exc)[:60])
-                outcome.exit_code = exc.exit_code
-                break
-            result.state = str(doc.get("state"))
-            result.error = doc.get("error")
-            result.seconds = (doc.get("timings") or {}).get("run_seconds")
-            result.artifacts = list(doc.get("artifacts") or [])
-            if result.state != "succeeded":
-                outcome.exit_code = 1
-                break
-            _summary(client, result)
-        for result, task in zip(outcome.results, tasks, strict=True):
-            if result.state == "skipped":
-                progress.update(task, state="skipped", message="")
-    return outcome

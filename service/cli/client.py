@@ -17,12 +17,14 @@ import hashlib
 import os
 import re
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import httpx
 
 JOB_ID = re.compile(r"^[0-9a-f]{32}\Z")
+JOB_ID_PREFIX = re.compile(r"^[0-9a-f]{1,32}\Z")
 DIGEST = re.compile(r"^[0-9a-f]{64}\Z")
 _CHUNK = 1 << 20
 
@@ -67,9 +69,12 @@ class BadInput(ClientError):
 
 
 def check_job_id(job_id: str) -> str:
-    """Return ``job_id`` if it is a 32-hex job id, else raise :class:`BadInput`."""
-    if not JOB_ID.match(job_id):
-        raise BadInput(f"not a job id: {job_id!r} (expected 32 lowercase hex digits)")
+    """Return ``job_id`` if it is a job id or a prefix of one (1 to 32 lowercase hex digits;
+    the server resolves a unique prefix, as git does), else raise :class:`BadInput`."""
+    if not JOB_ID_PREFIX.match(job_id):
+        raise BadInput(
+            f"not a job id: {job_id!r} (expected 32 lowercase hex digits, or a unique prefix)"
+        )
     return job_id
 
 
@@ -204,8 +209,19 @@ class Client:
 
     def submit(self, spec: Any) -> dict[str, Any]:
         """``POST /api/jobs``: queue a spec; returns the job document."""
-        result: dict[str, Any] = self._json("POST", "/api/jobs", json=spec)
-        return result
+        return self.submit_created(spec)[0]
+
+    def submit_created(self, spec: Any) -> tuple[dict[str, Any], bool]:
+        """``POST /api/jobs``: ``(job document, created)``; ``created`` is false when the
+        server returned an existing job of the identical spec (HTTP 200, not 201)."""
+        response = self._request("POST", "/api/jobs", json=spec)
+        try:
+            doc: dict[str, Any] = response.json()
+        except ValueError:
+            raise ServerUnreachable(
+                f"{self.server} answered /api/jobs with something that is not JSON"
+            ) from None
+        return doc, response.status_code == 201
 
     def get(self, job_id: str) -> dict[str, Any]:
         """``GET /api/jobs/{id}``: the job document."""
@@ -216,11 +232,42 @@ class Client:
         self, state: str | None = None, kind: str | None = None
     ) -> builtins.list[dict[str, Any]]:
         """``GET /api/jobs``: jobs, newest first, optionally filtered."""
-        params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
-        result = self._json("GET", "/api/jobs", params=params)
+        return self.list_page(state=state, kind=kind)[0]
+
+    def list_page(
+        self,
+        *,
+        state: str | None = None,
+        kind: str | None = None,
+        name: str | None = None,
+        sort: str | None = None,
+        limit: int | None = None,
+        offset: int = 0,
+    ) -> tuple[builtins.list[dict[str, Any]], int | None]:
+        """``GET /api/jobs``: one page of jobs and how many match in all (``None`` when the
+        server does not say)."""
+        query: dict[str, Any] = {
+            "state": state,
+            "kind": kind,
+            "name": name,
+            "sort": sort,
+            "limit": limit,
+            "offset": offset or None,
+        }
+        params = {k: v for k, v in query.items() if v is not None and v != ""}
+        response = self._request("GET", "/api/jobs", params=params)
+        try:
+            result = response.json()
+        except ValueError:
+            raise ServerUnreachable(f"{self.server} answered /api/jobs with non-JSON") from None
         if isinstance(result, dict) and isinstance(result.get("jobs"), list):
             result = result["jobs"]
-        return builtins.list(result)
+        total = response.headers.get("x-total-count")
+        return builtins.list(result), int(total) if total and total.isdigit() else None
+
+    def kinds(self) -> builtins.list[dict[str, Any]]:
+        """``GET /api/kinds``: every kind with its summary, artifacts and params schema."""
+        return builtins.list(self._json("GET", "/api/kinds"))
 
     def cancel(self, job_id: str) -> dict[str, Any]:
         """``POST /api/jobs/{id}/cancel``: the job, now cancelled (or already finished)."""
@@ -273,43 +320,58 @@ class Client:
             )
         return data
 
-    def fetch(self, digest: str, dest: Path) -> int:
+    def _stream(self, d: str, write: Callable[[bytes], object]) -> int:
+        """Stream ``GET /api/artifacts/{d}`` into ``write``; raises
+        :class:`ServerUnreachable` after the last chunk when the bytes do not hash to ``d``."""
+        h, size = hashlib.sha256(), 0
+        try:
+            with self._http.stream("GET", f"/api/artifacts/{d}") as response:
+                if response.status_code >= 400:
+                    response.read()
+                    self._check(response)
+                for chunk in response.iter_bytes(_CHUNK):
+                    h.update(chunk)
+                    size += len(chunk)
+                    write(chunk)
+        except httpx.TimeoutException:
+            raise ServerUnreachable(f"{self.server} did not answer in time") from None
+        except httpx.TransportError as exc:
+            raise ServerUnreachable(
+                f"download of sha256:{d} from {self.server} failed: {_one_line(str(exc))}"
+            ) from None
+        if h.hexdigest() != d:
+            raise ServerUnreachable(
+                f"the bytes received for sha256:{d} do not match the "
+                "digest (corrupt transfer); try again"
+            )
+        return size
+
+    def fetch(self, digest: str, dest: Path, mode: int = 0o644) -> int:
         """Stream ``GET /api/artifacts/{digest}`` to ``dest``; returns the size in bytes.
 
         The bytes are hashed as they arrive and ``dest`` is written atomically (a temporary
         file in the same directory, renamed once the digest matched), so ``dest`` never
-        holds unverified bytes.
+        holds unverified bytes. ``dest`` gets ``mode`` (the CLI passes the one the user's
+        umask gives new files).
         """
         d = check_digest(digest)
         dest.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
         tmp = Path(tmp_name)
-        h, size = hashlib.sha256(), 0
         try:
             with os.fdopen(fd, "wb") as fh:
-                try:
-                    with self._http.stream("GET", f"/api/artifacts/{d}") as response:
-                        if response.status_code >= 400:
-                            response.read()
-                            self._check(response)
-                        for chunk in response.iter_bytes(_CHUNK):
-                            h.update(chunk)
-                            size += len(chunk)
-                            fh.write(chunk)
-                except httpx.TimeoutException:
-                    raise ServerUnreachable(f"{self.server} did not answer in time") from None
-                except httpx.TransportError as exc:
-                    raise ServerUnreachable(
-                        f"download of sha256:{d} from {self.server} failed: {_one_line(str(exc))}"
-                    ) from None
-            if h.hexdigest() != d:
-                raise ServerUnreachable(
-                    f"the bytes received for sha256:{d} do not match the "
-                    "digest (corrupt transfer); try again"
-                )
+                size = self._stream(d, fh.write)
+            os.chmod(tmp, mode)
             os.replace(tmp, dest)
         finally:
             tmp.unlink(missing_ok=True)
+        return size
+
+    def fetch_to(self, digest: str, out: BinaryIO) -> int:
+        """Stream ``GET /api/artifacts/{digest}`` to an open binary stream (``fetch -o -``);
+        a digest mismatch is raised after the bytes were written."""
+        size = self._stream(check_digest(digest), out.write)
+        out.flush()
         return size
 
     def upload(self, path: Path, name: str | None = None) -> dict[str, Any]:

@@ -1,10 +1,17 @@
 """Following a job on the server with a Rich progress bar (``wait``, ``submit --wait``,
-``batch``). Bars and messages go to stderr; stdout stays for results."""
+``batch``). Bars and messages go to stderr; stdout stays for results.
+
+The bar shows the job's state and its one-line message (shortened while it runs), and an
+ETA once a running job has reported progress: its run time so far times the share left.
+When the job finishes, its final message is printed in full on a line of its own, so that
+logs and ``status`` never show it cut.
+"""
 
 from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from rich.console import Console
@@ -16,22 +23,26 @@ from rich.progress import (
     TextColumn,
     TimeElapsedColumn,
 )
+from rich.text import Text
 
 from service.cli.client import Client, ServerRefused, ServerUnreachable
 
 log = logging.getLogger("matforge.cli")
 
 FINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
+#: Below this share done, an extrapolated ETA is noise and is not shown.
+ETA_MIN_PROGRESS = 0.01
 
 
 def make_progress(console: Console) -> Progress:
-    """A progress display with a label, a bar, the percentage, the elapsed time, the job's
-    state and its one-line message."""
+    """A progress display with a label, a bar, the percentage, the elapsed time, the ETA,
+    the job's state and its one-line message."""
     return Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         TaskProgressColumn(),
         TimeElapsedColumn(),
+        TextColumn("[cyan]{task.fields[eta]}"),
         TextColumn("{task.fields[state]}"),
         TextColumn("[dim]{task.fields[message]}"),
         console=console,
@@ -39,9 +50,76 @@ def make_progress(console: Console) -> Progress:
     )
 
 
+def add_job_task(progress: Progress, label: str, *, start: bool = True) -> TaskID:
+    """A bar for one job (fields ``state``, ``message`` and ``eta`` empty)."""
+    return progress.add_task(label, total=1.0, state="", message="", eta="", start=start)
+
+
 def _short(text: Any, width: int = 60) -> str:
     s = " ".join(str(text or "").split())
     return s if len(s) <= width else s[: width - 1] + "…"
+
+
+def format_eta(seconds: float) -> str:
+    """``"ETA 0:03:12"``."""
+    s = int(round(max(0.0, seconds)))
+    return f"ETA {s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def eta_of(doc: dict[str, Any]) -> str:
+    """The ETA of a running job from its progress and run time so far, or ``""``."""
+    fraction = float(doc.get("progress") or 0.0)
+    run_s = (doc.get("timings") or {}).get("run_seconds")
+    if doc.get("state") != "running" or not isinstance(run_s, int | float) or run_s < 1:
+        return ""
+    if not ETA_MIN_PROGRESS <= fraction < 1.0:
+        return ""
+    return format_eta(run_s * (1.0 - fraction) / fraction)
+
+
+def show(progress: Progress, task: TaskID, doc: dict[str, Any]) -> None:
+    """Put a job document on its bar; a finished job's full message goes on its own line."""
+    state = str(doc.get("state", "?"))
+    message = doc.get("error") if state == "failed" else doc.get("message")
+    fraction = 1.0 if state == "succeeded" else float(doc.get("progress") or 0.0)
+    short = _short(message)
+    progress.update(task, completed=fraction, state=state, message=short, eta=eta_of(doc))
+    full = " ".join(str(message or "").split())
+    if state in FINAL_STATES and full and full != short:
+        label = next((t.description for t in progress.tasks if t.id == task), "")
+        line = Text(f"{label}: " if label else "", style="bold")
+        line.append(full)
+        progress.console.print(line, overflow="fold", soft_wrap=False)
+
+
+@dataclass
+class Poller:
+    """Reads job documents, waiting out a server that answered once and then stopped
+    answering for less than ``patience_seconds`` (a restart): :meth:`poll` returns
+    ``None`` meanwhile. Past that, or when it never answered, :class:`ServerUnreachable`
+    is raised; refused credentials are raised at once."""
+
+    client: Client
+    patience_seconds: float = 15.0
+    _unreachable_since: float | None = None
+    _contacted: bool = False
+
+    def poll(self, job_id: str) -> dict[str, Any] | None:
+        try:
+            doc = self.client.get(job_id)
+        except ServerUnreachable as exc:
+            now = time.monotonic()
+            self._unreachable_since = self._unreachable_since or now
+            if (
+                not self._contacted
+                or now - self._unreachable_since > self.patience_seconds
+                or isinstance(exc, ServerRefused)
+            ):
+                raise
+            log.debug("server unreachable while following %s: %s", job_id, exc)
+            return None
+        self._unreachable_since, self._contacted = None, True
+        return doc
 
 
 def follow(
@@ -53,38 +131,15 @@ def follow(
     poll_seconds: float = 0.5,
     patience_seconds: float = 15.0,
 ) -> dict[str, Any]:
-    """Poll a job until it is finished, updating ``task``; returns the final document.
-
-    A server that answered once and then stops answering for less than
-    ``patience_seconds`` (a restart) is waited out; past that, or when it never answered,
-    :class:`ServerUnreachable` is raised.
-    """
-    unreachable_since: float | None = None
-    contacted = False
+    """Poll a job until it is finished, updating ``task``; returns the final document
+    (see :class:`Poller` for a server that stops answering)."""
+    poller = Poller(client, patience_seconds)
     while True:
-        try:
-            doc = client.get(job_id)
-            unreachable_since, contacted = None, True
-        except ServerUnreachable as exc:
-            now = time.monotonic()
-            unreachable_since = unreachable_since or now
-            if (
-                not contacted
-                or now - unreachable_since > patience_seconds
-                or isinstance(exc, ServerRefused)
-            ):
-                raise
-            log.debug("server unreachable while following %s: %s", job_id, exc)
-            time.sleep(poll_seconds)
-            continue
-        state = str(doc.get("state", "?"))
-        message = doc.get("error") if state == "failed" else doc.get("message")
-        fraction = float(doc.get("progress") or 0.0)
-        if state == "succeeded":
-            fraction = 1.0
-        progress.update(task, completed=fraction, state=state, message=_short(message))
-        if state in FINAL_STATES:
-            return doc
+        doc = poller.poll(job_id)
+        if doc is not None:
+            show(progress, task, doc)
+            if doc.get("state") in FINAL_STATES:
+                return doc
         time.sleep(poll_seconds)
 
 
@@ -97,5 +152,5 @@ def wait_with_bar(
 ) -> dict[str, Any]:
     """Follow one job with its own progress bar on ``console``; returns the final document."""
     with make_progress(console) as progress:
-        task = progress.add_task(label or job_id[:12], total=1.0, state="", message="")
+        task = add_job_task(progress, label or job_id[:12])
         return follow(client, job_id, progress, task, poll_seconds=poll_seconds)

@@ -1,7 +1,8 @@
 """``matforge``: the command-line interface (Typer).
 
 Commands follow the contract: ``serve``, ``run``, ``submit``, ``status``, ``wait``,
-``cancel``, ``artifacts``, ``fetch``, ``import``, ``batch`` and ``store verify|gc``.
+``cancel``, ``artifacts``, ``fetch``, ``import``, ``batch`` and ``store verify|gc``; and
+``ls`` and ``kinds``. Wherever a job id is expected, any unique prefix of it works.
 
 Exit codes: 0 success, 1 a job failed (or was cancelled), 2 bad input or usage, 3 server
 unreachable or refused. ``--json`` prints exactly one JSON document on stdout; progress bars,
@@ -205,17 +206,21 @@ def submit(
 ) -> None:
     """Queue a job on the server; prints its id (or, with --json, the job document)."""
     from service.cli.follow import wait_with_bar
+    from service.cli.resubmit import reuse_notices
 
     raw = load_spec(spec)
     with state_of(ctx).client() as client:
-        doc = client.submit(raw)
+        doc, created = client.submit_created(raw)
+        for line in reuse_notices(raw, doc, created):
+            err_console.print(line, markup=False, highlight=False)
         if not wait:
             if as_json:
                 print_json(doc)
             else:
                 print_line(str(doc["id"]))
             return
-        err_console.print(f"submitted {doc['id']}", markup=False, highlight=False)
+        if created:
+            err_console.print(f"submitted {doc['id']}", markup=False, highlight=False)
         doc = wait_with_bar(client, str(doc["id"]), err_console, label=str(doc.get("kind")))
     raise typer.Exit(_finish(doc, as_json, line=str(doc["id"])))
 
@@ -223,22 +228,32 @@ def submit(
 @app.command()
 def status(
     ctx: typer.Context,
-    job_id: str = typer.Argument(..., metavar="ID", help="Job id."),
+    job_id: str = typer.Argument(..., metavar="ID", help="Job id, or a unique prefix of it."),
     as_json: bool = JsonOpt,
 ) -> None:
-    """Show a job: state, progress, message, error, worker, attempts, artifacts."""
+    """Show a job: state, progress, message, error, worker, attempts, artifacts, and the
+    result table of a finished job whose kind makes one (a score job's metrics)."""
     with state_of(ctx).client() as client:
         doc = client.get(job_id)
+        table = client.summary(str(doc["id"])) if doc.get("state") == "succeeded" else None
     if as_json:
         print_json(doc)
-    else:
-        _summary(doc)
+        return
+    _summary(doc)
+    if table:
+        from jobapi.results import ResultTable
+        from service.cli.results import result_table_views
+
+        console = out_console()
+        result = ResultTable.from_document(table)
+        for view in result_table_views(result, result.title.lower(), console.width):
+            console.print(view)
 
 
 @app.command()
 def wait(
     ctx: typer.Context,
-    job_id: str = typer.Argument(..., metavar="ID", help="Job id."),
+    job_id: str = typer.Argument(..., metavar="ID", help="Job id, or a unique prefix of it."),
     as_json: bool = JsonOpt,
     poll: float = typer.Option(0.5, "--poll", min=0.05, help="Seconds between polls."),
 ) -> None:
@@ -253,7 +268,7 @@ def wait(
 @app.command()
 def cancel(
     ctx: typer.Context,
-    job_id: str = typer.Argument(..., metavar="ID", help="Job id."),
+    job_id: str = typer.Argument(..., metavar="ID", help="Job id, or a unique prefix of it."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Cancel a queued or running job (a finished job stays as it is)."""
@@ -278,9 +293,23 @@ def batch(
         help="Print the result rows as one JSON document on stdout (the table goes to stderr).",
     ),
     poll: float = typer.Option(0.5, "--poll", min=0.05, help="Seconds between polls."),
+    parallel: int = typer.Option(
+        1,
+        "--parallel",
+        "-j",
+        min=1,
+        max=64,
+        help="Run up to N steps at once (a step still waits for the steps it refers to).",
+    ),
+    continue_on_error: bool = typer.Option(
+        False,
+        "--continue-on-error",
+        help="After a step fails, skip only the steps that need it and run the rest.",
+    ),
 ) -> None:
     """Run a batch of steps on the server, in order; later steps may use step: refs."""
-    from service.cli.batch import load_batch, run_batch
+    from service.cli.batch import load_batch
+    from service.cli.batch_run import run_batch
     from service.cli.results import metrics_tables, result_rows, results_table, write_rows
 
     if out is not None and out.suffix.lower() not in (".csv", ".json"):
@@ -288,14 +317,21 @@ def batch(
         raise typer.Exit(EXIT_BAD_INPUT)
     plan = load_batch(file)
     with state_of(ctx).client() as client:
-        outcome = run_batch(plan, client, err_console, poll_seconds=poll)
+        outcome = run_batch(
+            plan,
+            client,
+            err_console,
+            poll_seconds=poll,
+            parallel=parallel,
+            continue_on_error=continue_on_error,
+        )
     columns, rows = result_rows(outcome.results)
     if out is not None:
         write_rows(out, columns, rows)
     table = results_table(columns, rows, title=f"batch {file}")
     console = table_console(to_stderr=as_json)
     console.print(table)
-    for metrics_table in metrics_tables(outcome.results):
+    for metrics_table in metrics_tables(outcome.results, console.width):
         console.print(metrics_table)
     if as_json:
         print_json(rows)
@@ -309,10 +345,12 @@ def batch(
 
 def _register_subcommands() -> None:
     from service.cli import artifacts as cli_artifacts
+    from service.cli import listing as cli_listing
     from service.cli import results_command as cli_results
     from service.cli import store as cli_store
 
     cli_artifacts.register(app)
+    cli_listing.register(app)
     cli_results.register(app)
     app.add_typer(cli_store.store_app, name="store")
 

@@ -18,7 +18,9 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
+from jobapi.results import ResultTable
 from service.cli.batch import StepResult
+from service.cli.tables import fitted_tables
 
 BASE_COLUMNS = ("step", "kind", "job_id", "state", "seconds", "error")
 
@@ -68,7 +70,7 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
-_STATE_STYLE = {
+STATE_STYLE = {
     "succeeded": "green",
     "failed": "red",
     "error": "red",
@@ -77,22 +79,25 @@ _STATE_STYLE = {
 }
 
 
-def metrics_tables(results: list[StepResult]) -> list[Table]:
+def metrics_tables(results: list[StepResult], width: int = 1000) -> list[Table]:
     """For the terminal: each step's result table (its kind's summary hook), a row per
-    label and a column per value (the flat ``<label>.<column>`` columns are too wide)."""
+    label and a column per value (the flat ``<label>.<column>`` columns are too wide),
+    split into several tables when its columns do not fit in ``width`` characters."""
     tables = []
     for r in results:
         doc = r.table
         if doc is None or not doc.rows:
             continue
-        table = Table(title=f"{r.step}: {doc.title.lower()}")
-        table.add_column(doc.label_header.lower())
-        for name in doc.columns:
-            table.add_column(name, justify="right")
-        for label, values in doc.rows.items():
-            table.add_row(label, *(_cell(values.get(m)) for m in doc.columns))
-        tables.append(table)
+        tables.extend(result_table_views(doc, f"{r.step}: {doc.title.lower()}", width))
     return tables
+
+
+def result_table_views(doc: ResultTable, title: str, width: int) -> list[Table]:
+    """A kind's result table as Rich tables that fit in ``width`` characters."""
+    rows = [
+        (label, [_cell(values.get(m)) for m in doc.columns]) for label, values in doc.rows.items()
+    ]
+    return fitted_tables(title, doc.label_header.lower(), list(doc.columns), rows, width)
 
 
 def results_table(columns: list[str], rows: list[dict[str, Any]], title: str) -> Table:
@@ -112,7 +117,7 @@ def results_table(columns: list[str], rows: list[dict[str, Any]], title: str) ->
         for col in shown:
             value = row.get(col)
             text = _cell(value[:12] if col == "job_id" and value else value)
-            style = _STATE_STYLE.get(text, "") if col == "state" else ""
+            style = STATE_STYLE.get(text, "") if col == "state" else ""
             cells.append(Text(text, style=style))
         table.add_row(*cells)
     return table

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,20 +63,29 @@ def state_of(ctx: typer.Context) -> CliState:
 #: columns keeps its natural width (Rich would squeeze it into 80 columns otherwise).
 PIPE_WIDTH = 1000
 
+
+def _width(stream: Any, piped: int) -> int | None:
+    """A console's width: the terminal's (Rich measures it) on a terminal or when the user
+    set ``COLUMNS`` (the terminal convention, which Rich reads), else ``piped``."""
+    if stream.isatty() or os.environ.get("COLUMNS", "").isdigit():
+        return None
+    return piped
+
+
 #: Progress bars, logs and error messages (120 columns when stderr is not a terminal).
-err_console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+err_console = Console(stderr=True, width=_width(sys.stderr, 120))
 
 
 def out_console() -> Console:
     """A console on stdout (created per call so that tests capturing stdout see it)."""
-    return Console(file=sys.stdout, width=None if sys.stdout.isatty() else PIPE_WIDTH)
+    return Console(file=sys.stdout, width=_width(sys.stdout, PIPE_WIDTH))
 
 
 def table_console(to_stderr: bool) -> Console:
     """A console for a results table, on stderr or stdout, not squeezed when piped."""
     if not to_stderr:
         return out_console()
-    return Console(stderr=True, width=None if sys.stderr.isatty() else PIPE_WIDTH)
+    return Console(stderr=True, width=_width(sys.stderr, PIPE_WIDTH))
 
 
 def print_json(doc: Any) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from service.routes import artifacts, dashboard, jobs, meta, results
+from service.routes import artifacts, compare, dashboard, jobs, meta, results
 
 ROUTERS: tuple[APIRouter, ...] = (
     meta.health_router,
@@ -14,6 +14,7 @@ ROUTERS: tuple[APIRouter, ...] = (
     artifacts.router,
     results.router,
     dashboard.router,
+    compare.router,
 )
 
-__all__ = ["ROUTERS", "artifacts", "dashboard", "jobs", "meta", "results"]
+__all__ = ["ROUTERS", "artifacts", "compare", "dashboard", "jobs", "meta", "results"]

@@ -62,10 +62,11 @@ class PreviewCache:
                 self._items.popitem(last=False)
 
 
-def render_exr_preview(path: Path, name: str) -> bytes:
+def render_exr_preview(path: Path, name: str, exposure: float = 0.0) -> bytes:
     """A tone-mapped sRGB PNG of the EXR at ``path``, at most :data:`PREVIEW_MAX_SIDE`
-    pixels on its long side (strided, no filtering: it is a thumbnail). Raises
-    ``FormatError`` naming ``name`` when the file is not a readable RGB EXR."""
+    pixels on its long side (strided, no filtering: it is a thumbnail), ``exposure`` stops
+    brighter. Raises ``FormatError`` naming ``name`` when the file is not a readable RGB
+    EXR."""
     from evaluators.metrics.tonemap import tonemap
     from storage.formats.exr import read_exr
     from storage.formats.png import write_png
@@ -76,7 +77,7 @@ def render_exr_preview(path: Path, name: str) -> bytes:
         raise FormatError(name, "not an OpenEXR file; previews exist for .exr artifacts only")
     rgb = read_exr(path, name)  # (H, W, 3) float32, linear
     step = max(1, -(-max(rgb.shape[:2]) // PREVIEW_MAX_SIDE))
-    return write_png(None, tonemap(rgb[::step, ::step]))  # uint8 sRGB, ACES curve
+    return write_png(None, tonemap(rgb[::step, ::step], exposure=exposure))  # sRGB, ACES
 
 
 def _cache_headers(digest: str, private: bool) -> dict[str, str]:
@@ -134,19 +135,28 @@ def get_artifact(
     summary="PNG preview of an EXR object",
 )
 def get_preview(
-    digest: Digest, request: Request, jobs: JobsDep, store: StoreDep, settings: SettingsDep
+    digest: Digest,
+    request: Request,
+    jobs: JobsDep,
+    store: StoreDep,
+    settings: SettingsDep,
+    exposure: Annotated[
+        float, Query(ge=-16, le=16, description="exposure in stops (the compare view's slider)")
+    ] = 0.0,
 ) -> Response:
     """A tone-mapped sRGB PNG of an EXR object (for the dashboard), at most 1024 pixels on
-    its long side; cached in memory by digest. 422 when the object is not an EXR."""
+    its long side, `exposure` stops brighter; cached in memory by digest and exposure. 422
+    when the object is not an EXR."""
     d = check_digest(digest)
-    headers = _cache_headers(d + "-preview", private=bool(settings.token))
+    key = d if exposure == 0 else f"{d}@{exposure:g}"
+    headers = _cache_headers(key + "-preview", private=bool(settings.token))
     cache: PreviewCache = request.app.state.previews
-    png = cache.get(d)
+    png = cache.get(key)
     if png is None:
         path = store.open_verified(d)
         record = jobs.find_digest(d)
-        png = render_exr_preview(path, record.name if record else f"sha256:{d}")
-        cache.put(d, png)
+        png = render_exr_preview(path, record.name if record else f"sha256:{d}", exposure)
+        cache.put(key, png)
     return Response(png, media_type="image/png", headers=headers)
 
 

@@ -19,11 +19,14 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from markupsafe import Markup, escape
 from starlette.datastructures import Headers
 from starlette.requests import HTTPConnection
 from starlette.responses import JSONResponse
 from starlette.types import Receive, Scope, Send
 
+from jobapi.kinds import Figure
+from jobapi.params import JOB_REF, SHA_REF
 from service import kinds
 from service.deps import (
     JobId,
@@ -33,9 +36,11 @@ from service.deps import (
     request_authorized,
     set_token_cookie,
 )
+from service.metric_directions import best_labels, direction
 from service.summaries import job_summary, read_json
 from storage.artifacts import ArtifactStore
-from storage.jobs import STATES, ArtifactRecord, Job
+from storage.errors import NotFoundError
+from storage.jobs import STATES, ArtifactRecord, Job, JobStore
 
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
 router = APIRouter(include_in_schema=False)
@@ -82,9 +87,14 @@ def fmt_epoch(t: Any) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
 
+def breakable(name: Any) -> Markup:
+    """A column name that may wrap after its dots (``baseline.rgb.rel``), HTML-escaped."""
+    return Markup(escape(str(name)).replace(".", Markup(".<wbr>")))
+
+
 templates = Jinja2Templates(directory=DASHBOARD_DIR / "templates")
 templates.env.filters.update(
-    num=fmt_number, filesize=fmt_filesize, seconds=fmt_seconds, epoch=fmt_epoch
+    num=fmt_number, filesize=fmt_filesize, seconds=fmt_seconds, epoch=fmt_epoch, wbr=breakable
 )
 
 
@@ -119,9 +129,18 @@ def render_error_page(request: Request, status: int, message: str) -> Response:
     )
 
 
-def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
-    """Image previews: PNGs as they are, EXRs through the preview route; FLIP maps last."""
-    out = []
+def _figure(kind: str, name: str) -> Figure | None:
+    try:
+        return kinds.get_kind(kind).figure(name)
+    except KeyError:  # a kind no longer registered
+        return None
+
+
+def picture_views(artifacts: list[ArtifactRecord], kind: str = "") -> list[dict[str, Any]]:
+    """Image previews: PNGs as they are, EXRs through the preview route. The kind's lead
+    picture comes first (:attr:`jobapi.kinds.Figure.lead`), FLIP maps last; a picture the
+    kind describes as a plot carries its axes."""
+    out: list[dict[str, Any]] = []
     for a in artifacts:
         if a.media_type in IMAGE_TYPES:
             src = f"/api/artifacts/{a.digest}"
@@ -131,18 +150,86 @@ def _images(artifacts: list[ArtifactRecord]) -> list[dict[str, str]]:
             continue
         is_flip = Path(a.name).name.startswith("flip_")
         caption = a.name + (" (tone-mapped preview)" if src.endswith("preview.png") else "")
+        figure = _figure(kind, a.name)
         out.append(
             {
                 "name": a.name,
                 "src": src,
                 "caption": caption,
-                "group": "flip" if is_flip else "image",
+                "group": "flip" if is_flip else "lead" if figure and figure.lead else "image",
+                "note": figure.caption if figure else "",
+                "x": figure.x if figure else None,
+                "y": figure.y if figure else None,
             }
         )
-    return sorted(out, key=lambda i: (i["group"] == "flip", i["name"]))
+    order = {"lead": 0, "image": 1, "flip": 2}
+    return sorted(out, key=lambda i: (order[i["group"]], i["name"]))
 
 
-def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
+def _with_directions(table: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The result table with each column's better direction and its best row, for the
+    table's highlight and the charts (see :mod:`service.metric_directions`)."""
+    if not table:
+        return table
+    names = list(table.get("names") or [])
+    return {
+        **table,
+        "better": {n: direction(n) for n in names},
+        "best": best_labels(table.get("rows") or {}, names),
+    }
+
+
+def _param_strings(obj: Any, path: str = "") -> list[tuple[str, str]]:
+    if isinstance(obj, str):
+        return [(path, obj)]
+    if isinstance(obj, dict):
+        return [x for k, v in obj.items() for x in _param_strings(v, f"{path}.{k}" if path else k)]
+    if isinstance(obj, list):
+        return [x for i, v in enumerate(obj) for x in _param_strings(v, f"{path}.{i}")]
+    return []
+
+
+def input_pictures(job: Job, jobs: JobStore) -> list[dict[str, Any]]:
+    """The pictures a job's params refer to (a score's reference and candidates, say),
+    each labelled with its param and linked to the job that made it; a ``reference``
+    first."""
+    out = []
+    for loc, value in _param_strings(job.spec.get("params") or {}):
+        m, record, source = JOB_REF.match(value), None, None
+        try:
+            if m:
+                record, source = jobs.artifact(m["job"], m["name"]), m["job"]
+            elif (s := SHA_REF.match(value)) is not None:
+                record = jobs.find_digest(s["digest"])
+        except NotFoundError:
+            continue
+        if record is None:
+            continue
+        views = picture_views([record])
+        if views:
+            out.append({**views[0], "param": loc, "job": source, "ref": value})
+    return sorted(out, key=lambda i: (i["param"].split(".")[0] != "reference", i["param"]))
+
+
+#: JSON artifacts the job page draws as interactive charts (``static/js/plots.js``), by
+#: name: ``curves.json`` (series against ``step``) and ``pareto.json`` (cost against
+#: accuracy per configuration, with the front).
+PLOTTED = ("curves.json", "pareto.json")
+
+
+def _live_plots(job: Job) -> dict[str, str]:
+    """While a job of a kind that makes ``curves.json`` runs: the route of its live curves
+    (``static/js/plots.js`` polls it until the page reloads with the artifact)."""
+    if job.finished:
+        return {}
+    try:
+        makes = kinds.get_kind(job.kind).artifacts
+    except KeyError:
+        return {}
+    return {"live-curves": f"/api/jobs/{job.id}/live/curves.json"} if "curves.json" in makes else {}
+
+
+def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
     manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
     return {
@@ -150,8 +237,15 @@ def job_view(job: Job, store: ArtifactStore) -> dict[str, Any]:
         "spec_json": json.dumps(job.spec, indent=2, sort_keys=True),
         "manifest": manifest if isinstance(manifest, dict) else None,
         "manifest_json": json.dumps(manifest, indent=2, sort_keys=True) if manifest else None,
-        "images": _images(job.artifacts),
-        "metrics": job_summary(job, store),
+        "images": picture_views(job.artifacts, job.kind),
+        "inputs": input_pictures(job, jobs) if jobs is not None else [],
+        "metrics": _with_directions(job_summary(job, store)),
+        "plots": {
+            a.name.removesuffix(".json"): f"/api/artifacts/{a.digest}"
+            for a in job.artifacts
+            if a.name in PLOTTED
+        }
+        or _live_plots(job),
     }
 
 
@@ -167,9 +261,11 @@ def index(request: Request, cookie_token: PageAuth) -> Response:
 
 @router.get("/jobs/{job_id}", response_class=HTMLResponse)
 def job_page(
-    request: Request, job_id: JobId, cookie_token: PageAuth, jobs: JobsDep, store: StoreDep
+    request: Request, cookie_token: PageAuth, job_id: JobId, jobs: JobsDep, store: StoreDep
 ) -> Response:
-    """One job; ``static/js/job.js`` keeps state and progress live until it finishes."""
-    response = templates.TemplateResponse(request, "job.html", job_view(jobs.get(job_id), store))
+    """One job; ``static/js/job.js`` keeps state and progress live until it finishes.
+    (``cookie_token`` comes first: the token is checked before the short id is looked up.)"""
+    view = job_view(jobs.get(job_id), store, jobs)
+    response = templates.TemplateResponse(request, "job.html", view)
     set_token_cookie(response, cookie_token, request)
     return response

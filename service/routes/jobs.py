@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
 
+from jobapi.context import LIVE_PREFIX
 from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, StoreDep
-from service.schemas import ArtifactPublic, ErrorPublic, JobPublic, JobState
+from service.job_list import JobListDep
+from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
 from service.submission import submit
 from service.summaries import job_summary
@@ -67,8 +69,6 @@ async def spec_body(request: Request) -> Any:
 
 
 SpecBody = Annotated[Any, Depends(spec_body)]
-#: SQLite's largest integer: a larger offset cannot be bound (it was a 500).
-MAX_OFFSET = 2**63 - 1
 _ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorPublic, "description": "no such job"},
     422: {"model": ErrorPublic, "description": "invalid input; `error` names the field"},
@@ -107,17 +107,17 @@ def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep
 
 
 @router.get("", response_model=list[JobPublic], summary="List jobs, newest first")
-def list_jobs(
-    jobs: JobsDep,
-    state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
-    kind: Annotated[str | None, Query(max_length=64, description="only this kind")] = None,
-    limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,
-    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="skip this many (paging)")] = 0,
-) -> Any:
-    """Jobs, newest first (without their artifact lists; see `GET /api/jobs/{id}`)."""
-    return [
-        j.document() for j in jobs.list_jobs(state=state, kind=kind, limit=limit, offset=offset)
-    ]
+def list_jobs(jobs: JobsDep, query: JobListDep, response: Response) -> Any:
+    """Jobs, newest first unless `sort` says otherwise (without their artifact lists; see
+    `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the
+    filters, for paging with `limit` and `offset`."""
+    q = query
+    total = jobs.count_jobs(q.state, q.kind, name=q.name, batch=q.batch)
+    response.headers["X-Total-Count"] = str(total)
+    found = jobs.list_jobs(
+        q.state, q.kind, q.limit, q.offset, name=q.name, batch=q.batch, sort=q.sort
+    )
+    return [j.document() for j in found]
 
 
 @router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS, summary="A job")
@@ -170,6 +170,15 @@ def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any
         raise HTTPException(409, f"job {job_id} is {job.state}: no manifest; {when}")
     manifest: dict[str, Any] = json.loads(store.read(job.manifest_digest))
     return manifest
+
+
+@router.get("/{job_id}/live/{name}", responses=_ERRORS, summary="A running job's live document")
+def get_live(job_id: JobId, name: str, jobs: JobsDep, store: StoreDep) -> Any:
+    """The latest JSON document a running job published under `name` (e.g. `curves.json`,
+    its training curves so far), for live charts; `null` when it published none yet (or
+    has finished: then its artifact of that name is what counts)."""
+    digest = jobs.shards(job_id).get(LIVE_PREFIX + name)
+    return None if digest is None else json.loads(store.read(digest))
 
 
 @router.get("/{job_id}/summary", responses=_ERRORS, summary="A job's result table")

@@ -352,7 +352,7 @@ def test12_bad_batch_exits_2_before_submitting(server: Server, tmp_path: Path) -
 
 
 def test13_failed_job_exits_1(server: Server, tmp_path: Path) -> None:
-    spec = write_spec(tmp_path / "fail.json", render_spec(type="no_such_plugin"))
+    spec = write_spec(tmp_path / "fail.json", render_spec(type="diffuse", bogus=1.0))
     res = run_cli("submit", str(spec), "--wait", "--json", env=server.env())
     assert res.returncode == 1, f"{res}\n{server.log_tail()}"
     doc = res.json()
@@ -369,7 +369,7 @@ def test13_failed_job_exits_1(server: Server, tmp_path: Path) -> None:
         json.dumps(
             {
                 "steps": [
-                    {"name": "bad", "spec": render_spec(type="no_such_plugin")},
+                    {"name": "bad", "spec": render_spec(type="diffuse", bogus=1.0)},
                     {"name": "later", "spec": render_spec(seed=21)},
                 ]
             }
@@ -472,7 +472,7 @@ def test21_run_failures(tmp_path: Path) -> None:
     bad = write_spec(tmp_path / "bad.json", {"kind": "render", "params": {"nope": 1}})
     res = run_cli("run", str(bad), "--data-dir", str(tmp_path / "d"), env=env)
     assert res.returncode == 2 and "params.nope" in res.stderr, res
-    failing = write_spec(tmp_path / "fail.json", render_spec(type="no_such_plugin"))
+    failing = write_spec(tmp_path / "fail.json", render_spec(type="diffuse", bogus=1.0))
     res = run_cli("run", str(failing), "--data-dir", str(tmp_path / "d"), "--json", env=env)
     assert res.returncode == 1, res
     assert res.json()["state"] == "failed" and "Traceback" not in res.stderr

@@ -271,7 +271,19 @@ def test02_job_page(page: Any, server: str, prepared: dict[str, Any]) -> None:
     srcs = [images.nth(i).get_attribute("src") for i in range(images.count())]
     assert any(s.endswith("/preview.png") and "/api/artifacts/" in s for s in srcs)
     assert page.locator("#metrics-table tbody tr").count() == 2
+    colorbar = page.locator(".colorbar")  # the FLIP maps' scale, in numbers
+    assert colorbar.is_visible() and colorbar.locator(".colorbar-ticks").inner_text().split() == [
+        "0",
+        "0.25",
+        "0.5",
+        "0.75",
+        "1",
+    ]
     assert page.locator("#metrics-charts canvas").count() == 3
+    # PSNR (higher is better) does not start at 0; FLIP (an error) does
+    scale = "c => Chart.getChart(c).scales.y.min"
+    assert page.locator('canvas[data-metric="psnr"]').evaluate(scale) > 0
+    assert page.locator('canvas[data-metric="flip"]').evaluate(scale) == 0
     assert "numpy" in page.locator("table.packages").inner_text()
     assert '"test_gallery"' in page.locator("pre.code").first.inner_text()
     page.screenshot(path=str(SHOTS / "matforge-dashboard-job.png"), full_page=True)

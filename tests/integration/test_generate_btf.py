@@ -192,7 +192,13 @@ def test06_bad_specs_are_refused_before_queueing() -> None:
         assert field in str(err.value), (params, err.value)
 
 
-def test07_unknown_bsdf_fails_the_job_naming_it(settings: Settings) -> None:
+def test07_unknown_bsdf_is_refused_and_a_bad_property_fails_the_job(settings: Settings) -> None:
+    from jobapi.errors import SpecError
+
     spec = {"kind": "generate.btf", "params": {"surface": {"bsdf": {"type": "nosuchbsdf"}}}}
-    job = run_in_process(spec, settings)
-    assert job.state == "failed" and "surface.bsdf" in job.error and "nosuchbsdf" in job.error
+    with pytest.raises(SpecError, match=r"params.surface.*bsdf.*unknown Mitsuba BSDF.*nosuchbsdf"):
+        run_in_process(spec, settings)  # before queueing: Mitsuba has no such plugin
+    bad = {"type": "diffuse", "bogus": 1.0}
+    job = run_in_process({"kind": "generate.btf", "params": {"surface": {"bsdf": bad}}}, settings)
+    assert job.state == "failed" and "surface.bsdf" in job.error
+    assert "unreferenced property" in job.error

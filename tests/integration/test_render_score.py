@@ -101,6 +101,11 @@ def renders(runner: Runner) -> dict[str, str]:
 def test01_render_artifacts(runner: Runner, renders: dict[str, str]) -> None:
     _, ctx = runner.run("render", SMALL, seed=1)
     meta = runner.json(ctx, "render.json")
+    # no material given: the job says which default it rendered
+    assert meta["material"] == {
+        "mitsuba": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    }
+    assert "default grey diffuse (reflectance 0.5)" in str(ctx.monitor.message)
     assert meta["resolution"] == [32, 32] and meta["spp"] == 8 and meta["rfilter"] == "box"
     assert meta["renderer"]["variant"] in ("llvm_ad_rgb", "scalar_rgb")
     assert sum(p["spp"] for p in meta["passes"]) == 8
@@ -224,8 +229,12 @@ def test06_black_reference_and_spec_errors(runner: Runner, renders: dict[str, st
 
 
 def test07_render_refuses_bad_materials(runner: Runner) -> None:
-    with pytest.raises(JobFailed, match=r"^material.mitsuba: .*Plugin \"nope\" not found"):
+    # a plugin Mitsuba does not have is refused before queueing (issue 14 §6) ...
+    with pytest.raises(SpecError, match=r"params.material: mitsuba: type: unknown .* 'nope'"):
         runner.run("render", {**SMALL, "material": {"mitsuba": {"type": "nope"}}})
+    # ... a property only Mitsuba can check fails the job with its one-line message
+    with pytest.raises(JobFailed, match=r"^material.mitsuba: .*unreferenced property"):
+        runner.run("render", {**SMALL, "material": {"mitsuba": {"type": "diffuse", "bogus": 1}}})
     with pytest.raises(SpecError, match="params.resolution"):
         validate_spec({"kind": "render", "params": {"resolution": [4, 4]}})
     with pytest.raises(SpecError, match="params.scene"):

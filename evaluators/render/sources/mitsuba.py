@@ -1,15 +1,25 @@
 """``{"mitsuba": {<Mitsuba 3 BSDF plugin dict>}}``: any BSDF Mitsuba 3 builds in.
 
-The dict is checked at spec time (a ``type`` string, no file paths anywhere in it) and
-instantiated with ``mitsuba.load_dict`` inside the job.
+The dict is checked at spec time against the plugin and conductor names of the installed
+Mitsuba (listed in :mod:`evaluators.render.mitsuba_names`, so the web process does not
+import Mitsuba), with no file paths anywhere in it, and instantiated with
+``mitsuba.load_dict`` inside the job.
 """
 
 from __future__ import annotations
 
+import difflib
 from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import AfterValidator
 
+from evaluators.render.mitsuba_names import (
+    BSDF_PLUGINS,
+    CONDUCTOR_MATERIALS,
+    MITSUBA_VERSION,
+    OTHER_PLUGINS,
+    TEXTURE_PLUGINS,
+)
 from evaluators.render.sources.common import register_material_source
 
 if TYPE_CHECKING:
@@ -22,12 +32,81 @@ if TYPE_CHECKING:
 FORBIDDEN_KEYS = frozenset({"filename"})
 
 
-def _check_plugin_dict(value: dict[str, Any]) -> dict[str, Any]:
-    if not isinstance(value.get("type"), str) or not value["type"]:
-        raise ValueError('a Mitsuba plugin dict needs a \'type\' string, e.g. {"type": "diffuse"}')
+#: Types Mitsuba's dict loader builds itself (not plugins): constant colours and spectra.
+LOADER_TYPES = frozenset({"rgb", "spectrum"})
+#: Plugins whose string ``material`` names a conductor of Mitsuba's table.
+CONDUCTOR_TYPES = frozenset({"conductor", "roughconductor"})
+#: Words people type for a conductor, for the hint of the error (Mitsuba wants symbols).
+CONDUCTOR_WORDS = {
+    "gold": "Au",
+    "silver": "Ag",
+    "copper": "Cu",
+    "aluminium": "Al",
+    "aluminum": "Al",
+    "chromium": "Cr",
+    "chrome": "Cr",
+    "tungsten": "W",
+    "mercury": "Hg",
+    "iridium": "Ir",
+    "rhodium": "Rh",
+    "tantalum": "Ta",
+    "molybdenum": "Mo",
+    "mirror": "none",
+}
 
-    def walk(node: Any, path: str) -> None:
+
+def _hint(value: str, known: frozenset[str]) -> str:
+    by_case = {k.lower(): k for k in known}
+    guess = by_case.get(value.lower()) or CONDUCTOR_WORDS.get(value.lower())
+    if guess is None or guess not in known:
+        close = difflib.get_close_matches(value, sorted(known), n=1, cutoff=0.75)
+        guess = close[0] if close else None
+    return f"; did you mean {guess!r}?" if guess else ""
+
+
+def _check_type(node: dict[str, Any], path: str, top: bool) -> None:
+    t = node.get("type")
+    if not isinstance(t, str) or not t:
+        if top:
+            raise ValueError(
+                'a Mitsuba plugin dict needs a \'type\' string, e.g. {"type": "diffuse"}'
+            )
+        return
+    allowed = BSDF_PLUGINS if top else BSDF_PLUGINS | TEXTURE_PLUGINS | LOADER_TYPES
+    if t in allowed:
+        return
+    what = "BSDF plugin" if top else "BSDF, texture or colour type"
+    if t in BSDF_PLUGINS | TEXTURE_PLUGINS | OTHER_PLUGINS:
+        raise ValueError(f"{path}type: {t!r} is a Mitsuba plugin, but not a {what}")
+    listed = ", ".join(sorted(BSDF_PLUGINS if top else allowed))
+    raise ValueError(
+        f"{path}type: unknown Mitsuba {what} {t!r}{_hint(t, allowed)} "
+        f"(Mitsuba {MITSUBA_VERSION} has: {listed})"
+    )
+
+
+def _check_conductor(node: dict[str, Any], path: str) -> None:
+    name = node.get("material")
+    if node.get("type") not in CONDUCTOR_TYPES or not isinstance(name, str):
+        return
+    if name not in CONDUCTOR_MATERIALS:
+        raise ValueError(
+            f"{path}material: unknown conductor {name!r}{_hint(name, CONDUCTOR_MATERIALS)} "
+            f"(Mitsuba's named conductors: {', '.join(sorted(CONDUCTOR_MATERIALS))})"
+        )
+
+
+def _check_plugin_dict(value: dict[str, Any]) -> dict[str, Any]:
+    """Check a ``{"mitsuba": ...}`` dict against the names Mitsuba knows
+    (:mod:`evaluators.render.mitsuba_names`, generated from Mitsuba and checked against it
+    by a test), so that a typo is refused before queueing, not in the worker: the top
+    ``type`` is a BSDF plugin, nested ``type``s are BSDFs, textures or ``rgb`` /
+    ``spectrum``, a conductor's ``material`` is in Mitsuba's table, and no ``filename``."""
+
+    def walk(node: Any, path: str, top: bool = False) -> None:
         if isinstance(node, dict):
+            _check_type(node, path, top)
+            _check_conductor(node, path)
             for k, v in node.items():
                 if k in FORBIDDEN_KEYS:
                     raise ValueError(
@@ -39,7 +118,7 @@ def _check_plugin_dict(value: dict[str, Any]) -> dict[str, Any]:
             for i, v in enumerate(node):
                 walk(v, f"{path}{i}.")
 
-    walk(value, "")
+    walk(value, "", top=True)
     return value
 
 

@@ -19,9 +19,9 @@ from service.cli.batch import (
     BatchError,
     load_batch,
     parse_batch,
-    run_batch,
     substitute_refs,
 )
+from service.cli.batch_run import run_batch
 from service.cli.client import BadInput
 from service.cli.results import result_rows, write_rows
 
@@ -248,6 +248,7 @@ class FakeClient:
         self.names = artifacts or ["image.exr", "preview.png"]
         self.submitted: list[dict[str, Any]] = []
         self.docs: dict[str, dict[str, Any]] = {}
+        self.polls: list[str] = []
 
     def submit(self, spec: dict[str, Any]) -> dict[str, Any]:
         self.submitted.append(spec)
@@ -283,7 +284,11 @@ class FakeClient:
         }
         return {"id": job_id, "state": "queued"}
 
+    def submit_created(self, spec: dict[str, Any]) -> tuple[dict[str, Any], bool]:
+        return self.submit(spec), True
+
     def get(self, job_id: str) -> dict[str, Any]:
+        self.polls.append(job_id)
         return self.docs[job_id]
 
     def read_bytes(self, digest: str) -> bytes:
@@ -328,6 +333,8 @@ def test20_run_resolves_refs_and_flattens_metrics(tmp_path: Path) -> None:
     assert [r.state for r in outcome.results] == ["succeeded"] * 3
     params = client.submitted[2]["params"]
     assert params["reference"] == f"job:{1:032x}/image.exr"
+    labels = {spec["batch"] for spec in client.submitted}  # one batch run, one label
+    assert len(labels) == 1 and labels.pop().startswith("b.yaml ")
     assert params["candidates"] == {
         "a": f"job:{2:032x}/image.exr",
         "b": f"job:{2:032x}/preview.png",
@@ -385,6 +392,57 @@ def test22_missing_artifact_is_a_clear_error() -> None:
     assert len(client.submitted) == 1
 
 
+def test23_continue_on_error_skips_only_the_dependents() -> None:
+    steps = {
+        "steps": [
+            {"name": "gold", "spec": render(1)},
+            {"name": "s", "spec": score("step:gold/image.exr")},
+            {"name": "needs_s", "spec": score("step:s/metrics.json")},
+            {"name": "after", "spec": render(3)},
+        ]
+    }
+    client = FakeClient(fail={"score"})
+    outcome = run_batch(parse(steps), client, quiet(), poll_seconds=0.01, continue_on_error=True)  # type: ignore[arg-type]
+    assert outcome.exit_code == 1
+    assert [r.state for r in outcome.results] == ["succeeded", "failed", "skipped", "succeeded"]
+    assert "needs step 's'" in (outcome.results[2].error or "")
+    assert [spec["kind"] for spec in client.submitted] == ["render", "score", "render"]
+    # without the flag, the batch stops at the failure
+    stopped = run_batch(parse(steps), FakeClient(fail={"score"}), quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
+    assert [r.state for r in stopped.results] == ["succeeded", "failed", "skipped", "skipped"]
+
+
+class SlowClient(FakeClient):
+    """Each job reports ``running`` on its first poll; ``log`` records submits and polls."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.log: list[str] = []
+
+    def submit(self, spec: dict[str, Any]) -> dict[str, Any]:
+        doc = super().submit(spec)
+        self.log.append(f"submit {spec['kind']}")
+        return doc
+
+    def get(self, job_id: str) -> dict[str, Any]:
+        self.log.append("poll")
+        first = job_id not in self.polls
+        doc = super().get(job_id)
+        return {**doc, "state": "running", "progress": 0.5} if first else doc
+
+
+def test24_parallel_runs_independent_steps_at_once() -> None:
+    client = SlowClient()
+    outcome = run_batch(three_steps(), client, quiet(), poll_seconds=0.01, parallel=2)  # type: ignore[arg-type]
+    assert [r.state for r in outcome.results] == ["succeeded"] * 3
+    # gold and alu are both submitted before any poll; score only after both finished
+    assert client.log[:3] == ["submit render", "submit render", "poll"]
+    assert client.log.index("submit score") > 4
+    serial = SlowClient()
+    run_batch(three_steps(), serial, quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
+    assert serial.log[:4] == ["submit render", "poll", "poll", "submit render"]
+
+
 def test_result_tables_flatten_to_label_column_metrics() -> None:
     """The batch's metric columns are the numeric cells of the kinds' result tables (bools,
     text and missing values left out), through the tables' JSON form."""
@@ -417,3 +475,14 @@ def test_bare_step_ref_means_the_whole_job() -> None:
     assert m is not None and m["step"] == "tables" and m["name"] is None
     assert _placeholder("step:tables") == "job:" + _placeholder("step:t/x")[4:36]
     assert _placeholder("step:t/x").endswith("/x")
+
+
+def test_short_job_refs_pass_local_validation() -> None:
+    """A step may name an existing job by a unique prefix of its id (the server resolves
+    it on submission); the batch's own check sees a well-formed ref."""
+    from service.cli.batch import pad_short_job_refs
+
+    batch = parse({"steps": [{"name": "s", "spec": score("job:3f2a9c/image.exr")}]})
+    assert batch.steps[0].spec["params"]["reference"] == "job:3f2a9c/image.exr"  # kept as written
+    padded = pad_short_job_refs({"a": ["job:3f2a9c/x.exr", "job:" + "1" * 32 + "/y"]})
+    assert padded == {"a": ["job:3f2a9c" + "0" * 26 + "/x.exr", "job:" + "1" * 32 + "/y"]}

@@ -14,6 +14,18 @@
 
   MF.localTimes();
 
+  /** Pictures shown larger than they are get square pixels, not a blur (small renders,
+      BRDF slices, FLIP maps of tiny images). */
+  function pixelate(img) {
+    img.classList.toggle("pixelated", img.naturalWidth > 0 && img.naturalWidth < img.clientWidth);
+  }
+  const pictures = document.querySelectorAll("figure img");
+  for (const img of pictures) {
+    if (img.complete) pixelate(img);
+    img.addEventListener("load", () => pixelate(img));
+  }
+  window.addEventListener("resize", () => pictures.forEach(pixelate));
+
   function show(job) {
     const pct = Math.round((job.progress || 0) * 100);
     stateBadge.className = `badge state-${job.state}`;
@@ -57,35 +69,68 @@
     }
   });
 
+  /** One bar chart per metric that varies: nothing for constant columns (n, queries), a
+      metric's baseline ("baseline.<metric>") drawn beside it, the best row highlighted,
+      the better direction in the title, and a y axis that fits the values (PSNR does not
+      start at 0; values over decades get a log axis). */
   function charts() {
     const node = document.getElementById("metrics-data");
     const box = document.getElementById("metrics-charts");
     if (!node || !box || typeof window.Chart === "undefined") return;
     const metrics = JSON.parse(node.textContent);
+    const better = metrics.better || {};
+    const best = metrics.best || {};
+    const names = new Set(metrics.names);
     const palette = ["#2f5bd3", "#1f9d55", "#c98a0b", "#d64545", "#7a5af8", "#0e9384"];
+    const number = (v) => typeof v === "number" && isFinite(v);
     metrics.names.forEach((name, i) => {
-      const labels = metrics.labels.filter((l) => typeof metrics.rows[l][name] === "number");
-      if (!labels.length) return;
-      const canvas = MF.el("canvas", { "aria-label": `${name} per candidate`, role: "img" });
+      if (name.startsWith("baseline.") && names.has(name.slice(9))) return;  // drawn with its metric
+      const labels = metrics.labels.filter((l) => number(metrics.rows[l][name]));
+      const values = labels.map((l) => metrics.rows[l][name]);
+      if (!labels.length || values.every((v) => v === values[0])) return;
+      const baseline = names.has(`baseline.${name}`) ? `baseline.${name}` : null;
+      const colour = palette[i % palette.length];
+      const datasets = [{
+        label: baseline ? "model" : name,
+        data: values,
+        backgroundColor: labels.map((l) => (best[name] === undefined || best[name] === l ? colour : `${colour}66`)),
+        borderColor: labels.map((l) => (best[name] === l ? "#101828" : colour)),
+        borderWidth: labels.map((l) => (best[name] === l ? 2 : 0)),
+        borderRadius: 4,
+        maxBarThickness: 56,
+      }];
+      if (baseline) {
+        datasets.push({
+          label: "baseline",
+          data: labels.map((l) => (number(metrics.rows[l][baseline]) ? metrics.rows[l][baseline] : null)),
+          backgroundColor: "#98a2b3",
+          borderRadius: 4,
+          maxBarThickness: 56,
+        });
+      }
+      const all = datasets.flatMap((d) => d.data).filter(number);
+      const positive = all.every((v) => v > 0);
+      const log = positive && Math.max(...all) / Math.min(...all) >= 100;
+      const sense = better[name];
+      const arrow = sense === "lower" ? " (lower is better ↓)" : sense === "higher" ? " (higher is better ↑)" : "";
+      const canvas = MF.el("canvas", { "aria-label": `${name} per ${metrics.label_header || "row"}`, role: "img",
+                                       "data-metric": name });
       box.append(MF.el("div", { class: "card" }, MF.el("div", { class: "chart-box" }, canvas)));
       new window.Chart(canvas, {
         type: "bar",
-        data: {
-          labels,
-          datasets: [{
-            label: name,
-            data: labels.map((l) => metrics.rows[l][name]),
-            backgroundColor: palette[i % palette.length],
-            borderRadius: 4,
-            maxBarThickness: 56,
-          }],
-        },
+        data: { labels, datasets },
         options: {
           responsive: true,
           maintainAspectRatio: false,
           animation: false,
-          plugins: { legend: { display: false }, title: { display: true, text: name } },
-          scales: { y: { beginAtZero: true } },
+          plugins: {
+            legend: { display: Boolean(baseline) },
+            title: { display: true, text: name + arrow },
+            subtitle: { display: best[name] !== undefined, text: `best: ${best[name]}` },
+          },
+          scales: {
+            y: log ? { type: "logarithmic" } : { beginAtZero: sense !== "higher" || !positive, grace: "5%" },
+          },
         },
       });
     });

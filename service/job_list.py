@@ -1,0 +1,92 @@
+"""The query of ``GET /api/jobs`` (and the dashboard's list): filters, sort and paging.
+
+Unknown filter values are refused with a 422 that names the filter (``?kind=scor`` used to
+return an empty list, which reads as "no such jobs" rather than "no such kind").
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, Query
+
+from jobapi.errors import SpecError
+from service import kinds
+from service.schemas import JobState
+from storage.job_queries import JOB_SORTS
+
+#: SQLite's largest integer: a larger offset cannot be bound (it was a 500).
+MAX_OFFSET = 2**63 - 1
+
+
+@dataclass(frozen=True)
+class JobListQuery:
+    """Validated list options; ``sort`` is a key of :data:`storage.job_queries.JOB_SORTS`."""
+
+    state: str | None = None
+    kind: str | None = None
+    name: str | None = None
+    batch: str | None = None
+    sort: str = "-created"
+    limit: int = 200
+    offset: int = 0
+
+
+def _unknown(filter_name: str, value: str, known: list[str]) -> SpecError:
+    close = difflib.get_close_matches(value, known, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return SpecError(
+        [
+            (
+                f"query.{filter_name}",
+                f"unknown {filter_name} {value!r}{hint} (one of: {', '.join(known)})",
+            )
+        ]
+    )
+
+
+def job_list_query(
+    state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
+    kind: Annotated[
+        str | None, Query(max_length=64, description="only this kind (422 if no such kind)")
+    ] = None,
+    name: Annotated[
+        str | None,
+        Query(max_length=200, description="only jobs whose name contains this (any case)"),
+    ] = None,
+    batch: Annotated[
+        str | None,
+        Query(max_length=200, description="only jobs of this batch run (its exact label)"),
+    ] = None,
+    sort: Annotated[
+        str,
+        Query(
+            max_length=16,
+            description="order: " + ", ".join(f"`{k}`" for k in JOB_SORTS) + " (`-`: descending)",
+        ),
+    ] = "-created",
+    limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="skip this many (paging)")] = 0,
+) -> JobListQuery:
+    """The validated options; raises :class:`SpecError` (422) naming an unknown kind or
+    sort order."""
+    if kind:
+        known = sorted(kinds.all_kinds())
+        if kind not in known:
+            raise _unknown("kind", kind, known)
+    if sort not in JOB_SORTS:
+        raise _unknown("sort", sort, list(JOB_SORTS))
+    return JobListQuery(
+        state=state,
+        kind=kind or None,
+        name=name or None,
+        batch=batch or None,
+        sort=sort,
+        limit=limit,
+        offset=offset,
+    )
+
+
+JobListDep = Annotated[JobListQuery, Depends(job_list_query)]

@@ -1,0 +1,112 @@
+"""Mitsuba plugin and conductor names are checked before queueing (issue 14 §6), from a
+list checked into the repo (the web process never imports Mitsuba), and the list matches
+the installed Mitsuba."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from jobapi.errors import SpecError
+from service import kinds
+from service.specs import validate_spec
+
+REPO = Path(__file__).resolve().parents[4]
+
+
+def render(material: dict[str, Any]) -> dict[str, Any]:
+    return {"kind": "render", "params": {"material": {"mitsuba": material}}}
+
+
+def test01_the_checked_in_list_matches_mitsuba(mi: types.ModuleType) -> None:
+    spec = importlib.util.spec_from_file_location(
+        "mitsuba_names", REPO / "scripts/mitsuba_names.py"
+    )
+    assert spec and spec.loader
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    checked_in = (REPO / "evaluators/render/mitsuba_names.py").read_text(encoding="utf-8")
+    assert checked_in == script.names_module(mi), (
+        "evaluators/render/mitsuba_names.py does not match the installed Mitsuba: run "
+        "`.venv/bin/python scripts/mitsuba_names.py --write`"
+    )
+    from evaluators.render.mitsuba_names import BSDF_PLUGINS, CONDUCTOR_MATERIALS
+
+    assert {"diffuse", "roughconductor", "principled"} <= BSDF_PLUGINS
+    assert {"Au", "Ag", "Cu", "Al", "none"} <= CONDUCTOR_MATERIALS
+    for name in ("Au", "Cu_palik"):  # Mitsuba builds a conductor from each listed name
+        mi.load_dict({"type": "conductor", "material": name})
+
+
+@pytest.mark.parametrize(
+    ("material", "words"),
+    [
+        ({"type": "roughconductr"}, ["type", "'roughconductr'", "did you mean 'roughconductor'"]),
+        ({"type": "roughconductor", "material": "Gold"}, ["material", "'Gold'", "'Au'"]),
+        ({"type": "conductor", "material": "cu"}, ["did you mean 'Cu'"]),
+        ({"type": "sphere"}, ["'sphere' is a Mitsuba plugin, but not a BSDF"]),
+        ({"type": "twosided", "bsdf": {"type": "difuse"}}, ["bsdf.type", "'diffuse'"]),
+        ({"type": "diffuse", "reflectance": {"type": "rgbb", "value": [1, 0, 0]}}, ["'rgb'"]),
+    ],
+)
+def test02_typos_are_refused_before_queueing(material: dict[str, Any], words: list[str]) -> None:
+    kinds.load_builtin()
+    with pytest.raises(SpecError) as exc:
+        validate_spec(render(material))
+    text = str(exc.value)
+    assert "params.material" in text
+    for word in words:
+        assert word in text, text
+
+
+@pytest.mark.parametrize(
+    "material",
+    [
+        {"type": "roughconductor", "material": "Au", "alpha": 0.2},
+        {"type": "conductor", "material": "none"},
+        {"type": "twosided", "bsdf": {"type": "diffuse"}},
+        {"type": "diffuse", "reflectance": {"type": "checkerboard"}},
+        {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]}},
+        {"type": "roughplastic", "diffuse_reflectance": {"type": "spectrum", "value": 0.5}},
+    ],
+)
+def test03_good_dicts_pass(material: dict[str, Any]) -> None:
+    kinds.load_builtin()
+    validate_spec(render(material))
+
+
+def test04_generate_kinds_check_the_same_names() -> None:
+    kinds.load_builtin()
+    merl = {"kind": "generate.merl", "params": {"source": {"mitsuba": {"type": "difuse"}}}}
+    with pytest.raises(SpecError, match="did you mean 'diffuse'"):
+        validate_spec(merl)
+    btf = {
+        "kind": "generate.btf",
+        "params": {"surface": {"bsdf": {"type": "roughconductor", "material": "Gold"}}},
+    }
+    with pytest.raises(SpecError, match="'Au'"):
+        validate_spec(btf)
+
+
+def test05_the_web_process_does_not_import_mitsuba(tmp_path: Path) -> None:
+    code = (
+        "import sys; from pathlib import Path; "
+        "from service.api import create_app; from service.settings import Settings; "
+        "from service import kinds; from service.specs import validate_spec; "
+        f"create_app(Settings.from_env({{}}).with_(data_dir=Path({str(tmp_path)!r}))); "
+        "kinds.load_builtin(); "
+        "validate_spec({'kind': 'render', 'params': {'material': {'mitsuba': "
+        "{'type': 'roughconductor', 'material': 'Au'}}}}); "
+        "print(sorted(m for m in ('mitsuba', 'drjit') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

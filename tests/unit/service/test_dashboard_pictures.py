@@ -1,0 +1,66 @@
+"""How the job page orders and labels pictures (issue 14 §4), from the kinds' figures:
+generate.fabric's preview first (the lead picture), generate.merl's slices with axes."""
+
+from __future__ import annotations
+
+from service import kinds
+from service.routes.dashboard import breakable, picture_views
+from storage.jobs import ArtifactRecord
+
+
+def png(name: str) -> ArtifactRecord:
+    return ArtifactRecord(name=name, digest="0" * 64, size=1, media_type="image/png")
+
+
+def test01_fabric_preview_leads() -> None:
+    kinds.load_builtin()
+    arts = [png("a_map.png"), png("preview.png"), png("flip_x.png")]
+    images = picture_views(arts, "generate.fabric")
+    assert [i["name"] for i in images] == ["preview.png", "a_map.png", "flip_x.png"]
+    assert [i["group"] for i in images] == ["lead", "image", "flip"]
+    assert "Fig. 2" in images[0]["note"]
+    plain = picture_views(arts, "no.such.kind")  # an unregistered kind: names in order, no lead
+    assert [i["group"] for i in plain] == ["image", "image", "flip"]
+
+
+def test02_merl_slices_have_labelled_axes() -> None:
+    kinds.load_builtin()
+    (image,) = picture_views([png("gold.png")], "generate.merl")
+    assert image["x"].label.startswith("θh") and (image["x"].start, image["x"].end) == (
+        "0°",
+        "90°",
+    )
+    assert image["y"].label == "θd" and image["group"] == "image"
+
+
+def test03_column_names_break_after_dots() -> None:
+    assert str(breakable("baseline.rgb.rel")) == "baseline.<wbr>rgb.<wbr>rel"
+    assert str(breakable("<b>.x")) == "&lt;b&gt;.<wbr>x"
+
+
+def test04_inputs_are_the_pictures_params_refer_to(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A score's reference and candidates show on its page, linked to their jobs."""
+    from service.routes.dashboard import input_pictures
+    from storage.jobs import JobStore
+
+    jobs = JobStore(tmp_path / "jobs.sqlite3")
+    made, _ = jobs.submit(kind="render", name=None, seed=0, spec_hash="a" * 64, spec={})
+    claimed = jobs.claim("t:1", 30.0, job_id=made.id)
+    assert claimed is not None and claimed.lease_token
+    exr = ArtifactRecord(name="image.exr", digest="1" * 64, size=1, media_type="image/x-exr")
+    assert jobs.complete(made.id, claimed.lease_token, [exr], "2" * 64)
+    jobs.record_upload("3" * 64, "mine.png", "image/png", 1)
+    params = {
+        "reference": f"job:{made.id}/image.exr",
+        "candidates": {"mine": "sha256:" + "3" * 64, "gone": "sha256:" + "4" * 64},
+        "metrics": ["flip"],
+    }
+    score, _ = jobs.submit(
+        kind="score", name=None, seed=0, spec_hash="b" * 64, spec={"params": params}
+    )
+    got = input_pictures(jobs.get(score.id), jobs)
+    assert [(i["param"], i["name"], i["job"]) for i in got] == [
+        ("reference", "image.exr", made.id),
+        ("candidates.mine", "mine.png", None),
+    ]
+    assert got[0]["src"] == f"/api/artifacts/{'1' * 64}/preview.png"
