@@ -97,3 +97,21 @@ def test02_scores(chain: tuple[Settings, dict[str, Job]]) -> None:
     vs_surface = _json(settings, jobs["vs_surface"], "metrics.json")["metrics"]
     worst = max(vs_surface[m]["flip"] for m in MODELS)
     assert vs_surface["table"]["flip"] < worst
+
+
+def test03_reports_check_the_papers_claims(chain: tuple[Settings, dict[str, Job]]) -> None:
+    """The recipe's report.pareto checks Table 1's, Fig. 8's and Fig. 11's claims on the
+    trained models' own L1 (each claim has a verdict and its numbers, true or not at this
+    size), and select picks a rung of the BTF ladder or says none meets the target."""
+    settings, jobs = chain
+    report = _json(settings, jobs["table1_report"], "pareto.json")
+    claims = {c["claim"].split(":")[0]: c for c in report["claims"]}
+    assert {"Table 1", "Fig. 8", "Fig. 11"} <= set(claims)
+    l1 = {m: _json(settings, jobs[m], "metrics.json") for m in ("c2f", "c2f_distill")}
+    fig11 = claims["Fig. 11"]
+    assert fig11["holds"] == (l1["c2f_distill"]["l1"] < l1["c2f"]["l1"])
+    assert math.isclose(fig11["a_mean"], l1["c2f_distill"]["l1"], rel_tol=1e-6)
+    (panel,) = [p for p in report["panels"] if p["metric"] == "l1"]
+    assert panel["front"], panel
+    chosen = _json(settings, jobs["select"], "select.json")
+    assert chosen["ladders"], chosen
