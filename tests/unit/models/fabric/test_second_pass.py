@@ -123,7 +123,7 @@ def test03_backends_agree_with_every_option() -> None:
     np.testing.assert_allclose(np.stack([np.array(v) for v in d], 1), ref, atol=2e-6)
 
 
-def _fit_constant(loss: str, y: torch.Tensor, steps: int = 4000) -> float:
+def _fit_constant(loss: str, y: torch.Tensor, steps: int = 1500) -> float:
     """A constant ``S`` (raw output in Eq. 9's log space) fitted by Adam to targets ``y``."""
     raw = torch.zeros(1, 4, dtype=torch.float64, requires_grad=True)
     opt = torch.optim.Adam([raw], lr=0.02)
@@ -146,7 +146,7 @@ def _fit_constant(loss: str, y: torch.Tensor, steps: int = 4000) -> float:
 def test04_relative_l2_minimiser_is_the_mean_and_the_paper_loss_lands_below() -> None:
     rng = np.random.default_rng(3)
     # A skewed specular-like target: log-normal, sigma 1.5 (mean / median = e^1.125 = 3.1).
-    y = torch.from_numpy(0.01 * rng.lognormal(0.0, 1.5, 20000))
+    y = torch.from_numpy(0.01 * rng.lognormal(0.0, 1.5, 5000))
     mean = float(y.mean())
     rel = _fit_constant("relative_l2", y)
     paper = _fit_constant("paper", y)
