@@ -73,8 +73,9 @@ class FabricPreset:
 
 #: ``small``: ~2 minutes on 2 shared cores for the small generate.fabric dataset.
 #: ``medium``: the second pass of issue 12 (unbiased loss, log size, periodic centre, phase
-#: features) at about 25 minutes on 2 cores (36,000 steps at ~40 ms; measured in
-#: BENCHMARKS.md); for a dataset like the Sec. 6 recipe's (log-uniform sizes recommended).
+#: features) in about 22 minutes on 2 idle cores: 45,000 steps, each 1.06x a ``small`` step
+#: (measured side by side) of 27-29 ms (BENCHMARKS.md); for a dataset like the Sec. 6
+#: recipe's (log-uniform sizes recommended).
 #: ``paper``: Sec. 5.2, 10 epochs over 160 M queries in batches of 512 = 3,125,000 steps
 #: (4 days on an RTX 3090 in the paper); for a GPU.
 PRESETS: dict[str, FabricPreset] = {
@@ -85,8 +86,8 @@ PRESETS: dict[str, FabricPreset] = {
         holdout=0.1, train_queries=None,
     ),
     "medium": FabricPreset(
-        "~25 min on 2 cores: relative L2, log size, periodic centre, phase features",
-        encoder_width=32, decoder_width=48, map_resolution=64, steps=36_000, batch=512,
+        "~22 min on 2 idle cores: relative L2, log size, periodic centre, phase features",
+        encoder_width=32, decoder_width=48, map_resolution=64, steps=45_000, batch=512,
         materials_per_step=4, lr=0.05, momentum=0.9, weight_decay=1e-5, clip=1.0,
         holdout=0.1, train_queries=None, loss="relative_l2", centre_encoding="periodic",
         size_encoding="log", centre_bins=16, phase_channels=8,
@@ -132,8 +133,8 @@ class TrainFabricParams(StrictModel):
     ``device``              auto|cpu|cuda   auto      auto      auto: cuda if available
     ======================  ==============  ========  ========  ===============================
 
-    The ``medium`` preset (~25 min on 2 cores) is ``small``'s with ``decoder_width`` 48,
-    36,000 steps, ``loss`` relative_l2, ``centre_encoding`` periodic with 16
+    The ``medium`` preset (~22 min on 2 idle cores) is ``small``'s with ``decoder_width``
+    48, 45,000 steps, ``loss`` relative_l2, ``centre_encoding`` periodic with 16
     ``centre_bins``, ``size_encoding`` log and 8 ``phase_channels`` (issue 12).
 
     Example::
@@ -149,7 +150,7 @@ class TrainFabricParams(StrictModel):
     preset: Literal["small", "medium", "paper"] = Field(
         default="small",
         description="Defaults of the unset fields: 'small' (~2 min on 2 cores), 'medium' "
-        "(~25 min on 2 cores, the issue-12 options on) or 'paper' (Sec. 5.2, 3.125 M steps; "
+        "(~22 min on 2 idle cores, the issue-12 options on) or 'paper' (Sec. 5.2, 3.125 M steps; "
         "for a GPU).",
     )
     encoder_width: int | None = Field(
