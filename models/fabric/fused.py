@@ -183,7 +183,7 @@ def decoder_numpy(
     docstring. ``latent`` may be a training material's name."""
     code = _latent(model, latent)
     a = model.arch
-    z = code[: a.latent_dim]
+    z = code[: a.z_dim]
     cx = np.asarray(cx, np.float32).reshape(-1)
     cy = np.asarray(cy, np.float32).reshape(-1)
     wi = np.asarray(wi, np.float32).reshape(-1, 3)
@@ -196,7 +196,7 @@ def decoder_numpy(
     parts = [np.broadcast_to(z, (len(cx), len(z)))]
     if a.phase_channels:
         g = a.phase_grid
-        grid = code[a.latent_dim :].reshape(a.phase_channels, g * g)
+        grid = code[a.z_dim :].reshape(a.phase_channels, g * g)
         sampled = np.zeros((len(cx), a.phase_channels), np.float32)
         for idx, wt in phase_taps(NUMPY_OPS, cx, cy, g, g):
             sampled += wt[:, None] * grid[:, idx.astype(np.int64)].T
@@ -241,8 +241,8 @@ def decoder_drjit(
         float_type = llvm.Float
     code = _latent(model, latent)
     a = model.arch
-    z = [float(v) for v in code[: a.latent_dim]]
-    grid = code[a.latent_dim :].astype(np.float32)
+    z = [float(v) for v in code[: a.z_dim]]
+    grid = code[a.z_dim :].astype(np.float32)
     g = a.phase_grid
     L = model.layers
     ops = drjit_ops()

@@ -69,6 +69,7 @@ class FabricPreset:
     size_encoding: str = "strata"
     centre_bins: int = 8
     phase_channels: int = 0
+    param_skip: bool = False
 
 
 #: ``small``: ~2 minutes on 2 shared cores for the small generate.fabric dataset.
@@ -130,6 +131,7 @@ class TrainFabricParams(StrictModel):
     ``size_encoding``       strata | log    strata    strata    log: resolves small footprints
     ``centre_bins``         4..64           8         8         bins per centre coordinate
     ``phase_channels``      0..32           0         0         phase-aware features (0: off)
+    ``param_skip``          bool            false     false     alpha, beta, w to the decoder
     ``device``              auto|cpu|cuda   auto      auto      auto: cuda if available
     ======================  ==============  ========  ========  ===============================
 
@@ -231,6 +233,12 @@ class TrainFabricParams(StrictModel):
         description="Phase-aware features: channels of the encoder's stride-8 feature map "
         "sampled (bilinear, wrapping) at the footprint centre and fed to the decoder; 0: off"
         + _preset("phase_channels"),
+    )  # fmt: skip
+    param_skip: bool | None = Field(
+        default=None,
+        description="Hand the 5 appearance parameters (alpha, beta per yarn, w) to the "
+        "decoder beside the latent (they join each material's code); without it a small "
+        "model learns one function per pattern" + _preset("param_skip"),
     )  # fmt: skip
     init: Ref | None = Field(
         default=None,

@@ -43,6 +43,10 @@ Second-pass options (issue 12; the defaults are the network above, unchanged):
 
 - ``centre_encoding``, ``size_encoding``, ``centre_bins``: the footprint encoding
   (:class:`models.fabric.encoding.SpatialEncoding`: periodic centre one-blob, log size);
+- ``param_skip`` 1: the 5 appearance parameters (:data:`PARAM_NAMES`) join ``z`` in the code
+  as they are, so the decoder sees alpha, beta and w directly. Without it a small model
+  learns one function per pattern and ignores them (BENCHMARKS.md, issue 12: four materials
+  of one pattern with beta 0.28-0.90 decode to the same components to 3 digits);
 - ``phase_channels`` ``P > 0``: **phase-aware features**. Circular padding and global
   pooling make ``z`` nearly independent of where the tile was cut, so the decoder can learn
   a seen pattern's layout only by memorising it against the one-blob centre. Here the
@@ -97,6 +101,7 @@ class Architecture:
     size_encoding: str = "strata"
     centre_bins: int = BINS
     phase_channels: int = 0
+    param_skip: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """The fields; the second-pass ones only where they differ from the default (so a
@@ -130,14 +135,20 @@ class Architecture:
         return self.map_resolution // 8 if self.phase_channels else 0
 
     @property
+    def z_dim(self) -> int:
+        """Values of the code's global part: ``z``, plus the 5 parameters with
+        ``param_skip``."""
+        return self.latent_dim + (len(PARAM_NAMES) if self.param_skip else 0)
+
+    @property
     def code_dim(self) -> int:
-        """Values of a material's code: ``latent_dim + phase_channels * phase_grid^2``."""
-        return self.latent_dim + self.phase_channels * self.phase_grid**2
+        """Values of a material's code: ``z_dim + phase_channels * phase_grid^2``."""
+        return self.z_dim + self.phase_channels * self.phase_grid**2
 
 
 #: Architecture fields of the second pass (left out of :meth:`Architecture.as_dict` at
 #: their defaults).
-_SECOND_PASS = ("centre_encoding", "size_encoding", "centre_bins", "phase_channels")
+_SECOND_PASS = ("centre_encoding", "size_encoding", "centre_bins", "phase_channels", "param_skip")
 
 
 def param_vector(record: Mapping[str, Any]) -> np.ndarray:
@@ -257,6 +268,7 @@ class Encoder(nn.Module):
         self.fc1 = nn.Linear(arch.mlp_width, arch.mlp_width)
         self.fc2 = nn.Linear(arch.mlp_width, arch.mlp_width)
         self.out = nn.Linear(arch.mlp_width, arch.latent_dim)
+        self.param_skip = bool(arch.param_skip)
         self.phase: nn.Module | None = None
         if arch.phase_channels:
             self.phase = nn.Conv2d(2 * arch.encoder_width, arch.phase_channels, 1)
@@ -267,10 +279,12 @@ class Encoder(nn.Module):
         mid, pooled = self.trunk.features(maps)
         h = F.leaky_relu(self.proj(torch.cat([pooled, params], dim=1)), LEAKY)
         r = self.fc2(F.leaky_relu(self.fc1(h), LEAKY))
-        z = self.out(F.leaky_relu(r + h, LEAKY))
-        if self.phase is None:
-            return z
-        return torch.cat([z, self.phase(mid).flatten(1)], dim=1)
+        parts = [self.out(F.leaky_relu(r + h, LEAKY))]
+        if self.param_skip:
+            parts.append(params)
+        if self.phase is not None:
+            parts.append(self.phase(mid).flatten(1))
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
 
 class Decoder(nn.Module):
@@ -280,7 +294,7 @@ class Decoder(nn.Module):
         super().__init__()
         w = arch.decoder_width
         self.arch = arch
-        self.spatial1 = nn.Linear(arch.latent_dim + arch.phase_channels + arch.encoding.channels, w)
+        self.spatial1 = nn.Linear(arch.z_dim + arch.phase_channels + arch.encoding.channels, w)
         self.spatial2 = nn.Linear(w, w)
         self.angular1 = nn.Linear(w + len(ANGULAR_INPUTS), w)
         self.angular2 = nn.Linear(w, w)
@@ -294,12 +308,12 @@ class Decoder(nn.Module):
         a = self.arch
         ops = torch_ops()
         feats = spatial_features(ops, query[:, 0], query[:, 1], query[:, 2], enc=a.encoding)
-        parts = [code[:, : a.latent_dim]]
+        parts = [code[:, : a.z_dim]]
         if a.phase_channels:
             g = a.phase_grid
             # Channel p's grid starts at latent_dim + p g^2 (gathered in place: ``code``
             # may be one material's code expanded over the queries).
-            base = a.latent_dim + g * g * torch.arange(a.phase_channels, device=code.device)
+            base = a.z_dim + g * g * torch.arange(a.phase_channels, device=code.device)
             sampled = torch.zeros(len(code), a.phase_channels, dtype=code.dtype, device=code.device)
             for idx, wt in phase_taps(ops, query[:, 0], query[:, 1], g, g):
                 cols = base[None, :] + idx.long()[:, None]

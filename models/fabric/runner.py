@@ -33,7 +33,7 @@ P_LOADED, P_FITTED, P_SCORED = 0.05, 0.9, 0.97
 _TUNABLE = ("encoder_width", "decoder_width", "map_resolution", "steps", "batch",
             "materials_per_step", "lr", "momentum", "weight_decay", "clip", "holdout",
             "train_queries", "loss", "centre_encoding", "size_encoding", "centre_bins",
-            "phase_channels")  # fmt: skip
+            "phase_channels", "param_skip")  # fmt: skip
 
 
 def resolved(params: TrainFabricParams) -> dict[str, Any]:
@@ -59,6 +59,7 @@ def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
         size_encoding=str(params.value("size_encoding")),
         centre_bins=int(params.value("centre_bins")),
         phase_channels=int(params.value("phase_channels")),
+        param_skip=int(bool(params.value("param_skip"))),
     )
     net = build_network(arch, ctx.sub_seed("train.fabric/init"))
     if params.init is None:

@@ -168,12 +168,13 @@ def test04_failures_are_clear(fabric_env: tuple[Settings, str]) -> None:
 
 
 def test05_second_pass_options_end_to_end(fabric_env: tuple[Settings, str]) -> None:
-    """Relative L2, periodic centre, log size and phase features through the registry: the
-    network beats the per-material mean on both losses, and model.json (with the phase grid
-    in each material's code) decodes as the checkpoint does."""
+    """Relative L2, periodic centre, log size, phase features and the parameter skip through
+    the registry: the network beats the per-material mean on both losses, and model.json
+    (the parameters and the phase grid in each material's code) decodes as the checkpoint
+    does."""
     settings, gen = fabric_env
     options = {"loss": "relative_l2", "centre_encoding": "periodic", "centre_bins": 12,
-               "size_encoding": "log", "phase_channels": 4}  # fmt: skip
+               "size_encoding": "log", "phase_channels": 4, "param_skip": True}  # fmt: skip
     job = train(settings, {**TINY, **options, "dataset": f"job:{gen}"})
     assert job.state == "succeeded", job.error
     metrics = read_json(settings, job, "metrics.json")
@@ -191,7 +192,7 @@ def test05_second_pass_options_end_to_end(fabric_env: tuple[Settings, str]) -> N
     }
     assert doc["training"]["resolved"]["loss"] == "relative_l2"
     grid = 32 // 8
-    assert all(len(m["latent"]) == 64 + 4 * grid * grid for m in doc["materials"])
+    assert all(len(m["latent"]) == 64 + 5 + 4 * grid * grid for m in doc["materials"])
     net, saved = load_checkpoint(read(settings, job, "model.pt"))
     model = load_fabric_model(read(settings, job, "model.json"))
     rng = np.random.default_rng(1)

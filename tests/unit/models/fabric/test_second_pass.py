@@ -46,6 +46,7 @@ from models.fabric.losses import (
 from models.fabric.networks import Architecture, build_network
 
 ALL_ON = Architecture(
+    param_skip=1,
     encoder_width=16,
     map_resolution=64,
     decoder_width=16,
@@ -199,7 +200,7 @@ def _sampled_phase(
     a = net.arch
     with torch.no_grad():
         code = net.encoder(maps, torch.zeros(1, 5))[0].double().numpy()
-    grid = code[a.latent_dim :].reshape(a.phase_channels, -1)
+    grid = code[a.z_dim :].reshape(a.phase_channels, -1)
     out = np.zeros((len(cx), a.phase_channels))
     for idx, wt in phase_taps(NUMPY_OPS, cx, cy, a.phase_grid, a.phase_grid):
         out += wt[:, None] * grid[:, idx.astype(np.int64)].T
@@ -240,9 +241,12 @@ def test08_decoders_agree_with_every_option(bake: bool) -> None:
 
     net = build_network(ALL_ON, 1).eval()
     torch.manual_seed(0)
+    params = torch.rand(1, 5)
     with torch.no_grad():
-        code = net.encoder(torch.randn(1, 6, 64, 64), torch.rand(1, 5)).numpy()
-    assert code.shape == (1, ALL_ON.code_dim) == (1, 64 + 4 * 8 * 8)
+        code = net.encoder(torch.randn(1, 6, 64, 64), params).numpy()
+    assert code.shape == (1, ALL_ON.code_dim) == (1, 64 + 5 + 4 * 8 * 8)
+    # param_skip: the parameters follow z in the code, unchanged.
+    np.testing.assert_array_equal(code[0, 64:69], params.numpy()[0])
     rng = np.random.default_rng(6)
     n = 400
     q = np.concatenate(
