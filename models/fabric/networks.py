@@ -46,7 +46,9 @@ Second-pass options (issue 12; the defaults are the network above, unchanged):
 - ``param_skip`` 1: the 5 appearance parameters (:data:`PARAM_NAMES`) join ``z`` in the code
   as they are, so the decoder sees alpha, beta and w directly. Without it a small model
   learns one function per pattern and ignores them (BENCHMARKS.md, issue 12: four materials
-  of one pattern with beta 0.28-0.90 decode to the same components to 3 digits);
+  of one pattern with beta 0.28-0.90 decode to the same components to 3 digits); with it,
+  at the same 6,000-step budget, the decoder ignores them too (measured there), so this is
+  an option to try at larger budgets, not a fix;
 - ``phase_channels`` ``P > 0``: **phase-aware features**. Circular padding and global
   pooling make ``z`` nearly independent of where the tile was cut, so the decoder can learn
   a seen pattern's layout only by memorising it against the one-blob centre. Here the
