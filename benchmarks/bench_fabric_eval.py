@@ -21,7 +21,9 @@ linear in spp through the 1-spp and ground-truth frames), and writes everything 
 to ``--out``.
 
 Run: ``.venv/bin/python benchmarks/bench_fabric_eval.py [--data-dir DIR] [--repeats 5]
-[--out fabric_eval.json]``
+[--out fabric_eval.json] [--set STEP=JSON ...]``; ``--set`` merges JSON params over a
+step's (e.g. ``--set 'model={"preset": "medium"}' --set 'dataset={"sizes": "log_uniform"}'``,
+the second pass of issue 12) in a temporary copy of the recipe.
 """
 
 from __future__ import annotations
@@ -182,13 +184,33 @@ def check_seen(settings: Any, jobs: dict[str, Any]) -> str:
     return ""
 
 
+def overridden_recipe(recipe: Path, sets: list[str]) -> Path:
+    """A temporary copy of ``recipe`` with ``STEP=JSON`` params merged over its steps'."""
+    import yaml
+
+    doc = yaml.safe_load(recipe.read_text())
+    steps = {s["name"]: s for s in doc["steps"]}
+    for item in sets:
+        name, _, text = item.partition("=")
+        spec = steps[name]["spec"]
+        spec["params"] = {**spec["params"], **json.loads(text)}
+        spec["name"] = f"{spec.get('name', name)} ({text})"
+    out = Path(tempfile.mkdtemp(prefix="fabric_recipe_")) / recipe.name
+    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data-dir", type=Path, default=None, help="default: a temporary one")
     ap.add_argument("--recipe", type=Path, default=RECIPE)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--set", action="append", default=[], metavar="STEP=JSON",
+                    help="merge JSON params over a recipe step's (repeatable)")  # fmt: skip
     args = ap.parse_args()
+    if args.set:
+        args.recipe = overridden_recipe(args.recipe, args.set)
 
     from evaluators.render.kind import RenderParams
     from materials.backend import load_mitsuba

@@ -162,12 +162,25 @@ class ShardTask:
     sampler: str
     sample_seed: int
     backend: str
+    sizes: str = "strata"
+
+
+def _config_doc(cfg: Resolved) -> dict[str, Any]:
+    """``materials.json``'s ``config``; ``sizes`` only when not the paper's strata (so a
+    default job's ``materials.json`` keeps its bytes)."""
+    doc = {**cfg.__dict__, "patterns": list(cfg.patterns), "replicates": REPLICATES}
+    if doc["sizes"] == "strata":
+        del doc["sizes"]
+    return doc
 
 
 def estimate_shard(task: ShardTask) -> dict[str, Any]:
     """Shard function: design and estimate the queries; ``{"npz": bytes, "seconds": s}``."""
     started = time.perf_counter()
-    q = design_queries(task.design_seed, task.first, task.count, btdf_fraction=task.btdf_fraction)
+    q = design_queries(
+        task.design_seed, task.first, task.count, btdf_fraction=task.btdf_fraction,
+        sizes=task.sizes,
+    )  # fmt: skip
     # Store float32 and estimate at exactly the stored values.
     centre, size = q.centre.astype(np.float32), q.size.astype(np.float32)
     wi, wo = q.wi.astype(np.float32), q.wo.astype(np.float32)
@@ -218,6 +231,7 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
                     sampler=cfg.sampler,
                     sample_seed=ctx.sub_seed(f"generate.fabric/samples/{m.name}/{first}"),
                     backend=cfg.backend,
+                    sizes=cfg.sizes,
                 )
             )
         owners.append(names)
@@ -273,7 +287,7 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
             "materials": records,
             "components": ["C_warp", "C_weft", "S_warp", "S_weft"],
             "preset": params.preset,
-            "config": {**cfg.__dict__, "patterns": list(cfg.patterns), "replicates": REPLICATES},
+            "config": _config_doc(cfg),
             "preview": {
                 "materials": [m.name for m in first_of_pattern[:PREVIEW_ROWS]],
                 "footprint_size": PREVIEW_SIZE,

@@ -15,7 +15,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from generators.fabric.queries import BTDF_FRACTION
+from generators.fabric.queries import BTDF_FRACTION, LOG_SIZE_MIN
 from jobapi.params import StrictModel
 from jobapi.presets import preset_value
 from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS
@@ -169,6 +169,14 @@ class FabricGenParams(StrictModel):
         "pairs); the rest are BRDF pairs.",
     )
 
+    sizes: Literal["strata", "log_uniform"] = Field(
+        default="strata",
+        description="Footprint size design: 'strata' (Sec. 5.1: 10 strata over [0, 1] tile "
+        f"and 10 over [1, 5]) or 'log_uniform' (20 strata equal in ln size over "
+        f"[{LOG_SIZE_MIN:g}, 5] tiles: about a fifth of the queries at a render's 0.03-0.1 "
+        "tile pixel footprints, against 1/20 below 0.1 tile).",
+    )
+
     @field_validator("patterns")
     @classmethod
     def _known_patterns(cls, value: list[str] | None) -> list[str] | None:
@@ -214,6 +222,7 @@ class FabricGenParams(StrictModel):
             map_resolution=preset_value(self, PRESETS, "map_resolution"),
             backend=self.backend,
             btdf_fraction=self.btdf_fraction,
+            sizes=self.sizes,
         )
 
 
@@ -231,6 +240,7 @@ class Resolved:
     map_resolution: int
     backend: str
     btdf_fraction: float
+    sizes: str = "strata"
 
 
 def plan_sets(cfg: Resolved) -> list[tuple[str, int, int]]:

@@ -8,6 +8,11 @@ which :func:`materials.fabric.aggregate.estimate` evaluates the four components.
 - **Sizes**: 20 strata, 10 equal ones over ``[0, L_t]`` (width 0.1) and 10 over
   ``[L_t, 5 L_t]`` (width 0.4); one size is drawn uniformly in a stratum. Sizes are box
   footprint sides in tile units.
+- **Log-uniform sizes** (``sizes="log_uniform"``, issue 12): the same 20 strata, equal in
+  ``ln size`` over ``[LOG_SIZE_MIN, 5]`` tiles, sizes log-uniform within each. Renders'
+  pixel footprints (``cloth_plane``: 0.03-0.1 tile) sit in the paper design's least
+  populated stratum (``[0, 0.1]``, 1/20 of the queries); here about a fifth of the queries
+  fall in 0.03-0.1 tile, and the rest still span up to 5 tiles for distant views.
 - **Directions**: "stratified sampling the x and y components of both directions in a 8x8
   grid and computing the z component". A direction's stratum is a cell ``(ix, iy)`` of an
   8 x 8 grid over the unit square; a jittered point ``(u, v)`` in it is mapped to the unit
@@ -46,6 +51,10 @@ import numpy as np
 CENTRE_GRID = 8
 #: Size strata: ``(low, high, count)`` in tile sizes ``L_t`` (Sec. 5.1: 10 + 10).
 SIZE_STRATA: tuple[tuple[float, float, int], ...] = ((0.0, 1.0, 10), (1.0, 5.0, 10))
+#: Smallest footprint of the log-uniform size design, tile units.
+LOG_SIZE_MIN = 0.01
+#: Size designs: the paper's strata, or log-uniform strata.
+SIZE_DESIGNS: tuple[str, ...] = ("strata", "log_uniform")
 #: Direction strata per side of the unit square, per direction (8 x 8 for wi and for wo).
 DIRECTION_GRID = 8
 #: Default fraction of direction pairs with the light below (BTDF pairs).
@@ -73,8 +82,15 @@ class QueryBatch:
         return int(self.size.shape[0])
 
 
-def size_edges() -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper edges of the 20 size strata, ``(20,)`` each, tile units."""
+def size_edges(sizes: str = "strata") -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper edges of the 20 size strata, ``(20,)`` each, tile units (for
+    ``"log_uniform"``, equal in ``ln size`` from :data:`LOG_SIZE_MIN` to 5)."""
+    if sizes == "log_uniform":
+        n = sum(c for _, _, c in SIZE_STRATA)
+        e = np.exp(np.linspace(np.log(LOG_SIZE_MIN), np.log(SIZE_STRATA[-1][1]), n + 1))
+        return e[:-1], e[1:]
+    if sizes != "strata":
+        raise ValueError(f"sizes must be one of {SIZE_DESIGNS}, got {sizes!r}")
     lo, hi = [], []
     for a, b, n in SIZE_STRATA:
         e = np.linspace(a, b, n + 1)
@@ -144,7 +160,12 @@ def _factor(
 
 
 def design_queries(
-    seed: int, first: int, count: int, *, btdf_fraction: float = BTDF_FRACTION
+    seed: int,
+    first: int,
+    count: int,
+    *,
+    btdf_fraction: float = BTDF_FRACTION,
+    sizes: str = "strata",
 ) -> QueryBatch:
     """Queries ``first .. first + count - 1`` of one material's stratified design.
 
@@ -156,6 +177,8 @@ def design_queries(
         The query range; the result does not depend on how a material's range is split.
     btdf_fraction
         Fraction of each round's 4096 direction-pair cells with the light below.
+    sizes
+        ``"strata"`` (Sec. 5.1) or ``"log_uniform"`` (see the module docstring).
 
     Returns
     -------
@@ -168,9 +191,12 @@ def design_queries(
     g = CENTRE_GRID
     cells, jit, _ = _factor(seed, _TAG_CENTRE, g * g, 2, first, count)
     centre = np.stack([(cells % g + jit[:, 0]) / g, (cells // g + jit[:, 1]) / g], axis=1)
-    lo, hi = size_edges()
+    lo, hi = size_edges(sizes)
     cells, jit, _ = _factor(seed, _TAG_SIZE, len(lo), 1, first, count)
-    size = lo[cells] + (hi[cells] - lo[cells]) * jit[:, 0]
+    if sizes == "log_uniform":
+        size = lo[cells] * (hi[cells] / lo[cells]) ** jit[:, 0]
+    else:
+        size = lo[cells] + (hi[cells] - lo[cells]) * jit[:, 0]
     m = (DIRECTION_GRID**2) ** 2
     n_below = round(m * btdf_fraction)
     cells, jit, below = _factor(seed, _TAG_PAIR, m, 4, first, count, extra=n_below)

@@ -15,7 +15,9 @@ Interface::
     material_maps(params: FabricParams, resolution: int) -> (normal, orientation)
         (H, W, 3) float32 maps of one tile, row 0 at the top, exactly as generate.fabric's
         maps/<name>-normal.exr and -orientation.exr (materials.fabric.yarn.rasterize).
-    encode_material(model, params, normal_map, orientation_map) -> (latent_dim,) float32
+    encode_material(model, params, normal_map, orientation_map) -> (code_dim,) float32
+        the material's code: its latent z, then the phase grid when the model has phase
+        features (``Architecture.code_dim``).
         params: FabricParams or a materials.json params record; maps as above, any size
         (resampled to the model's map_resolution). Torch on the CPU, eval mode.
     decoder_numpy(model, latent, cx, cy, size, wi, wo, *, raw=False) -> (N, 4) float32
@@ -47,7 +49,7 @@ import numpy as np
 
 from materials.fabric.params import FabricParams
 from materials.fabric.yarn import rasterize
-from models.fabric.encoding import NUMPY_OPS, drjit_ops, spatial_features
+from models.fabric.encoding import NUMPY_OPS, drjit_ops, phase_taps, spatial_features
 from models.fabric.networks import (
     COMPONENTS,
     DECODER_LAYERS,
@@ -75,7 +77,8 @@ class FabricModel:
     layers: dict[str, DenseLayer]
     """Decoder layers by name (:data:`models.fabric.networks.DECODER_LAYERS`)."""
     latents: dict[str, np.ndarray]
-    """Training material name -> ``(latent_dim,)`` float32 latent."""
+    """Training material name -> ``(code_dim,)`` float32 code (the latent, and the phase grid
+    when the model has phase features)."""
     params: dict[str, dict[str, Any]]
     """Training material name -> its ``materials.json`` params record."""
     encoder: Any = None
@@ -142,7 +145,7 @@ def encode_material(
     normal_map: np.ndarray,
     orientation_map: np.ndarray,
 ) -> np.ndarray:
-    """The ``(latent_dim,)`` float32 latent of a material (runs the torch encoder once)."""
+    """The ``(code_dim,)`` float32 code of a material (runs the torch encoder once)."""
     if model.encoder is None:
         raise ValueError(
             "this model was loaded from model.json, which carries no encoder; load the job's "
@@ -160,8 +163,8 @@ def encode_material(
 
 def _latent(model: FabricModel, latent: np.ndarray | str) -> np.ndarray:
     z = model.latents[latent] if isinstance(latent, str) else np.asarray(latent, np.float32)
-    if z.shape != (model.arch.latent_dim,):
-        raise ValueError(f"latent must have shape ({model.arch.latent_dim},), got {z.shape}")
+    if z.shape != (model.arch.code_dim,):
+        raise ValueError(f"latent must have shape ({model.arch.code_dim},), got {z.shape}")
     return z
 
 
@@ -178,16 +181,27 @@ def decoder_numpy(
 ) -> np.ndarray:
     """Reference decoder: ``(N, 4)`` float32 components (or raw outputs); see the module
     docstring. ``latent`` may be a training material's name."""
-    z = _latent(model, latent)
+    code = _latent(model, latent)
+    a = model.arch
+    z = code[: a.z_dim]
     cx = np.asarray(cx, np.float32).reshape(-1)
+    cy = np.asarray(cy, np.float32).reshape(-1)
     wi = np.asarray(wi, np.float32).reshape(-1, 3)
     wo = np.asarray(wo, np.float32)[:, :2]
     feats = np.stack(
-        spatial_features(NUMPY_OPS, cx, np.asarray(cy, np.float32).reshape(-1),
-                         np.asarray(size, np.float32).reshape(-1), model.arch.bins), axis=1
+        spatial_features(NUMPY_OPS, cx, cy, np.asarray(size, np.float32).reshape(-1),
+                         enc=a.encoding), axis=1
     ).astype(np.float32)  # fmt: skip
     L = model.layers
-    x = np.concatenate([np.broadcast_to(z, (len(cx), len(z))), feats], axis=1)
+    parts = [np.broadcast_to(z, (len(cx), len(z)))]
+    if a.phase_channels:
+        g = a.phase_grid
+        grid = code[a.z_dim :].reshape(a.phase_channels, g * g)
+        sampled = np.zeros((len(cx), a.phase_channels), np.float32)
+        for idx, wt in phase_taps(NUMPY_OPS, cx, cy, g, g):
+            sampled += wt[:, None] * grid[:, idx.astype(np.int64)].T
+        parts.append(sampled)
+    x = np.concatenate([*parts, feats], axis=1)
     s = mlp_numpy([L["spatial1"], L["spatial2"]], x)
     h1 = mlp_numpy([L["angular1"]], np.concatenate([s, wi, wo], axis=1))
     pre = mlp_numpy([L["angular2"], L["angular3"]], h1) + h1
@@ -225,10 +239,13 @@ def decoder_drjit(
         import drjit.llvm as llvm
 
         float_type = llvm.Float
-    z = [float(v) for v in _latent(model, latent)]
+    code = _latent(model, latent)
+    a = model.arch
+    z = [float(v) for v in code[: a.z_dim]]
+    grid = code[a.z_dim :].astype(np.float32)
+    g = a.phase_grid
     L = model.layers
     ops = drjit_ops()
-    bins = model.arch.bins
     leaky = lambda x: dr.select(x >= 0.0, x, x * LEAKY_SLOPE)  # noqa: E731
     first = L["spatial1"]
     n_z = len(z)
@@ -248,7 +265,21 @@ def decoder_drjit(
         cx, cy, size, wix, wiy, wiz, wox, woy = (
             as_float(v) for v in (cx, cy, size, wix, wiy, wiz, wox, woy)
         )
-        feats = spatial_features(ops, cx, cy, size, bins)
+        feats = spatial_features(ops, cx, cy, size, enc=a.encoding)
+        if a.phase_channels:
+            # Phase features: the material's grid, wrap-around bilinear at the centre.
+            table = type(cx)(grid)
+            dr.make_opaque(table)
+            taps = phase_taps(ops, cx, cy, g, g)
+            index_type = dr.uint32_array_t(type(cx))
+            phase = []
+            for p in range(a.phase_channels):
+                v = type(cx)(0.0)
+                for idx, wt in taps:
+                    i = index_type(idx) + p * g * g
+                    v = v + wt * dr.gather(type(cx), table, i)
+                phase.append(v)
+            feats = [*phase, *feats]
         if bake_latent:
             s = fused_mlp([L["spatial1"], L["spatial2"]], [*z, *feats])
         else:

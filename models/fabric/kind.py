@@ -65,9 +65,19 @@ class FabricPreset:
     clip: float
     holdout: float
     train_queries: int | None
+    loss: str = "paper"
+    centre_encoding: str = "one_blob"
+    size_encoding: str = "strata"
+    centre_bins: int = 8
+    phase_channels: int = 0
+    param_skip: bool = False
 
 
 #: ``small``: ~2 minutes on 2 shared cores for the small generate.fabric dataset.
+#: ``medium``: the second pass of issue 12 (unbiased loss, log size, periodic centre, phase
+#: features) in about 22 minutes on 2 idle cores: 45,000 steps, each 1.06x a ``small`` step
+#: (measured side by side) of 27-29 ms (BENCHMARKS.md); for a dataset like the Sec. 6
+#: recipe's (log-uniform sizes recommended).
 #: ``paper``: Sec. 5.2, 10 epochs over 160 M queries in batches of 512 = 3,125,000 steps
 #: (4 days on an RTX 3090 in the paper); for a GPU.
 PRESETS: dict[str, FabricPreset] = {
@@ -76,6 +86,13 @@ PRESETS: dict[str, FabricPreset] = {
         encoder_width=32, decoder_width=32, map_resolution=64, steps=3000, batch=512,
         materials_per_step=4, lr=0.05, momentum=0.9, weight_decay=1e-5, clip=1.0,
         holdout=0.1, train_queries=None,
+    ),
+    "medium": FabricPreset(
+        "~22 min on 2 idle cores: relative L2, log size, periodic centre, phase features",
+        encoder_width=32, decoder_width=48, map_resolution=64, steps=45_000, batch=512,
+        materials_per_step=4, lr=0.05, momentum=0.9, weight_decay=1e-5, clip=1.0,
+        holdout=0.1, train_queries=None, loss="relative_l2", centre_encoding="periodic",
+        size_encoding="log", centre_bins=16, phase_channels=8,
     ),
     "paper": FabricPreset(
         "Sec. 5.2: SGD lr 5e-2, x0.2 at 60 % and 90 %, batch 512, 3.125 M steps; for a GPU",
@@ -110,8 +127,18 @@ class TrainFabricParams(StrictModel):
     ``clip``                float           1.0       1.0       gradient-norm clip
     ``holdout``             float           0.1       0.01      held-out query fraction
     ``train_queries``       int             all       344000    training queries kept
+    ``loss``                paper | rel.    paper     paper     Eq. 9-11, or relative_l2
+    ``centre_encoding``     one_blob|per.   one_blob  one_blob  periodic: no seam at the border
+    ``size_encoding``       strata | log    strata    strata    log: resolves small footprints
+    ``centre_bins``         4..64           8         8         bins per centre coordinate
+    ``phase_channels``      0..32           0         0         phase-aware features (0: off)
+    ``param_skip``          bool            false     false     alpha, beta, w to the decoder
     ``device``              auto|cpu|cuda   auto      auto      auto: cuda if available
     ======================  ==============  ========  ========  ===============================
+
+    The ``medium`` preset (~22 min on 2 idle cores) is ``small``'s with ``decoder_width``
+    48, 45,000 steps, ``loss`` relative_l2, ``centre_encoding`` periodic with 16
+    ``centre_bins``, ``size_encoding`` log and 8 ``phase_channels`` (issue 12).
 
     Example::
 
@@ -123,10 +150,11 @@ class TrainFabricParams(StrictModel):
         description="'job:<id>' of a succeeded generate.fabric job (in a batch file "
         "'step:<name>'): its shards, maps and materials.json."
     )
-    preset: Literal["small", "paper"] = Field(
+    preset: Literal["small", "medium", "paper"] = Field(
         default="small",
-        description="Defaults of the unset fields: 'small' (~2 min on 2 cores) or 'paper' "
-        "(Sec. 5.2, 3.125 M steps; for a GPU).",
+        description="Defaults of the unset fields: 'small' (~2 min on 2 cores), 'medium' "
+        "(~22 min on 2 idle cores, the issue-12 options on) or 'paper' (Sec. 5.2, 3.125 M steps; "
+        "for a GPU).",
     )
     encoder_width: int | None = Field(
         default=None, ge=16, le=64, multiple_of=8,
@@ -178,6 +206,42 @@ class TrainFabricParams(StrictModel):
         "Sec. 5.2 trains on about 160 M of the data set's queries, 344,000 per material); "
         "unset: the preset's (small all, paper 344000).",
     )  # fmt: skip
+    loss: Literal["paper", "relative_l2"] | None = Field(
+        default=None,
+        description="Training loss: 'paper' (Eq. 9-11: specular in log space, which fits "
+        "E[ln(1 + kS)] and so biases S low) or 'relative_l2' (unbiased in linear units: "
+        "(p - y)^2 / (sg(p)^2 + m^2), minimised by the conditional mean; C and S balanced); "
+        "metrics.json reports both" + _preset("loss"),
+    )  # fmt: skip
+    centre_encoding: Literal["one_blob", "periodic"] | None = Field(
+        default=None,
+        description="Footprint centre encoding: 'one_blob' (Sec. 4.2) or 'periodic' (the "
+        "one-blob with distances wrapped at the tile border: no seam)"
+        + _preset("centre_encoding"),
+    )  # fmt: skip
+    size_encoding: Literal["strata", "log"] | None = Field(
+        default=None,
+        description="Footprint size mapping before the one-blob: 'strata' (each Sec. 5.1 "
+        "stratum half the range) or 'log' (0.01 to 5 tiles on a log scale)"
+        + _preset("size_encoding"),
+    )  # fmt: skip
+    centre_bins: int | None = Field(
+        default=None, ge=4, le=64,
+        description="One-blob bins per centre coordinate" + _preset("centre_bins"),
+    )  # fmt: skip
+    phase_channels: int | None = Field(
+        default=None, ge=0, le=32,
+        description="Phase-aware features: channels of the encoder's stride-8 feature map "
+        "sampled (bilinear, wrapping) at the footprint centre and fed to the decoder; 0: off"
+        + _preset("phase_channels"),
+    )  # fmt: skip
+    param_skip: bool | None = Field(
+        default=None,
+        description="Hand the 5 appearance parameters (alpha, beta per yarn, w) to the "
+        "decoder beside the latent (they join each material's code); without it a small "
+        "model learns one function per pattern (at 6,000 steps it does so with this on too; "
+        "BENCHMARKS.md)" + _preset("param_skip"),
+    )  # fmt: skip
     init: Ref | None = Field(
         default=None,
         description="model.pt of a previous train.fabric job with the same architecture: "
@@ -208,6 +272,7 @@ FABRIC_COLUMNS = (
     "queries",
     "loss",
     "baseline.loss",
+    "relative_l2",
     "rgb.rel",
     "baseline.rgb.rel",
     "rgb.mse",

@@ -38,6 +38,30 @@ Choices the paper leaves open, and ours:
   Other sizes are resampled (:func:`resample_map`).
 - **No yarn-mask channels**: gaps already show in the maps (``n_p = n_s`` and
   ``t_p = +x`` there, ``materials.fabric.yarn``), and warp and weft differ in ``t_p``.
+
+Second-pass options (issue 12; the defaults are the network above, unchanged):
+
+- ``centre_encoding``, ``size_encoding``, ``centre_bins``: the footprint encoding
+  (:class:`models.fabric.encoding.SpatialEncoding`: periodic centre one-blob, log size);
+- ``param_skip`` 1: the 5 appearance parameters (:data:`PARAM_NAMES`) join ``z`` in the code
+  as they are, so the decoder sees alpha, beta and w directly. Without it a small model
+  learns one function per pattern and ignores them (BENCHMARKS.md, issue 12: four materials
+  of one pattern with beta 0.28-0.90 decode to the same components to 3 digits); with it,
+  at the same 6,000-step budget, the decoder ignores them too (measured there), so this is
+  an option to try at larger budgets, not a fix;
+- ``phase_channels`` ``P > 0``: **phase-aware features**. Circular padding and global
+  pooling make ``z`` nearly independent of where the tile was cut, so the decoder can learn
+  a seen pattern's layout only by memorising it against the one-blob centre. Here the
+  trunk's ``layer2`` map (stride 8: ``R/8`` squared cells, ``2 * encoder_width`` channels)
+  goes through a 1x1 convolution to ``P`` channels, and the decoder samples it bilinearly,
+  wrapping at the tile border, at the footprint centre
+  (:func:`models.fabric.encoding.phase_taps`); the ``P`` sampled values join ``z`` and the
+  footprint encoding at ``spatial1``. The circular convolutions are shift-equivariant, so
+  rolling the maps by a multiple of 8 px rolls the sampled features with them.
+  The material's **code** is then ``z`` followed by the ``(P, R/8, R/8)`` grid flattened
+  (C order): what :meth:`Encoder.forward` returns, ``model.json`` stores as a material's
+  ``latent``, and the fused decoder reads (``Architecture.code_dim`` values; with
+  ``P = 0`` the code is ``z``).
 """
 
 from __future__ import annotations
@@ -51,7 +75,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from models.fabric.encoding import BINS, spatial_features, torch_ops
+from models.fabric.encoding import BINS, SpatialEncoding, phase_taps, spatial_features, torch_ops
 
 #: Encoder appearance inputs, in order (pairs are (warp, weft) in ``materials.json``).
 PARAM_NAMES: tuple[str, ...] = ("alpha_warp", "alpha_weft", "beta_warp", "beta_weft", "w")
@@ -75,13 +99,58 @@ class Architecture:
     mlp_width: int = 128
     decoder_width: int = 64
     bins: int = BINS
+    centre_encoding: str = "one_blob"
+    size_encoding: str = "strata"
+    centre_bins: int = BINS
+    phase_channels: int = 0
+    param_skip: int = 0
 
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The fields; the second-pass ones only where they differ from the default (so a
+        default network's ``model.json`` and ``model.pt`` keep their bytes)."""
+        d = asdict(self)
+        default = Architecture()
+        for k in _SECOND_PASS:
+            if d[k] == getattr(default, k):
+                del d[k]
+        return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Architecture:
-        return cls(**{k: int(d[k]) for k in asdict(cls()) if k in d})
+        fields: dict[str, Any] = {
+            k: (str(d[k]) if isinstance(v, str) else int(d[k]))
+            for k, v in asdict(cls()).items()
+            if k in d
+        }
+        return cls(**fields)
+
+    @property
+    def encoding(self) -> SpatialEncoding:
+        """The footprint encoding of the decoder."""
+        return SpatialEncoding(
+            self.centre_encoding, self.size_encoding, self.bins, self.centre_bins
+        )
+
+    @property
+    def phase_grid(self) -> int:
+        """Cells per side of the phase feature grid (``map_resolution / 8``; 0 when off)."""
+        return self.map_resolution // 8 if self.phase_channels else 0
+
+    @property
+    def z_dim(self) -> int:
+        """Values of the code's global part: ``z``, plus the 5 parameters with
+        ``param_skip``."""
+        return self.latent_dim + (len(PARAM_NAMES) if self.param_skip else 0)
+
+    @property
+    def code_dim(self) -> int:
+        """Values of a material's code: ``z_dim + phase_channels * phase_grid^2``."""
+        return self.z_dim + self.phase_channels * self.phase_grid**2
+
+
+#: Architecture fields of the second pass (left out of :meth:`Architecture.as_dict` at
+#: their defaults).
+_SECOND_PASS = ("centre_encoding", "size_encoding", "centre_bins", "phase_channels", "param_skip")
 
 
 def param_vector(record: Mapping[str, Any]) -> np.ndarray:
@@ -181,10 +250,14 @@ class ResNet18Trunk(nn.Module):
         self.out_features = 4 * width
 
     def forward(self, x: Tensor) -> Tensor:
+        return self.features(x)[1]
+
+    def features(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """``(layer2 map (B, 2 width, R/8, R/8), pooled (B, 4 width))``."""
         h = F.relu(self.stem_norm(self.stem(x)))
         h = F.max_pool2d(F.pad(h, (1, 1, 1, 1), mode="circular"), 3, stride=2)
-        h = self.layer3(self.layer2(self.layer1(h)))
-        return h.mean(dim=(2, 3))
+        mid = self.layer2(self.layer1(h))
+        return mid, self.layer3(mid).mean(dim=(2, 3))
 
 
 class Encoder(nn.Module):
@@ -197,12 +270,23 @@ class Encoder(nn.Module):
         self.fc1 = nn.Linear(arch.mlp_width, arch.mlp_width)
         self.fc2 = nn.Linear(arch.mlp_width, arch.mlp_width)
         self.out = nn.Linear(arch.mlp_width, arch.latent_dim)
+        self.param_skip = bool(arch.param_skip)
+        self.phase: nn.Module | None = None
+        if arch.phase_channels:
+            self.phase = nn.Conv2d(2 * arch.encoder_width, arch.phase_channels, 1)
 
     def forward(self, maps: Tensor, params: Tensor) -> Tensor:
-        """``maps`` ``(B, 6, R, R)``, ``params`` ``(B, 5)`` -> ``(B, latent_dim)``."""
-        h = F.leaky_relu(self.proj(torch.cat([self.trunk(maps), params], dim=1)), LEAKY)
+        """``maps`` ``(B, 6, R, R)``, ``params`` ``(B, 5)`` -> codes ``(B, code_dim)``: the
+        latent ``z``, then the phase grid flattened when ``phase_channels > 0``."""
+        mid, pooled = self.trunk.features(maps)
+        h = F.leaky_relu(self.proj(torch.cat([pooled, params], dim=1)), LEAKY)
         r = self.fc2(F.leaky_relu(self.fc1(h), LEAKY))
-        return self.out(F.leaky_relu(r + h, LEAKY))
+        parts = [self.out(F.leaky_relu(r + h, LEAKY))]
+        if self.param_skip:
+            parts.append(params)
+        if self.phase is not None:
+            parts.append(self.phase(mid).flatten(1))
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
 
 
 class Decoder(nn.Module):
@@ -211,8 +295,8 @@ class Decoder(nn.Module):
     def __init__(self, arch: Architecture) -> None:
         super().__init__()
         w = arch.decoder_width
-        self.bins = arch.bins
-        self.spatial1 = nn.Linear(arch.latent_dim + 3 * arch.bins, w)
+        self.arch = arch
+        self.spatial1 = nn.Linear(arch.z_dim + arch.phase_channels + arch.encoding.channels, w)
         self.spatial2 = nn.Linear(w, w)
         self.angular1 = nn.Linear(w + len(ANGULAR_INPUTS), w)
         self.angular2 = nn.Linear(w, w)
@@ -220,11 +304,24 @@ class Decoder(nn.Module):
         self.angular4 = nn.Linear(w, w)
         self.angular5 = nn.Linear(w, len(COMPONENTS))
 
-    def forward(self, z: Tensor, query: Tensor) -> Tensor:
-        """Raw outputs ``(N, 4)`` of latents ``z`` ``(N, L)`` at queries ``(N, 8)``:
+    def forward(self, code: Tensor, query: Tensor) -> Tensor:
+        """Raw outputs ``(N, 4)`` of material codes ``(N, code_dim)`` at queries ``(N, 8)``:
         ``cx, cy, size, wi.xyz, wo.xy``."""
-        feats = spatial_features(torch_ops(), query[:, 0], query[:, 1], query[:, 2], self.bins)
-        x = torch.cat([z, torch.stack(feats, dim=1)], dim=1)
+        a = self.arch
+        ops = torch_ops()
+        feats = spatial_features(ops, query[:, 0], query[:, 1], query[:, 2], enc=a.encoding)
+        parts = [code[:, : a.z_dim]]
+        if a.phase_channels:
+            g = a.phase_grid
+            # Channel p's grid starts at latent_dim + p g^2 (gathered in place: ``code``
+            # may be one material's code expanded over the queries).
+            base = a.z_dim + g * g * torch.arange(a.phase_channels, device=code.device)
+            sampled = torch.zeros(len(code), a.phase_channels, dtype=code.dtype, device=code.device)
+            for idx, wt in phase_taps(ops, query[:, 0], query[:, 1], g, g):
+                cols = base[None, :] + idx.long()[:, None]
+                sampled = sampled + wt[:, None] * code.gather(1, cols)
+            parts.append(sampled)
+        x = torch.cat([*parts, torch.stack(feats, dim=1)], dim=1)
         s = F.leaky_relu(self.spatial2(F.leaky_relu(self.spatial1(x), LEAKY)), LEAKY)
         h1 = F.leaky_relu(self.angular1(torch.cat([s, query[:, 3:8]], dim=1)), LEAKY)
         h3 = F.leaky_relu(self.angular3(F.leaky_relu(self.angular2(h1), LEAKY)) + h1, LEAKY)

@@ -67,7 +67,27 @@ def _floats(t: torch.Tensor) -> Any:
 
 
 def architecture_doc(arch: Architecture) -> dict[str, Any]:
-    """The ``architecture`` object of ``model.json``."""
+    """The ``architecture`` object of ``model.json`` (the second-pass options, when set,
+    appear as fields and under ``second_pass``)."""
+    doc = _paper_architecture_doc(arch)
+    extra = {k: v for k, v in arch.as_dict().items() if k not in Architecture().as_dict()}
+    if extra:
+        doc["second_pass"] = {
+            "code": "a material's latent is its code: z (latent_dim), the 5 param_names "
+            "values when param_skip is 1, then the phase grid "
+            f"(phase_channels x {arch.phase_grid} x {arch.phase_grid}, C order; row 0 at t = 1)",
+            "spatial1_inputs": "z (and the params), phase features (phase_channels: the "
+            "grid sampled bilinearly with wrap-around at (cx, cy), encoding.phase_taps), "
+            "then cx bins, cy bins (centre_bins each), size bins (bins)",
+            "centre_encoding": "periodic: exp(-0.5 (wrap(u - c_i) bins)^2), wrap into "
+            "[-1/2, 1/2)" if arch.centre_encoding == "periodic" else "one_blob",
+            "size_encoding": "log: u = clamp(ln(size / 0.01) / ln(500), 0, 1)"
+            if arch.size_encoding == "log" else "strata",
+        }  # fmt: skip
+    return doc
+
+
+def _paper_architecture_doc(arch: Architecture) -> dict[str, Any]:
     return {
         **arch.as_dict(),
         "param_names": list(PARAM_NAMES),

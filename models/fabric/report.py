@@ -8,7 +8,11 @@ never trained on), against the dataset's Monte Carlo estimates:
   sum |gt|`` (relative L1 over the queries);
 - ``rgb``: the same two figures of the Eq. 8 value ``f = sum_c albedo_c component_c`` with
   the material's albedos, over queries and the three channels;
-- ``loss``: Eq. 11 in the training space (log-mapped specular targets);
+- ``loss``: Eq. 11 in the training space (log-mapped specular targets), whatever loss
+  trained the model;
+- ``relative_l2``: the unbiased relative L2 of :mod:`models.fabric.losses` on the decoded
+  components (scales: the material's training means per component and query kind), also
+  whatever loss trained the model, so the two losses' models compare on both;
 - ``baseline``: the same figures for a trivial model, the material's per-component mean
   over its training queries (in the training space for ``loss``, linear otherwise).
 
@@ -27,7 +31,12 @@ import torch
 from evaluators.metrics.figures import figure_png, loss_axes
 from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
-from models.fabric.losses import fabric_loss_numpy, log_targets_numpy
+from models.fabric.losses import (
+    component_scales,
+    fabric_loss_numpy,
+    log_targets_numpy,
+    relative_l2_numpy,
+)
 from models.fabric.networks import COMPONENTS, FabricNetwork, components_numpy
 from models.fabric.train import Curves
 
@@ -85,13 +94,19 @@ def material_metrics(net: FabricNetwork, m: MaterialData, latent: np.ndarray) ->
     train_target = log_targets_numpy(m.value[m.train], m.query[m.train, 5])
     base_lin = np.broadcast_to(m.value[m.train].astype(np.float64).mean(axis=0), gt.shape)
     base_log = np.broadcast_to(train_target.mean(axis=0), gt.shape)
+    scale = component_scales(m.value[m.train], m.query[m.train, 5])[(q[:, 5] < 0).astype(np.int64)]
     return {
         "name": m.name,
         "pattern": m.pattern,
         "queries": int(len(q)),
         "loss": fabric_loss_numpy(raw, target),
+        "relative_l2": relative_l2_numpy(pred, gt, scale),
         **_errors(pred, gt, albedos),
-        "baseline": {"loss": fabric_loss_numpy(base_log, target), **_errors(base_lin, gt, albedos)},
+        "baseline": {
+            "loss": fabric_loss_numpy(base_log, target),
+            "relative_l2": relative_l2_numpy(base_lin, gt, scale),
+            **_errors(base_lin, gt, albedos),
+        },
     }
 
 
@@ -122,6 +137,9 @@ def evaluate(
             "value with the material's albedos",
             "rel": "sum |pred - gt| / sum |gt| over the held-out queries (and RGB channels)",
             "loss": "Eq. 11 in the training space (specular log-mapped, Eq. 9)",
+            "relative_l2": "mean over components and queries of (p - y)^2 / (p^2 + m^2 + "
+            "1e-8), p the decoded component, m the material's mean training target per "
+            "component and query kind (BRDF, BTDF)",
             "baseline": "per-component mean of the material's training queries",
         },
     }
@@ -131,9 +149,12 @@ def curves_png(curves: Curves, title: str) -> bytes:
     """Loss and per-component MSE against step (log scale), as deterministic PNG bytes."""
 
     def draw(fig: Any, ax: Any) -> None:
-        ax.plot(curves.step, curves.loss, label="Eq. 11 total", color="black")
+        paper = curves.loss_name == "paper"
+        total = "Eq. 11 total" if paper else "relative L2 (mean of 4)"
+        ax.plot(curves.step, curves.loss, label=total, color="black")
         for name, values in curves.components.items():
-            ax.plot(curves.step, values, "--", label=f"MSE {name}", linewidth=0.8)
+            label = f"MSE {name}" if paper else f"rel. L2 {name}"
+            ax.plot(curves.step, values, "--", label=label, linewidth=0.8)
         loss_axes(ax, "loss (mean per query)", title)
 
     return figure_png(draw)

@@ -32,7 +32,8 @@ log = logging.getLogger(__name__)
 P_LOADED, P_FITTED, P_SCORED = 0.05, 0.9, 0.97
 _TUNABLE = ("encoder_width", "decoder_width", "map_resolution", "steps", "batch",
             "materials_per_step", "lr", "momentum", "weight_decay", "clip", "holdout",
-            "train_queries")  # fmt: skip
+            "train_queries", "loss", "centre_encoding", "size_encoding", "centre_bins",
+            "phase_channels", "param_skip")  # fmt: skip
 
 
 def resolved(params: TrainFabricParams) -> dict[str, Any]:
@@ -54,6 +55,11 @@ def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
         encoder_width=int(params.value("encoder_width")),
         map_resolution=int(params.value("map_resolution")),
         decoder_width=int(params.value("decoder_width")),
+        centre_encoding=str(params.value("centre_encoding")),
+        size_encoding=str(params.value("size_encoding")),
+        centre_bins=int(params.value("centre_bins")),
+        phase_channels=int(params.value("phase_channels")),
+        param_skip=int(bool(params.value("param_skip"))),
     )
     net = build_network(arch, ctx.sub_seed("train.fabric/init"))
     if params.init is None:
@@ -66,7 +72,8 @@ def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
     if src.arch != arch:
         raise JobFailed(
             f"init: its architecture {src.arch.as_dict()} differs from this job's "
-            f"{arch.as_dict()}; set encoder_width, decoder_width, map_resolution to match"
+            f"{arch.as_dict()}; set encoder_width, decoder_width, map_resolution and the "
+            "encoding options to match"
         )
     net.load_state_dict(src.state_dict())
     return net
@@ -97,7 +104,7 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
         net = _initial(params, ctx).to(device)
         curves = fit(
             net,
-            TrainingSet(materials, device),
+            TrainingSet(materials, device, str(cfg["loss"])),
             FitConfig(
                 steps=steps,
                 batch=int(cfg["batch"]),
@@ -106,6 +113,7 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
                 momentum=float(cfg["momentum"]),
                 weight_decay=float(cfg["weight_decay"]),
                 clip=float(cfg["clip"]),
+                loss=str(cfg["loss"]),
             ),
             batch_gen,
             on_progress=report,

@@ -11,6 +11,10 @@ with replacement; the encoder runs on the drawn materials' maps and the decoder 
 queries, so encoder and decoder train jointly as in the paper. Gradient norms are clipped
 at ``clip`` (a guard for the early steps at the paper's rate).
 
+Loss: ``loss`` ``"paper"`` is Eq. 9-11 (:func:`models.fabric.losses.fabric_loss`),
+``"relative_l2"`` the unbiased relative L2 (:func:`models.fabric.losses.relative_l2_loss`,
+with each material's per-kind component means as scales).
+
 Stability: the loss and gradient norm are checked every step; a non-finite value or a loss
 above ``max(DIVERGENCE_FACTOR * first loss, DIVERGENCE_FLOOR)`` raises
 :class:`~jobapi.errors.JobFailed` naming the step; so does a non-finite weight at the end.
@@ -32,7 +36,7 @@ import torch
 
 from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
-from models.fabric.losses import fabric_loss, log_targets
+from models.fabric.losses import component_scales, fabric_loss, log_targets, relative_l2_loss
 from models.fabric.networks import COMPONENTS, FabricNetwork
 
 #: Divergence: a loss above max(factor * the first step's loss, floor) fails the job.
@@ -58,6 +62,17 @@ class FitConfig:
     momentum: float
     weight_decay: float
     clip: float
+    loss: str = "paper"
+
+
+#: ``curves.json``'s ``loss_definition`` per loss.
+LOSS_DEFINITIONS = {
+    "paper": "Eq. 11: 0.4 (MSE S_warp + MSE S_weft) in log space (Eq. 9) "
+    "+ 0.1 (MSE C_warp + MSE C_weft) (Eq. 10); mean per query",
+    "relative_l2": "relative L2: mean over the 4 components of mean (p - y)^2 / (sg(p)^2 + "
+    "m^2 + 1e-8), p linear (S = expm1(raw) / k), m the material's mean target per component "
+    "and query kind; the curves' per-component values are these terms, not MSEs",
+}
 
 
 @dataclass
@@ -69,6 +84,7 @@ class Curves:
     components: dict[str, list[float]] = field(default_factory=lambda: {c: [] for c in COMPONENTS})
     lr: list[float] = field(default_factory=list)
     seconds: float = 0.0
+    loss_name: str = "paper"
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready lists; no timing, so the same spec gives the same bytes."""
@@ -77,8 +93,7 @@ class Curves:
             "loss": self.loss,
             "mse": self.components,
             "lr": self.lr,
-            "loss_definition": "Eq. 11: 0.4 (MSE S_warp + MSE S_weft) in log space (Eq. 9) "
-            "+ 0.1 (MSE C_warp + MSE C_weft) (Eq. 10); mean per query",
+            "loss_definition": LOSS_DEFINITIONS[self.loss_name],
         }
 
 
@@ -90,13 +105,28 @@ def milestone_steps(steps: int) -> list[int]:
 class TrainingSet:
     """Every material's maps, parameters and training queries, stacked on ``device``."""
 
-    def __init__(self, materials: Sequence[MaterialData], device: str) -> None:
+    def __init__(self, materials: Sequence[MaterialData], device: str, loss: str = "paper") -> None:
         self.maps = torch.from_numpy(np.stack([m.maps for m in materials])).to(device)
         self.params = torch.from_numpy(np.stack([m.params for m in materials])).to(device)
         query = np.concatenate([m.query[m.train] for m in materials])
         value = np.concatenate([m.value[m.train] for m in materials])
         self.query = torch.from_numpy(query).to(device)
         self.target = log_targets(torch.from_numpy(value), torch.from_numpy(query[:, 5])).to(device)
+        # The relative L2 needs linear targets and each row's scale (its material's mean
+        # per component for the row's kind, BRDF or BTDF); the paper's loss neither.
+        self.value: torch.Tensor | None = None
+        self.scale: torch.Tensor | None = None
+        if loss == "relative_l2":
+            scale = np.concatenate(
+                [
+                    component_scales(m.value[m.train], m.query[m.train, 5])[
+                        (m.query[m.train, 5] < 0).astype(np.int64)
+                    ]
+                    for m in materials
+                ]
+            )
+            self.value = torch.from_numpy(value).to(device)
+            self.scale = torch.from_numpy(scale).to(device)
         counts = [len(m.train) for m in materials]
         if min(counts) < 1:
             raise JobFailed("dataset: a material has no training queries (lower holdout)")
@@ -149,7 +179,7 @@ def fit(
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestone_steps(steps), gamma=GAMMA)
     every = max(1, math.ceil(steps / CURVE_POINTS))
     report_every = max(1, steps // 100)
-    curves = Curves()
+    curves = Curves(loss_name=config.loss)
     loss_sum, comp_sum, n_sum = 0.0, torch.zeros(4, dtype=torch.float64), 0
     limit = math.inf
     dev = data.device
@@ -159,8 +189,14 @@ def fit(
         lr = opt.param_groups[0]["lr"]
         mats, index, rows = draw(data, config.batch, config.materials_per_step, generator)
         mats, index, rows = mats.to(dev), index.to(dev), rows.to(dev)
-        raw = net(data.maps[mats], data.params[mats], index, data.query[rows])
-        parts = fabric_loss(raw, data.target[rows])
+        query = data.query[rows]
+        raw = net(data.maps[mats], data.params[mats], index, query)
+        if config.loss == "relative_l2":
+            if data.value is None or data.scale is None:
+                raise ValueError("relative_l2 needs TrainingSet(..., loss='relative_l2')")
+            parts = relative_l2_loss(raw, data.value[rows], query[:, 5], data.scale[rows])
+        else:
+            parts = fabric_loss(raw, data.target[rows])
         opt.zero_grad(set_to_none=True)
         parts.total.backward()
         grad_norm = float(torch.nn.utils.clip_grad_norm_(params, config.clip, foreach=False))

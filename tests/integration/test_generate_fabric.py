@@ -182,3 +182,19 @@ def test05_progress_per_shard_in_batches(
     shard_reports = [m for m in messages if m.startswith("shards:")]
     assert shard_reports == [f"shards: {k}/4" for _ in range(3) for k in range(1, 5)]
     assert "preview" in messages
+
+
+def test06_log_uniform_size_design(settings: Settings) -> None:
+    params = {**PARAMS, "patterns": ["plain"], "sizes": "log_uniform"}
+    job = run_in_process(spec(params), settings)
+    assert job.state == "succeeded", job.error
+    doc = json.loads(read(settings, job, "materials.json"))
+    assert doc["config"]["sizes"] == "log_uniform"
+    seed = doc["materials"][0]["design_seed"]
+    ref = design_queries(seed, 0, 128, sizes="log_uniform")
+    got = shard(settings, job, 0)
+    np.testing.assert_array_equal(got["size"], ref.size.astype(np.float32))
+    assert got["size"].min() >= 0.01 and got["size"].max() <= 5.0
+    # The default design's materials.json has no "sizes" key (its bytes are unchanged).
+    default = run_in_process(spec({**PARAMS, "patterns": ["plain"]}), settings)
+    assert "sizes" not in json.loads(read(settings, default, "materials.json"))["config"]

@@ -97,3 +97,21 @@ def test05_bad_arguments() -> None:
     with pytest.raises(ValueError, match="first and count"):
         fq.design_queries(0, -1, 10)
     assert len(fq.design_queries(0, 5, 0)) == 0
+
+
+def test06_log_uniform_sizes() -> None:
+    q = fq.design_queries(7, 0, FULL, sizes="log_uniform")
+    ref = fq.design_queries(7, 0, FULL)
+    # Only the sizes change: centres and directions are the same design.
+    np.testing.assert_array_equal(q.centre, ref.centre)
+    np.testing.assert_array_equal(q.wi, ref.wi)
+    assert q.size.min() >= fq.LOG_SIZE_MIN and q.size.max() <= 5.0
+    # 20 strata equal in ln size, each visited FULL / 20 times.
+    u = np.log(q.size / fq.LOG_SIZE_MIN) / np.log(5.0 / fq.LOG_SIZE_MIN)
+    assert np.all(np.bincount(np.floor(u * 20).astype(int), minlength=20) == FULL // 20)
+    # Log-uniform within strata: the fraction in [0.03, 0.1] tile is ln(10/3) / ln(500).
+    frac = np.mean((q.size >= 0.03) & (q.size < 0.1))
+    assert abs(frac - np.log(10 / 3) / np.log(500)) < 0.01
+    assert np.mean(ref.size < 0.1) == pytest.approx(0.05)
+    with pytest.raises(ValueError, match="sizes"):
+        fq.design_queries(0, 0, 10, sizes="uniform")
