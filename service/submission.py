@@ -161,9 +161,13 @@ def import_file(
     except FormatError as exc:
         # Readers' messages may quote the path they opened: for an upload, a server temp
         # file. Users see the name they gave instead.
-        problem = exc.problem
+        # The whole message: a reader may name a member of the file too (an archive's
+        # ``images/slice_002.exr``), in its ``filename``.
+        message = str(exc)
         for shown in sorted({str(path.resolve()), str(path), path.name}, key=len, reverse=True):
-            problem = problem.replace(shown, label)
+            message = message.replace(shown, label)
+        prefix = f"{label}: "
+        problem = message[len(prefix) :] if message.startswith(prefix) else message
         raise FormatError(label, problem) from None
     info = store.put_file(path)
     jobs.record_upload(info.digest, label, media_type or media_type_for(label), info.size)
