@@ -187,3 +187,27 @@ def test12_failed_after_attempts_says_what_to_do(tmp_path: Path) -> None:
     error = jobs.get(job.id).error or ""
     assert "force" not in error.replace("no force is needed", "")
     assert "submit the spec again" in error
+
+
+# -- B7: what schemathesis found ---------------------------------------------------------
+@pytest.mark.parametrize(
+    ("method", "url", "body"),
+    [
+        ("GET", "/api/jobs?kind=no-such-kind", None),
+        ("POST", "/api/jobs", '{"kind": "no-such-kind"}'),
+        ("POST", "/api/jobs", '{"kind": "render", "params": {"spp": "many"}}'),
+    ],
+)
+def test13_422_details_match_the_documented_validation_error(
+    client: TestClient, method: str, url: str, body: str | None
+) -> None:
+    """Every 422 ``detail`` item has the ``loc``, ``msg`` and ``type`` that ``/openapi.json``
+    (``ValidationError``) requires; the spec errors lacked ``type``."""
+    r = client.request(method, url, content=body, headers=JSON)
+    assert r.status_code == 422, r.text
+    required = client.get("/openapi.json").json()["components"]["schemas"]["ValidationError"]
+    detail = r.json()["detail"]
+    assert isinstance(detail, list) and detail
+    for item in detail:
+        assert set(required["required"]) <= set(item), item
+        assert isinstance(item["type"], str) and isinstance(item["msg"], str)
