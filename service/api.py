@@ -292,6 +292,10 @@ def _docs_router(app: FastAPI) -> APIRouter:
 # -- the app -----------------------------------------------------------------------------
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    # Import the kind modules (about 1.5 s) before the server accepts connections: done
+    # lazily, the first submissions after a start all waited for it, which was the p99 of
+    # bench_submit.py at 20 clients (issue 15, B8).
+    kinds.load_builtin()
     yield
     app.state.upload_checker.close()  # the child process that validates uploads
 

@@ -6,6 +6,8 @@ and the ``OPTIONS`` / ``HEAD`` answers agree with the routes.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -211,3 +213,24 @@ def test13_422_details_match_the_documented_validation_error(
     for item in detail:
         assert set(required["required"]) <= set(item), item
         assert isinstance(item["type"], str) and isinstance(item["msg"], str)
+
+
+# -- B8: nothing slow left for the first submissions -------------------------------------
+def test14_kinds_are_imported_before_the_first_request(tmp_path: Path) -> None:
+    """The app's startup imports the kind modules: lazily, on the first ``POST /api/jobs``,
+    it made every submission in flight wait ~1.5 s (the p99 of bench_submit.py)."""
+    code = (
+        "from pathlib import Path\n"
+        "from fastapi.testclient import TestClient\n"
+        "from service import kinds\n"
+        "from service.api import create_app\n"
+        "from service.settings import Settings\n"
+        f"app = create_app(Settings.from_env({{}}).with_(data_dir=Path({str(tmp_path)!r})))\n"
+        "assert not kinds._loaded\n"
+        "with TestClient(app):\n"
+        "    print('loaded' if kinds._loaded else 'lazy')\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert out.stdout.strip() == "loaded", out.stderr
