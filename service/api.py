@@ -22,6 +22,7 @@ do (:class:`service.workers.worker.Supervisor`, started by :func:`service.server
 from __future__ import annotations
 
 import copy
+import gc
 import logging
 from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
@@ -296,6 +297,11 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # lazily, the first submissions after a start all waited for it, which was the p99 of
     # bench_submit.py at 20 clients (issue 15, B8).
     kinds.load_builtin()
+    # What is alive now (the modules, numpy, the kinds) lives as long as the server: out of
+    # the collector's sight, a full collection no longer walks it, which stalled every
+    # request in flight for ~100 ms once in a few hundred submissions.
+    gc.collect()
+    gc.freeze()
     yield
     app.state.upload_checker.close()  # the child process that validates uploads
 
@@ -316,6 +322,9 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
         redoc_url=None,
         openapi_url=None,
         lifespan=_lifespan,
+        # matforge exports no OpenTelemetry data; left on, FastAPI asks the global
+        # providers whether they are configured on every request (~0.1 ms; issue 15, B8)
+        telemetry={"tracing": False, "metrics": False, "logs": False},
     )
     app.state.settings = settings
     app.state.jobs = JobStore(settings.db_path)
