@@ -4,7 +4,12 @@ The server runs on a free loopback port with ``--workers 0`` (only the web proce
 measurement is of validation, dedupe and the queue write, not of rendering). Each client
 thread submits distinct ``render`` specs (different seeds) over its own HTTP connection.
 
-Run: ``.venv/bin/python benchmarks/bench_submit.py [--clients 20] [--per-client 50]``
+``--warmup N``: each client first sends N untimed submissions over its connection (the TCP
+connect, the server's thread pool and its per-thread SQLite connections then exist before
+the timed burst); the default 0 times everything from a cold server.
+
+Run: ``.venv/bin/python benchmarks/bench_submit.py [--clients 20] [--per-client 50]
+[--warmup 0]``
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 
@@ -33,10 +39,25 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _spec(seed: int) -> dict[str, Any]:
+    """A distinct small ``render`` spec per seed."""
+    return {
+        "kind": "render",
+        "seed": seed,
+        "params": {
+            "scene": "sphere_env",
+            "material": {"mitsuba": {"type": "diffuse"}},
+            "resolution": [64, 64],
+            "spp": 4,
+        },
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--clients", type=int, default=20)
     ap.add_argument("--per-client", type=int, default=50)
+    ap.add_argument("--warmup", type=int, default=0, help="untimed submissions per client")
     a = ap.parse_args()
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
@@ -73,18 +94,12 @@ def main() -> None:
             def client(c: int) -> None:
                 mine = []
                 with httpx.Client(base_url=url, timeout=30) as http:
+                    for i in range(a.per_client, a.per_client + a.warmup):
+                        r = http.post("/api/jobs", json=_spec(c * 100000 + i))
+                        assert r.status_code == 201, r.text
                     barrier.wait()
                     for i in range(a.per_client):
-                        spec = {
-                            "kind": "render",
-                            "seed": c * 100000 + i,
-                            "params": {
-                                "scene": "sphere_env",
-                                "material": {"mitsuba": {"type": "diffuse"}},
-                                "resolution": [64, 64],
-                                "spp": 4,
-                            },
-                        }
+                        spec = _spec(c * 100000 + i)
                         t0 = time.perf_counter()
                         r = http.post("/api/jobs", json=spec)
                         mine.append(time.perf_counter() - t0)
@@ -112,7 +127,7 @@ def main() -> None:
     )
     print(
         f"command: .venv/bin/python benchmarks/bench_submit.py --clients {a.clients} "
-        f"--per-client {a.per_client}"
+        f"--per-client {a.per_client} --warmup {a.warmup}"
     )
 
 

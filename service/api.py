@@ -6,7 +6,7 @@ artifact store (kept in ``app.state``) and maps the error types to HTTP:
 ==========================================  =====  ============================================
 error                                       HTTP   body
 ==========================================  =====  ============================================
-``SpecError``, request validation, bad JSON  422   ``{"detail": [{"loc", "msg"}], "error"}``
+``SpecError``, request validation, bad JSON  422   ``{"detail": [{"loc", "msg", "type"}], "error"}``
 ``FormatError`` (an upload)                  422   ``{"detail", "error"}``, naming the file
 ``AmbiguousIdError`` (a short job id)        422   ``{"detail", "error"}``, listing matches
 ``NotFoundError``                            404   ``{"detail", "error"}``
@@ -22,6 +22,7 @@ do (:class:`service.workers.worker.Supervisor`, started by :func:`service.server
 from __future__ import annotations
 
 import copy
+import gc
 import logging
 from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
@@ -120,7 +121,9 @@ def _loc(path: str) -> list[str | int]:
 
 def _spec_error(request: Request, exc: Exception) -> Response:
     assert isinstance(exc, SpecError)
-    detail = [{"loc": _loc(loc), "msg": msg} for loc, msg in exc.errors]
+    # ``type`` as pydantic's own 422s carry it: the documented ``ValidationError`` schema
+    # requires it (schemathesis, issue 15 B7, found the spec errors without it)
+    detail = [{"loc": _loc(loc), "msg": msg, "type": "value_error"} for loc, msg in exc.errors]
     return error_response(request, 422, str(exc), detail)
 
 
@@ -290,6 +293,15 @@ def _docs_router(app: FastAPI) -> APIRouter:
 # -- the app -----------------------------------------------------------------------------
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    # Import the kind modules (about 1.5 s) before the server accepts connections: done
+    # lazily, the first submissions after a start all waited for it, which was the p99 of
+    # bench_submit.py at 20 clients (issue 15, B8).
+    kinds.load_builtin()
+    # What is alive now (the modules, numpy, the kinds) lives as long as the server: out of
+    # the collector's sight, a full collection no longer walks it, which stalled every
+    # request in flight for ~100 ms once in a few hundred submissions.
+    gc.collect()
+    gc.freeze()
     yield
     app.state.upload_checker.close()  # the child process that validates uploads
 
@@ -310,6 +322,9 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
         redoc_url=None,
         openapi_url=None,
         lifespan=_lifespan,
+        # matforge exports no OpenTelemetry data; left on, FastAPI asks the global
+        # providers whether they are configured on every request (~0.1 ms; issue 15, B8)
+        telemetry={"tracing": False, "metrics": False, "logs": False},
     )
     app.state.settings = settings
     app.state.jobs = JobStore(settings.db_path)

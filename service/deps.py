@@ -36,19 +36,24 @@ JOB_ID_PATTERN = r"^[0-9a-f]{1,32}$"
 DIGEST_PATTERN = r"^(sha256:)?[0-9a-f]{64}$"
 
 
-def get_settings(request: Request) -> Settings:
-    """The app's :class:`Settings`."""
+async def get_settings(request: Request) -> Settings:
+    """The app's :class:`Settings`.
+
+    This and the other dependencies that only read ``app.state`` or headers are ``async``:
+    FastAPI runs a sync dependency in the thread pool, and those hops (several a request)
+    were a measurable part of submission latency under 20 clients (issue 15, B8).
+    """
     settings: Settings = request.app.state.settings
     return settings
 
 
-def get_jobs(request: Request) -> JobStore:
+async def get_jobs(request: Request) -> JobStore:
     """The app's job queue."""
     jobs: JobStore = request.app.state.jobs
     return jobs
 
 
-def get_store(request: Request) -> ArtifactStore:
+async def get_store(request: Request) -> ArtifactStore:
     """The app's content-addressed artifact store."""
     store: ArtifactStore = request.app.state.store
     return store
@@ -121,7 +126,7 @@ def unauthorized(detail: str) -> HTTPException:
     return HTTPException(status_code=401, detail=detail, headers={"WWW-Authenticate": "Bearer"})
 
 
-def require_auth(request: Request, settings: SettingsDep) -> None:
+async def require_auth(request: Request, settings: SettingsDep) -> None:
     """API routes: 401 unless the bearer token (or the dashboard cookie) matches."""
     if not request_authorized(settings, request.headers, request.cookies):
         raise unauthorized(
@@ -129,7 +134,7 @@ def require_auth(request: Request, settings: SettingsDep) -> None:
         )
 
 
-def require_page_auth(
+async def require_page_auth(
     request: Request,
     settings: SettingsDep,
     token: Annotated[
