@@ -1,7 +1,8 @@
 """Mean SMAPE and training time of ``train.brdf`` models on the ``small`` collection.
 
 The headline comparison of the hybrid-BRDF paper (Fig. 4, Table 1) at our scale: the
-``small`` generate.merl collection (12 materials, every family, seed 0), each model trained
+``small`` generate.merl collection (12 materials, every family; seed 0, or each of
+``--seed`` / ``--collection-seeds``), each model trained
 with the ``small`` preset (5000 steps of 1024 pairs per material, AdamW lr 0.005 with cosine
 decay, clip 0.01) through the registry exactly as ``matforge run`` does, in a temporary
 data directory (or ``--data-dir``). Rows: ``analytic`` (GGX + Lambert), and ``hybrid`` and
@@ -10,7 +11,9 @@ hybrid's per-material float count, ``l + 7`` (``--paper-neural`` adds rows with 
 ``l + 8``).
 
 Columns: ``smape`` is the mean over materials of Eq. 6 at 2^18 fixed-seed pairs
-(``metrics.json``); ``smape f_a`` that of the hybrid's analytic part alone; ``irid.`` and
+(``metrics.json``), ``smape_floor`` that of the variant stable at exact table zeros
+(:func:`evaluators.metrics.brdf.smape_floor`; ``--per-material`` prints both per
+material); ``smape f_a`` that of the hybrid's analytic part alone; ``irid.`` and
 ``blend`` the family means singled out by the paper's Sec. 6 (iridescence, multi-lobe);
 ``wall s`` the job's wall time (loading, training, scoring; training runs on one thread,
 :data:`models.brdf.train.TORCH_THREADS`). The machine is shared: the load average is
@@ -24,7 +27,7 @@ the extrapolated hours for 200k steps.
 
 Run: ``.venv/bin/python benchmarks/bench_train_brdf.py [--sizes 16x3 32x3] [--latent 4]
 [--models analytic hybrid neural] [--steps N] [--paper-neural] [--train-seeds 0 1 2]
-[--seed 0] [--data-dir D] [--paper-steps N]``
+[--seed 0 1] [--per-material] [--no-speed] [--out DIR] [--data-dir D] [--paper-steps N]``
 """
 
 from __future__ import annotations
@@ -92,7 +95,12 @@ def main() -> None:
     ap.add_argument("--models", nargs="+", default=["analytic", "hybrid", "neural"])
     ap.add_argument("--steps", type=int, default=None, help="override the preset's steps")
     ap.add_argument("--paper-neural", action="store_true", help="also neural with l + 8")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the generate.merl collection")
+    ap.add_argument("--seed", "--collection-seeds", dest="seeds", type=int, nargs="+", default=[0],
+                    help="seeds of the generate.merl collection, one collection each")  # fmt: skip
+    ap.add_argument("--per-material", action="store_true",
+                    help="print smape and smape_floor per material after each job")  # fmt: skip
+    ap.add_argument("--no-speed", action="store_true", help="train.brdf speed: off")
+    ap.add_argument("--out", type=Path, default=None, help="write each job's metrics.json here")
     ap.add_argument(
         "--train-seeds", type=int, nargs="+", default=[0], help="train.brdf seeds, one row each"
     )
@@ -105,15 +113,18 @@ def main() -> None:
         tmp = tempfile.TemporaryDirectory(prefix="bench_train_brdf-")
         args.data_dir = Path(tmp.name)
     settings = Settings.from_env({}).with_(data_dir=args.data_dir, pool_processes=2)
-    gen = run_in_process(
-        {"kind": "generate.merl", "seed": args.seed,
-         "params": {"collection": {"preset": "small"}}},
-        settings,
-    )  # fmt: skip
-    if gen.state != "succeeded":
-        raise SystemExit(f"generate.merl failed: {gen.error}")
+    gens = {}
+    for cseed in args.seeds:
+        gen = run_in_process(
+            {"kind": "generate.merl", "seed": cseed,
+             "params": {"collection": {"preset": "small"}}},
+            settings,
+        )  # fmt: skip
+        if gen.state != "succeeded":
+            raise SystemExit(f"generate.merl failed: {gen.error}")
+        gens[cseed] = gen
     if args.paper_steps:
-        paper_step(settings, gen, args.paper_steps)
+        paper_step(settings, gens[args.seeds[0]], args.paper_steps)
         print(
             f"\n`.venv/bin/python benchmarks/bench_train_brdf.py --paper-steps {args.paper_steps}`"
         )
@@ -132,13 +143,16 @@ def main() -> None:
 
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} cores, python {platform.python_version()}")  # fmt: skip
-    print("| model | MLP | per-material floats | seed | smape | smape f_a | irid. | blend "
-          "| wall s | load avg |")  # fmt: skip
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for cfg, seed in ((c, s) for c in configs for s in args.train_seeds):
-        params = {"dataset": f"job:{gen.id}", "preset": "small", **cfg}
+    print("| collection | model | MLP | per-material floats | seed | smape | smape_floor "
+          "| smape f_a | irid. | blend | wall s | load avg |")  # fmt: skip
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    runs = ((cs, c, s) for cs in args.seeds for c in configs for s in args.train_seeds)
+    for cseed, cfg, seed in runs:
+        params = {"dataset": f"job:{gens[cseed].id}", "preset": "small", **cfg}
         if args.steps is not None:
             params["steps"] = args.steps
+        if args.no_speed:
+            params["speed"] = "off"
         t0 = time.perf_counter()
         job = run_in_process({"kind": "train.brdf", "seed": seed, "params": params},
                              settings)  # fmt: skip
@@ -154,13 +168,21 @@ def main() -> None:
         ]
         mlp = f"{cfg['width']}x{cfg['depth']}" if "width" in cfg else "-"
         print(
-            f"| {cfg['model']} | {mlp} | {floats} | {seed} | {fmt(m['mean']['smape'])} "
-            f"| {fmt(m['mean']['smape_analytic'])} "
+            f"| {cseed} | {cfg['model']} | {mlp} | {floats} | {seed} | {fmt(m['mean']['smape'])} "
+            f"| {fmt(m['mean'].get('smape_floor'))} | {fmt(m['mean']['smape_analytic'])} "
             f"| {fmt(fam.get('iridescent', {}).get('smape'))} "
             f"| {fmt(fam.get('blend', {}).get('smape'))} | {wall:.0f} "
             f"| {os.getloadavg()[0]:.1f} |",
             flush=True,
         )
+        label = f"c{cseed}-{cfg['model']}-{mlp}-s{seed}"
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / f"{label}.json").write_text(json.dumps(m, indent=1))
+        if args.per_material:
+            for r in m["materials"]:
+                print(f"|   {label} | {r['name']} ({r['family']}) | smape {fmt(r['smape'])} "
+                      f"| smape_floor {fmt(r.get('smape_floor'))} |", flush=True)  # fmt: skip
     print(f"\n`.venv/bin/python benchmarks/bench_train_brdf.py {' '.join(sys.argv[1:])}`".rstrip())
     if tmp is not None:
         tmp.cleanup()

@@ -76,6 +76,8 @@ LOWER_IS_BETTER: dict[str, bool] = {
     "mse": True,
     "smape": True,
     "smape_analytic": True,
+    "smape_floor": True,
+    "smape_floor_analytic": True,
     "mae_analytic": True,
     "l1": True,
     "l1_train": True,

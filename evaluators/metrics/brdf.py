@@ -1,4 +1,5 @@
-"""BRDF-space error metrics: SMAPE (Eq. 6 of the hybrid-BRDF paper) and MAE.
+"""BRDF-space error metrics: SMAPE (Eq. 6 of the hybrid-BRDF paper), a floored SMAPE
+(:func:`smape_floor`, stable where the table is exactly 0) and MAE.
 
 The paper: De Oliveira, Karpova, Nader, Houdard, Mezieres, Rioux-Lavoie and Pacanowski,
 "A Hybrid Neural-Microfacet BRDF Model for Real-Time Rendering" (Sec. 4.1, Eq. 6).
@@ -267,6 +268,68 @@ def smape(
     num = np.abs(a - b)
     den = np.abs(a) + np.abs(b) + eps
     # 0/0 (both values zero) counts as agreement; num <= den, so each term is in [0, 1].
+    terms = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+    return 2.0 * _mean(terms, w)
+
+
+#: :func:`smape_floor`'s default floor, as a fraction of the reference's mean per channel.
+SMAPE_FLOOR_FRACTION = 0.01
+
+
+def smape_floor(
+    ref: np.ndarray,
+    test: np.ndarray,
+    *,
+    weights: np.ndarray | None = None,
+    fraction: float = SMAPE_FLOOR_FRACTION,
+) -> float:
+    """SMAPE with each channel's denominator floored at ``fraction`` of the reference's mean::
+
+        SMAPE_floor = 2/N * sum_k |f_k - f^_k| / max(|f_k| + |f^_k|, delta_c),
+        delta_c = fraction * mean_k |f_k,c|   (weighted by ``weights`` if given)
+
+    Why: Eq. 6 (:func:`smape`, eps 0) scores 2, its maximum, at every pair where the table is
+    exactly 0 and the model is not, however small the model's value. Measured MERL data (the
+    paper's) has no exact zeros, but synthetic near-specular tables (Beckmann alpha 0.02) are
+    0 at almost every pair, so any smooth model's tail scores about 2 there and the material's
+    SMAPE says nothing about the fit. This instability of SMAPE near zero is the classic
+    objection to it (Hyndman and Koehler, "Another look at measures of forecast accuracy",
+    Int. J. Forecasting 22(4), 2006); the usual cure, flooring the denominator at a scale
+    of the data, is the one here (as the small constant in the denominator of the relative
+    MSE that scores renderings). The floor is *relative* to the table's own
+    mean so that, like Eq. 6, the variant is invariant under a common positive scale of both
+    BRDFs, and *a max, not a sum*, so that it equals Eq. 6 exactly at every pair where
+    ``|f| + |f^| >= delta``: on tables without values below about 1 % of their mean the two
+    agree. A pair where ``|f| + |f^|`` is below the floor scores ``|f - f^| / delta``
+    (below 1), its absolute error in units of ``delta``: a table 0 and a model tail of
+    ``0.001 x`` the table's mean score ``0.1`` there, not 1.
+
+    Parameters
+    ----------
+    ref, test, weights
+        As :func:`smape`; ``ref`` (the table) sets the floor, so unlike Eq. 6 this is not
+        symmetric in its arguments.
+    fraction
+        The floor as a fraction of ``ref``'s mean absolute value per channel; finite, > 0.
+
+    Returns
+    -------
+    float
+        In ``[0, 2]``; equal to :func:`smape` where no denominator falls below the floor.
+    """
+    if not (math.isfinite(fraction) and fraction > 0.0):
+        raise ValueError(f"fraction must be a finite positive number, got {fraction!r}")
+    a, b, w = _check_values(ref, test, weights)
+    absa = np.abs(a)
+    if w is None:
+        scale = absa.mean(axis=0)
+    else:
+        scale = np.sum(w * absa, axis=0) / np.sum(w)
+    num = np.abs(a - b)
+    den = np.maximum(absa + np.abs(b), fraction * scale)
+    # num <= |a| + |b| <= den, so each term is in [0, 1]; den is 0 only where the reference
+    # channel is 0 everywhere (no scale: the floor is 0, Eq. 6) and the test value is 0: 0/0,
+    # agreement, as in :func:`smape`.
     terms = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
     return 2.0 * _mean(terms, w)
 

@@ -14,7 +14,8 @@ Artifacts:
   ``alpha``, ``z``;
 - ``curves.json``, ``curves.png``: loss against step (training phase, and the held-out
   phase if any);
-- ``metrics.json``: per-material ``smape`` and ``mae`` against the source tables at the
+- ``metrics.json``: per-material ``smape`` (Eq. 6), ``smape_floor`` (stable at exact table
+  zeros) and ``mae`` against the source tables at the
   fixed-seed scoring pairs, with means overall, per family and per split
   (:mod:`models.brdf.report`);
 - ``speed.json`` (unless ``speed: off``): ns per evaluation of the fused Dr.Jit kernel and
@@ -325,7 +326,8 @@ def run_train_brdf(params: TrainBrdfParams, ctx: JobContext) -> None:
 
 
 #: Columns of ``metrics.json``'s per-material rows, in the result table.
-MATERIAL_COLUMNS = ("family", "split", "smape", "mae", "smape_analytic", "mae_analytic")
+MATERIAL_COLUMNS = ("family", "split", "smape", "smape_floor", "mae", "smape_analytic",
+                    "smape_floor_analytic", "mae_analytic")  # fmt: skip
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:

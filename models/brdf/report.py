@@ -5,11 +5,13 @@ Metrics: every material of a trained model is scored as ``score`` scores MERL ta
 :func:`evaluators.metrics.brdf.direction_pairs` (seed ``PAIRS_SEED``, cosine-weighted, the
 same for every job: never the training pairs, which come from the job's own seed), the
 reference through :class:`~evaluators.metrics.brdf.TableSampler` (multilinear lookup), pairs
-where the table has no data left out, ``smape`` (Eq. 6 of the hybrid-BRDF paper, eps 0)
-and ``mae`` (1/sr). Models with an analytic part also get ``smape_analytic`` and
-``mae_analytic``: the same scores of ``f_a`` alone (the figure the paper quotes beside each
-dataset in Fig. 4). Means are plain means over materials: overall, per family and per split
-(``train`` or ``heldout``).
+where the table has no data left out, ``smape`` (Eq. 6 of the hybrid-BRDF paper, eps 0),
+``smape_floor`` (the same with denominators floored at 1 % of the table's mean per channel,
+:func:`~evaluators.metrics.brdf.smape_floor`: Eq. 6 pays its maximum 2 at every pair where
+a synthetic table is exactly 0) and ``mae`` (1/sr). Models with an analytic part also get
+``smape_analytic``, ``smape_floor_analytic`` and ``mae_analytic``: the same scores of ``f_a``
+alone (the figure the paper quotes beside each dataset in Fig. 4). Means are plain means
+over materials: overall, per family and per split (``train`` or ``heldout``).
 """
 
 from __future__ import annotations
@@ -23,11 +25,13 @@ import torch
 from evaluators.metrics.brdf import (
     DISTRIBUTIONS,
     PAIRS_SEED,
+    SMAPE_FLOOR_FRACTION,
     TableSampler,
     brdf_mae,
     direction_pairs,
     sample_brdf,
     smape,
+    smape_floor,
 )
 from evaluators.metrics.figures import figure_png, loss_axes
 from jobapi.errors import JobFailed
@@ -68,7 +72,9 @@ def _mean(rows: Sequence[dict[str, Any]], key: str) -> float | None:
 
 
 def _summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    keys = ("smape", "mae", "smape_analytic", "mae_analytic")
+    keys = (
+        "smape", "smape_floor", "mae", "smape_analytic", "smape_floor_analytic", "mae_analytic"
+    )  # fmt: skip
     return {"count": len(rows), **{k: _mean(rows, k) for k in keys}}
 
 
@@ -105,8 +111,10 @@ def evaluate(
                 "split": split,
                 "pairs": int(keep.sum()),
                 "smape": smape(ref, f),
+                "smape_floor": smape_floor(ref, f),
                 "mae": brdf_mae(ref, f),
                 "smape_analytic": smape(ref, f_a) if f_a is not None else None,
+                "smape_floor_analytic": smape_floor(ref, f_a) if f_a is not None else None,
                 "mae_analytic": brdf_mae(ref, f_a) if f_a is not None else None,
             }
         )
@@ -127,6 +135,9 @@ def evaluate(
             "reference": "MERL table, multilinear lookup (TableSampler); pairs without "
             "data excluded",
             "smape": "Eq. 6, eps 0, mean over R, G, B",
+            "smape_floor": f"Eq. 6 with each channel's denominator floored at "
+            f"{SMAPE_FLOOR_FRACTION} x the table's mean there (smape_floor): stable where the "
+            "table is exactly 0",
             "mae": "mean |f - f^| over pairs and channels, 1/sr",
         },
     }

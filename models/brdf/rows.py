@@ -1,7 +1,8 @@
 """Result rows of ``train.brdf`` (:mod:`jobapi.rows`).
 
-One row per material and metric of ``metrics.json`` (``smape``, ``mae`` and, for models
-with an analytic part, ``smape_analytic`` and ``mae_analytic``), the same metrics of the
+One row per material and metric of ``metrics.json`` (``smape``, ``smape_floor``, ``mae``
+and, for models with an analytic part, ``smape_analytic``, ``smape_floor_analytic`` and
+``mae_analytic``), the same metrics of the
 mean over materials (``material`` ``"mean"``), and the trained size's speed
 (``fused_kernel_ns``, ``fused_ns``, ``torch_ns`` of ``speed.json``). Every row carries the
 configuration (``candidate`` ``"hybrid 32x3"`` as :class:`models.brdf.study.Run` names it),
@@ -18,7 +19,9 @@ from typing import Any
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 
 #: The metrics of a material's row in ``metrics.json``.
-METRICS = ("smape", "mae", "smape_analytic", "mae_analytic")
+METRICS = (
+    "smape", "smape_floor", "mae", "smape_analytic", "smape_floor_analytic", "mae_analytic"
+)  # fmt: skip
 #: The speed metrics of ``speed.json``'s trained-size row.
 SPEED_METRICS = ("fused_kernel_ns", "fused_ns", "torch_ns")
 

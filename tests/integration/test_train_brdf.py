@@ -103,6 +103,9 @@ def test01_each_model_trains_and_its_artifacts_agree(
     for row in metrics["materials"]:
         assert 0.0 <= row["smape"] <= 2.0 and row["mae"] >= 0.0 and row["split"] == "train"
         assert (row["smape_analytic"] is None) == (model == "neural")
+        # The floored variant only lowers terms below its floor, never raises one.
+        assert 0.0 <= row["smape_floor"] <= row["smape"] + 1e-12
+        assert (row["smape_floor_analytic"] is None) == (model == "neural")
     assert set(metrics["families"]) == {"metal", "plastic", "iridescent"}
     assert metrics["mean"]["count"] == 3 and metrics["settings"]["pairs"] == 2048
     mats = read_json(settings, job, "materials.json")

@@ -117,6 +117,7 @@ def test03_train_brdf() -> None:
                 "family": "metal",
                 "split": "train",
                 "smape": 0.4,
+                "smape_floor": 0.3,
                 "mae": 0.1,
                 "smape_analytic": 0.5,
                 "mae_analytic": None,
@@ -149,7 +150,8 @@ def test03_train_brdf() -> None:
     )
     rows = rows_of(src)
     gold = by_metric(rows, material="gold")
-    assert set(gold) == {"smape", "mae", "smape_analytic"}
+    assert set(gold) == {"smape", "smape_floor", "mae", "smape_analytic"}
+    assert gold["smape_floor"].value == 0.3
     assert gold["smape"].family == "metal" and gold["smape"].config["split"] == "train"
     assert set(by_metric(rows, material="mean")) == {"smape", "mae", "smape_analytic"}
     speed_rows = by_metric(rows, material=None)

@@ -23,6 +23,7 @@ from evaluators.metrics.brdf import (
     direction_pairs,
     sample_brdf,
     smape,
+    smape_floor,
 )
 from storage.formats.merl import MerlTable
 
@@ -240,3 +241,51 @@ def test15_sample_brdf_refusals() -> None:
         sample_brdf(Broken(nan=False), wi, wo[:5])
     with pytest.raises(ValueError, match="chunk and workers must be positive"):
         sample_brdf(Broken(nan=False), wi, wo, workers=0)
+
+
+def test16_smape_floor_at_exact_zeros_hand_computed() -> None:
+    """A table 0 at half the pairs and a model with a 0.001 tail there: Eq. 6 pays 2 at each
+    zero, the floored variant |0.001| / (0.01 x mean 1) = 0.1."""
+    ref = np.array([0.0, 0.0, 2.0, 2.0])
+    test = np.array([0.001, 0.001, 2.0, 2.0])
+    assert smape(ref, test) == pytest.approx(1.0)  # 2 x (1 + 1 + 0 + 0) / 4
+    assert smape_floor(ref, test) == pytest.approx(2 * (0.1 + 0.1) / 4)
+    # Only the pairs below the floor change: a 2.2 model at the 2.0 pairs adds Eq. 6's terms.
+    test2 = np.array([0.001, 0.001, 2.2, 1.8])
+    eq6_rest = 0.2 / 4.2 + 0.2 / 3.8
+    assert smape_floor(ref, test2) == pytest.approx(2 * (0.2 + eq6_rest) / 4)
+    # A tail above the floor is Eq. 6 there: 0.05 > 0.01, term 1.
+    assert smape_floor(ref, np.array([0.05, 0.05, 2.0, 2.0])) == pytest.approx(1.0)
+    # fraction moves the floor: 0.1 x mean 1 = 0.1, term 0.01.
+    assert smape_floor(ref, test, fraction=0.1) == pytest.approx(2 * 0.02 / 4)
+
+
+def test17_smape_floor_equals_eq6_without_zeros() -> None:
+    """Tables without values near 0 give Eq. 6 to float tolerance, per channel and weighted."""
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.5, 3.0, size=(1000, 3))
+    test = ref * rng.uniform(0.2, 5.0, size=(1000, 3))
+    w = rng.uniform(0.0, 1.0, size=1000)
+    assert smape_floor(ref, test) == pytest.approx(smape(ref, test), rel=1e-12)
+    eq6 = smape(ref, test, weights=w)
+    assert smape_floor(ref, test, weights=w) == pytest.approx(eq6, rel=1e-12)
+    assert smape_floor(ref, ref) == 0.0
+
+
+def test18_smape_floor_scale_channels_bounds_and_refusals() -> None:
+    ref = np.array([[0.0, 1.0], [4.0, 0.0], [0.0, 0.0]])
+    test = np.array([[0.01, 1.0], [4.0, 0.3], [0.0, 0.0]])
+    # Channel 0: mean 4/3, floor 0.01333: term 0.01 / 0.01333 = 0.75. Channel 1: mean 1/3,
+    # floor 0.00333 < 0.3: Eq. 6's 1.
+    expected = 2 * (0.75 + 0 + 0 + 0 + 1 + 0) / 6
+    assert smape_floor(ref, test) == pytest.approx(expected)
+    assert smape_floor(7 * ref, 7 * test) == pytest.approx(expected)  # common scale
+    # A reference channel 0 everywhere has no floor: Eq. 6 (0/0 = 0, else 1 per term).
+    zero = np.zeros((2, 1))
+    assert smape_floor(zero, np.array([[0.0], [1e-9]])) == pytest.approx(1.0)
+    rng = np.random.default_rng(0)
+    r, t = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    assert 0.0 <= smape_floor(r, t) <= smape(r, t) <= 2.0
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="fraction must be a finite positive"):
+            smape_floor(ref, test, fraction=bad)
