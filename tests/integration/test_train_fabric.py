@@ -26,7 +26,7 @@ from models.fabric.portable import FORMAT, load_checkpoint
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
-from storage.jobs import Job
+from storage.jobs import Job, JobStore
 from tests.helpers.fabric_recipes import DATASET, TINY
 
 ARTIFACTS = {"model.pt", "model.json", "latents.json", "curves.json", "curves.png",
@@ -160,7 +160,15 @@ def test04_failures_are_clear(fabric_env: tuple[Settings, str]) -> None:
                             {"collection": {"families": {"metal": 1}}}}, settings)  # fmt: skip
     job = train(settings, {**TINY, "dataset": f"job:{other.id}"})
     assert job.state == "failed" and "not generate.fabric" in (job.error or "")
-    for bad in ("job:123", f"job:{gen}/materials.json", "sha256:" + "0" * 64):
+    # A short id (a prefix, as git's) that no job has: "job:123" would expand to a job
+    # whose random id happens to start with 123 (about one run in 400 with this many jobs).
+    jobs = JobStore(settings.db_path)
+    try:
+        ids = [j.id for j in jobs.list_jobs(limit=1000)]
+    finally:
+        jobs.close()
+    unused = next(f"{n:03x}" for n in range(4096) if not any(i.startswith(f"{n:03x}") for i in ids))
+    for bad in (f"job:{unused}", f"job:{gen}/materials.json", "sha256:" + "0" * 64):
         with pytest.raises(SpecError, match="dataset"):
             train(settings, {"dataset": bad})
     with pytest.raises(SpecError, match="encoder_width"):
