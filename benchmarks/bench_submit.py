@@ -58,6 +58,7 @@ def main() -> None:
     ap.add_argument("--clients", type=int, default=20)
     ap.add_argument("--per-client", type=int, default=50)
     ap.add_argument("--warmup", type=int, default=0, help="untimed submissions per client")
+    ap.add_argument("--http-workers", type=int, default=1, help="matforge serve --http-workers")
     a = ap.parse_args()
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
@@ -73,6 +74,8 @@ def main() -> None:
                 data,
                 "--workers",
                 "0",
+                "--http-workers",
+                str(a.http_workers),
             ],
             env=env,
             stdout=subprocess.DEVNULL,

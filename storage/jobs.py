@@ -32,6 +32,7 @@ from storage.job_records import (
     HeartbeatStatus,
     Job,
 )
+from storage.write_lock import write_lock
 
 __all__ = ["FINAL_STATES", "STATES", "ArtifactRecord", "HeartbeatStatus", "Job", "JobStore"]
 
@@ -86,16 +87,6 @@ CREATE TABLE IF NOT EXISTS uploads (
 """
 
 
-_WRITE_LOCKS: dict[str, threading.RLock] = {}
-_WRITE_LOCKS_GUARD = threading.Lock()
-
-
-def _process_write_lock(path: Path) -> threading.RLock:
-    key = str(path.resolve())
-    with _WRITE_LOCKS_GUARD:
-        return _WRITE_LOCKS.setdefault(key, threading.RLock())
-
-
 class JobStore(JobListing):
     """SQLite-backed job queue. Safe to share between threads (one connection per thread)
     and between processes (SQLite file locking; WAL lets readers run beside a writer). Its
@@ -129,11 +120,11 @@ class JobStore(JobListing):
 
     @contextmanager
     def _write(self) -> Iterator[sqlite3.Connection]:
-        # Threads of one process queue on a lock instead of on SQLite's busy handler, whose
-        # growing sleeps (up to 100 ms) made the tail latency of concurrent submissions
-        # ten times the median. Other processes still meet at BEGIN IMMEDIATE.
+        # Writers, of this process and others, queue on a lock instead of on SQLite's busy
+        # handler, whose growing sleeps (up to 100 ms) made the tail latency of concurrent
+        # submissions ten times the median (storage.write_lock).
         db = self._conn()
-        with _process_write_lock(self.path):
+        with write_lock(self.path).hold():
             db.execute("BEGIN IMMEDIATE")
             try:
                 yield db

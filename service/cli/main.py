@@ -155,6 +155,13 @@ def serve(
         show_default=False,
         help="Worker processes (default: MATFORGE_WORKERS or 1).",
     ),
+    http_workers: int = typer.Option(
+        1,
+        "--http-workers",
+        min=1,
+        envvar="MATFORGE_HTTP_WORKERS",
+        help="Web processes sharing the port (MATFORGE_HTTP_WORKERS).",
+    ),
 ) -> None:
     """Serve the REST API, the dashboard and N workers (blocks until stopped)."""
     from service.server import serve as run_server
@@ -162,7 +169,11 @@ def serve(
     setup_logging(ctx.find_root().params.get("verbose", False), server=True)
     settings = state_of(ctx).settings_for(data_dir)
     run_server(
-        settings, host=host, port=port, workers=settings.workers if workers is None else workers
+        settings,
+        host=host,
+        port=port,
+        workers=settings.workers if workers is None else workers,
+        http_workers=http_workers,
     )
 
 

@@ -143,6 +143,7 @@ def start_server(
     token: str | None = None,
     lease_seconds: float | None = None,
     workers: int = 1,
+    http_workers: int = 1,
     extra_env: dict[str, str] | None = None,
 ) -> Server:
     """Start ``matforge serve`` on a free port with its data under ``root``; returns once
@@ -169,6 +170,8 @@ def start_server(
                 str(data_dir),
                 "--workers",
                 str(workers),
+                "--http-workers",
+                str(http_workers),
             ],
             env=env,
             cwd=root,
