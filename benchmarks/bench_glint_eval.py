@@ -110,9 +110,7 @@ def print_ladder(settings: Any, jobs: dict[str, Any]) -> dict[str, Any]:
         t[r.metric] = r.value
     order = [x["candidate"] for x in lad["rungs"]]
     print(f"\nglint ladder, brushed metal; select: {select['metric']} <= {select['target']}")
-    print(
-        "| rung | FLIP | PSNR dB | SSIM | render s | bytes | meets | front (s) | front (bytes) |"
-    )
+    print("| rung | FLIP | PSNR dB | SSIM | render s | bytes | meets | front (s) | front (bytes) |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     meets = {x["candidate"]: x["meets"] for x in lad["rungs"]}
     for c in order:

@@ -316,13 +316,14 @@ def test08_glint_renders_carry_their_memory() -> None:
         return FakeSource("render", params, {}, job_id=job_id, seconds=seconds, others={C: data})
 
     d, e, f, g = "d" * 32, "e" * 32, "f" * 32, "0" * 32
+    ref = f"job:{C}"
+    yan = {"data": ref, "method": "yan", "texels_per_uv": 100.5, "oversample": 2}
+    coat = {"data": ref, "method": "smooth_ggx"}
     renders = {
-        d: render(d, {"data": f"job:{C}", "method": "tiny_example", "texels_per_uv": 256}, 2.0),
-        e: render(e, {"data": f"job:{C}", "method": "yan", "texels_per_uv": 100.5,
-                      "oversample": 2}, 30.0),  # fmt: skip
-        f: render(f, {"data": f"job:{C}", "method": "smooth_ggx"}, 1.0),
-        g: render(g, {"data": f"job:{C}", "method": "tiny_example",
-                      "clearcoat": {"data": f"job:{C}", "method": "smooth_ggx"}}, 3.0),  # fmt: skip
+        d: render(d, {"data": ref, "method": "tiny_example", "texels_per_uv": 256}, 2.0),
+        e: render(e, yan, 30.0),
+        f: render(f, {"data": ref, "method": "smooth_ggx"}, 1.0),
+        g: render(g, {"data": ref, "method": "tiny_example", "clearcoat": coat}, 3.0),
     }
     names = {d: "tiny", e: "yan", f: "smooth", g: "coated"}
     score = FakeSource(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import types
+from typing import Any
 
 import numpy as np
 import pytest
@@ -83,7 +84,7 @@ def test01_drjit_twins_match_numpy(
     assert np.abs(got - want).sum() < 1e-3 * np.abs(want).sum()
 
 
-def _bsdf(mi: types.ModuleType, example: TinyExample, method: str = "tiny_example") -> object:
+def _bsdf(mi: types.ModuleType, example: TinyExample, method: str = "tiny_example") -> Any:
     register_glint_bsdf(mi)
     eta, k = NAMED_CONDUCTORS["Al"]
     layer = GlintLayer(
@@ -214,7 +215,7 @@ def test05_chi2_sampling(mi: types.ModuleType, example: TinyExample) -> None:
     assert ok, messages
 
 
-def _smooth(mi: types.ModuleType, alphas: tuple[float, float], alpha: float) -> object:
+def _smooth(mi: types.ModuleType, alphas: tuple[float, float], alpha: float) -> Any:
     register_glint_bsdf(mi)
     eta, k = NAMED_CONDUCTORS["Al"]
     layer = GlintLayer(
@@ -269,7 +270,8 @@ def test07_smooth_ggx_anisotropic_closed_form(mi: types.ModuleType) -> None:
     ).T
     h = wi + wo
     h /= np.linalg.norm(h, axis=1, keepdims=True)
-    d = 1.0 / (math.pi * au * av * (h[:, 0] ** 2 / au**2 + h[:, 1] ** 2 / av**2 + h[:, 2] ** 2) ** 2)
+    q = h[:, 0] ** 2 / au**2 + h[:, 1] ** 2 / av**2 + h[:, 2] ** 2
+    d = 1.0 / (math.pi * au * av * q**2)
     g = smith_g1(wi[:, 2], np.sum(wi * h, 1), alpha) * smith_g1(wo[:, 2], np.sum(wo * h, 1), alpha)
     eta, k = NAMED_CONDUCTORS["Al"]
     cos_d = np.clip(np.sum(wi * h, 1), 0, 1)
