@@ -9,8 +9,14 @@ spp: "ms per frame" of one sample per pixel), the speed-up, and the memory of ea
 maps plus lobes from ``stats.json``; the reference's lobes of the exported map). Writes all
 of it as JSON to ``--out``.
 
+With the brushed-metal glint ladder's steps run (issue 13: smooth GGX, tiny examples of
+8 / 16 / 32, Yan at 64 spp, each against the 256-spp reference), it also prints the ladder:
+FLIP, PSNR and SSIM, render seconds and bytes per rung from the score's result rows, the
+Pareto fronts of ``report.pareto`` and the rung ``select`` chose.
+
 Run: ``.venv/bin/python benchmarks/bench_glint_eval.py [--data-dir DIR] [--out glint_eval.json]``
-(about 15 minutes on 2 cores: the references dominate).
+(about 25 minutes on 2 cores: the references dominate), or only the ladder (and the steps it
+needs) with ``--only brushed_metal`` (about 4 minutes quiet, 20 at load average 10).
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ PAPER = {
 LOBE_BYTES = 32
 
 
-def run_recipe(data_dir: Path) -> dict[str, Any]:
+def run_recipe(data_dir: Path, only: str | None = None) -> dict[str, Any]:
     from service.cli.batch import load_batch, substitute_refs
     from service.settings import Settings
     from service.specs import STEP_REF
@@ -48,6 +54,8 @@ def run_recipe(data_dir: Path) -> dict[str, Any]:
     batch = load_batch(RECIPE)
     jobs: dict[str, Any] = {}
     for step in batch.steps:
+        if only is not None and not step.name.startswith(only):
+            continue
 
         def resolve(ref: str) -> str:
             m = STEP_REF.match(ref)
@@ -78,16 +86,63 @@ def _seconds(job: Any) -> float:
     return float(m.group(2)) / int(m.group(1))
 
 
+def print_ladder(settings: Any, jobs: dict[str, Any]) -> dict[str, Any]:
+    """The glint ladder's table (from the score's result rows), fronts and choice."""
+    from service.results import select_rows
+    from storage.artifacts import ArtifactStore
+    from storage.jobs import JobStore
+
+    rows = select_rows(
+        JobStore(settings.db_path),
+        ArtifactStore(settings.store_dir),
+        job_ids=[jobs["brushed_metal_ladder"].id],
+    )
+    pareto = _read(settings, jobs["brushed_metal_pareto"], "pareto.json")
+    select = _read(settings, jobs["brushed_metal_select"], "select.json")
+    (lad,) = select["ladders"]
+    fronts = {p["cost"]: set(p["front"]) for p in pareto["panels"]}
+    table: dict[str, dict[str, Any]] = {}
+    for r in rows:
+        t = table.setdefault(
+            str(r.candidate),
+            {"bytes": r.bytes_per_material, "seconds": r.render_seconds, "spp": r.spp},
+        )
+        t[r.metric] = r.value
+    order = [x["candidate"] for x in lad["rungs"]]
+    print(f"\nglint ladder, brushed metal; select: {select['metric']} <= {select['target']}")
+    print("| rung | FLIP | PSNR dB | SSIM | render s | bytes | meets | front (s) | front (bytes) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    meets = {x["candidate"]: x["meets"] for x in lad["rungs"]}
+    for c in order:
+        t = table[c]
+        print(
+            f"| {c}{' (chosen)' if c == lad['chosen'] else ''} | {t['flip']:.3f} | "
+            f"{t['psnr']:.1f} | {t['ssim']:.3f} | {t['seconds']:.1f} | {t['bytes']:,.0f} | "
+            f"{'yes' if meets[c] else 'no'} | "
+            f"{'yes' if c in fronts.get('render_seconds', ()) else 'no'} | "
+            f"{'yes' if c in fronts.get('bytes_per_material', ()) else 'no'} |"
+        )
+    print(f"select: {lad['why']}")
+    for c in pareto["claims"]:
+        print(f"claim: {c['claim']}: {c['holds']} ({c['why']})")
+    return {"rungs": table, "order": order, "select": lad, "claims": pareto["claims"]}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", type=Path, default=None)
     parser.add_argument("--out", type=Path, default=Path("glint_eval.json"))
+    parser.add_argument(
+        "--only", default=None, help="run only the steps whose names start with this"
+    )
     args = parser.parse_args()
     data = args.data_dir or Path(tempfile.mkdtemp(prefix="glint_eval-"))
-    ran = run_recipe(data)
+    ran = run_recipe(data, args.only)
     settings, jobs = ran["settings"], ran["jobs"]
     rows = []
     for name in PAPER:
+        if f"{name}_score" not in jobs:
+            continue
         metrics = _read(settings, jobs[f"{name}_score"], "metrics.json")["metrics"]["tiny"]
         stats = _read(settings, jobs[name], "stats.json")
         spec = jobs[f"{name}_yan"].spec["params"]["material"]["glint"]
@@ -123,7 +178,9 @@ def main() -> None:
             f"| {r['bytes_yan'] / 2**20:.0f} | {100 * r['bytes_tiny'] / r['bytes_yan']:.2f} % "
             f"| {r['paper']} |"
         )
-    args.out.write_text(json.dumps({"rows": rows, "data_dir": str(data)}, indent=2) + "\n")
+    ladder = print_ladder(settings, jobs) if "brushed_metal_select" in jobs else None
+    doc = {"rows": rows, "ladder": ladder, "data_dir": str(data)}
+    args.out.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"\ncommand: .venv/bin/python benchmarks/bench_glint_eval.py; data in {data}")
 
 

@@ -5,7 +5,8 @@ its own output, taken from its summary table (one row per table row and measured
   missing bins of a measurement;
 - ``generate.fabric``: the Monte Carlo throughput of ``stats.json`` (samples per second);
 - ``generate.glint``: the tiny example's bytes, the reference's, their ratio, the
-  precompute seconds;
+  precompute seconds, each row costed with the example's own bytes (``bytes_per_material``:
+  its NDF maps and lobes) and its size and NDF resolution in ``config``;
 - ``generate.btf``: the Monte Carlo standard error of the slices (mean, relative), at the
   job's spp.
 """
@@ -70,3 +71,28 @@ def fabric_stats_rows(src: RowSource) -> list[ResultRow]:
         for k in ("samples_per_second", "seconds")
         if (v := number(doc.get(k))) is not None
     ]
+
+
+def glint_rows(summary: Summary) -> RowsHook:
+    """``generate.glint``: the summary's ``bytes``, ``reference_bytes``, ``memory_ratio`` and
+    ``precompute_seconds``, each with ``bytes_per_material`` (the example's ``bytes``) and
+    ``config`` (``size``, ``ndf_resolution``, ``levels``, ``lobes``)."""
+    measured = ("bytes", "reference_bytes", "memory_ratio", "precompute_seconds")
+    described = ("size", "ndf_resolution", "levels", "lobes")
+
+    def rows(src: RowSource) -> list[ResultRow]:
+        table = summary(src.read)
+        if table is None:
+            return []
+        out: list[ResultRow] = []
+        for label, row in table.rows.items():
+            config = {k: row[k] for k in described if number(row.get(k)) is not None}
+            nbytes = number(row.get("bytes"))
+            out += [
+                base_row(src, col, v, candidate=label, config=config, bytes_per_material=nbytes)
+                for col in measured
+                if (v := number(row.get(col))) is not None
+            ]
+        return out
+
+    return rows

@@ -18,6 +18,8 @@ column                      meaning
 ``ms_per_frame``            milliseconds per displayed frame (``evaluate.tss``: shading
                             kernel / (N + 1) + lookup kernel)
 ``bytes_per_material``      float32 bytes of one material's own parameters or textures
+                            (a glint material: the tiny example's NDF maps and lobes, the
+                            Yan et al. export's lobes, or a smooth GGX's two roughnesses)
 ``bytes_per_network``       float32 bytes of the shared network weights
 ``train_seconds``           wall seconds of the training job (fit, evaluation and timing)
 ``spp``                     samples per pixel of the render that was scored

@@ -17,7 +17,8 @@ artifact            content
 ``lobes.npz``       the lobes: ``u``, ``s``, ``jacobian``, ``weight``, ``sigma_h``,
                     ``sigma_r``, ``size``, ``rate``
 ``preview.png``     the example, the preview surface and one NDF image per level, labelled
-``stats.json``      precompute seconds; bytes of the NDF maps plus lobes; bytes the explicit
+``stats.json``      the example (size, type, the size it was cropped from); precompute
+                    seconds; bytes of the NDF maps plus lobes; bytes the explicit
                     reference (Yan et al.) needs at ``reference_resolution`` and the same
                     lobe rate. Its timings vary between runs: the one non-deterministic
                     artifact.
@@ -33,7 +34,7 @@ import numpy as np
 
 from generators.glint.params import GlintGenParams, MapExample, ProceduralExample
 from generators.glint.preview import preview_png
-from generators.rows import summary_rows
+from generators.rows import glint_rows
 from jobapi.errors import FormatError, JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -86,6 +87,11 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
     """Make the example, its lobes and NDF maps, and store the artifacts."""
     ctx.progress(0.0, "example")
     normals = load_example(params.example, ctx)
+    full = int(normals.shape[0])
+    if params.crop is not None:
+        if params.crop > full:
+            raise JobFailed(f"crop: {params.crop} is larger than the example ({full}x{full})")
+        normals = np.ascontiguousarray(normals[: params.crop, : params.crop])
     n = int(normals.shape[0])
     rate, res = params.value("lobe_rate"), params.value("ndf_resolution")
     started = time.perf_counter()
@@ -120,7 +126,7 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
     ctx.put_json(
         "stats.json",
         {
-            "example": {"size": n, "type": kind},
+            "example": {"size": n, "type": kind, "cropped_from": full if n != full else None},
             "levels": len(maps),
             "ndf_resolution": res,
             "extent": extent,
@@ -183,9 +189,7 @@ register(
         artifacts=("example.exr", "ndf.npz", "lobes.npz", "preview.png", "stats.json"),
         smoke={"example": {"procedural": "isotropic_noise", "size": 8}, "ndf_resolution": 16},
         summary=summarize,
-        rows=summary_rows(
-            summarize, ("bytes", "reference_bytes", "memory_ratio", "precompute_seconds")
-        ),
+        rows=glint_rows(summarize),
         layout=LAYOUT,
     )
 )

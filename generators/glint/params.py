@@ -119,6 +119,8 @@ class GlintGenParams(StrictModel):
     name                      type                 default    meaning
     ========================  ===================  =========  =================================
     ``example``               procedural or map    required   the tiny example
+    ``crop``                  int                  none       keep the example's top-left
+                                                              crop x crop texels
     ``sigma_r``               float                0.02       intrinsic roughness
     ``ndf_resolution``        int                  preset     R, cells per side of each image
     ``lobe_rate``             int                  preset     seeds per texel per axis
@@ -137,6 +139,12 @@ class GlintGenParams(StrictModel):
 
     example: ProceduralExample | MapExample = Field(
         description='The tiny example: {"procedural": TYPE, "size": n} or {"normal_map": REF}.'
+    )
+    crop: int | None = Field(
+        default=None,
+        description=f"Keep only the example's top-left crop x crop texels, one of {list(SIZES)} "
+        "and at most its size: a smaller example of the same microstructure (Fig. 13's "
+        "protocol; the crop tiles with seams where the full example has none).",
     )
     sigma_r: float = Field(
         default=0.02, gt=0.0, le=0.5, description="Intrinsic roughness sigma_r of the lobes."
@@ -174,6 +182,16 @@ class GlintGenParams(StrictModel):
         description="Side in texels of the explicit normal map of the Yan et al. reference "
         "that stats.json compares memory with" + preset_note(PRESETS, "reference_resolution"),
     )
+
+    @model_validator(mode="after")
+    def _check_crop(self) -> GlintGenParams:
+        if self.crop is not None:
+            if self.crop not in SIZES:
+                raise ValueError(f"crop must be one of {list(SIZES)}, got {self.crop}")
+            ex = self.example
+            if isinstance(ex, ProceduralExample) and self.crop > ex.size:
+                raise ValueError(f"crop {self.crop} is larger than the example ({ex.size})")
+        return self
 
     def value(self, name: str) -> int:
         """The field ``name``, or the preset's value when it is unset."""

@@ -171,3 +171,28 @@ def test06_rest_submission_and_summary(settings: Settings) -> None:
         finally:
             jobs.close()
         assert row["memory_ratio"] == stats["memory_ratio"]  # the same stored value
+
+
+def test05_crop_is_the_examples_own_texels(settings: Settings, tmp_path: Path) -> None:
+    """``crop``: the example's top-left texels (read back from both jobs' example.exr), its
+    lobes only; a crop larger than the example is refused when the spec is checked."""
+    from storage.formats.exr import read_exr
+
+    whole = run_in_process(SPEC, settings)
+    spec = {**SPEC, "params": {**SPEC["params"], "crop": 8}}
+    part = run_in_process(spec, settings)
+    assert part.state == "succeeded", part.error
+    arrays = {}
+    for name, job in (("whole", whole), ("part", part)):
+        path = tmp_path / f"{name}.exr"
+        path.write_bytes(art(settings, job, "example.exr"))
+        arrays[name] = read_exr(path, name)
+    assert arrays["part"].shape == (8, 8, 3)
+    assert np.array_equal(arrays["part"], arrays["whole"][:8, :8])
+    stats = json.loads(art(settings, part, "stats.json"))
+    assert stats["example"] == {"size": 8, "type": "isotropic_noise", "cropped_from": 16}
+    assert stats["lobes"] == 8 * 8 * 4 and stats["levels"] == 3
+    from jobapi.errors import SpecError
+
+    with pytest.raises(SpecError, match="crop 32 is larger than the example"):
+        run_in_process({**SPEC, "params": {**SPEC["params"], "crop": 32}}, settings)

@@ -11,7 +11,10 @@ from one of two evaluators of the same microstructure (:mod:`materials.glints.pn
 
 - ``tiny_example``: the example's NDF maps at the footprint's level, or its lobes below the
   finest tile;
-- ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map.
+- ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map;
+- ``smooth_ggx``: no microstructure: a smooth anisotropic GGX NDF whose roughness
+  ``(alpha_u, alpha_v)`` matches the microstructure's slopes (the cheapest rung of the glint
+  ladder of ``select``: what a scene gets without glints).
 
 ``G`` is the separable Smith term of a GGX lobe whose roughness matches the microstructure's
 slopes (``alpha``), ``F`` a conductor's (complex IOR) or a dielectric's Fresnel term. A
@@ -59,23 +62,26 @@ MAX_ITEMS = 1 << 16
 class GlintLayer:
     """One microstructure layer, ready to trace.
 
-    ``method`` ``"tiny_example"`` (needs ``maps``) or ``"yan"``; ``lobes`` the example's
-    (tiny) or the exported map's (yan) lobes; ``transform`` ``(A, o)`` of a tiled example
+    ``method`` ``"tiny_example"`` (needs ``maps``), ``"yan"`` or ``"smooth_ggx"`` (needs
+    ``alphas``); ``lobes`` the example's (tiny) or the exported map's (yan) lobes, ``None``
+    for smooth_ggx; ``transform`` ``(A, o)`` of a tiled example
     (tiny only); ``texel_scale`` map texels per global texel (yan: the export's
     oversampling; tiny: 1); ``fresnel`` ``("conductor", eta, k)`` with RGB tuples or
     ``("dielectric", eta)``; ``alpha`` the matching GGX roughness (Smith G, sampling);
     ``fallback_texels`` the standard deviation (global texels) of the footprint used
-    without ray differentials.
+    without ray differentials; ``alphas`` the smooth NDF's GGX ``(alpha_u, alpha_v)``
+    (smooth_ggx only).
     """
 
     method: str
-    lobes: JitLobes
+    lobes: JitLobes | None
     maps: JitMaps | None
     transform: tuple[np.ndarray, np.ndarray]
     texel_scale: float
     fresnel: tuple[Any, ...]
     alpha: float
     fallback_texels: float
+    alphas: tuple[float, float] | None = None
 
 
 _LAYERS: dict[str, tuple[GlintLayer, GlintLayer | None]] = {}
@@ -102,6 +108,7 @@ def layer_pndf(
     active: Any,
 ) -> Any:
     """``D_P(q)`` of ``layer`` for a footprint ``N(c, cov)`` in global texels."""
+    assert layer.lobes is not None, "smooth_ggx has no lobes; see GlintBSDF._lobe"
     k = layer.texel_scale
     if layer.method == "yan":
         cs = (c[0] * k, c[1] * k)
@@ -171,9 +178,15 @@ def _define_class(mi: types.ModuleType) -> type:
             return (cx, cy), cov
 
         def _lobe(self, layer: GlintLayer, si: Any, wi: Any, wo: Any, h: Any, active: Any) -> Any:
-            c, cov = self._footprint(si, layer.fallback_texels)
-            d = layer_pndf(mi, layer, c, cov, (h.x, h.y), active)
             ggx = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, layer.alpha, False)
+            if layer.alphas is not None:  # smooth_ggx: the NDF alone differs, not G or F
+                smooth = mi.MicrofacetDistribution(
+                    mi.MicrofacetType.GGX, layer.alphas[0], layer.alphas[1], False
+                )
+                d = smooth.eval(h)
+            else:
+                c, cov = self._footprint(si, layer.fallback_texels)
+                d = layer_pndf(mi, layer, c, cov, (h.x, h.y), active)
             g = ggx.G(wi, wo, h)
             cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
             f = _fresnel(mi, layer.fresnel, cos_d)

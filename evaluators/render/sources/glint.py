@@ -15,10 +15,17 @@ and distribution), or the ``surface`` given here. ``method`` picks the evaluator
   the stochastic distribution is not written yet, so stochastic surfaces refuse this method);
 - ``yan``: the surface exported over ``[0, texels_per_uv]^2`` global texels at
   ``oversample`` texels per example texel (Fig. 9's protocol), its lobes at one seed per
-  exported texel, and Eq. 1 over them.
+  exported texel, and Eq. 1 over them;
+- ``smooth_ggx``: no glints: a smooth anisotropic GGX NDF of the surface's roughness
+  (:func:`slope_alphas`), the bottom rung of the glint ladder (``select``).
 
-Both use the same Fresnel term and the same Smith G, whose GGX roughness matches the
+All use the same Fresnel term and the same Smith G, whose GGX roughness matches the
 surface's slopes: ``alpha^2 = mean(tan^2 theta) + 2 sigma_r^2`` over a sample of the surface.
+
+Memory (:func:`material_bytes`, the ``bytes_per_material`` of a glint render's result rows):
+``tiny_example`` the job's NDF maps plus lobes (``stats.json``), ``yan`` one
+:data:`~materials.glints.lobes.LOBE_BYTES` record per exported texel, ``smooth_ggx`` its two
+float32 roughnesses.
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ from evaluators.render.bsdfs.glint import (
 from evaluators.render.sources.common import inline_schema, register_material_source
 from jobapi.errors import FormatError, JobFailed
 from jobapi.params import JobRef, StrictModel
-from materials.glints.lobes import Lobes, make_lobes
+from materials.glints.lobes import LOBE_BYTES, Lobes, make_lobes
 from materials.glints.pndf_drjit import jit_lobes, jit_maps
 from materials.glints.surface import Surface, export_normal_map
 from materials.microfacet import NAMED_CONDUCTORS
@@ -75,7 +82,7 @@ class CoatSpec(StrictModel):
     """A clearcoat layer (Sec. 6.4): its own microstructure, a dielectric Fresnel."""
 
     data: JobRef = Field(description="'job:<id>' of a generate.glint job: the coat's example.")
-    method: Literal["tiny_example", "yan"] | None = Field(
+    method: Literal["tiny_example", "yan", "smooth_ggx"] | None = Field(
         default=None, description="Evaluator of the coat (default: the base's)."
     )
     ior: float = Field(default=1.5, gt=1.0, le=3.0, description="The coat's refractive index.")
@@ -85,8 +92,10 @@ class GlintSpec(StrictModel):
     """One glint material for a render (see the module docstring)."""
 
     data: JobRef = Field(description="'job:<id>' of a generate.glint job.")
-    method: Literal["tiny_example", "yan"] = Field(
-        default="tiny_example", description="'tiny_example' (Xing et al.) or 'yan' (reference)."
+    method: Literal["tiny_example", "yan", "smooth_ggx"] = Field(
+        default="tiny_example",
+        description="'tiny_example' (Xing et al.), 'yan' (reference) or 'smooth_ggx' (no "
+        "glints: a GGX NDF of the surface's slope statistics).",
     )
     texels_per_uv: float = Field(
         default=256.0, gt=0.0, le=8192.0, description="Example texels across the uv range."
@@ -181,6 +190,45 @@ def matching_alpha(surface: Surface, sigma_r: float) -> float:
     return float(np.clip(math.sqrt(float(tan2.mean()) + 2.0 * sigma_r**2), 0.02, 1.0))
 
 
+def slope_alphas(normals: np.ndarray, sigma_r: float) -> tuple[float, float]:
+    """Anisotropic GGX roughness ``(alpha_u, alpha_v)`` of a microstructure's slopes.
+
+    ``normals``: ``(..., 3)`` unit normals sampled over the surface (z up). The slopes
+    ``(-n_x / n_z, -n_y / n_z)`` are matched by their second moments about zero, as a
+    Beckmann distribution's are (Walter et al. 2007: its slopes are Gaussian with variance
+    ``alpha^2 / 2`` per axis; GGX's slope variance is unbounded, so the Beckmann moment is
+    the usual match), with each lobe's intrinsic roughness ``sigma_r`` (per axis, in the
+    projected normal) added: ``alpha_u^2 = 2 (mean(slope_u^2) + sigma_r^2)``. The sum of the
+    two is :func:`matching_alpha`'s isotropic ``alpha^2``, times 2. The cross moment is
+    dropped: the GGX of the renderer is axis-aligned (a rotated example's alphas are those
+    of its axis-aligned bounding moments). Each is clipped to ``[0.02, 1]``.
+    """
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    su, sv = n[:, 0] / n[:, 2], n[:, 1] / n[:, 2]
+    out = [math.sqrt(2.0 * (float(np.mean(s * s)) + sigma_r**2)) for s in (su, sv)]
+    return float(np.clip(out[0], 0.02, 1.0)), float(np.clip(out[1], 0.02, 1.0))
+
+
+#: Bytes of the ``smooth_ggx`` rung's own parameters: ``alpha_u``, ``alpha_v`` as float32.
+SMOOTH_GGX_BYTES = 8
+
+
+def layer_bytes(
+    method: str, *, tiny_bytes: float | None, texels_per_uv: float, oversample: int
+) -> float | None:
+    """Bytes a layer's evaluator holds for its microstructure: ``tiny_example`` the
+    ``generate.glint`` job's NDF maps plus lobes (``tiny_bytes``, ``stats.json``'s
+    ``bytes.total``; ``None`` if unknown), ``yan`` the exported map's lobes (one per export
+    texel, ``(ceil(texels_per_uv) * oversample)^2`` records of ``LOBE_BYTES``, as
+    :func:`make_layer` builds them), ``smooth_ggx`` :data:`SMOOTH_GGX_BYTES`."""
+    if method == "smooth_ggx":
+        return float(SMOOTH_GGX_BYTES)
+    if method == "yan":
+        side = int(math.ceil(texels_per_uv)) * int(oversample)
+        return float(side * side * LOBE_BYTES)
+    return tiny_bytes
+
+
 def make_layer(
     mi: types.ModuleType,
     data: dict[str, Any],
@@ -196,6 +244,20 @@ def make_layer(
     lobes: Lobes = data["lobes"]
     alpha = matching_alpha(surface, lobes.sigma_r)
     fallback = float(surface.n)
+    if method == "smooth_ggx":
+        # The same sample of the surface as matching_alpha's (4 x 4 examples).
+        alphas = slope_alphas(export_normal_map(surface, 4 * surface.n), lobes.sigma_r)
+        return GlintLayer(
+            method=method,
+            lobes=None,
+            maps=None,
+            transform=(np.eye(2), np.zeros(2)),
+            texel_scale=1.0,
+            fresnel=fresnel,
+            alpha=alpha,
+            fallback_texels=fallback,
+            alphas=alphas,
+        )
     if method == "tiny_example":
         if surface.dist.kind != "tiled":
             raise JobFailed(
@@ -268,5 +330,5 @@ register_material_source(
     resolve_glint,
     value_type=GlintValue,
     summary="Glinty microstructure (Xing et al. 2024) from a generate.glint job: data, "
-    "method (tiny_example | yan), texels_per_uv, conductor, surface, clearcoat.",
+    "method (tiny_example | yan | smooth_ggx), texels_per_uv, conductor, surface, clearcoat.",
 )

@@ -264,6 +264,9 @@ def test07_generators_measure_their_output() -> None:
     }
     assert rows["memory_ratio"].candidate == "isotropic_noise"
     assert rows["memory_ratio"].lower_is_better is True
+    # Every row costed with the example's own bytes, its size in config.
+    assert {r.bytes_per_material for r in rows.values()} == {4096}
+    assert rows["bytes"].config == {"size": 16, "levels": 4}
     btf = {
         "count": 10,
         "resolution": [32, 32],
@@ -294,3 +297,63 @@ def test07_generators_measure_their_output() -> None:
     rows = by_metric(rows_of(FakeSource("generate.fabric", {}, {"stats.json": stats})))
     assert rows["samples_per_second"].lower_is_better is False
     assert rows["seconds"].value == 3.0 and rows["seconds"].candidate == "drjit"
+
+
+def test08_glint_renders_carry_their_memory() -> None:
+    """A score of glint renders: each candidate's ``bytes_per_material`` from first
+    principles (the tiny example's ``stats.json`` total; one 32-byte lobe per exported texel
+    for Yan; two float32 for the smooth GGX; a clearcoat's added) and its method and example
+    size in ``config``."""
+    data = FakeSource(
+        "generate.glint",
+        {},
+        {"stats.json": {"example": {"size": 16}, "bytes": {"total": 5000}}},
+        job_id=C,
+    )
+
+    def render(job_id: str, glint: dict[str, Any], seconds: float) -> FakeSource:
+        params = {"scene": "bent_quad", "spp": 64, "material": {"glint": glint}}
+        return FakeSource("render", params, {}, job_id=job_id, seconds=seconds, others={C: data})
+
+    d, e, f, g = "d" * 32, "e" * 32, "f" * 32, "0" * 32
+    ref = f"job:{C}"
+    yan = {"data": ref, "method": "yan", "texels_per_uv": 100.5, "oversample": 2}
+    coat = {"data": ref, "method": "smooth_ggx"}
+    renders = {
+        d: render(d, {"data": ref, "method": "tiny_example", "texels_per_uv": 256}, 2.0),
+        e: render(e, yan, 30.0),
+        f: render(f, {"data": ref, "method": "smooth_ggx"}, 1.0),
+        g: render(g, {"data": ref, "method": "tiny_example", "clearcoat": coat}, 3.0),
+    }
+    names = {d: "tiny", e: "yan", f: "smooth", g: "coated"}
+    score = FakeSource(
+        "score",
+        {
+            "reference": f"job:{e}/image.exr",
+            "candidates": {names[j]: f"job:{j}/image.exr" for j in renders},
+        },
+        {"metrics.json": {"metrics": {n: {"flip": 0.1} for n in names.values()}}},
+        others=renders,
+        job_id=B,
+    )
+    rows = {r.candidate: r for r in rows_of(score)}
+    yan_side = 101 * 2  # ceil(texels_per_uv) texels, each exported at 2 x 2
+    assert {c: r.bytes_per_material for c, r in rows.items()} == {
+        "tiny": 5000,
+        "yan": yan_side * yan_side * 32,
+        "smooth": 8,
+        "coated": 5008,
+    }
+    assert (rows["tiny"].config["method"], rows["tiny"].config["example"]) == ("tiny_example", 16)
+    assert rows["coated"].config["clearcoat"] == "smooth_ggx"
+    assert (rows["yan"].render_seconds, rows["yan"].spp) == (30.0, 64)
+    (own,) = rows_of(renders[f])  # the render's own row carries it too
+    assert (own.metric, own.bytes_per_material, own.config["method"]) == (
+        "render_seconds",
+        8,
+        "smooth_ggx",
+    )
+    # Without its data job (not found), a tiny example's memory is unknown, not zero.
+    lost = render(d, {"data": f"job:{A}", "method": "tiny_example"}, 2.0)
+    (row,) = rows_of(lost)
+    assert row.bytes_per_material is None and row.config["example"] is None
