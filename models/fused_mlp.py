@@ -17,11 +17,13 @@ Conventions
   An input may also be a Python ``float``: a per-material constant such as a latent code.
   Constant inputs are folded into the first layer's bias (in float64, then rounded once),
   so a baked latent costs nothing per evaluation.
-- Every output is ``b + sum_i W_i x_i`` computed with :data:`PARTIAL_SUMS` interleaved
-  partial sums of fused multiply-adds. Summing in several chains shortens the dependency
-  chain of each output so LLVM can overlap them (measured on 2 cores: 32x3 -21 %, 64x3
-  -47 % kernel time against a single chain). Results differ from numpy's float32 matmul
-  only by summation order, ~1e-6 relative.
+- Every output is ``b + sum_i W_i x_i``: one chain of fused multiply-adds that starts from
+  the bias, or ``ceil(in / MAX_CHAIN)`` interleaved partial chains (:data:`MAX_CHAIN`)
+  for wide layers, whose dependency chains would otherwise be too long for the CPU to
+  overlap. Each extra chain costs one add per output, so narrow layers use one (measured
+  per core, ``BENCHMARKS.md`` "Fused Dr.Jit kernel": at 16x3 and 32x3 one chain is as fast
+  as two and faster than four; at 64x3 two are 15 % faster than one). Results differ from
+  numpy's float32 matmul only by summation order, ~1e-6 relative.
 
 Nothing here triggers evaluation: the returned arrays are lazy, and the whole MLP is
 compiled with whatever consumes them, so kernel compilation happens once per distinct
@@ -37,9 +39,9 @@ from typing import Any
 
 import numpy as np
 
-#: Partial sums per output (see the module docstring); 4 was the fastest of 1, 2, 4 at
-#: 16x2, 32x3 and 64x3 on the project's 2-core machine.
-PARTIAL_SUMS = 4
+#: Longest fma chain per output before a layer splits its sums into partial chains (see
+#: the module docstring): a layer with ``n`` inputs uses ``ceil(n / MAX_CHAIN)`` chains.
+MAX_CHAIN = 32
 
 #: Slope of ``leaky_relu`` for negative inputs (torch's default).
 LEAKY_SLOPE = 0.01
@@ -172,11 +174,17 @@ def mlp_numpy(layers: Sequence[DenseLayer], x: np.ndarray) -> np.ndarray:
 
 
 def drjit_activation(dr: Any, name: str) -> Callable[[Any], Any]:
-    """The Dr.Jit twin of an activation (``dr`` is the ``drjit`` module)."""
+    """The Dr.Jit twin of an activation (``dr`` is the ``drjit`` module).
+
+    ``relu`` is ``select(x < 0, 0, x)`` rather than ``dr.maximum(x, 0)``: the same values
+    (NaN stays NaN; only the sign of a zero may differ), but LLVM lowers this select to one
+    ``vmaxps`` while ``dr.maximum`` becomes ``llvm.maximum``, which x86 expands to a max, an
+    unordered compare and a masked move (see ``BENCHMARKS.md``, "Fused Dr.Jit kernel").
+    """
     if name == "identity":
         return lambda x: x
     if name == "relu":
-        return lambda x: dr.maximum(x, 0.0)
+        return lambda x: dr.select(x < 0.0, 0.0, x)
     if name == "leaky_relu":
         return lambda x: dr.select(x >= 0.0, x, x * LEAKY_SLOPE)
     if name == "sigmoid":
@@ -191,25 +199,35 @@ def drjit_activation(dr: Any, name: str) -> Callable[[Any], Any]:
 
 
 def _dense(dr: Any, layer: DenseLayer, xs: Sequence[Any], partial_sums: int) -> list[Any]:
-    """One unrolled layer: every output a literal-weighted sum of the Float inputs."""
+    """One unrolled layer: every output a literal-weighted sum of the Float inputs.
+
+    The first chain starts from the bias (``fma(x, w, b)``), the others from a product; so
+    an output costs one FMA per nonzero weight plus ``chains - 1`` adds, and no separate
+    bias add.
+    """
     w = layer.weight.tolist()  # Python floats: traced as literals, not memory loads
     act = drjit_activation(dr, layer.activation)
     out = []
     for j, row in enumerate(w):
+        bias = float(layer.bias[j])
         chains: list[Any] = [None] * partial_sums
         for i, x in enumerate(xs):
             if row[i] == 0.0:
                 continue
             k = i % partial_sums
-            chains[k] = x * row[i] if chains[k] is None else dr.fma(x, row[i], chains[k])
+            if chains[k] is not None:
+                chains[k] = dr.fma(x, row[i], chains[k])
+            elif k == 0 and bias != 0.0:
+                chains[k] = dr.fma(x, row[i], bias)
+            else:
+                chains[k] = x * row[i]
         acc: Any = None
         for chain in chains:
             if chain is not None:
                 acc = chain if acc is None else acc + chain
-        bias = float(layer.bias[j])
         if acc is None:  # a row of zeros: the output is the constant bias
             acc = dr.zeros(type(xs[0]), dr.width(xs[0])) + bias if xs else bias
-        elif bias != 0.0:
+        elif chains[0] is None and bias != 0.0:  # the bias had no chain to start
             acc = acc + bias
         out.append(act(acc))
     return out
@@ -231,7 +249,7 @@ def fused_mlp(
     layers: Sequence[DenseLayer],
     inputs: Sequence[Any],
     *,
-    partial_sums: int = PARTIAL_SUMS,
+    partial_sums: int | None = None,
 ) -> list[Any]:
     """Trace the MLP over Dr.Jit arrays, weights unrolled as literals (lazy, no evaluation).
 
@@ -244,7 +262,8 @@ def fused_mlp(
         width) or a Python ``float`` constant (folded into the first bias). At least one
         entry must be an array unless the network's output is wanted as constants.
     partial_sums
-        Interleaved fma chains per output (see the module docstring).
+        Interleaved fma chains per output; ``None`` (the default) picks
+        ``ceil(inputs / MAX_CHAIN)`` per layer (see the module docstring).
 
     Returns
     -------
@@ -257,14 +276,15 @@ def fused_mlp(
         raise ValueError("an MLP needs at least one layer")
     if len(inputs) != layers[0].n_in:
         raise ValueError(f"the MLP takes {layers[0].n_in} inputs, got {len(inputs)}")
-    if partial_sums < 1:
+    if partial_sums is not None and partial_sums < 1:
         raise ValueError("partial_sums must be >= 1")
     first, xs = _fold_constants(layers[0], inputs)
     if not xs:
         raise ValueError("at least one input must be a Dr.Jit array")
-    h = _dense(dr, first, xs, partial_sums)
-    for layer in layers[1:]:
-        h = _dense(dr, layer, h, partial_sums)
+    h = xs
+    for layer in (first, *layers[1:]):
+        chains = partial_sums or -(-len(h) // MAX_CHAIN)
+        h = _dense(dr, layer, h, chains)
     return h
 
 

@@ -114,6 +114,61 @@ def time_torch(run: Callable[[], Any], repeats: int = REPEATS) -> float:
     return statistics.median(times)
 
 
+def mlp_flops(layers: Sequence[DenseLayer], live_inputs: int | None = None) -> int:
+    """Floating-point operations of one evaluation of the network's dense layers: 2 per
+    nonzero weight (one fused multiply-add), biases and activations not counted.
+
+    ``live_inputs``: how many leading inputs of the first layer are arrays; the rest are
+    per-material constants that :func:`models.fused_mlp.fused_mlp` folds into the bias
+    (the hybrid model's latent ``z``), so their weights cost nothing per evaluation.
+    """
+    first = layers[0].weight[:, : layers[0].n_in if live_inputs is None else live_inputs]
+    return 2 * sum(int(np.count_nonzero(w)) for w in (first, *(ly.weight for ly in layers[1:])))
+
+
+def time_cpu(
+    fn: Callable[..., Any], args: Sequence[Any], repeats: int = REPEATS, launches: int = 4
+) -> dict[str, float]:
+    """Kernel wall time and process CPU time of ``fn(*args)``, frozen with ``dr.freeze``.
+
+    ``fn`` traces a Dr.Jit computation from its array arguments and returns the outputs.
+    Frozen, later calls replay the recorded kernel without tracing, so the process CPU time
+    around ``launches`` back-to-back calls is the kernel's (plus the thread pool's
+    hand-offs), whatever else the machine runs: on a loaded machine the wall time grows
+    with the load, the CPU time does not. Returns medians over ``repeats`` of
+    ``{"kernel_s", "cpu_s"}`` per call (``kernel_s`` from Dr.Jit's kernel history, wall;
+    ``cpu_s`` summed over all threads, so divide by the thread count for the time on
+    dedicated cores), after two warm-up calls (record and first replay).
+    """
+    import drjit as dr
+
+    def run(*xs: Any) -> Any:
+        outs = fn(*xs)
+        dr.eval(outs)
+        return outs
+
+    frozen = dr.freeze(run)
+    flag = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    kernels, cpus = [], []
+    try:
+        for _ in range(2):
+            frozen(*args)
+            dr.sync_thread()
+        for _ in range(repeats):
+            dr.kernel_history_clear()
+            start = time.process_time()
+            for _ in range(launches):
+                frozen(*args)
+                dr.sync_thread()
+            cpus.append((time.process_time() - start) / launches)
+            hist = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+            kernels.append(sum(k["execution_time"] for k in hist) * 1e-3 / launches)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, flag)
+    return {"kernel_s": statistics.median(kernels), "cpu_s": statistics.median(cpus)}
+
+
 def _row(kind: str, size: str, n: int, fused: dict[str, float], torch_s: float) -> dict[str, Any]:
     fused_ns = fused["wall_s"] / n * 1e9
     torch_ns = torch_s / n * 1e9

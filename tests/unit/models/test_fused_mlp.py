@@ -86,3 +86,36 @@ def test04_zero_rows_and_checks(mi: types.ModuleType) -> None:
         DenseLayer(np.full((1, 1), np.nan), np.ones(1), "relu")
     with pytest.raises(ValueError, match="takes 2 inputs"):
         fused_mlp(layers, [mi.Float(1.0)])
+
+
+@pytest.mark.parametrize("partial_sums", [None, 1, 2, 3])
+def test05_chains_zero_weights_and_biases(mi: types.ModuleType, partial_sums: int | None) -> None:
+    """Every way an output's sum can start: from the bias, from a product when the bias is
+    0, with the bias added last when chain 0's weights are all 0; at every chain count."""
+    rng = np.random.default_rng(5)
+    layers = random_layers(rng, 7, 40, 2, 3, last="sigmoid")  # 40 wide: 2 chains by default
+    w0, b0 = layers[0].weight.copy(), layers[0].bias.copy()
+    b0[::3] = 0.0  # outputs whose chain 0 starts with a product
+    w0[1, ::2] = 0.0  # chain 0 (even inputs, at 2 chains) all zero, bias added last
+    w0[2, ::3] = 0.0  # chain 0 all zero at 3 chains
+    w0[4, :] = 0.0  # a constant output
+    w1 = layers[1].weight.copy()
+    w1[:, :20] = 0.0  # wide layer: its first half of inputs unused
+    layers = [
+        DenseLayer(w0, b0, "relu"),
+        DenseLayer(w1, layers[1].bias, "relu"),
+        layers[2],
+    ]
+    x = rng.uniform(-1.0, 1.0, (512, 7)).astype(np.float32)
+    outs = fused_mlp(layers, [mi.Float(c) for c in x.T], partial_sums=partial_sums)
+    got = np.stack([np.asarray(o, np.float32) for o in outs], axis=1)
+    assert np.allclose(got, mlp_numpy(layers, x), rtol=1e-5, atol=1e-6)
+
+
+def test06_relu_keeps_nan(mi: types.ModuleType) -> None:
+    """ReLU as a select is the numpy ReLU, NaN included (np.maximum propagates NaN)."""
+    layers = make_layers([(np.ones((1, 1), np.float32), np.zeros(1, np.float32))], ["relu"])
+    x = np.array([[np.nan], [-1.0], [2.0], [-0.0], [np.inf], [-np.inf]], np.float32)
+    got, ref = run_fused(mi, layers, x), mlp_numpy(layers, x)
+    assert np.isnan(got[0, 0]) and np.isnan(ref[0, 0])
+    assert np.array_equal(got[1:], ref[1:])  # -0.0 == 0.0: only a zero's sign may differ
