@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -45,31 +44,19 @@ PAPER = {
 
 
 def run_recipe(data_dir: Path, recipe: Path = RECIPE) -> dict[str, Any]:
-    from service.cli.batch import load_batch, substitute_refs
+    from service.cli.batch import load_batch
+    from service.cli.batch_local import StepFailed, run_steps_in_process
     from service.settings import Settings
-    from service.specs import STEP_REF
-    from service.submission import run_in_process
 
     settings = Settings.from_env({}).with_(data_dir=data_dir, pool_processes=2)
-    batch = load_batch(recipe)
-    jobs: dict[str, Any] = {}
-    for step in batch.steps:
 
-        def resolve(ref: str) -> str:
-            m = STEP_REF.match(ref)
-            assert m is not None
-            job = jobs[m["step"]]
-            return f"job:{job.id}" if m["name"] is None else f"job:{job.id}/{m['name']}"
+    def done(step: Any, job: Any, seconds: float) -> None:
+        print(f"  {step.name}: {seconds:.0f} s; {job.message}", file=sys.stderr, flush=True)
 
-        spec = substitute_refs(step.spec, resolve)
-        started = time.perf_counter()
-        print(f"  {step.name} ...", file=sys.stderr, flush=True)
-        job = run_in_process(spec, settings)
-        if job.state != "succeeded":
-            sys.exit(f"step {step.name} failed: {job.error}")
-        print(f"  {step.name}: {time.perf_counter() - started:.0f} s; {job.message}",
-              file=sys.stderr, flush=True)  # fmt: skip
-        jobs[step.name] = job
+    try:
+        jobs = run_steps_in_process(load_batch(recipe).steps, settings, on_step=done)
+    except StepFailed as exc:
+        sys.exit(str(exc))
     return {"settings": settings, "jobs": jobs}
 
 

@@ -66,26 +66,16 @@ class _Refs:
 
 def run_recipe(settings: Any, recipe: Path) -> dict[str, Any]:
     """Run every step of ``recipe`` in order; returns ``{step name: Job}`` (all succeeded)."""
-    from service.cli.batch import load_batch, substitute_refs
-    from service.specs import STEP_REF
-    from service.submission import run_in_process
+    from service.cli.batch import load_batch
+    from service.cli.batch_local import StepFailed, run_steps_in_process
 
-    jobs: dict[str, Any] = {}
+    def done(step: Any, job: Any, seconds: float) -> None:
+        print(f"  {step.name}: {seconds:.1f} s", file=sys.stderr)
 
-    def resolve(ref: str) -> str:
-        m = STEP_REF.match(ref)
-        assert m is not None and m["step"] in jobs, ref
-        job_id = jobs[m["step"]].id
-        return f"job:{job_id}" if m["name"] is None else f"job:{job_id}/{m['name']}"
-
-    for step in load_batch(recipe).steps:
-        started = time.perf_counter()
-        job = run_in_process(substitute_refs(step.spec, resolve), settings)
-        if job.state != "succeeded":
-            raise SystemExit(f"step {step.name} failed: {job.error}")
-        print(f"  {step.name}: {time.perf_counter() - started:.1f} s", file=sys.stderr)
-        jobs[step.name] = job
-    return jobs
+    try:
+        return run_steps_in_process(load_batch(recipe).steps, settings, on_step=done)
+    except StepFailed as exc:
+        raise SystemExit(str(exc)) from None
 
 
 def read_json(settings: Any, job: Any, name: str) -> Any:

@@ -45,30 +45,20 @@ LOBE_BYTES = 32
 
 
 def run_recipe(data_dir: Path, only: str | None = None) -> dict[str, Any]:
-    from service.cli.batch import load_batch, substitute_refs
+    from service.cli.batch import load_batch
+    from service.cli.batch_local import StepFailed, run_steps_in_process
     from service.settings import Settings
-    from service.specs import STEP_REF
-    from service.submission import run_in_process
 
     settings = Settings.from_env({}).with_(data_dir=data_dir, pool_processes=1)
-    batch = load_batch(RECIPE)
-    jobs: dict[str, Any] = {}
-    for step in batch.steps:
-        if only is not None and not step.name.startswith(only):
-            continue
+    steps = [s for s in load_batch(RECIPE).steps if only is None or s.name.startswith(only)]
 
-        def resolve(ref: str) -> str:
-            m = STEP_REF.match(ref)
-            assert m is not None
-            job = jobs[m["step"]]
-            return f"job:{job.id}" if m["name"] is None else f"job:{job.id}/{m['name']}"
+    def done(step: Any, job: Any, seconds: float) -> None:
+        print(f"  {step.name}: {seconds:.0f} s", file=sys.stderr, flush=True)
 
-        spec = substitute_refs(step.spec, resolve)
-        print(f"  {step.name} ...", file=sys.stderr, flush=True)
-        job = run_in_process(spec, settings)
-        if job.state != "succeeded":
-            sys.exit(f"step {step.name} failed: {job.error}")
-        jobs[step.name] = job
+    try:
+        jobs = run_steps_in_process(steps, settings, on_step=done)
+    except StepFailed as exc:
+        sys.exit(str(exc))
     return {"settings": settings, "jobs": jobs}
 
 

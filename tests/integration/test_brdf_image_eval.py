@@ -19,10 +19,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from service.cli.batch import load_batch, substitute_refs
+from service.cli.batch import load_batch
+from service.cli.batch_local import run_steps_in_process
 from service.settings import Settings
-from service.specs import STEP_REF
-from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 
 RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "brdf_image_eval.yaml"
@@ -42,21 +41,12 @@ SHRINK: dict[str, dict[str, Any]] = {
 def test01_model_render_is_scored_against_its_table_render(
     settings: Settings, mitsuba_llvm: None
 ) -> None:
-    batch = load_batch(RECIPE)
-    jobs: dict[str, Any] = {}
 
-    def resolve(ref: str) -> str:
-        m = STEP_REF.match(ref)
-        assert m is not None and m["step"] in jobs
-        job_id = jobs[m["step"]].id
-        return f"job:{job_id}" if m["name"] is None else f"job:{job_id}/{m['name']}"
-
-    for step in batch.steps:
-        spec = substitute_refs(step.spec, resolve)
+    def shrink(spec: dict[str, Any]) -> dict[str, Any]:
         spec["params"].update(SHRINK.get(spec["kind"], {}))
-        job = run_in_process(spec, settings)
-        assert job.state == "succeeded", (step.name, job.error)
-        jobs[step.name] = job
+        return spec
+
+    jobs = run_steps_in_process(load_batch(RECIPE).steps, settings, transform=shrink)
 
     scores = jobs["scores"]
     (digest,) = [a.digest for a in scores.artifacts if a.name == "metrics.json"]

@@ -21,10 +21,9 @@ from typing import Any
 
 import pytest
 
-from service.cli.batch import load_batch, substitute_refs
+from service.cli.batch import load_batch
+from service.cli.batch_local import run_steps_in_process
 from service.settings import Settings
-from service.specs import STEP_REF
-from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
 
@@ -53,20 +52,7 @@ def chain(
     settings = Settings.from_env({}).with_(
         data_dir=tmp_path_factory.mktemp("btf_eval") / "data", pool_processes=1
     )
-    jobs: dict[str, Job] = {}
-    batch = load_batch(RECIPE)
-    for step in batch.steps:
-
-        def resolve(ref: str) -> str:
-            m = STEP_REF.match(ref)
-            assert m is not None
-            job = jobs[m["step"]]
-            return f"job:{job.id}" if m["name"] is None else f"job:{job.id}/{m['name']}"
-
-        job = run_in_process(shrink(substitute_refs(step.spec, resolve)), settings)
-        assert job.state == "succeeded", (step.name, job.error)
-        jobs[step.name] = job
-    return settings, jobs
+    return settings, run_steps_in_process(load_batch(RECIPE).steps, settings, transform=shrink)
 
 
 def _json(settings: Settings, job: Job, name: str) -> Any:

@@ -27,9 +27,9 @@ from typing import Any
 
 import pytest
 
-from service.cli.batch import load_batch, substitute_refs
+from service.cli.batch import load_batch
+from service.cli.batch_local import run_steps_in_process
 from service.settings import Settings
-from service.specs import STEP_REF
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
@@ -57,24 +57,15 @@ def chain(
         lease_seconds=30.0,
         pool_processes=1,
     )
-    jobs: dict[str, Job] = {}
 
-    def resolve(ref: str) -> str:
-        m = STEP_REF.match(ref)
-        assert m is not None and m["step"] in jobs
-        job_id = jobs[m["step"]].id
-        return f"job:{job_id}" if m["name"] is None else f"job:{job_id}/{m['name']}"
-
-    for step in load_batch(RECIPE).steps:
-        spec = substitute_refs(step.spec, resolve)
+    def shrink(spec: dict[str, Any]) -> dict[str, Any]:
         params = spec["params"]
         params.update(SHRINK.get(spec["kind"], {}))
         if spec["kind"] == "render":
             params["spp"] = SPP.get(params["spp"], params["spp"])
-        job = run_in_process(spec, settings)
-        assert job.state == "succeeded", (step.name, job.error)
-        jobs[step.name] = job
-    return settings, jobs
+        return spec
+
+    return settings, run_steps_in_process(load_batch(RECIPE).steps, settings, transform=shrink)
 
 
 def artifact(settings: Settings, job: Job, name: str) -> bytes:
