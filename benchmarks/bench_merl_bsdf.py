@@ -6,9 +6,12 @@ with a native Mitsuba material and with the ``merl_table`` BSDF of its tabulatio
 (:mod:`evaluators.render.bsdfs.merl_table`): a GGX gold conductor (alpha 0.3) and a rough plastic.
 Each
 configuration is warmed up once (kernel compilation), then timed ``--repeats`` times,
-native and table renders interleaved; a row reports the median, the throughput relative to
-the native BSDF, and the 1-minute load average after the runs (compare rows taken at low
-load; the ratio is the robust number).
+native and table renders interleaved; a row reports the median wall time, the throughput
+relative to the native BSDF, the median CPU time of the process (all its threads) and the
+throughput ratio by CPU time, and the 1-minute load average after the runs. On a shared,
+loaded machine the wall-clock ratio swings with whatever else runs (other processes take
+the cores for whole time slices); the CPU-time ratio counts only this process's own work
+and is the steadier figure (it still sees the cache misses other processes cause).
 
 Run: ``.venv/bin/python benchmarks/bench_merl_bsdf.py [--repeats 5] [--spp 64] [--size 256]``
 """
@@ -51,8 +54,9 @@ MATERIALS: dict[str, dict[str, Any]] = {
 
 def bench(
     bsdfs: dict[str, Any], size: int, spp: int, max_depth: int, repeats: int
-) -> dict[str, tuple[float, float]]:
-    """Median seconds of one full ``sphere_env`` render per BSDF, and its Mpaths/s.
+) -> dict[str, tuple[float, float, float]]:
+    """Median wall seconds of one full ``sphere_env`` render per BSDF, its Mpaths/s, and
+    the median CPU seconds of the process over the render.
 
     The BSDFs' renders are interleaved (one of each per repeat), so that a change in the
     machine's load affects them alike and their ratio stays meaningful.
@@ -65,15 +69,17 @@ def bench(
     for scene in scenes.values():
         render_passes(mi, scene, passes, seeds)  # warm-up: kernel compilation
     times: dict[str, list[float]] = {k: [] for k in scenes}
+    cpu: dict[str, list[float]] = {k: [] for k in scenes}
     for r in range(repeats):
         for label, scene in scenes.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             render_passes(mi, scene, passes, [s + 1000 * (r + 1) for s in seeds])
             times[label].append(time.perf_counter() - t0)
+            cpu[label].append(time.process_time() - c0)
     out = {}
     for label, t in times.items():
         seconds = statistics.median(t)
-        out[label] = (seconds, size * size * spp / seconds / 1e6)
+        out[label] = (seconds, size * size * spp / seconds / 1e6, statistics.median(cpu[label]))
     return out
 
 
@@ -88,19 +94,21 @@ def main() -> None:
     machine = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
     print(
         "| scene | material | BSDF | resolution | spp | max_depth | variant | median s "
-        "| Mpaths/s | table / native | machine | load (1 min) |"
+        "| Mpaths/s | table / native | median CPU s | table / native (CPU) | machine "
+        "| load (1 min) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- " * 14 + "|")
     for name, plugin in MATERIALS.items():
         table, _ = tabulate_mitsuba(plugin)
         bsdfs = {"native": load_bsdf(plugin, mi, name), "merl_table": merl_bsdf(mi, table)}
         results = bench(bsdfs, args.size, args.spp, args.max_depth, args.repeats)
-        native_rate = results["native"][1]
-        for label, (seconds, rate) in results.items():
+        native_rate, native_cpu = results["native"][1], results["native"][2]
+        for label, (seconds, rate, cpu) in results.items():
             print(
                 f"| sphere_env | {name} | {label} | {args.size}x{args.size} | {args.spp} | "
                 f"{args.max_depth} | {active_variant()} | {seconds:.3f} | {rate:.2f} | "
-                f"{rate / native_rate:.2f} | {machine} | {os.getloadavg()[0]:.1f} |",
+                f"{rate / native_rate:.2f} | {cpu:.3f} | {native_cpu / cpu:.2f} | {machine} | "
+                f"{os.getloadavg()[0]:.1f} |",
                 flush=True,
             )
     print(
