@@ -6,11 +6,20 @@ with a native Mitsuba material and with the ``merl_table`` BSDF of its tabulatio
 (:mod:`evaluators.render.bsdfs.merl_table`): a GGX gold conductor (alpha 0.3) and a rough plastic.
 Each
 configuration is warmed up once (kernel compilation), then timed ``--repeats`` times,
-native and table renders interleaved; a row reports the median, the throughput relative to
-the native BSDF, and the 1-minute load average after the runs (compare rows taken at low
-load; the ratio is the robust number).
+native and table renders interleaved; a row reports the median wall time, the throughput
+relative to the native BSDF, the median CPU time of the process (all its threads) and the
+throughput ratio by CPU time, and the 1-minute load average after the runs. On a shared,
+loaded machine the wall-clock ratio swings with whatever else runs (other processes take
+the cores for whole time slices); the CPU-time ratio counts only this process's own work
+and is the steadier figure (it still sees the cache misses other processes cause).
 
-Run: ``.venv/bin/python benchmarks/bench_merl_bsdf.py [--repeats 5] [--spp 64] [--size 256]``
+With ``--breakdown`` the same run also renders variants of the table BSDF whose ``brdf``
+is cut down, to show where its time goes: no table read (a constant), the bin coordinates
+only, one read of the nearest bin, and both of those with every read confined to an
+L2-sized slice of the table (768 KB). Sampling and pdf are the table BSDF's own in all.
+
+Run: ``.venv/bin/python benchmarks/bench_merl_bsdf.py [--repeats 5] [--spp 64] [--size 256]
+[--breakdown]``
 """
 
 from __future__ import annotations
@@ -26,12 +35,18 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from evaluators.render.bsdfs.merl_table import merl_bsdf  # noqa: E402
+from evaluators.render.bsdfs.merl_table import merl_bsdf, register_merl_bsdf  # noqa: E402
 from evaluators.render.kind import plan_passes, render_passes  # noqa: E402
 from evaluators.render.scenes import SceneSetup, build_scene  # noqa: E402
 from evaluators.render.sources.common import load_bsdf  # noqa: E402
+from materials import halfdiff as hd  # noqa: E402
 from materials.backend import active_variant, load_mitsuba  # noqa: E402
+from materials.lobe_fit import fit_sampling_lobe  # noqa: E402
 from materials.tabulate import tabulate_mitsuba  # noqa: E402
+from storage.formats.merl import MerlTable  # noqa: E402
+
+#: Bins of the L2-sized slice of the breakdown (64 Ki RGB bins, 768 KB of float32).
+L2_SLICE = (1 << 16) - 1
 
 MATERIALS: dict[str, dict[str, Any]] = {
     "roughconductor Au a=0.3": {
@@ -51,8 +66,9 @@ MATERIALS: dict[str, dict[str, Any]] = {
 
 def bench(
     bsdfs: dict[str, Any], size: int, spp: int, max_depth: int, repeats: int
-) -> dict[str, tuple[float, float]]:
-    """Median seconds of one full ``sphere_env`` render per BSDF, and its Mpaths/s.
+) -> dict[str, tuple[float, float, float]]:
+    """Median wall seconds of one full ``sphere_env`` render per BSDF, its Mpaths/s, and
+    the median CPU seconds of the process over the render.
 
     The BSDFs' renders are interleaved (one of each per repeat), so that a change in the
     machine's load affects them alike and their ratio stays meaningful.
@@ -65,15 +81,87 @@ def bench(
     for scene in scenes.values():
         render_passes(mi, scene, passes, seeds)  # warm-up: kernel compilation
     times: dict[str, list[float]] = {k: [] for k in scenes}
+    cpu: dict[str, list[float]] = {k: [] for k in scenes}
     for r in range(repeats):
         for label, scene in scenes.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             render_passes(mi, scene, passes, [s + 1000 * (r + 1) for s in seeds])
             times[label].append(time.perf_counter() - t0)
+            cpu[label].append(time.process_time() - c0)
     out = {}
     for label, t in times.items():
         seconds = statistics.median(t)
-        out[label] = (seconds, size * size * spp / seconds / 1e6)
+        out[label] = (seconds, size * size * spp / seconds / 1e6, statistics.median(cpu[label]))
+    return out
+
+
+def breakdown_bsdfs(mi: Any, table: MerlTable) -> dict[str, Any]:
+    """The table BSDF and its cut-down variants (see the module docstring), same lobe."""
+    import drjit as dr
+
+    cls = register_merl_bsdf(mi)
+    ops = hd.drjit_ops(dr)
+
+    def coords(self: Any, wi: Any, wo: Any) -> Any:
+        th, td, pd = hd.halfdiff_angles(wi.x, wi.y, wi.z, wo.x, wo.y, wo.z, ops)
+        return hd.merl_coordinates(th, td, pd, self.phi_d_bins, ops)
+
+    def constant(self: Any, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
+        active = active & (wi.z > 0) & (wo.z > 0)
+        return dr.select(active, mi.Color3f(0.3), 0.0)
+
+    def coordinates(self: Any, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
+        active = active & (wi.z > 0) & (wo.z > 0)
+        return dr.select(active, mi.Color3f(*coords(self, wi, wo)) * 1e-3, 0.0)
+
+    def nearest(mask: int) -> Any:
+        def brdf(self: Any, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
+            active = active & (wi.z > 0) & (wo.z > 0)
+            u_h, u_d, u_p = coords(self, wi, wo)
+            n_p = self.phi_d_bins
+            i_h = mi.UInt32(dr.clip(mi.Int32(u_h), 0, hd.RES_THETA_H - 1))
+            i_d = mi.UInt32(dr.clip(mi.Int32(u_d), 0, hd.RES_THETA_D - 1))
+            i_p = mi.UInt32(dr.clip(mi.Int32(u_p), 0, n_p - 1))
+            index = ((i_h * hd.RES_THETA_D + i_d) * n_p + i_p) & mask
+            return dr.select(active, dr.gather(mi.Color3f, self.table, index, active), 0.0)
+
+        return brdf
+
+    def interpolated_in_slice(self: Any, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
+        # The shipped brdf() itself, traced while dr.gather reads modulo the slice.
+        gather = dr.gather
+
+        def in_slice(dtype: Any, source: Any, index: Any, *args: Any, **kwargs: Any) -> Any:
+            return gather(dtype, source, index & L2_SLICE, *args, **kwargs)
+
+        dr.gather = in_slice
+        try:
+            return cls.brdf(self, ctx, wi, wo, active)
+        finally:
+            dr.gather = gather
+
+    variants = {
+        "no table read": constant,
+        "coordinates only": coordinates,
+        "nearest bin": nearest(0xFFFFFFFF),
+        "nearest bin, L2 slice": nearest(L2_SLICE),
+        "interpolated, L2 slice": interpolated_in_slice,
+    }
+    lobe = fit_sampling_lobe(table.rgb)
+    out = {"merl_table": merl_bsdf(mi, table, lobe)}
+    data = mi.TensorXf(table.rgb.astype("float32"))
+    for i, (label, brdf) in enumerate(variants.items()):
+        sub = type(f"MerlBreakdown{i}", (cls,), {"brdf": brdf})
+        name = f"merl_table_breakdown_{i}"
+        mi.register_bsdf(name, lambda props, sub=sub: sub(props))
+        out[label] = mi.load_dict(
+            {
+                "type": name,
+                "data": data,
+                "alpha": lobe.alpha,
+                "specular_weight": lobe.specular_weight,
+            }
+        )
     return out
 
 
@@ -83,29 +171,37 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--breakdown", action="store_true", help="also render cut-down variants")
     args = ap.parse_args()
     mi = load_mitsuba()
     machine = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
     print(
         "| scene | material | BSDF | resolution | spp | max_depth | variant | median s "
-        "| Mpaths/s | table / native | machine | load (1 min) |"
+        "| Mpaths/s | table / native | median CPU s | table / native (CPU) | machine "
+        "| load (1 min) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- " * 14 + "|")
     for name, plugin in MATERIALS.items():
         table, _ = tabulate_mitsuba(plugin)
-        bsdfs = {"native": load_bsdf(plugin, mi, name), "merl_table": merl_bsdf(mi, table)}
+        bsdfs = {"native": load_bsdf(plugin, mi, name)}
+        if args.breakdown:
+            bsdfs.update(breakdown_bsdfs(mi, table))
+        else:
+            bsdfs["merl_table"] = merl_bsdf(mi, table)
         results = bench(bsdfs, args.size, args.spp, args.max_depth, args.repeats)
-        native_rate = results["native"][1]
-        for label, (seconds, rate) in results.items():
+        native_rate, native_cpu = results["native"][1], results["native"][2]
+        for label, (seconds, rate, cpu) in results.items():
             print(
                 f"| sphere_env | {name} | {label} | {args.size}x{args.size} | {args.spp} | "
                 f"{args.max_depth} | {active_variant()} | {seconds:.3f} | {rate:.2f} | "
-                f"{rate / native_rate:.2f} | {machine} | {os.getloadavg()[0]:.1f} |",
+                f"{rate / native_rate:.2f} | {cpu:.3f} | {native_cpu / cpu:.2f} | {machine} | "
+                f"{os.getloadavg()[0]:.1f} |",
                 flush=True,
             )
     print(
         f"\nreproduce: .venv/bin/python benchmarks/bench_merl_bsdf.py --repeats {args.repeats} "
         f"--spp {args.spp} --size {args.size} --max-depth {args.max_depth}"
+        + (" --breakdown" if args.breakdown else "")
     )
 
 

@@ -71,14 +71,18 @@ class ArrayOps(NamedTuple):
     floor: Callable[[Any], Any]
     minimum: Callable[[Any, Any], Any]
     maximum: Callable[[Any, Any], Any]
+    #: ``where(condition, a, b)``: elementwise choice (``np.where``, ``dr.select``).
+    where: Callable[[Any, Any, Any], Any]
 
 
-NUMPY_OPS = ArrayOps(np.sqrt, np.arctan2, np.cos, np.sin, np.floor, np.minimum, np.maximum)
+NUMPY_OPS = ArrayOps(
+    np.sqrt, np.arctan2, np.cos, np.sin, np.floor, np.minimum, np.maximum, np.where
+)
 
 
 def drjit_ops(dr: types.ModuleType) -> ArrayOps:
     """The :class:`ArrayOps` of Dr.Jit; pass the ``drjit`` module (imported after Mitsuba)."""
-    return ArrayOps(dr.sqrt, dr.atan2, dr.cos, dr.sin, dr.floor, dr.minimum, dr.maximum)
+    return ArrayOps(dr.sqrt, dr.atan2, dr.cos, dr.sin, dr.floor, dr.minimum, dr.maximum, dr.select)
 
 
 def halfdiff_components(
@@ -115,6 +119,40 @@ def halfdiff_components(
     theta_d = ops.atan2(ops.sqrt(dx * dx + y1 * y1), dz)
     phi_d = ops.atan2(y1, dx)
     return theta_h, phi_h, theta_d, phi_d
+
+
+def halfdiff_angles(
+    ix: Any, iy: Any, iz: Any, ox: Any, oy: Any, oz: Any, ops: ArrayOps = NUMPY_OPS
+) -> tuple[Any, Any, Any]:
+    """``(theta_h, theta_d, phi_d)`` of :func:`halfdiff_components`, without trigonometry.
+
+    The same rotation ``d = Rot_y(-theta_h) Rot_z(-phi_h) wi``, but the cosines and sines
+    of ``phi_h`` and ``theta_h`` are read off the half vector ``h = wi + wo`` directly
+    (``cos phi_h = h_x / r``, ``sin phi_h = h_y / r``, ``cos theta_h = h_z / |h|``,
+    ``sin theta_h = r / |h|`` with ``r = sqrt(h_x^2 + h_y^2)``) instead of evaluating
+    ``cos``/``sin`` of angles from ``atan2``: three ``atan2`` calls instead of four, and no
+    ``sin``/``cos``. Equal to :func:`halfdiff_components` up to float rounding; where
+    ``r = 0`` (``h`` along z) ``phi_h`` is taken as 0, as ``atan2(0, 0)`` gives there. This
+    is the table BSDF's hot path; ``halfdiff_components`` stays the reference.
+    """
+    hx, hy, hz = ix + ox, iy + oy, iz + oz
+    r2 = hx * hx + hy * hy
+    r = ops.sqrt(r2)
+    theta_h = ops.atan2(r, hz)
+    has_r = r > 0.0
+    inv_r = 1.0 / ops.where(has_r, r, 1.0)
+    cp = ops.where(has_r, hx * inv_r, 1.0)
+    sp = hy * inv_r
+    norm = ops.sqrt(r2 + hz * hz)
+    inv_norm = 1.0 / ops.where(norm > 0.0, norm, 1.0)
+    ct, st = hz * inv_norm, r * inv_norm
+    x1 = ix * cp + iy * sp
+    y1 = iy * cp - ix * sp
+    dx = x1 * ct - iz * st
+    dz = x1 * st + iz * ct
+    theta_d = ops.atan2(ops.sqrt(dx * dx + y1 * y1), dz)
+    phi_d = ops.atan2(y1, dx)
+    return theta_h, theta_d, phi_d
 
 
 def directions_components(

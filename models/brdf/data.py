@@ -48,7 +48,7 @@ def _minimum(a: Any, b: Any) -> Any:
 
 #: :class:`materials.halfdiff.ArrayOps` of torch, for the shared generic formulas.
 TORCH_OPS = hd.ArrayOps(
-    torch.sqrt, torch.atan2, torch.cos, torch.sin, torch.floor, _minimum, _maximum
+    torch.sqrt, torch.atan2, torch.cos, torch.sin, torch.floor, _minimum, _maximum, torch.where
 )
 
 

@@ -4,21 +4,26 @@ The plugin (registered as ``"merl_table"`` by :func:`register_merl_bsdf`) is a P
 ``mi.BSDF``; in Mitsuba's vectorised RGB variants it is traced into the render kernel. It
 needs one (``llvm_ad_rgb``; ``cuda_ad_rgb`` should work but is untested): under the
 ``scalar_rgb`` fallback, registration raises ``RuntimeError``. On 2 cores it renders at
-about 0.5-0.7x the speed of the native BSDF it tabulates
-(``benchmarks/bench_merl_bsdf.py``).
+about 0.7x the speed of the native BSDF it tabulates (``benchmarks/bench_merl_bsdf.py``;
+BENCHMARKS.md): the gap is the table's random reads (17.5 MB, larger than a core's L2),
+not arithmetic.
 
 Evaluation
     The multilinear interpolation of :func:`materials.halfdiff.lookup` (``interpolate=True``)
-    in Dr.Jit: the same Rusinkiewicz angles and MERL bin coordinates
-    (:func:`~materials.halfdiff.halfdiff_components`, :func:`~materials.halfdiff.merl_coordinates`
-    called with :func:`~materials.halfdiff.drjit_ops`), eight ``dr.gather`` calls of one RGB
-    bin each, theta_h and theta_d clamped at the table edges, phi_d periodic. The table is
-    held as float32 (17.5 MB for 180 phi_d bins).
+    in Dr.Jit: the Rusinkiewicz angles of :func:`~materials.halfdiff.halfdiff_angles` (the
+    trigonometry-free twin of :func:`~materials.halfdiff.halfdiff_components`: three
+    ``atan2`` and no ``sin``/``cos``), the MERL bin coordinates of
+    :func:`~materials.halfdiff.merl_coordinates` (both called with
+    :func:`~materials.halfdiff.drjit_ops`), eight ``dr.gather`` calls of one RGB bin each,
+    theta_h and theta_d clamped at the table edges, phi_d periodic. The table is held as
+    float32 (17.5 MB for 180 phi_d bins).
 Missing entries
     Negative entries are missing (MERL's convention). As in the numpy reference, a missing
     corner gets zero weight and the other corners are renormalised, per channel; where all
     eight corners of a channel are missing the BSDF returns **0** there (the numpy
-    reference returns ``MISSING``), so a renderer never sees a negative value.
+    reference returns ``MISSING``), so a renderer never sees a negative value. When every
+    bin is missing in all its channels or in none (as in matforge's tabulations), the
+    lookup tests one channel per corner and keeps one weight sum; the result is the same.
 Frame and sides
     Directions in the local shading frame, z up; ``cos theta_i = si.wi.z``. One-sided: 0 (and
     pdf 0) when ``wi.z <= 0`` or ``wo.z <= 0``. Flags: glossy reflection, front side.
@@ -139,7 +144,12 @@ def _define_class(mi: types.ModuleType) -> type:
                 raise ValueError("merl_table: need alpha > 0, 0 <= specular_weight <= 1")
             self.alpha, self.specular_weight = float(alpha), float(weight)
             self.sampling = MixtureSampling(self.alpha, self.specular_weight)
-            self.table = mi.Float(np.ascontiguousarray(rgb, dtype=np.float32).ravel())
+            table = np.ascontiguousarray(rgb, dtype=np.float32)
+            valid = table >= 0.0
+            # True when every bin is missing in all its channels or in none (tabulations):
+            # the lookup then tests one channel and keeps one weight sum.
+            self.whole_bins_missing = bool(np.array_equal(valid.all(axis=-1), valid.any(axis=-1)))
+            self.table = mi.Float(table.ravel())
             self.m_flags = flags
             self.m_components = [flags]
 
@@ -148,26 +158,29 @@ def _define_class(mi: types.ModuleType) -> type:
             """Interpolated BRDF (1/sr, ``mi.Color3f``), no cosine; 0 below the horizon
             (``ctx`` is not used)."""
             active = active & (wi.z > 0) & (wo.z > 0)
-            theta_h, _, theta_d, phi_d = hd.halfdiff_components(
-                wi.x, wi.y, wi.z, wo.x, wo.y, wo.z, ops
-            )
+            theta_h, theta_d, phi_d = hd.halfdiff_angles(wi.x, wi.y, wi.z, wo.x, wo.y, wo.z, ops)
             n_p = self.phi_d_bins
             u_h, u_d, u_p = hd.merl_coordinates(theta_h, theta_d, phi_d, n_p, ops)
             ax_h = corners(u_h, hd.RES_THETA_H, False)
             ax_d = corners(u_d, hd.RES_THETA_D, False)
             ax_p = corners(u_p, n_p, True)
             acc = dr.zeros(mi.Color3f)
-            wsum = dr.zeros(mi.Color3f)
+            # Per-bin missing entries: one weight sum; per-channel ones: one per channel.
+            wsum = dr.zeros(mi.Float if self.whole_bins_missing else mi.Color3f)
             for i_h, w_h in ax_h:
                 for i_d, w_d in ax_d:
                     row = (i_h * hd.RES_THETA_D + i_d) * n_p
                     w_hd = w_h * w_d
                     for i_p, w_p in ax_p:
                         v = dr.gather(mi.Color3f, self.table, row + i_p, active)
-                        w = w_hd * w_p
-                        valid = v >= 0.0
-                        acc += dr.select(valid, w * v, 0.0)
-                        wsum += dr.select(valid, w, 0.0)
+                        if self.whole_bins_missing:
+                            w = dr.select(v.x >= 0.0, w_hd * w_p, 0.0)
+                            acc = dr.fma(v, w, acc)
+                        else:
+                            ok = v >= 0.0
+                            w = dr.select(ok, w_hd * w_p, 0.0)
+                            acc += dr.select(ok, w * v, 0.0)
+                        wsum += w
             value = dr.select(wsum > 0.0, acc / dr.maximum(wsum, 1e-30), 0.0)
             return dr.select(active, value, 0.0)
 

@@ -163,6 +163,24 @@ def test07_generic_core_with_other_floats() -> None:
         np.testing.assert_allclose(g, w, atol=2e-3)
 
 
+def test07b_trig_free_angles_equal_the_reference() -> None:
+    # halfdiff_angles (the table BSDF's hot path) == halfdiff_components in float64,
+    # including h along z (wo the mirror of wi about the normal: phi_h undefined, taken 0).
+    rng = np.random.default_rng(9)
+    wi, wo = random_hemisphere(rng, 5000), random_hemisphere(rng, 5000)
+    wo[:100] = wi[:100] * [-1, -1, 1]
+    wo[100:200] = wi[100:200]  # theta_d = 0
+    comps = (*wi.T, *wo.T)
+    theta_h, _, theta_d, phi_d = hd.halfdiff_components(*comps)
+    got_h, got_d, got_p = hd.halfdiff_angles(*comps)
+    np.testing.assert_allclose(got_h, theta_h, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got_d, theta_d, rtol=0, atol=1e-12)
+    # phi_d is undefined where theta_d = 0; elsewhere equal as an angle.
+    some = theta_d > 1e-6
+    np.testing.assert_allclose(np.cos(got_p - phi_d)[some], 1.0, rtol=0, atol=1e-12)
+    assert np.all(np.abs(np.sin(got_p - phi_d)[some]) < 1e-6)
+
+
 def test08_lookup_nearest_returns_the_bin() -> None:
     table = np.zeros((90, 90, 180, 3))
     table[..., 0] = np.arange(90 * 90 * 180).reshape(90, 90, 180)
