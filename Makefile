@@ -15,14 +15,16 @@ DATA ?= ./matforge-data
 setup: $(STAMP)
 
 # System libraries: libLLVM 19 for Mitsuba's LLVM backend (Debian's LLVM 15 aborts in
-# kernel compilation, ../shared/NOTES.md) and Chromium for the dashboard browser test.
+# kernel compilation, ../shared/NOTES.md), libatomic (Dr.Jit's extension links it; a minimal
+# Debian image lacks it) and Chromium for the dashboard browser test.
 system-deps:
-	@if [ -f $(LIBLLVM) ] && [ -x /usr/bin/chromium ]; then \
+	@if [ -f $(LIBLLVM) ] && [ -x /usr/bin/chromium ] && \
+		ls /usr/lib/x86_64-linux-gnu/libatomic.so.1 >/dev/null 2>&1; then \
 		echo "system deps present"; \
 	elif command -v apt-get >/dev/null; then \
 		SUDO=$$( [ $$(id -u) -eq 0 ] || echo sudo ); \
 		$$SUDO apt-get update -qq && \
-		DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libllvm19 chromium >/dev/null; \
+		DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libllvm19 libatomic1 chromium >/dev/null; \
 	else \
 		echo "WARNING: no apt-get: Mitsuba will fall back to scalar_rgb (slow)" >&2; \
 	fi
