@@ -8,26 +8,49 @@ its mean ``metric`` over seeds (:func:`evaluators.report.fronts.panels`); the ch
 the cheapest whose value meets ``target`` (``<=`` for an error, ``>=`` for a metric where
 higher is better, e.g. PSNR), or none, with the reason.
 
-This kind chooses among rungs that were already rendered and scored (a batch file makes
-them); it does not render.
+Two modes, one of them per spec:
+
+- ``runs``: choose among rungs that were already rendered and scored (a batch file makes
+  them); nothing is rendered.
+- ``scene`` + ``reference`` + ``ladder``: render every rung (and the reference, when it is
+  given as a material) in the scene, as shards through the job's executor (process pool or
+  Ray; a crashed job resumes from its finished renders), score each against the reference
+  with :mod:`evaluators.metrics.images` as ``score`` does, measure its cost, and choose
+  (:mod:`evaluators.report.select_scene`).
 
 Artifacts: ``select.json`` (``ladders``: rungs with value, cost, ``meets``; ``chosen`` and
-``why``), ``select.png`` (per ladder, the rungs' values as bars by increasing cost, the
-target as a line, the chosen rung highlighted).
+``why``; in the scene mode also ``mode: "scene"``, the scene, reference and ladder as given,
+and per rung its spp, ``render_seconds``, integrator, material and image), ``select.png``
+(per ladder, the rungs' values as bars by increasing cost, the target as a line, the chosen
+rung highlighted); in the scene mode also ``rung_<name>.exr`` / ``.png`` per rung,
+``flip_<name>.png`` (the FLIP error map, for ``metric: flip``) and, for a rendered
+reference, ``reference.exr`` / ``.png``. Result rows (``GET /api/results``,
+``report.pareto``): in the scene mode one per rung, its metric against the rendered
+reference with ``spp`` and ``render_seconds`` (and the model cost, if chosen by one).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-from pydantic import Field
+from pydantic import (
+    Field,
+    SerializerFunctionWrapHandler,
+    StringConstraints,
+    ValidationError,
+    model_serializer,
+    model_validator,
+)
 
+from evaluators.render.kind import RenderParams
+from evaluators.render.sources import MaterialParam
 from evaluators.report.kind import CostName, gather_rows
+from evaluators.score.params import IMAGE_METRICS
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
-from jobapi.params import JobRef, StrictModel
+from jobapi.params import JobRef, Ref, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
-from jobapi.rows import lower_is_better
+from jobapi.rows import ResultRow, RowSource, base_row, lower_is_better, number
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -35,24 +58,93 @@ if TYPE_CHECKING:
 FORMAT = "matforge.select/1"
 
 
-class SelectParams(StrictModel):
-    """Parameters of ``select``.
+RungName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+#: Costs a scene-mode ladder may be chosen by: measured here, or its model job's.
+SCENE_COSTS = ("render_seconds", "spp", "ns_per_eval", "bytes_per_material", "bytes_per_network")
 
-    ==========  ====================  ==================  ===================================
-    name        type                  default             meaning
-    ==========  ====================  ==================  ===================================
-    ``runs``    list of ``job:<id>``  required            jobs with result rows: the ladder
-    ``metric``  str                   ``flip``            the quality metric
-    ``target``  float                 required            the value a rung must reach
-    ``cost``    cost name             ``render_seconds``  what "cheapest" is measured in
-    ==========  ====================  ==================  ===================================
+
+class ReferenceRender(StrictModel):
+    """A reference path-traced in the ladder's scene: ``{material, spp}``."""
+
+    material: MaterialParam = Field(description="The reference material, as in 'render'.")
+    spp: int = Field(default=256, ge=1, le=65536, description="Samples per pixel, 1..65536.")
+
+
+class Rung(StrictModel):
+    """One candidate of a scene-mode ladder: ``{name, material, spp?}``."""
+
+    name: RungName = Field(description="The rung's label: 1-64 of A-Z a-z 0-9 _ . -")
+    material: MaterialParam = Field(description="The material, as in 'render'.")
+    spp: int | None = Field(
+        default=None, ge=1, le=65536, description="Samples per pixel (default: the scene's)."
+    )
+
+
+class SelectParams(StrictModel):
+    """Parameters of ``select``: either ``runs`` (rungs already scored), or ``scene``,
+    ``reference`` and ``ladder`` (the job renders and scores them).
+
+    =============  ====================  ==================  ================================
+    name           type                  default             meaning
+    =============  ====================  ==================  ================================
+    ``runs``       list of ``job:<id>``  (mode 1)            jobs with result rows: the ladder
+    ``scene``      render params         (mode 2)            a ``render`` spec's params
+                                                             without ``material``: scene,
+                                                             resolution, spp (the rungs'
+                                                             default), max_depth, lights,
+                                                             camera
+    ``reference``  ref or                (mode 2)            the reference image
+                   ``{material, spp}``                       (``job:<id>/image.exr``,
+                                                             ``step:<name>``), or a material
+                                                             path-traced here (spp 256)
+    ``ladder``     list of               (mode 2)            the candidates, 1..32, names
+                   ``{name, material,                        unique; material as in
+                   spp?}``                                   ``render``
+    ``metric``     str                   ``flip``            the quality metric (scene mode:
+                                                             flip, psnr, ssim, mae, mse)
+    ``target``     float                 required            the value a rung must reach
+    ``cost``       cost name             ``render_seconds``  what "cheapest" is measured in
+                                                             (scene mode: render_seconds,
+                                                             spp, or a ``{"model":
+                                                             "job:..."}`` rung's
+                                                             ns_per_eval, bytes_per_material,
+                                                             bytes_per_network)
+    =============  ====================  ==================  ================================
 
     Example: ``{"kind": "select", "params": {"runs": ["step:seen_scores"], "metric":
-    "flip", "target": 0.05}}``.
+    "flip", "target": 0.05}}``. Scene mode::
+
+        {"kind": "select", "params": {
+         "scene": {"scene": "sphere_env", "resolution": [64, 64], "spp": 16},
+         "reference": {"material": {"mitsuba": {"type": "roughconductor", "alpha": 0.2}},
+                       "spp": 256},
+         "ladder": [{"name": "diffuse", "material": {"mitsuba": {"type": "diffuse"}}},
+                    {"name": "conductor", "material": {"mitsuba": {"type":
+                     "roughconductor", "alpha": 0.2}}}],
+         "metric": "flip", "target": 0.1}}
     """
 
-    runs: list[JobRef] = Field(
-        min_length=1, max_length=256, description="Jobs with result rows: 'job:<id>' each."
+    runs: list[JobRef] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=256,
+        description="Jobs with result rows: 'job:<id>' each (the first mode).",
+    )
+    scene: RenderParams | None = Field(
+        default=None,
+        description="The scene mode: a render spec's params without 'material' (scene, "
+        "resolution, spp of the rungs, max_depth, lights, camera).",
+    )
+    reference: Ref | ReferenceRender | None = Field(
+        default=None,
+        description="The scene mode's reference: an image ref (job:<id>/image.exr) or "
+        "{material, spp} to path-trace it here.",
+    )
+    ladder: list[Rung] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=32,
+        description="The scene mode's candidates: [{name, material, spp?}], names unique.",
     )
     metric: str = Field(
         default="flip", min_length=1, max_length=64, description="The quality metric of the target."
@@ -63,6 +155,81 @@ class SelectParams(StrictModel):
         "(at most, for an error; at least, where higher is better).",
     )
     cost: CostName = Field(default="render_seconds", description="What cheapest is measured in.")
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # The other mode's fields are left out (a runs spec keeps the canonical form, and
+        # so the hash, it had before the scene mode), and so is the scene's default
+        # material (each rung has its own).
+        data: dict[str, Any] = handler(self)
+        for key in ("runs", "scene", "reference", "ladder"):
+            if key in data and data[key] is None:
+                del data[key]
+        if isinstance(data.get("scene"), dict):
+            data["scene"].pop("material", None)
+        return data
+
+    @property
+    def scene_mode(self) -> bool:
+        return self.runs is None
+
+    @model_validator(mode="after")
+    def _check_mode(self) -> SelectParams:
+        given = [k for k in ("scene", "reference", "ladder") if getattr(self, k) is not None]
+        if self.runs is not None:
+            if given:
+                raise ValueError(
+                    f"runs: give either runs (rungs already scored) or scene, reference and "
+                    f"ladder (rendered here), not both; also given: {', '.join(given)}"
+                )
+            return self
+        missing = [k for k in ("scene", "reference", "ladder") if k not in given]
+        if missing:
+            raise ValueError(
+                f"{missing[0]}: required: give runs (rungs already scored) or scene, "
+                f"reference and ladder (rendered here); missing: {', '.join(missing)}"
+            )
+        self._check_scene()
+        return self
+
+    def _check_scene(self) -> None:
+        assert self.scene is not None and self.ladder is not None
+        if self.metric not in IMAGE_METRICS:
+            raise ValueError(
+                f"metric: {self.metric!r} is not an image metric; one of "
+                f"{', '.join(IMAGE_METRICS)}"
+            )
+        if "material" in self.scene.model_fields_set:
+            raise ValueError("scene.material: give each rung's material in ladder instead")
+        names = [r.name for r in self.ladder]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"ladder: rung names listed more than once: {', '.join(dupes)}")
+        if "reference" in names:
+            raise ValueError("ladder: 'reference' is the reference's name; rename the rung")
+        if self.cost not in SCENE_COSTS:
+            raise ValueError(f"cost: {self.cost} is not measured here; one of {SCENE_COSTS}")
+        base = self.scene.model_dump(mode="json", exclude={"material"})
+        for i, rung in enumerate(self.ladder):
+            if self.cost in SCENE_COSTS[2:] and "model" not in rung.material:
+                raise ValueError(
+                    f"ladder.{i}.material: cost {self.cost} is read from a model's job; "
+                    f'this rung is not a {{"model": "job:<id>/..."}} material'
+                )
+            spp = rung.spp if rung.spp is not None else self.scene.spp
+            _check_render(f"ladder.{i}", {**base, "material": rung.material, "spp": spp})
+        if isinstance(self.reference, ReferenceRender):
+            ref = {**base, "material": self.reference.material, "spp": self.reference.spp}
+            _check_render("reference", ref)
+
+
+def _check_render(where: str, spec: dict[str, Any]) -> None:
+    """``spec`` as the ``render`` kind validates it (the path budget), errors at ``where``."""
+    try:
+        RenderParams.model_validate(spec)
+    except ValidationError as exc:
+        msg = exc.errors()[0]["msg"].removeprefix("Value error, ")
+        raise ValueError(f"{where}: {msg}") from None
 
 
 def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[dict[str, Any]]:
@@ -112,11 +279,30 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[di
 
 
 def run_select(params: SelectParams, ctx: JobContext) -> None:
-    """Gather the rows, build the ladders and write the artifacts."""
+    """Gather the rows (or render and score the ladder), build the ladders and write the
+    artifacts."""
+    from evaluators.report.plots import select_png
+
+    if params.scene_mode:
+        from evaluators.report.select_scene import run_scene_select
+
+        doc = run_scene_select(params, ctx)
+        doc.update(format=FORMAT, metric=params.metric, target=params.target, cost=params.cost)
+        ctx.put_json("select.json", doc)
+        ctx.put_bytes("select.png", select_png(doc["ladders"], params.target), "image/png")
+        lad = doc["ladders"][0]
+        ctx.progress(1.0, f"{len(lad['rungs'])} rungs; chosen: {lad['chosen'] or 'none'}")
+        return
+    run_runs_select(params, ctx)
+
+
+def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
+    """The first mode: the ladders of rungs other jobs scored."""
     from evaluators.report.fronts import panels
     from evaluators.report.kind import ReportParetoParams
     from evaluators.report.plots import select_png
 
+    assert params.runs is not None
     rows = gather_rows(ReportParetoParams(runs=params.runs), ctx)
     found = panels(rows, [params.metric], [params.cost])
     if not found:
@@ -181,6 +367,40 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     )
 
 
+def select_rows(src: RowSource) -> list[ResultRow]:
+    """Result rows of the scene mode: per rung, its metric against the reference with its
+    spp, ``render_seconds`` and model cost. The ``runs`` mode has none of its own (its rows
+    are its runs')."""
+    doc = src.read("select.json")
+    if not isinstance(doc, dict) or doc.get("mode") != "scene":
+        return []
+    metric, cost = str(doc.get("metric")), doc.get("cost")
+    out = []
+    for lad in doc.get("ladders") or []:
+        for r in lad.get("rungs") or []:
+            value = number(r.get("value"))
+            if value is None:
+                continue
+            costs: dict[str, Any] = {"render_seconds": number(r.get("render_seconds"))}
+            spp = r.get("spp")
+            costs["spp"] = int(spp) if isinstance(spp, int) else None
+            if cost not in ("render_seconds", "spp") and isinstance(cost, str):
+                costs[cost] = number(r.get("cost"))
+            out.append(
+                base_row(
+                    src,
+                    metric,
+                    value,
+                    dataset=str(lad.get("dataset")),
+                    scene=lad.get("scene"),
+                    candidate=str(r.get("candidate")),
+                    config={"material": r.get("material"), "integrator": r.get("integrator")},
+                    **costs,
+                )
+            )
+    return out
+
+
 register(
     Kind(
         name="select",
@@ -197,5 +417,6 @@ register(
             "cost": "ns_per_eval",
         },
         summary=summarize,
+        rows=select_rows,
     )
 )
