@@ -196,8 +196,7 @@ class SelectParams(StrictModel):
         assert self.scene is not None and self.ladder is not None
         if self.metric not in IMAGE_METRICS:
             raise ValueError(
-                f"metric: {self.metric!r} is not an image metric; one of "
-                f"{', '.join(IMAGE_METRICS)}"
+                f"metric: {self.metric!r} is not an image metric; one of {', '.join(IMAGE_METRICS)}"
             )
         if "material" in self.scene.model_fields_set:
             raise ValueError("scene.material: give each rung's material in ladder instead")
@@ -407,8 +406,9 @@ register(
         params=SelectParams,
         runner=run_select,
         description="The cheapest candidate that meets a quality target (e.g. FLIP <= 0.05), "
-        "from scored runs: per reference, the ladder of rungs by cost, which meet the "
-        "target, and the one chosen.",
+        "from scored runs, or by rendering a ladder of materials in a scene (shards on the "
+        "job's executor) and scoring each against the reference: per reference, the ladder "
+        "of rungs by cost, which meet the target, and the one chosen.",
         artifacts=("select.json", "select.png"),
         smoke={
             "runs": ["step:train.brdf"],

@@ -270,17 +270,17 @@ def run_scene_select(params: Any, ctx: JobContext) -> dict[str, Any]:
     tasks = []
     offset = len(renders) - len(params.ladder)  # 1 when the reference is rendered here
     for i, (name, spec) in enumerate(renders):
-        rec = RecordingContext(ctx)
+        recorder = RecordingContext(ctx)
         where = "reference" if i < offset else f"ladder.{i - offset}"
         try:
-            resolve_material(spec["material"], rec, mi)  # type: ignore[arg-type]
+            resolve_material(spec["material"], recorder, mi)  # type: ignore[arg-type]
         except JobFailed as exc:
             raise JobFailed(f"{where}.{exc}") from None
         rp = RenderParams.model_validate(spec)
         n_passes = len(plan_passes(rp.resolution[0], rp.resolution[1], rp.spp, PATHS_PER_PASS))
         # Seeds per rung name: a rung renders the same image wherever it sits in the ladder.
         seeds = tuple(ctx.sub_seed(f"select/{name}/pass/{k}") for k in range(n_passes))
-        tasks.append(RungTask(name=name, render=spec, seeds=seeds, record=rec.record))
+        tasks.append(RungTask(name=name, render=spec, seeds=seeds, record=recorder.record))
 
     results = ctx.map_shards(
         render_rung,
@@ -291,6 +291,7 @@ def run_scene_select(params: Any, ctx: JobContext) -> dict[str, Any]:
     )
     by_name = dict(zip([t.name for t in tasks], results, strict=True))
 
+    dataset = params.reference if isinstance(params.reference, str) else ""
     if isinstance(params.reference, str):
         try:
             reference = read_exr(ctx.resolve(params.reference), params.reference)
@@ -304,7 +305,10 @@ def run_scene_select(params: Any, ctx: JobContext) -> dict[str, Any]:
         reference = np.asarray(reference[..., :3], dtype=np.float32)
     else:
         reference = by_name[REFERENCE]["image"]
-        ctx.put_bytes("reference.exr", exr_bytes(reference), "image/x-exr")
+        rec = ctx.put_bytes("reference.exr", exr_bytes(reference), "image/x-exr")
+        # The ladder's dataset is the reference image by content: the same for the same
+        # render, and distinct from any other select's reference in report.pareto.
+        dataset = f"sha256:{rec.digest}"
         ctx.put_bytes("reference.png", write_png(None, tonemap(reference)), "image/png")
 
     points = []
@@ -339,7 +343,6 @@ def run_scene_select(params: Any, ctx: JobContext) -> dict[str, Any]:
         ctx.progress(0.9 + 0.08 * (i + 1) / len(params.ladder), f"scored {rung.name}")
 
     lower = lower_is_better(params.metric) is not False
-    dataset = params.reference if isinstance(params.reference, str) else "rendered reference"
     panel = {
         "dataset": dataset,
         "scene": params.scene.scene,

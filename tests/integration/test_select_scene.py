@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from evaluators.metrics.images import flip, hdr_exposure_range
+from jobapi.errors import SpecError
 from service import kinds
 from service.settings import Settings
 from service.specs import validate_spec
@@ -27,7 +28,6 @@ from service.submission import run_in_process, submit
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
 from storage.jobs import Job, JobStore
-from jobapi.errors import SpecError
 
 ROUGH = {"mitsuba": {"type": "roughconductor", "alpha": 0.2}}
 SPEC: dict[str, Any] = {
@@ -117,10 +117,18 @@ def test01_chooses_the_cheapest_rung_meeting_the_recomputed_target(
         )
     finally:
         jobs.close()
-    assert sorted(r.candidate for r in rows) == ["diffuse", "rough1", "rough16"]
+    assert sorted(str(r.candidate) for r in rows) == ["diffuse", "rough1", "rough16"]
     assert all(r.metric == "flip" and r.scene == "sphere_env" for r in rows)
     assert {r.candidate: r.spp for r in rows} == {"diffuse": 4, "rough1": 1, "rough16": 16}
     assert all(r.render_seconds is not None and r.render_seconds > 0 for r in rows)
+    # ... which report.pareto reads as any scored renders.
+    pareto = run_in_process(
+        {"kind": "report.pareto", "params": {"runs": [f"job:{job.id}"]}}, inline
+    )
+    assert pareto.state == "succeeded", pareto.error
+    panels = json.loads(art(inline, pareto, "pareto.json"))["panels"]
+    spp_panel = [p for p in panels if p["metric"] == "flip" and p["cost"] == "spp"]
+    assert spp_panel and {pt["candidate"] for pt in spp_panel[0]["points"]} == set(recomputed)
 
 
 def test02_same_spec_same_values(inline: Settings, tmp_path: Path) -> None:
@@ -140,6 +148,19 @@ def test02_same_spec_same_values(inline: Settings, tmp_path: Path) -> None:
     for name in ("reference.exr", "rung_diffuse.exr", "rung_rough1.exr", "rung_rough16.exr"):
         assert art(inline, first, name) == art(inline, again, name), name
 
+    # The same reference given as an image ref: the same rung image, the same value.
+    by_ref = spec_with(
+        reference=f"job:{first.id}/reference.exr", ladder=SPEC["params"]["ladder"][1:2]
+    )
+    third = run_in_process(by_ref, inline)
+    assert third.state == "succeeded", third.error
+    (lad,) = doc(inline, third)["ladders"]
+    (rung,) = lad["rungs"]
+    before = {r["candidate"]: r for r in doc(inline, first)["ladders"][0]["rungs"]}
+    assert art(inline, third, "rung_rough1.exr") == art(inline, first, "rung_rough1.exr")
+    assert rung["value"] == pytest.approx(before["rough1"]["value"], rel=1e-6)
+    assert lad["dataset"] == by_ref["params"]["reference"]
+
 
 def test03_resumes_from_recorded_renders(inline: Settings, tmp_path: Path) -> None:
     """A re-run after a crash keeps a recorded render: the sentinel shard proves it."""
@@ -149,8 +170,9 @@ def test03_resumes_from_recorded_renders(inline: Settings, tmp_path: Path) -> No
     try:
         job, created = submit(SPEC, jobs, store)
         assert created
+        stored = np.full((16, 16, 3), 0.25, np.float32)
         sentinel = {
-            "image": np.full((16, 16, 3), 0.25, np.float32),
+            "image": stored,
             "seconds": 123.0,
             "integrator": "path",
             "passes": [4],
@@ -164,7 +186,7 @@ def test03_resumes_from_recorded_renders(inline: Settings, tmp_path: Path) -> No
         assert rungs["diffuse"]["render_seconds"] == 123.0  # loaded, not rendered again
         assert rungs["rough1"]["render_seconds"] != 123.0
         img = image(inline, done, "rung_diffuse.exr", tmp_path)
-        assert np.array_equal(img, sentinel["image"])
+        assert np.array_equal(img, stored)
     finally:
         jobs.close()
 
@@ -188,8 +210,10 @@ BAD = [
     ),
     ({"ladder": [{"name": "a", "material": {"nope": 1}}]}, "params.ladder.0.material", "nope"),
     (
-        {"ladder": [{"name": "big", "material": ROUGH, "spp": 65536}],
-         "scene": {"scene": "sphere_env", "resolution": [4096, 4096]}},
+        {
+            "ladder": [{"name": "big", "material": ROUGH, "spp": 65536}],
+            "scene": {"scene": "sphere_env", "resolution": [4096, 4096]},
+        },
         "params",
         "ladder.0: width * height * spp",
     ),  # fmt: skip
