@@ -42,6 +42,7 @@ from storage.formats.exr import exr_bytes, read_exr
 from storage.formats.png import write_png
 
 if TYPE_CHECKING:
+    from evaluators.report.select_params import Rung, SelectParams
     from jobapi.context import JobContext
     from storage.job_records import Job
 
@@ -221,7 +222,7 @@ def image_metric(metric: str, reference: np.ndarray, image: np.ndarray) -> tuple
     raise JobFailed(f"metric: {metric!r} is not an image metric")
 
 
-def model_cost(rung: Any, cost: str, index: int, ctx: JobContext) -> float:
+def model_cost(rung: Rung, cost: str, index: int, ctx: JobContext) -> float:
     """``cost`` of a ``{"model": "job:<id>/..."}`` rung, from that job's result rows."""
     from jobapi.kinds import registered
     from jobapi.row_sources import StoreSource
@@ -248,7 +249,7 @@ def model_cost(rung: Any, cost: str, index: int, ctx: JobContext) -> float:
 # -- the runner --------------------------------------------------------------------------
 
 
-def run_scene_select(params: Any, ctx: JobContext) -> dict[str, Any]:
+def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
     """Render, score and choose; writes the rung images and returns ``select.json``'s
     document less the chart (the caller, :func:`evaluators.report.select.run_select`,
     writes it and the chart)."""
@@ -256,6 +257,7 @@ def run_scene_select(params: Any, ctx: JobContext) -> dict[str, Any]:
     from jobapi.rows import lower_is_better
     from materials.backend import load_mitsuba
 
+    assert params.scene is not None and params.reference is not None and params.ladder
     scene = params.scene.model_dump(mode="json", exclude={"material"})
     renders: list[tuple[str, dict[str, Any]]] = []
     if not isinstance(params.reference, str):
