@@ -179,18 +179,18 @@ def render_passes(
     return (total / done).astype(np.float32)
 
 
-def run_render(params: RenderParams, ctx: JobContext) -> None:
-    """Render ``params`` and store ``image.exr``, ``preview.png`` and ``render.json``."""
-    width, height = params.resolution
-    ctx.progress(0.0, "starting Mitsuba")
-    mi = load_mitsuba()
-    variant = active_variant()
-    bsdf = resolve_material(params.material, ctx, mi)
-    passes = plan_passes(width, height, params.spp, PATHS_PER_PASS)
-    seeds = [ctx.sub_seed(f"render/pass/{i}") for i in range(len(passes))]
+def load_scene(
+    params: RenderParams, bsdf: Any, mi: types.ModuleType, pass_spp: int
+) -> tuple[Any, dict[str, Any], SceneSetup]:
+    """The Mitsuba scene of ``params`` with ``bsdf`` on its object, loaded.
+
+    ``pass_spp`` is the sampler's spp (the first pass's; each ``mi.render`` call overrides
+    it). Returns ``(scene, scene dict, setup)``; raises :class:`JobFailed` naming the
+    material or the scene when Mitsuba refuses them.
+    """
     setup = SceneSetup(
-        resolution=(width, height),
-        spp=passes[0],
+        resolution=(params.resolution[0], params.resolution[1]),
+        spp=pass_spp,
         max_depth=params.max_depth,
         lights=tuple(params.lights) if params.lights is not None else None,
         camera=params.camera,
@@ -209,6 +209,19 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
         scene = mi.load_dict(scene_dict)
     except Exception as exc:  # Mitsuba reports scene errors as RuntimeError with C++ text
         raise JobFailed(f"scene {params.scene}: {str(exc).strip().splitlines()[0]}") from None
+    return scene, scene_dict, setup
+
+
+def run_render(params: RenderParams, ctx: JobContext) -> None:
+    """Render ``params`` and store ``image.exr``, ``preview.png`` and ``render.json``."""
+    width, height = params.resolution
+    ctx.progress(0.0, "starting Mitsuba")
+    mi = load_mitsuba()
+    variant = active_variant()
+    bsdf = resolve_material(params.material, ctx, mi)
+    passes = plan_passes(width, height, params.spp, PATHS_PER_PASS)
+    seeds = [ctx.sub_seed(f"render/pass/{i}") for i in range(len(passes))]
+    scene, scene_dict, setup = load_scene(params, bsdf, mi, passes[0])
 
     def report(i: int, done: int) -> None:
         ctx.progress(

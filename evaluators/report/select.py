@@ -8,61 +8,42 @@ its mean ``metric`` over seeds (:func:`evaluators.report.fronts.panels`); the ch
 the cheapest whose value meets ``target`` (``<=`` for an error, ``>=`` for a metric where
 higher is better, e.g. PSNR), or none, with the reason.
 
-This kind chooses among rungs that were already rendered and scored (a batch file makes
-them); it does not render.
+Two modes, one of them per spec:
+
+- ``runs``: choose among rungs that were already rendered and scored (a batch file makes
+  them); nothing is rendered.
+- ``scene`` + ``reference`` + ``ladder``: render every rung (and the reference, when it is
+  given as a material) in the scene, as shards through the job's executor (process pool or
+  Ray; a crashed job resumes from its finished renders), score each against the reference
+  with :mod:`evaluators.metrics.images` as ``score`` does, measure its cost, and choose
+  (:mod:`evaluators.report.select_scene`).
 
 Artifacts: ``select.json`` (``ladders``: rungs with value, cost, ``meets``; ``chosen`` and
-``why``), ``select.png`` (per ladder, the rungs' values as bars by increasing cost, the
-target as a line, the chosen rung highlighted).
+``why``; in the scene mode also ``mode: "scene"``, the scene, reference and ladder as given,
+and per rung its spp, ``render_seconds``, integrator, material and image), ``select.png``
+(per ladder, the rungs' values as bars by increasing cost, the target as a line, the chosen
+rung highlighted); in the scene mode also ``rung_<name>.exr`` / ``.png`` per rung,
+``flip_<name>.png`` (the FLIP error map, for ``metric: flip``) and, for a rendered
+reference, ``reference.exr`` / ``.png``. Result rows (``GET /api/results``,
+``report.pareto``): in the scene mode one per rung, its metric against the rendered
+reference with ``spp`` and ``render_seconds`` (and the model cost, if chosen by one).
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from pydantic import Field
-
-from evaluators.report.kind import CostName, gather_rows
+from evaluators.report.kind import gather_rows
+from evaluators.report.select_params import SelectParams
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
-from jobapi.params import JobRef, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
-from jobapi.rows import lower_is_better
+from jobapi.rows import ResultRow, RowSource, base_row, lower_is_better, number
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
 
 FORMAT = "matforge.select/1"
-
-
-class SelectParams(StrictModel):
-    """Parameters of ``select``.
-
-    ==========  ====================  ==================  ===================================
-    name        type                  default             meaning
-    ==========  ====================  ==================  ===================================
-    ``runs``    list of ``job:<id>``  required            jobs with result rows: the ladder
-    ``metric``  str                   ``flip``            the quality metric
-    ``target``  float                 required            the value a rung must reach
-    ``cost``    cost name             ``render_seconds``  what "cheapest" is measured in
-    ==========  ====================  ==================  ===================================
-
-    Example: ``{"kind": "select", "params": {"runs": ["step:seen_scores"], "metric":
-    "flip", "target": 0.05}}``.
-    """
-
-    runs: list[JobRef] = Field(
-        min_length=1, max_length=256, description="Jobs with result rows: 'job:<id>' each."
-    )
-    metric: str = Field(
-        default="flip", min_length=1, max_length=64, description="The quality metric of the target."
-    )
-    target: float = Field(
-        allow_inf_nan=False,
-        description="The value a rung must reach "
-        "(at most, for an error; at least, where higher is better).",
-    )
-    cost: CostName = Field(default="render_seconds", description="What cheapest is measured in.")
 
 
 def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[dict[str, Any]]:
@@ -112,11 +93,30 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[di
 
 
 def run_select(params: SelectParams, ctx: JobContext) -> None:
-    """Gather the rows, build the ladders and write the artifacts."""
+    """Gather the rows (or render and score the ladder), build the ladders and write the
+    artifacts."""
+    from evaluators.report.plots import select_png
+
+    if params.scene_mode:
+        from evaluators.report.select_scene import run_scene_select
+
+        doc = run_scene_select(params, ctx)
+        doc.update(format=FORMAT, metric=params.metric, target=params.target, cost=params.cost)
+        ctx.put_json("select.json", doc)
+        ctx.put_bytes("select.png", select_png(doc["ladders"], params.target), "image/png")
+        lad = doc["ladders"][0]
+        ctx.progress(1.0, f"{len(lad['rungs'])} rungs; chosen: {lad['chosen'] or 'none'}")
+        return
+    run_runs_select(params, ctx)
+
+
+def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
+    """The first mode: the ladders of rungs other jobs scored."""
     from evaluators.report.fronts import panels
     from evaluators.report.kind import ReportParetoParams
     from evaluators.report.plots import select_png
 
+    assert params.runs is not None
     rows = gather_rows(ReportParetoParams(runs=params.runs), ctx)
     found = panels(rows, [params.metric], [params.cost])
     if not found:
@@ -181,14 +181,49 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     )
 
 
+def select_rows(src: RowSource) -> list[ResultRow]:
+    """Result rows of the scene mode: per rung, its metric against the reference with its
+    spp, ``render_seconds`` and model cost. The ``runs`` mode has none of its own (its rows
+    are its runs')."""
+    doc = src.read("select.json")
+    if not isinstance(doc, dict) or doc.get("mode") != "scene":
+        return []
+    metric, cost = str(doc.get("metric")), doc.get("cost")
+    out = []
+    for lad in doc.get("ladders") or []:
+        for r in lad.get("rungs") or []:
+            value = number(r.get("value"))
+            if value is None:
+                continue
+            costs: dict[str, Any] = {"render_seconds": number(r.get("render_seconds"))}
+            spp = r.get("spp")
+            costs["spp"] = int(spp) if isinstance(spp, int) else None
+            if cost not in ("render_seconds", "spp") and isinstance(cost, str):
+                costs[cost] = number(r.get("cost"))
+            out.append(
+                base_row(
+                    src,
+                    metric,
+                    value,
+                    dataset=str(lad.get("dataset")),
+                    scene=lad.get("scene"),
+                    candidate=str(r.get("candidate")),
+                    config={"material": r.get("material"), "integrator": r.get("integrator")},
+                    **costs,
+                )
+            )
+    return out
+
+
 register(
     Kind(
         name="select",
         params=SelectParams,
         runner=run_select,
         description="The cheapest candidate that meets a quality target (e.g. FLIP <= 0.05), "
-        "from scored runs: per reference, the ladder of rungs by cost, which meet the "
-        "target, and the one chosen.",
+        "from scored runs, or by rendering a ladder of materials in a scene (shards on the "
+        "job's executor) and scoring each against the reference: per reference, the ladder "
+        "of rungs by cost, which meet the target, and the one chosen.",
         artifacts=("select.json", "select.png"),
         smoke={
             "runs": ["step:train.brdf"],
@@ -197,5 +232,6 @@ register(
             "cost": "ns_per_eval",
         },
         summary=summarize,
+        rows=select_rows,
     )
 )

@@ -148,3 +148,17 @@ def test06_other_sharding_kinds_same_bytes(ray_local, settings, kind: str) -> No
     assert on_pool.state == on_ray.state == "succeeded", (on_pool.error, on_ray.error)
     assert digests(on_ray, frozenset()) == digests(on_pool, frozenset())
     assert manifest(settings, on_ray)["executor"] == "ray"
+
+
+def test07_select_renders_its_rungs_on_ray(ray_local, settings) -> None:
+    """``select``'s scene mode fans its rung renders out as shards: on Ray the images (and
+    the values, the choice) are the process pool's; only the timings differ."""
+    from tests.integration.test_select_scene import SPEC
+
+    on_pool = run_in_process(SPEC, settings.with_(executor="process"))
+    on_ray = run_in_process({**SPEC, "force": True}, settings.with_(executor="ray"))
+    assert on_pool.state == on_ray.state == "succeeded", (on_pool.error, on_ray.error)
+    timed = frozenset({"select.json"})
+    assert digests(on_ray, timed) == digests(on_pool, timed)
+    assert any(n.startswith("rung_") for n in digests(on_ray))
+    assert manifest(settings, on_ray)["executor"] == "ray"
