@@ -53,6 +53,23 @@ def _spec(seed: int) -> dict[str, Any]:
     }
 
 
+def _group_cpu_seconds(pgid: int) -> float:
+    """User + system CPU seconds of the processes in process group ``pgid`` (the server and
+    its extra web processes), from /proc."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid:  # fields after the name: state, ppid, pgrp, ...
+            total += int(fields[11]) + int(fields[12])  # utime, stime
+    return total / tick
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--clients", type=int, default=20)
@@ -111,12 +128,18 @@ def main() -> None:
                     latencies.extend(mine)
 
             threads = [threading.Thread(target=client, args=(c,)) for c in range(a.clients)]
-            t0 = time.perf_counter()
+            t0, cpu0, server0 = (
+                time.perf_counter(),
+                time.process_time(),
+                _group_cpu_seconds(proc.pid),
+            )
             for t in threads:
                 t.start()
             for t in threads:
                 t.join()
             wall = time.perf_counter() - t0
+            client_cpu = time.process_time() - cpu0
+            server_cpu = _group_cpu_seconds(proc.pid) - server0
         finally:
             os.killpg(proc.pid, signal.SIGTERM)
             proc.wait(timeout=30)
@@ -128,9 +151,15 @@ def main() -> None:
         f"| submit latency | {a.clients} clients x {a.per_client} | p50 {p50:.1f} ms | "
         f"p99 {p99:.1f} ms | {n / wall:.0f} submissions/s | {platform.node()} |"
     )
+    sent = n + a.clients * a.warmup
+    print(
+        f"CPU per submission: server {server_cpu / sent * 1e3:.2f} ms, this client "
+        f"{client_cpu / sent * 1e3:.2f} ms; cores busy: server {server_cpu / wall:.2f}, "
+        f"client {client_cpu / wall:.2f}; load average {os.getloadavg()[0]:.1f}"
+    )
     print(
         f"command: .venv/bin/python benchmarks/bench_submit.py --clients {a.clients} "
-        f"--per-client {a.per_client} --warmup {a.warmup}"
+        f"--per-client {a.per_client} --warmup {a.warmup} --http-workers {a.http_workers}"
     )
 
 
