@@ -404,6 +404,12 @@ class SceneDef:
     summary: str
     #: Whether the scene replaces its floor by a BSDF's ``relief`` (``btf_surface``).
     relief: bool = False
+    #: Half the side of the scene's material square when it is the y = 0 floor of
+    #: :func:`_floor_square` (uv in [0, 1]^2, u along +x, v along -z), else ``None``; read
+    #: by ``generate.fabric``'s scene-driven queries (``generators/fabric/scene_queries.py``).
+    floor_half_size: float | None = None
+    #: Scale of the :func:`studio_envmap` environment the builder adds (0: none).
+    environment_scale: float = 0.0
 
     def camera_for(self, setup: SceneSetup) -> Camera:
         """The camera used with ``setup`` (its override, or the default)."""
@@ -417,7 +423,11 @@ class SceneDef:
 #: The built-in scenes, by name.
 SCENES: dict[str, SceneDef] = {
     "sphere_env": SceneDef(
-        sphere_env, SPHERE_CAMERA, (), "unit sphere under matforge's HDR studio environment map"
+        sphere_env,
+        SPHERE_CAMERA,
+        (),
+        "unit sphere under matforge's HDR studio environment map",
+        environment_scale=1.0,
     ),
     "sphere_points": SceneDef(
         sphere_points, SPHERE_CAMERA, SPHERE_LIGHTS, "unit sphere under three point lights"
@@ -428,6 +438,7 @@ SCENES: dict[str, SceneDef] = {
         PLANE_LIGHTS,
         "textured plane seen at an angle, three point lights",
         relief=True,
+        floor_half_size=PLANE_HALF_SIZE,
     ),
     "cloth_plane": SceneDef(
         cloth_plane,
@@ -435,12 +446,22 @@ SCENES: dict[str, SceneDef] = {
         CLOTH_LIGHTS,
         "square of cloth under the studio environment map and a point light",
         relief=True,
+        floor_half_size=CLOTH_HALF_SIZE,
+        environment_scale=1.0,
     ),
     "bent_quad": SceneDef(
-        bent_quad, BENT_CAMERA, GLINT_LIGHTS, "bent quad under four point lights, dim map"
+        bent_quad,
+        BENT_CAMERA,
+        GLINT_LIGHTS,
+        "bent quad under four point lights, dim map",
+        environment_scale=GLINT_ENV_SCALE,
     ),
     "glint_sphere": SceneDef(
-        glint_sphere, SPHERE_CAMERA, GLINT_LIGHTS, "unit sphere under four point lights, dim map"
+        glint_sphere,
+        SPHERE_CAMERA,
+        GLINT_LIGHTS,
+        "unit sphere under four point lights, dim map",
+        environment_scale=GLINT_ENV_SCALE,
     ),
 }
 

@@ -9,7 +9,9 @@ albedos U(0.05, 0.9), gap fixed at 0.2). The paper's set is 9 x 9 = 81 plain mat
 4 x 16 = 64 for each of the three twills and three satins: 192 twill, 192 satin.
 
 Queries: the stratified design of :mod:`generators.fabric.queries` (8 x 8 centres, 10 + 10
-sizes, 8 x 8 x 8 x 8 direction strata, BRDF and BTDF pairs). Estimation:
+sizes, 8 x 8 x 8 x 8 direction strata, BRDF and BTDF pairs), or with ``scene`` the queries
+a render of that scene asks (:mod:`generators.fabric.scene_queries`: pixel-footprint sizes,
+views from its camera, lights from its emitters). Estimation:
 :func:`materials.fabric.aggregate.estimate` with ``samples`` footprint samples per query,
 ``sampler`` independent or scrambled Sobol (4 replicates; seeded), and standard errors.
 
@@ -36,7 +38,8 @@ while the maps are written (0 - 0.02), per finished shard in every batch (0.02 -
 then the preview; each report also honours a cancel.
 
 Modules: the params model, presets and material plan are in :mod:`generators.fabric.params`
-(re-exported here), the query design in :mod:`generators.fabric.queries`, the pictures in
+(re-exported here), the query designs in :mod:`generators.fabric.queries` and
+:mod:`generators.fabric.scene_queries`, the pictures in
 :mod:`generators.fabric.preview`; this module holds the shard function, the runner and the
 kind's registration.
 """
@@ -59,6 +62,7 @@ from generators.fabric.params import (
     PresetName,
     Resolved,
     plan_sets,
+    scene_record,
 )
 from generators.fabric.preview import (
     _PREVIEW_WI,
@@ -70,11 +74,13 @@ from generators.fabric.preview import (
     preview_png,
 )
 from generators.fabric.queries import design_queries
+from generators.fabric.scene_queries import SceneDesign, scene_queries
 from generators.rows import fabric_stats_rows
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.params import FabricParams, sample_params
+from materials.fabric.yarn import YarnGeometry
 from storage.formats.npz import npz_bytes
 
 if TYPE_CHECKING:
@@ -163,24 +169,42 @@ class ShardTask:
     sample_seed: int
     backend: str
     sizes: str = "strata"
+    scene: SceneDesign | None = None
 
 
 def _config_doc(cfg: Resolved) -> dict[str, Any]:
-    """``materials.json``'s ``config``; ``sizes`` only when not the paper's strata (so a
-    default job's ``materials.json`` keeps its bytes)."""
+    """``materials.json``'s ``config``; ``sizes`` only when not the paper's strata and
+    ``scene`` only when set (so a default job's ``materials.json`` keeps its bytes); with a
+    scene, no ``btdf_fraction`` (the scene's lights decide the side)."""
     doc = {**cfg.__dict__, "patterns": list(cfg.patterns), "replicates": REPLICATES}
     if doc["sizes"] == "strata":
         del doc["sizes"]
+    if cfg.scene is None:
+        del doc["scene"]
+    else:
+        doc["scene"] = scene_record(cfg.scene)
+        del doc["btdf_fraction"]
     return doc
+
+
+def _queries(task: ShardTask) -> Any:
+    """The shard's queries: the scene's (:mod:`generators.fabric.scene_queries`) or the
+    Sec. 5.1 design's (:mod:`generators.fabric.queries`)."""
+    if task.scene is not None:
+        tw, th = YarnGeometry.from_params(task.params).tile
+        return scene_queries(
+            task.scene, task.design_seed, task.first, task.count, tile_aspect=tw / th
+        )
+    return design_queries(
+        task.design_seed, task.first, task.count, btdf_fraction=task.btdf_fraction,
+        sizes=task.sizes,
+    )  # fmt: skip
 
 
 def estimate_shard(task: ShardTask) -> dict[str, Any]:
     """Shard function: design and estimate the queries; ``{"npz": bytes, "seconds": s}``."""
     started = time.perf_counter()
-    q = design_queries(
-        task.design_seed, task.first, task.count, btdf_fraction=task.btdf_fraction,
-        sizes=task.sizes,
-    )  # fmt: skip
+    q = _queries(task)
     # Store float32 and estimate at exactly the stored values.
     centre, size = q.centre.astype(np.float32), q.size.astype(np.float32)
     wi, wo = q.wi.astype(np.float32), q.wo.astype(np.float32)
@@ -232,6 +256,7 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
                     sample_seed=ctx.sub_seed(f"generate.fabric/samples/{m.name}/{first}"),
                     backend=cfg.backend,
                     sizes=cfg.sizes,
+                    scene=cfg.scene,
                 )
             )
         owners.append(names)

@@ -9,13 +9,15 @@ order. The runner and the kind's registration are in :mod:`generators.fabric.kin
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, replace
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from evaluators.render.scenes import SCENES, Camera, PointLight
 from generators.fabric.queries import BTDF_FRACTION, LOG_SIZE_MIN
+from generators.fabric.scene_queries import SceneDesign, pixel_footprints
 from jobapi.params import StrictModel
 from jobapi.presets import preset_value
 from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS
@@ -70,6 +72,88 @@ def _invalid(message: str) -> PydanticCustomError:
     return PydanticCustomError("generate_fabric", message)
 
 
+#: Scenes whose material is the flat y = 0 floor square (scene-driven queries need one).
+FLOOR_SCENES: tuple[str, ...] = tuple(k for k, v in SCENES.items() if v.floor_half_size)
+#: Largest image side of a scene design (the pixel table is built at validation).
+MAX_SCENE_SIDE = 1024
+SceneSide = Annotated[int, Field(ge=8, le=MAX_SCENE_SIDE)]
+
+
+class FabricScene(StrictModel):
+    """The render a dataset is drawn for (``scene`` of ``generate.fabric``): sizes from its
+    pixel footprints, views from its camera, lights from its emitters
+    (:mod:`generators.fabric.scene_queries`). Match the ``render`` job's params."""
+
+    name: str = Field(
+        description="Built-in scene whose material is the flat floor square: "
+        + ", ".join(FLOOR_SCENES)
+        + " (the render's 'scene').",
+    )
+    resolution: Annotated[tuple[SceneSide, SceneSide], Field(strict=False)] = Field(
+        default=(256, 256),
+        description=f"Image size [width, height] of the render, each 8..{MAX_SCENE_SIDE}.",
+    )
+    tiles_per_uv: float = Field(
+        default=16.0,
+        gt=0.0,
+        le=4096.0,
+        allow_inf_nan=False,
+        description="Pattern tiles across the uv range, as the render's fabric material "
+        "(its 'tiles_per_uv', default 16).",
+    )
+    camera: Camera | None = Field(
+        default=None, description="The render's camera override. Default: the scene's own."
+    )
+    lights: list[PointLight] | None = Field(
+        default=None,
+        max_length=16,
+        description="The render's point lights override. Default: the scene's own.",
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _floor_scene(cls, value: str) -> str:
+        if value not in FLOOR_SCENES:
+            kind = "not a floor scene" if value in SCENES else "unknown scene"
+            raise _invalid(
+                f"{kind} {value!r}; scene-driven queries need a scene whose material is "
+                f"the flat floor square: {', '.join(FLOOR_SCENES)}"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _check_views(self) -> FabricScene:
+        design = self.design()
+        if design.camera[0][1] <= 0.0:
+            raise _invalid("camera: the origin must be above the floor (y > 0)")
+        if not design.lights and design.environment_scale <= 0.0:
+            raise _invalid("lights: the scene has no emitter left to draw light directions from")
+        # A coarse film over the same view first (fast at 1024 x 1024); only a view that
+        # misses there is checked pixel by pixel.
+        w, h = design.resolution
+        k = max(1, max(w, h) // 128)
+        coarse = replace(design, resolution=(max(1, w // k), max(1, h // k)))
+        if len(pixel_footprints(coarse)) == 0 and len(pixel_footprints(design)) == 0:
+            raise _invalid("camera: no pixel centre's ray hits the floor square")
+        return self
+
+    def design(self) -> SceneDesign:
+        """The resolved, hashable scene (defaults of :data:`SCENES` filled in)."""
+        scene = SCENES[self.name]
+        cam = self.camera or scene.camera
+        lights = scene.lights if self.lights is None else tuple(self.lights)
+        assert scene.floor_half_size is not None
+        return SceneDesign(
+            name=self.name,
+            resolution=(int(self.resolution[0]), int(self.resolution[1])),
+            tiles_per_uv=float(self.tiles_per_uv),
+            camera=(cam.origin, cam.target, cam.up, float(cam.fov)),
+            lights=tuple((light.position, light.intensity) for light in lights),
+            half_size=float(scene.floor_half_size),
+            environment_scale=float(scene.environment_scale),
+        )
+
+
 class FabricGenParams(StrictModel):
     """Parameters of ``generate.fabric``; unset fields take the preset's values.
 
@@ -89,12 +173,37 @@ class FabricGenParams(StrictModel):
     ``map_resolution``        int                 64           256          EXR maps, px
     ``backend``               drjit | numpy       drjit        drjit        estimator
     ``btdf_fraction``         float               0.5          0.5          light below
+    ``sizes``                 strata|log_uniform  strata       strata       size design
+    ``scene``                 scene (below)       none         none         queries drawn
+                                                                            for a render
     ========================  ==================  ===========  ===========  ================
 
-    Example::
+    ``scene`` (:class:`FabricScene`) draws the sizes and directions from the render the
+    data is meant for (issue 13 section 5; :mod:`generators.fabric.scene_queries`): each
+    query takes a pixel whose centre ray hits the floor, the pixel's footprint size (ray
+    differentials one pixel apart, tile units, as the fabric BSDFs measure it), the view
+    towards the camera, and a light direction from the scene's emitters in proportion to
+    their irradiance at that point (the environment map by texel, ``Y(L) |cos|``); centres
+    keep the 8 x 8 strata. With ``scene`` set, ``sizes`` and ``btdf_fraction`` must be left
+    at their defaults (the scene decides both).
+
+    ==================  ==================  ==============  ==============================
+    ``scene`` field     type                default         meaning
+    ==================  ==================  ==============  ==============================
+    ``name``            floor scene         (required)      ``cloth_plane``,
+                                                            ``plane_points``
+    ``resolution``      ``[w, h]``          ``[256, 256]``  the render's image, 8..1024
+    ``tiles_per_uv``    float               16              the fabric material's
+    ``camera``          camera              the scene's     as ``render``'s ``camera``
+    ``lights``          point lights        the scene's     as ``render``'s ``lights``
+    ==================  ==================  ==============  ==============================
+
+    Examples::
 
         {"kind": "generate.fabric", "seed": 1, "params": {"preset": "small",
          "patterns": ["twill_5x5"], "samples": 512}}
+        {"kind": "generate.fabric", "seed": 1, "params": {"preset": "small",
+         "scene": {"name": "cloth_plane", "resolution": [256, 256], "tiles_per_uv": 16}}}
     """
 
     preset: PresetName = Field(
@@ -174,7 +283,14 @@ class FabricGenParams(StrictModel):
         description="Footprint size design: 'strata' (Sec. 5.1: 10 strata over [0, 1] tile "
         f"and 10 over [1, 5]) or 'log_uniform' (20 strata equal in ln size over "
         f"[{LOG_SIZE_MIN:g}, 5] tiles: about a fifth of the queries at a render's 0.03-0.1 "
-        "tile pixel footprints, against 1/20 below 0.1 tile).",
+        "tile pixel footprints, against 1/20 below 0.1 tile). Leave out with 'scene'.",
+    )
+    scene: FabricScene | None = Field(
+        default=None,
+        description="Draw the queries for a render: sizes from its pixel footprints, views "
+        'from its camera, lights from its emitters (e.g. {"name": "cloth_plane", '
+        '"resolution": [256, 256], "tiles_per_uv": 16}). Default: none (the design of '
+        "'sizes').",
     )
 
     @field_validator("patterns")
@@ -191,6 +307,15 @@ class FabricGenParams(StrictModel):
 
     @model_validator(mode="after")
     def _check(self) -> FabricGenParams:
+        if self.scene is not None:
+            # Specs are re-validated from their dump (defaults filled in), so a field left
+            # out and one set to its default are alike here: only other values conflict.
+            for name, default in (("sizes", "strata"), ("btdf_fraction", BTDF_FRACTION)):
+                if getattr(self, name) != default:
+                    raise _invalid(
+                        f"{name}: leave it out with scene (the scene's pixels and lights "
+                        "decide the sizes and the light's side)"
+                    )
         try:
             check_sampling(self.sampler, self.resolved().samples, REPLICATES)
         except ValueError as exc:
@@ -223,6 +348,7 @@ class FabricGenParams(StrictModel):
             backend=self.backend,
             btdf_fraction=self.btdf_fraction,
             sizes=self.sizes,
+            scene=None if self.scene is None else self.scene.design(),
         )
 
 
@@ -241,6 +367,22 @@ class Resolved:
     backend: str
     btdf_fraction: float
     sizes: str = "strata"
+    scene: SceneDesign | None = None
+
+
+def scene_record(scene: SceneDesign) -> dict[str, Any]:
+    """A resolved scene as plain JSON data (``materials.json``'s ``config.scene``)."""
+    origin, target, up, fov = scene.camera
+    return {
+        "name": scene.name,
+        "resolution": list(scene.resolution),
+        "tiles_per_uv": scene.tiles_per_uv,
+        "camera": {"origin": list(origin), "target": list(target), "up": list(up), "fov": fov},
+        "lights": [{"position": list(p), "intensity": list(i)} for p, i in scene.lights],
+        "floor_half_size": scene.half_size,
+        "environment_scale": scene.environment_scale,
+        "hit_pixels": len(pixel_footprints(scene)),
+    }
 
 
 def plan_sets(cfg: Resolved) -> list[tuple[str, int, int]]:

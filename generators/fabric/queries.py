@@ -133,7 +133,7 @@ def _round_rng(seed: int, tag: int, r: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, tag, r]))
 
 
-def _factor(
+def factor_cells(
     seed: int, tag: int, m: int, dims: int, first: int, count: int, extra: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cells ``(count,)`` and jitters ``(count, dims)`` of one factor for queries
@@ -157,6 +157,14 @@ def _factor(
             flags[out] = below[pos : pos + take]
         k += take
     return cells, jitter, flags
+
+
+def design_centres(seed: int, first: int, count: int) -> np.ndarray:
+    """``(count, 2)`` footprint centres of queries ``first .. first + count - 1``: one
+    jittered point in a cell of the 8 x 8 grid over the tile, cells stratified by rounds."""
+    g = CENTRE_GRID
+    cells, jit, _ = factor_cells(seed, _TAG_CENTRE, g * g, 2, first, count)
+    return np.stack([(cells % g + jit[:, 0]) / g, (cells // g + jit[:, 1]) / g], axis=1)
 
 
 def design_queries(
@@ -188,18 +196,16 @@ def design_queries(
         raise ValueError(f"first and count must be >= 0, got {first}, {count}")
     if not 0.0 <= btdf_fraction <= 1.0:
         raise ValueError(f"btdf_fraction must be in [0, 1], got {btdf_fraction}")
-    g = CENTRE_GRID
-    cells, jit, _ = _factor(seed, _TAG_CENTRE, g * g, 2, first, count)
-    centre = np.stack([(cells % g + jit[:, 0]) / g, (cells // g + jit[:, 1]) / g], axis=1)
+    centre = design_centres(seed, first, count)
     lo, hi = size_edges(sizes)
-    cells, jit, _ = _factor(seed, _TAG_SIZE, len(lo), 1, first, count)
+    cells, jit, _ = factor_cells(seed, _TAG_SIZE, len(lo), 1, first, count)
     if sizes == "log_uniform":
         size = lo[cells] * (hi[cells] / lo[cells]) ** jit[:, 0]
     else:
         size = lo[cells] + (hi[cells] - lo[cells]) * jit[:, 0]
     m = (DIRECTION_GRID**2) ** 2
     n_below = round(m * btdf_fraction)
-    cells, jit, below = _factor(seed, _TAG_PAIR, m, 4, first, count, extra=n_below)
+    cells, jit, below = factor_cells(seed, _TAG_PAIR, m, 4, first, count, extra=n_below)
     d = DIRECTION_GRID**2
     wi = stratum_directions(cells // d, jit[:, 0:2])
     wo = stratum_directions(cells % d, jit[:, 2:4])

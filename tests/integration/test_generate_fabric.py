@@ -17,7 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from generators.fabric.params import FabricScene
 from generators.fabric.queries import design_queries
+from generators.fabric.scene_queries import scene_queries
 from jobapi.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process, submit
@@ -144,6 +146,12 @@ def test03_recorded_shard_is_reused(settings: Settings) -> None:
         ({"sampler": "halton"}, "sampler"),
         ({"texture_sets": 0}, "texture_sets"),
         ({"bogus": 1}, "bogus"),
+        ({"scene": {"name": "sphere_env"}}, "scene.name"),  # not a floor scene
+        ({"scene": {"name": "cloth_plain"}}, "scene.name"),
+        ({"scene": {"name": "cloth_plane", "resolution": [4, 4]}}, "scene.resolution"),
+        ({"scene": {"name": "cloth_plane"}, "sizes": "log_uniform"}, "sizes"),
+        ({"scene": {"name": "cloth_plane"}, "btdf_fraction": 0.2}, "btdf_fraction"),
+        ({"scene": {"name": "plane_points", "lights": []}}, "lights"),
     ],
 )
 def test04_bad_specs_name_the_field(settings: Settings, params: dict, field: str) -> None:
@@ -198,3 +206,29 @@ def test06_log_uniform_size_design(settings: Settings) -> None:
     # The default design's materials.json has no "sizes" key (its bytes are unchanged).
     default = run_in_process(spec({**PARAMS, "patterns": ["plain"]}), settings)
     assert "sizes" not in json.loads(read(settings, default, "materials.json"))["config"]
+
+
+def test07_scene_driven_design(settings: Settings) -> None:
+    """``scene``: the shards hold :func:`scene_queries` of the recorded seeds (sizes from
+    the pixel footprints, tile units; the satin 5x10 tile's aspect 1/2 enters the size),
+    and ``materials.json`` records the resolved scene; the same spec gives the same bytes."""
+    scene = {"name": "cloth_plane", "resolution": [64, 48], "tiles_per_uv": 8}
+    params = {**PARAMS, "patterns": ["plain", "satin_5x10"], "samples": 16, "scene": scene}
+    params |= {"queries_per_material": 128, "shard_queries": 64, "backend": "numpy"}
+    job = run_in_process(spec(params), settings)
+    assert job.state == "succeeded", job.error
+    doc = json.loads(read(settings, job, "materials.json"))
+    cfg = doc["config"]
+    assert cfg["scene"]["name"] == "cloth_plane" and cfg["scene"]["resolution"] == [64, 48]
+    assert cfg["scene"]["camera"]["origin"] == [0.0, 2.0, 2.4]  # the scene's own
+    assert "btdf_fraction" not in cfg and "sizes" not in cfg
+    design = FabricScene.model_validate(scene).design()
+    for i, (m, aspect) in enumerate(zip(doc["materials"], (1.0, 0.5), strict=True)):
+        ref = scene_queries(design, m["design_seed"], 0, 64, tile_aspect=aspect)
+        got = shard(settings, job, 2 * i)
+        np.testing.assert_array_equal(got["size"], ref.size.astype(np.float32))
+        np.testing.assert_array_equal(got["wo"], ref.wo.astype(np.float32))
+        np.testing.assert_array_equal(got["wi"], ref.wi.astype(np.float32))
+        assert np.all(np.isfinite(got["value"]))
+    again = run_in_process(spec(params, force=True), settings)
+    assert digests(again) == digests(job)
