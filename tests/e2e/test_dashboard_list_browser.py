@@ -191,6 +191,12 @@ def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -
             proc.wait()
 
 
+def url_has(pg: Any, part: str) -> None:
+    """Wait until the address bar holds ``part``. The page changes it with replaceState,
+    which Playwright's ``page.url`` learns of asynchronously, so reading that races."""
+    pg.wait_for_function("p => location.href.includes(p)", arg=part)
+
+
 def row_names(pg: Any) -> list[str]:
     return [n.strip() for n in pg.locator("#jobs-body .job-name").all_inner_texts()]
 
@@ -207,7 +213,8 @@ def test01_search_sort_and_pages(page: Any, server: str) -> None:  # noqa: F811
         pg.click("#page-next")
     pg.wait_for_function("() => document.querySelector('#page-info').textContent.startsWith('201')")
     pg.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length === 31")
-    assert row_names(pg)[-1] == "wide table" and "page=5" in pg.url
+    url_has(pg, "page=5")
+    assert row_names(pg)[-1] == "wide table"
     assert pg.locator("#page-next").is_disabled()
     # sort by name, ascending then descending
     pg.click('th[data-sort="name"] button')
@@ -220,12 +227,13 @@ def test01_search_sort_and_pages(page: Any, server: str) -> None:  # noqa: F811
     pg.wait_for_function(
         "() => document.querySelector('#jobs-body .job-name').textContent === 'wide table'"
     )
-    assert "sort=-name" in pg.url
+    url_has(pg, "sort=-name")
     # search by name (any case, part of it)
     pg.fill("#f-name", "special")
     pg.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length === 23")
     assert all(n.startswith("Special sample") for n in row_names(pg))
-    assert "name=special" in pg.url and pg.locator("#page-info").inner_text() == "1–23 of 23"
+    url_has(pg, "name=special")
+    assert pg.locator("#page-info").inner_text() == "1–23 of 23"
     pg.screenshot(path=str(SHOTS / "matforge-dashboard-list.png"), full_page=True)
     assert pg.problems == [], pg.problems
 
@@ -298,10 +306,11 @@ def test05_group_by_batch_with_thumbnails(page: Any, server: str) -> None:  # no
     page.wait_for_function("() => document.querySelectorAll('#jobs-body tr.group').length === 2")
     labels = page.locator("#jobs-body tr.group .group-label").all_inner_texts()
     assert labels == ["nightly 2026-12-01", "not in a batch"]
-    assert "group=1" in page.url
+    url_has(page, "group=1")
     page.locator('tr.group[data-batch="nightly 2026-12-01"] button').click()
     page.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length === 5")
-    assert "batch=nightly" in page.url and page.locator("#batch-filter").is_visible()
+    url_has(page, "batch=nightly")
+    assert page.locator("#batch-filter").is_visible()
     assert page.locator("#page-info").inner_text() == "1–5 of 5"
     page.click("#batch-clear")
     page.wait_for_function(
