@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -274,3 +277,55 @@ def run_cli(
         timeout=timeout,
     )
     return CliResult(tuple(args), proc.returncode, proc.stdout, proc.stderr)
+
+
+#: The repository root (the dashboard server subprocess imports the test kinds from it).
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@contextmanager
+def dashboard_server(data_dir: Path, kind_factory: str, token: str, log_dir: Path) -> Iterator[str]:
+    """``serve()`` in a subprocess on a free port (port 0), with ``token`` and no workers,
+    after registering the test kind ``kind_factory`` (``"module:function"``, a function
+    returning a :class:`jobapi.kinds.Kind`) beside the built-in ones; yields the URL.
+
+    Stops it with SIGTERM and fails the test if it ignores that or exits non-zero."""
+    module, func = kind_factory.split(":")
+    log_path = log_dir / "server.log"
+    code = (
+        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
+        "from service.server import serve; from service.settings import Settings; "
+        "from service import kinds; from jobapi.kinds import register; "
+        f"from {module} import {func}; "
+        f"kinds.load_builtin(); register({func}()); "
+        "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
+        "host='127.0.0.1', port=0, workers=0)"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
+    env["MATFORGE_TOKEN"] = token
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code, str(data_dir), str(ROOT)],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    try:
+        url = None
+        deadline = time.monotonic() + 60
+        while url is None and time.monotonic() < deadline and proc.poll() is None:
+            m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
+            url = m.group(1).rstrip("/") if m else None
+            time.sleep(0.1)
+        assert url, f"server did not start:\n{log_path.read_text()}"
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            pytest.fail(f"server ignored SIGTERM:\n{log_path.read_text()}")
+    assert proc.returncode == 0, log_path.read_text()

@@ -10,12 +10,6 @@ The server, the browser page and its problem log come from
 from __future__ import annotations
 
 import json
-import os
-import re
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -37,7 +31,8 @@ from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
 from storage.jobs import JobStore
 
-from .test_dashboard_browser import CHROMIUM, ROOT, SHOTS, TOKEN, page  # noqa: F401
+from .harness import dashboard_server
+from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
 
 pytestmark = [
     pytest.mark.slow,
@@ -153,42 +148,10 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
 @pytest.fixture(scope="module")
 def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """``serve()`` on a free port, with a token and no workers; yields its URL."""
-    log_path = tmp_path_factory.mktemp("server-log") / "server.log"
-    code = (
-        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
-        "from service.server import serve; from service.settings import Settings; "
-        "from service import kinds; from jobapi.kinds import register; "
-        "from tests.e2e.test_dashboard_list_browser import wide_kind; "
-        "kinds.load_builtin(); register(wide_kind()); "
-        "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
-        "host='127.0.0.1', port=0, workers=0)"
-    )
-    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
-    env["MATFORGE_TOKEN"] = TOKEN
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-c", code, str(prepared["data"]), str(ROOT)],
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-    try:
-        url = None
-        deadline = time.monotonic() + 60
-        while url is None and time.monotonic() < deadline and proc.poll() is None:
-            m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
-            url = m.group(1).rstrip("/") if m else None
-            time.sleep(0.1)
-        assert url, f"server did not start:\n{log_path.read_text()}"
+    log_dir = tmp_path_factory.mktemp("server-log")
+    kind = "tests.e2e.test_dashboard_list_browser:wide_kind"
+    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
         yield url
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def url_has(pg: Any, part: str) -> None:
