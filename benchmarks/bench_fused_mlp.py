@@ -257,14 +257,17 @@ def table(mi: Any, args: argparse.Namespace) -> None:
 
     env = report["environment"]
     print(
-        "| model | size | fused ns/eval | fused kernel ns/eval | torch eager ns/eval "
-        "| speedup | compile s | bytes/network | bytes/material |"
+        "| model | size | fused ns/eval | fused kernel ns/eval | fused CPU ns/eval "
+        "| GFLOP/s per core | torch eager ns/eval | speedup | compile s | bytes/network "
+        "| bytes/material |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in report["rows"]:
         label = r["model"] + (" (trained)" if r.get("trained") else "")
+        g = r["gflops_per_core"]
         print(
             f"| {label} | {r['size']} | {r['fused_ns']:.1f} | {r['fused_kernel_ns']:.1f} "
+            f"| {r['fused_cpu_ns']:.1f} | {'-' if g is None else f'{g:.1f}'} "
             f"| {r['torch_ns']:.1f} | {r['speedup']:.1f}x | {r['compile_s']:.2f} "
             f"| {r.get('bytes_per_network', 0)} | {r.get('bytes_per_material', '-')} |"
         )

@@ -25,6 +25,15 @@ measured before (same weights, same code) shows ``compile_s`` near 0. ``torch_ns
 time per evaluation of the eager forward pass under ``torch.inference_mode``.
 ``speedup = torch_ns / fused_ns``.
 
+CPU time: ``fused_cpu_ns`` is the process CPU time per evaluation of the same kernel,
+frozen and replayed (:func:`time_cpu`), divided by the thread count: the time on that many
+dedicated cores. On a shared machine the wall figures grow with the load, this one does
+not. ``flops`` counts the dense layers' multiply-adds (2 FLOP each, :func:`mlp_flops`; only
+the direction inputs are live, the material's latent is folded into the first bias), and
+``gflops_per_core`` is ``flops`` over the CPU time per evaluation summed over the threads.
+Its fraction of the FP32 FMA peak is :mod:`benchmarks.bench_fused_mlp`'s: the peak is
+measured there with a C program (``benchmarks/fma_peak.c``), which a job cannot assume.
+
 Memory: bytes per network = its float32 weights x 4 (the neural model's frame layer
 included); bytes per material = its per-material floats x 4 (``z`` plus ``kd``, ``eta``,
 ``alpha`` for the hybrid).
@@ -169,14 +178,27 @@ def time_cpu(
     return {"kernel_s": statistics.median(kernels), "cpu_s": statistics.median(cpus)}
 
 
-def _row(kind: str, size: str, n: int, fused: dict[str, float], torch_s: float) -> dict[str, Any]:
+def _row(
+    kind: str,
+    size: str,
+    n: int,
+    fused: dict[str, float],
+    torch_s: float,
+    cpu: dict[str, float],
+    flops: int,
+    threads: int,
+) -> dict[str, Any]:
     fused_ns = fused["wall_s"] / n * 1e9
     torch_ns = torch_s / n * 1e9
+    cpu_ns = cpu["cpu_s"] / n * 1e9 / threads
     return {
         "model": kind,
         "size": size,
         "fused_ns": round(fused_ns, 3),
         "fused_kernel_ns": round(fused["kernel_s"] / n * 1e9, 3),
+        "fused_cpu_ns": round(cpu_ns, 3),
+        "flops": flops,
+        "gflops_per_core": round(flops / (cpu_ns * threads), 2) if flops and cpu_ns > 0 else None,
         "torch_ns": round(torch_ns, 3),
         "speedup": round(torch_ns / fused_ns, 3),
         "compile_s": round(fused["compile_s"], 4),
@@ -184,18 +206,25 @@ def _row(kind: str, size: str, n: int, fused: dict[str, float], torch_s: float) 
 
 
 def mlp_row(
-    mi: Any, layers: Sequence[DenseLayer], size: str, inputs: np.ndarray, repeats: int = REPEATS
+    mi: Any,
+    layers: Sequence[DenseLayer],
+    size: str,
+    inputs: np.ndarray,
+    repeats: int = REPEATS,
+    threads: int = 2,
 ) -> dict[str, Any]:
-    """One ``mlp`` row: ``inputs`` ``(N, n_in)`` float32 through both back ends."""
+    """One ``mlp`` row: ``inputs`` ``(N, n_in)`` float32 through both back ends (all inputs
+    live, so ``flops`` counts every weight)."""
     import drjit as dr
     import torch
 
     cols = [mi.Float(c) for c in np.ascontiguousarray(inputs.T)]
     dr.eval(*cols)
     fused = time_fused(lambda: fused_mlp(layers, cols), repeats)
+    cpu = time_cpu(lambda *xs: fused_mlp(layers, list(xs)), cols, repeats, launches=2)
     net, x = torch_mlp(layers), torch.from_numpy(np.ascontiguousarray(inputs))
     torch_s = time_torch(lambda: net(x), repeats)
-    row = _row("mlp", size, len(inputs), fused, torch_s)
+    row = _row("mlp", size, len(inputs), fused, torch_s, cpu, mlp_flops(layers), threads)
     row["bytes_per_network"] = 4 * parameter_count(layers)
     return row
 
@@ -238,6 +267,7 @@ def mlp_speed(
     batch: int = BATCH,
     repeats: int = REPEATS,
     seed: int = 0,
+    threads: int = 2,
 ) -> list[dict[str, Any]]:
     """``mlp`` rows for random ReLU MLPs ``n_in -> width (x depth) -> n_out``."""
     rng = np.random.default_rng(seed)
@@ -245,7 +275,7 @@ def mlp_speed(
     rows = []
     for width, depth in sizes:
         layers = random_layers(rng, n_in, width, depth, n_out)
-        rows.append(mlp_row(mi, layers, f"{width}x{depth}", inputs, repeats))
+        rows.append(mlp_row(mi, layers, f"{width}x{depth}", inputs, repeats, threads))
     return rows
 
 
@@ -260,9 +290,13 @@ def model_row(
     size: str,
     pairs: tuple[np.ndarray, np.ndarray],
     repeats: int = REPEATS,
+    threads: int = 2,
 ) -> dict[str, Any]:
     """One ``analytic`` / ``hybrid`` / ``neural`` row: material ``material`` of ``doc``
-    (fused, baked) against ``model`` (torch, the same weights) at ``pairs``."""
+    (fused, baked) against ``model`` (torch, the same weights) at ``pairs``.
+
+    ``flops``: the MLP's with its 6 direction inputs live (0 for the analytic model);
+    ``threads`` converts the CPU time to time on dedicated cores (see the module)."""
     import drjit as dr
     import torch
 
@@ -274,10 +308,12 @@ def model_row(
     wi, wo = mi.Vector3f(*wi_np.T), mi.Vector3f(*wo_np.T)
     dr.eval(wi, wo)
     fused = time_fused(lambda: [model_brdf(mi, baked, wi, wo)], repeats)
+    cpu = time_cpu(lambda a, b: model_brdf(mi, baked, a, b), [wi, wo], repeats, launches=2)
     wi_t, wo_t = torch.from_numpy(wi_np)[None], torch.from_numpy(wo_np)[None]
     idx = torch.tensor([index])
     torch_s = time_torch(lambda: model(wi_t, wo_t, idx).f, repeats)
-    row = _row(doc["model"], size, len(wi_np), fused, torch_s)
+    flops = mlp_flops(baked.layers, 6) if baked.layers else 0
+    row = _row(doc["model"], size, len(wi_np), fused, torch_s, cpu, flops, threads)
     row["bytes_per_network"] = 4 * sum(p.numel() for p in model.network_parameters())
     row["bytes_per_material"] = 4 * int(doc["architecture"]["per_material_params"])
     return row
@@ -338,16 +374,18 @@ def speed_report(
             name = material or names[0]
             a = doc["architecture"]
             size = "-" if doc["model"] == "analytic" else f"{a['width']}x{a['depth']}"
-            row = model_row(mi, model, doc, name, size, pairs, repeats)
+            row = model_row(mi, model, doc, name, size, pairs, repeats, threads)
             rows.append({**row, "trained": True, "material": name})
         model, fresh = _fresh_model("analytic", 0, 0, 0, seed)
-        rows.append(model_row(mi, model, fresh, "bench", "-", pairs, repeats))
-        rows += mlp_speed(mi, sizes=sizes, n_in=6 + latent_dim, batch=batch, repeats=repeats)
+        rows.append(model_row(mi, model, fresh, "bench", "-", pairs, repeats, threads))
+        rows += mlp_speed(
+            mi, sizes=sizes, n_in=6 + latent_dim, batch=batch, repeats=repeats, threads=threads
+        )
         for kind, latent in (("hybrid", latent_dim), ("neural", equal_neural_latent(latent_dim))):
             for width, depth in sizes:
                 model, fresh = _fresh_model(kind, width, depth, latent, seed)
                 size = f"{width}x{depth}"
-                rows.append(model_row(mi, model, fresh, "bench", size, pairs, repeats))
+                rows.append(model_row(mi, model, fresh, "bench", size, pairs, repeats, threads))
     finally:
         torch.set_num_threads(old_threads[0])
         dr.set_thread_count(old_threads[1])
@@ -360,6 +398,12 @@ def speed_report(
         "units": {
             "fused_ns": "ns per evaluation, wall: trace + cached kernel + sync (median)",
             "fused_kernel_ns": "ns per evaluation, kernel execution only (median)",
+            "fused_cpu_ns": "ns per evaluation on `threads` dedicated cores: process CPU "
+            "time of the frozen kernel / threads (median)",
+            "flops": "FLOP per evaluation: 2 per multiply-add of the dense layers (live "
+            "inputs only)",
+            "gflops_per_core": "flops / CPU time per evaluation summed over threads; its "
+            "fraction of the FMA peak: benchmarks/bench_fused_mlp.py",
             "torch_ns": "ns per evaluation, torch eager forward, inference mode (median)",
             "compile_s": "first run's LLVM code generation + back end, seconds",
             "bytes_per_network": "float32 weights x 4 (shared by all materials)",

@@ -18,8 +18,10 @@ Artifacts:
   zeros) and ``mae`` against the source tables at the
   fixed-seed scoring pairs, with means overall, per family and per split
   (:mod:`models.brdf.report`);
-- ``speed.json`` (unless ``speed: off``): ns per evaluation of the fused Dr.Jit kernel and
-  of torch eager, bytes per network and per material, measured in this job by
+- ``speed.json`` (unless ``speed: off``): ns per evaluation of the fused Dr.Jit kernel (wall
+  and, steadier on a shared machine, CPU time on 2 dedicated cores), its FLOP per evaluation
+  and GFLOP/s per core, and of torch eager, bytes per network and per material, measured in
+  this job by
   :func:`models.speed.speed_report` (format ``matforge.speed/1``). ``speed: trained``
   (default) times the trained model at its own size, with its weights and its first
   material, beside the analytic GGX + Lambert; ``speed: full`` adds the bare MLP, hybrid

@@ -84,6 +84,14 @@ def test01_each_model_trains_and_its_artifacts_agree(
     assert trained["size"] == ("-" if model == "analytic" else "16x2")
     for row in speed["rows"]:
         assert row["fused_ns"] > 0 and row["fused_kernel_ns"] > 0 and row["torch_ns"] > 0
+        assert row["fused_cpu_ns"] > 0
+    # FLOP per evaluation, counted by hand from the architecture (16x2: 16-wide layers, one
+    # 16x16 matrix between them; the 6 direction inputs live, the latent folded into the
+    # bias): 2 per multiply-add. The hybrid has 6 outputs, the neural model 3, analytic none.
+    outputs = {"hybrid": 6, "neural": 3, "analytic": 0}[model]
+    expected = 0 if model == "analytic" else 2 * (6 * 16 + 16 * 16 + 16 * outputs)
+    assert trained["flops"] == expected
+    assert (trained["gflops_per_core"] is None) == (model == "analytic")
     # Bytes: 4 per float; the per-material count is materials.json's.
     floats = {"hybrid": 11, "neural": 11, "analytic": 7}[model]
     assert trained["bytes_per_material"] == 4 * floats
