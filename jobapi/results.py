@@ -9,7 +9,7 @@ settings used, claims that hold or not).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -71,6 +71,28 @@ class ResultTable:
             )
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"not a result table document ({exc})") from None
+
+    @classmethod
+    def from_report(
+        cls,
+        doc: Mapping[str, Any],
+        rows: dict[str, dict[str, Any]],
+        *,
+        title: str,
+        label_header: str,
+        columns: Sequence[str],
+    ) -> ResultTable:
+        """The table of a report job: ``rows`` with the ``settings`` and the well-formed
+        ``claims`` (``{"claim": ...}`` objects) of its document ``doc`` (``pareto.json``)."""
+        claims = [c for c in doc.get("claims") or [] if isinstance(c, dict) and "claim" in c]
+        return cls(
+            title=title,
+            label_header=label_header,
+            columns=list(columns),
+            rows=rows,
+            settings=doc.get("settings"),
+            claims=claims,
+        )
 
     def flat(self) -> dict[str, float]:
         """Numeric cells as ``{"<label>.<column>": value}`` (bools and text left out), in

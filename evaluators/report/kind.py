@@ -182,14 +182,8 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         for pt in p.get("points") or []:
             label = f"{p.get('metric')} vs {p.get('cost')}{where} / {pt.get('candidate')}"
             rows[label] = {c: pt.get(c) for c in COLUMNS}
-    claims = [c for c in doc.get("claims") or [] if isinstance(c, dict) and "claim" in c]
-    return ResultTable(
-        title="Error against cost",
-        label_header="Panel / candidate",
-        columns=list(COLUMNS),
-        rows=rows,
-        settings=doc.get("settings"),
-        claims=claims,
+    return ResultTable.from_report(
+        doc, rows, title="Error against cost", label_header="Panel / candidate", columns=COLUMNS
     )
 
 

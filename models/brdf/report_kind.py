@@ -217,14 +217,12 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     if not points:
         return None
     rows = {str(p["config"]): {k: p.get(k) for k in PARETO_COLUMNS} for p in points}
-    claims = [c for c in doc.get("claims", []) if isinstance(c, dict) and "claim" in c]
-    return ResultTable(
+    return ResultTable.from_report(
+        doc,
+        rows,
         title="Accuracy against cost",
         label_header="Configuration",
-        columns=list(PARETO_COLUMNS),
-        rows=rows,
-        settings=doc.get("settings"),
-        claims=claims,
+        columns=PARETO_COLUMNS,
     )
 
 
