@@ -1,4 +1,7 @@
-"""``pareto.png`` of ``report.pareto``: one panel per dataset, scene, metric and cost.
+"""Pictures of the report kinds: ``pareto.png`` (``report.pareto``), ``select.png``
+(``select``) and ``stability.png`` (``report.stability``).
+
+``pareto.png``: one panel per dataset, scene, metric and cost.
 
 Each panel: every candidate at its median cost and mean error over seeds, error bars from
 the minimum to the maximum over seeds; points on the front filled and joined by a dashed
@@ -86,3 +89,56 @@ def select_png(ladders: list[dict[str, Any]], target: float) -> bytes:
             a.legend(fontsize=7)
 
     return figure_png(draw, (6.0 * cols, 3.6 * rows + 0.3))
+
+
+def stability_png(families: list[dict[str, Any]], configs: list[dict[str, Any]]) -> bytes:
+    """The heat table of ``report.stability``: per kind one panel, models (rows) x families
+    (columns); a cell's colour is the family's error over the model's whole-set error on a
+    log scale centred on 1 (red: worse than its average, green: better), its text the error
+    and that ratio. Row labels carry the seed count and how many runs had not converged."""
+    import numpy as np
+
+    kinds = list(dict.fromkeys(f["kind"] for f in families))
+    conf = {(c["kind"], c["candidate"]): c for c in configs}
+    if not kinds:
+
+        def empty(fig: Any, ax: Any) -> None:
+            ax.axis("off")
+            ax.text(0.5, 0.5, "no per-family rows in these runs", ha="center", va="center")
+
+        return figure_png(empty, (6.0, 1.5))
+    shapes = []
+    for kind in kinds:
+        mine = [f for f in families if f["kind"] == kind]
+        shapes.append((kind, mine, list(dict.fromkeys(str(f["candidate"]) for f in mine)),
+                       list(dict.fromkeys(f["family"] for f in mine))))  # fmt: skip
+    width = max(6.0, 2.2 + 1.25 * max(len(s[3]) for s in shapes))
+    heights = [0.9 + 0.42 * len(s[2]) for s in shapes]
+
+    def draw(fig: Any, ax: Any) -> None:
+        fig.delaxes(ax)
+        grid = fig.add_gridspec(len(shapes), 1, height_ratios=heights)
+        for i, (kind, mine, cands, fams) in enumerate(shapes):
+            a = fig.add_subplot(grid[i])
+            ratio = np.full((len(cands), len(fams)), np.nan)
+            for f in mine:
+                if f["ratio"] is not None:
+                    ratio[cands.index(str(f["candidate"])), fams.index(f["family"])] = f["ratio"]
+            logr = np.clip(np.log2(np.where(np.isfinite(ratio), ratio, 1.0)), -2.0, 2.0)
+            a.imshow(np.ma.masked_where(~np.isfinite(ratio), logr), cmap="RdYlGn_r",
+                     vmin=-2.0, vmax=2.0, aspect="auto")  # fmt: skip
+            for f in mine:
+                r, c = cands.index(str(f["candidate"])), fams.index(f["family"])
+                text = f"{f['mean']:.3g}" + (f"\n{f['ratio']:.2f}x" if f["ratio"] else "")
+                a.text(c, r, text, ha="center", va="center", fontsize=7)
+            labels = []
+            for cand in cands:
+                cfg = next((v for (k, c), v in conf.items() if k == kind and str(c) == cand), None)
+                note = f" (n={cfg['n']}, {cfg['not_converged']} not conv.)" if cfg else ""
+                labels.append(f"{cand}{note}")
+            a.set_yticks(range(len(cands)), labels, fontsize=7)
+            a.set_xticks(range(len(fams)), fams, fontsize=7, rotation=20, ha="right")
+            metric = mine[0]["metric"]
+            a.set_title(f"{kind}: {metric} per family / whole-set {metric}", fontsize=8)
+
+    return figure_png(draw, (width, sum(heights) + 0.6))

@@ -17,7 +17,13 @@ Per configuration (candidate and kind) over its runs: the seed spread of the err
 std, worst seed) and how many runs had not converged. Per configuration and material family
 (``train.brdf``, ``train.fabric``): the mean error and the worst family.
 
-Artifacts: ``stability.json`` (``runs``, ``configs``, ``families``, settings).
+Per family or failure case (``train.brdf``: MERL family, e.g. iridescent, blend (multi-lobe),
+metal; ``train.fabric``: weave pattern and footprint size, the tiny footprints below a tenth
+of a tile; ``train.btf``: strongly shadowed and near-specular slices,
+:mod:`models.btf.cases`): the mean error and its ratio to the model's whole-set error.
+
+Artifacts: ``stability.json`` (``runs``, ``configs``, ``families``, settings) and
+``stability.png``, the heat table of those ratios: models x families, one panel per kind.
 Deterministic per spec (no timings).
 """
 
@@ -40,6 +46,8 @@ if TYPE_CHECKING:
     from jobapi.rows import ResultRow
 
 FORMAT = "matforge.stability/1"
+#: Per kind, the metric of the per-family breakdown where it is not the headline one.
+FAMILY_METRICS: dict[str, str] = {"train.btf": "relative_l1"}
 #: Per kind: the error metric and candidate of its headline rows, and its loss curve.
 ERRORS: dict[str, tuple[str, str | None]] = {
     "train.brdf": ("smape", None),
@@ -152,13 +160,17 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
             run["reciprocity_error"] = statistics.fmean(m["reciprocity_error"] for m in mats)
         runs.append(run)
         ctx.progress(0.9 * (i + 1) / len(params.runs), f"checked {i + 1}/{len(params.runs)}")
+    from evaluators.report.plots import stability_png
+
+    found = configs(runs)
+    fams = families(all_rows)
     ctx.put_json(
         "stability.json",
         {
             "format": FORMAT,
             "runs": runs,
-            "configs": configs(runs),
-            "families": families(all_rows),
+            "configs": found,
+            "families": fams,
             "settings": {
                 "convergence": f"flattened: the loss's last tenth within {params.tolerance:g} "
                 "of its tenth around the middle of training (curves.json); the last tenth "
@@ -166,9 +178,14 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
                 "albedo": "pi x mean f over 4096 stratified cosine-weighted wo, max over "
                 "channels and incident angles; > 1.01 is an energy gain",
                 "reciprocity": "mean |f(wi,wo) - f(wo,wi)| / (|f(wi,wo)| + |f(wo,wi)|)",
+                "families": "per material family or failure case (train.brdf: MERL "
+                "family; train.fabric: weave pattern and footprint size; train.btf: "
+                "shadowing / specular / rest slices, relative L1): mean error, and its ratio "
+                "to the model's whole-set error",
             },
         },
     )
+    ctx.put_bytes("stability.png", stability_png(fams, found), "image/png")
     flat = sum(1 for r in runs if r["convergence"]["flattened"] is False)
     ctx.progress(1.0, f"{len(runs)} runs; {flat} still falling at the last step")
 
@@ -198,26 +215,48 @@ def configs(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def family_metric(kind: str) -> str:
+    """The metric families are compared by: the headline one, except where a relative
+    figure is needed to compare cases whose scales differ (BTF highlights and shadows)."""
+    return FAMILY_METRICS.get(kind, ERRORS[kind][0])
+
+
 def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
-    """Per (kind, candidate, family): mean error over materials and runs of the kind's
-    headline metric."""
+    """Per (kind, candidate, family): mean error over materials and runs of
+    :func:`family_metric`, its worst, and ``ratio``: that mean over the candidate's
+    whole-set error (its rows without a material or with ``"mean"``, averaged over runs;
+    ``None`` without one). A ratio above 1 is a family the model does worse on than on
+    average: the cells of ``stability.png``."""
     acc: dict[tuple[str, Any, str], list[float]] = {}
+    whole: dict[tuple[str, Any], list[float]] = {}
     for r in rows:
-        metric, cand = ERRORS.get(r.kind, ("", None))
-        if r.metric == metric and r.family and cand in (None, r.candidate):
+        if r.kind not in ERRORS:
+            continue
+        metric, cand = family_metric(r.kind), ERRORS[r.kind][1]
+        if r.metric != metric or cand not in (None, r.candidate):
+            continue
+        if r.family:
             acc.setdefault((r.kind, r.candidate, r.family), []).append(r.value)
-    return [
-        {
-            "kind": k,
-            "candidate": c,
-            "family": f,
-            "metric": ERRORS[k][0],
-            "mean": statistics.fmean(v),
-            "worst": max(v),
-            "n": len(v),
-        }
-        for (k, c, f), v in acc.items()
-    ]
+        elif r.material in (None, "mean"):
+            whole.setdefault((r.kind, r.candidate), []).append(r.value)
+    out = []
+    for (k, c, f), v in acc.items():
+        mean = statistics.fmean(v)
+        base = statistics.fmean(whole[(k, c)]) if whole.get((k, c)) else None
+        out.append(
+            {
+                "kind": k,
+                "candidate": c,
+                "family": f,
+                "metric": family_metric(k),
+                "mean": mean,
+                "worst": max(v),
+                "n": len(v),
+                "whole": base,
+                "ratio": mean / base if base else None,
+            }
+        )
+    return out
 
 
 #: Columns of the result table, one row per run.
@@ -262,7 +301,7 @@ register(
         description="Where trained models fail: seed spread and worst seed, per-family "
         "errors, whether each training loss had flattened, and for BRDF models NaN/Inf at "
         "extreme inputs, directional albedo above 1 and reciprocity error.",
-        artifacts=("stability.json",),
+        artifacts=("stability.json", "stability.png"),
         smoke={"runs": ["step:train.brdf"]},
         summary=summarize,
     )

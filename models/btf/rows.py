@@ -1,7 +1,7 @@
 """Result rows of ``train.btf`` (:mod:`jobapi.rows`): the model's L1 errors of
 ``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
 storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
-the decoder's."""
+the decoder's. Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,10 @@ from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 
 #: The metrics of ``metrics.json``.
 METRICS = ("l1", "l1_train", "l1_heldout", "relative_l1")
+#: The metrics of each failure case (``metrics.json``'s ``cases``,
+#: :mod:`models.btf.cases`): rows whose ``material`` and ``family`` are the case's name, so
+#: that ``report.pareto`` and ``report.stability`` break the errors down by case.
+CASE_METRICS = ("l1", "relative_l1")
 #: Params of the spec that describe the model, in ``config``.
 CONFIG_KEYS = ("model", "preset", "width", "epochs", "distill")
 
@@ -32,4 +36,13 @@ def train_btf_rows(src: RowSource) -> list[ResultRow]:
         "bytes_per_network": number(storage.get("network_bytes")),
         "train_seconds": src.job.run_seconds,
     }
-    return [base_row(src, k, v, **fields) for k in METRICS if (v := number(doc.get(k))) is not None]
+    rows = [base_row(src, k, v, **fields) for k in METRICS if (v := number(doc.get(k))) is not None]
+    cases = doc.get("cases")
+    for case in cases if isinstance(cases, list) else []:
+        if not isinstance(case, Mapping) or not case.get("case"):
+            continue
+        name = str(case["case"])
+        for k in CASE_METRICS:
+            if (v := number(case.get(k))) is not None:
+                rows.append(base_row(src, k, v, material=name, family=name, **fields))
+    return rows

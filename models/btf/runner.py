@@ -22,6 +22,7 @@ from jobapi.errors import JobFailed
 from jobapi.params import job_id_of
 from materials.btf.lafortune import PARAMS_PER_TEXEL, initial_params
 from models.brdf.train import deterministic_torch
+from models.btf.cases import case_errors
 from models.btf.data import BtfDataset
 from models.btf.lafortune import fit_lafortune
 from models.btf.networks import Architecture, build_network
@@ -35,7 +36,7 @@ from models.btf.portable import (
     textures_bytes,
     torch_network,
 )
-from models.btf.train import Curves, Distillation, FitConfig, fit, mean_l1
+from models.btf.train import Curves, Distillation, FitConfig, fit, slice_l1
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -140,23 +141,26 @@ def _fit_lafortune(
 
 
 @torch.no_grad()
-def _portable_l1(model: PortableBtf, data: BtfDataset, indices: np.ndarray) -> float:
-    if len(indices) == 0:
-        return float("nan")
-    total, count = 0.0, 0
+def _portable_slice_l1(model: PortableBtf, data: BtfDataset, indices: np.ndarray) -> np.ndarray:
+    """Per-slice mean absolute error of the portable model (as :func:`slice_l1`)."""
+    out = np.full(len(indices), np.nan)
+    where = {int(i): k for k, i in enumerate(indices)}
     for i, rgb in data.iter_slices(indices):
         pred = model.slice(data.wi[i], data.wo[i])
-        total += float(np.abs(pred.astype(np.float64) - rgb).sum())
-        count += rgb.size
-    return total / count
+        out[where[i]] = float(np.abs(pred.astype(np.float64) - rgb).sum()) / rgb.size
+    return out
 
 
-def _mean_abs(data: BtfDataset) -> float:
-    total, count = 0.0, 0
-    for _, rgb in data.iter_slices(np.arange(len(data))):
-        total += float(np.abs(rgb).sum(dtype=np.float64))
-        count += rgb.size
-    return total / count
+def _slice_mean_abs(data: BtfDataset) -> np.ndarray:
+    """Mean ``|BTF|`` of each slice, ``(len(data),)``."""
+    out = np.empty(len(data))
+    for i, rgb in data.iter_slices(np.arange(len(data))):
+        out[i] = float(np.abs(rgb).sum(dtype=np.float64)) / rgb.size
+    return out
+
+
+def _mean_of(values: np.ndarray, indices: np.ndarray) -> float:
+    return float(np.mean(values[indices])) if len(indices) else float("nan")
 
 
 def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
@@ -191,15 +195,16 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
             model = read_model(doc, tex)
         fit_seconds = time.perf_counter() - started
         ctx.progress(P_FITTED, "scoring the whole BTF")
+        everything = np.arange(len(data))
         if params.model == "lafortune":
-            l1_train = _portable_l1(model, data, train)
-            l1_test = _portable_l1(model, data, test)
+            per_slice = _portable_slice_l1(model, data, everything)
         else:
-            l1_train = mean_l1(net, data, train)
-            l1_test = mean_l1(net, data, test)
+            per_slice = slice_l1(net, data, everything)
+    l1_train, l1_test = _mean_of(per_slice, train), _mean_of(per_slice, test)
     n_all = len(train) + len(test)
-    l1 = (l1_train * len(train) + (l1_test * len(test) if len(test) else 0.0)) / n_all
-    scale = _mean_abs(data)
+    l1 = float(np.mean(per_slice))
+    slice_scale = _slice_mean_abs(data)
+    scale = float(np.mean(slice_scale))
     storage = model.doc["storage"]
     metrics = {
         "model": params.model,
@@ -212,8 +217,11 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
         "slices": {"total": n_all, "train": int(len(train)), "heldout": int(len(test))},
         "storage": {k: storage[k] for k in ("texture_bytes", "network_bytes", "total_bytes")},
         "storage_at_400": _storage_at(model, (400, 400)),
+        "cases": case_errors(data.wi, data.wo, per_slice, slice_scale),
         "definition": "l1: mean absolute error over every slice, texel and channel of the "
-        "BTF (Table 1), in BTF units (1/sr); l1_train / l1_heldout over those slices only",
+        "BTF (Table 1), in BTF units (1/sr); l1_train / l1_heldout over those slices only; "
+        "cases: the same over the slices of each failure case (models.btf.cases), "
+        "relative_l1 over their own mean |BTF|",
     }
     ctx.progress(P_SCORED, "writing artifacts")
     ctx.put_json("model.json", model.doc)

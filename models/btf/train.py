@@ -127,6 +127,21 @@ def mean_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> float:
     return total / count
 
 
+@torch.no_grad()
+def slice_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> np.ndarray:
+    """Mean absolute error of ``net`` on each slice of ``indices`` (``(len(indices),)``
+    float64, in the order of ``indices``); their mean is :func:`mean_l1` (slices are of
+    equal size)."""
+    out = np.full(len(indices), np.nan)
+    where = {int(i): k for k, i in enumerate(indices)}
+    for i, rgb in data.iter_slices(indices):
+        wi, wo = _dirs(data, i)
+        pred, _ = slice_forward(net, wi, wo)
+        err = float(torch.abs(pred - torch.from_numpy(rgb).reshape(-1, 3)).sum())
+        out[where[i]] = err / rgb.size
+    return out
+
+
 class _Maps(nn.Module):
     def __init__(self, teacher_width: int, student_width: int, gen: torch.Generator) -> None:
         super().__init__()

@@ -16,12 +16,15 @@ never trained on), against the dataset's Monte Carlo estimates:
 - ``baseline``: the same figures for a trivial model, the material's per-component mean
   over its training queries (in the training space for ``loss``, linear otherwise).
 
-``mean``: plain means over materials of every figure. Latents are computed once per
+``footprints``: the network's and the baseline's RGB relative L1 per footprint-size case
+(:data:`FOOTPRINT_CASES`; the tiny footprints are a failure case of issue 13), mean over
+materials. ``mean``: plain means over materials of every figure. Latents are computed once per
 material by the encoder in eval mode, as rendering does.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -82,8 +85,48 @@ def _errors(pred: np.ndarray, gt: np.ndarray, albedos: np.ndarray) -> dict[str, 
     return out
 
 
+#: Footprint-size cases (tile units, half-open ``[lo, hi)``): the tiny footprints of
+#: issue 13's failure families (a tenth of a tile: the first of the paper's size strata,
+#: where single yarns are resolved), sub-tile and tile-sized or larger.
+FOOTPRINT_CASES: tuple[tuple[str, float, float], ...] = (
+    ("footprint < 0.1 tile", 0.0, 0.1),
+    ("footprint 0.1-1 tile", 0.1, 1.0),
+    ("footprint >= 1 tile", 1.0, float("inf")),
+)
+
+
+def _rgb_rel(pred: np.ndarray, gt: np.ndarray, albedos: np.ndarray) -> float:
+    rgb_g = gt @ albedos
+    return float(np.sum(np.abs(pred @ albedos - rgb_g)) / max(float(np.sum(np.abs(rgb_g))), 1e-30))
+
+
+def footprint_errors(
+    size: np.ndarray, pred: np.ndarray, base: np.ndarray, gt: np.ndarray, albedos: np.ndarray
+) -> dict[str, dict[str, Any]]:
+    """Per :data:`FOOTPRINT_CASES` case: held-out ``queries`` and the RGB relative L1 of the
+    network (``rgb_rel``) and of the mean baseline (``baseline_rgb_rel``); ``None`` where a
+    case has no query. ``size`` ``(N,)`` footprint sizes, the rest as in ``_errors``."""
+    out: dict[str, dict[str, Any]] = {}
+    for name, lo, hi in FOOTPRINT_CASES:
+        k = (size >= lo) & (size < hi)
+        n = int(k.sum())
+        out[name] = {
+            "queries": n,
+            "rgb_rel": _rgb_rel(pred[k], gt[k], albedos) if n else None,
+            "baseline_rgb_rel": _rgb_rel(base[k], gt[k], albedos) if n else None,
+        }
+    return out
+
+
 def material_metrics(net: FabricNetwork, m: MaterialData, latent: np.ndarray) -> dict[str, Any]:
     """One material's row of ``metrics.json`` (see the module docstring)."""
+    return _material(net, m, latent)[0]
+
+
+def _material(
+    net: FabricNetwork, m: MaterialData, latent: np.ndarray
+) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """A material's row and its :func:`footprint_errors`."""
     q, gt = m.query[m.test], m.value[m.test].astype(np.float64)
     raw = decode_raw(net, latent, q)
     if not np.all(np.isfinite(raw)):
@@ -95,6 +138,7 @@ def material_metrics(net: FabricNetwork, m: MaterialData, latent: np.ndarray) ->
     base_lin = np.broadcast_to(m.value[m.train].astype(np.float64).mean(axis=0), gt.shape)
     base_log = np.broadcast_to(train_target.mean(axis=0), gt.shape)
     scale = component_scales(m.value[m.train], m.query[m.train, 5])[(q[:, 5] < 0).astype(np.int64)]
+    sizes = footprint_errors(q[:, 2].astype(np.float64), pred, base_lin, gt, albedos)
     return {
         "name": m.name,
         "pattern": m.pattern,
@@ -107,7 +151,22 @@ def material_metrics(net: FabricNetwork, m: MaterialData, latent: np.ndarray) ->
             "relative_l2": relative_l2_numpy(base_lin, gt, scale),
             **_errors(base_lin, gt, albedos),
         },
-    }
+    }, sizes
+
+
+def _footprint_means(per_material: Sequence[dict[str, dict[str, Any]]]) -> list[dict[str, Any]]:
+    """Per footprint case, in :data:`FOOTPRINT_CASES` order: ``queries`` summed, errors
+    averaged over the materials that have queries in it (``None`` when none has)."""
+    out = []
+    for name, lo, hi in FOOTPRINT_CASES:
+        cases = [m[name] for m in per_material if m[name]["queries"]]
+        entry: dict[str, Any] = {"case": name, "range": [lo, hi if math.isfinite(hi) else None]}
+        entry["queries"] = sum(c["queries"] for c in cases)
+        entry["materials"] = len(cases)
+        for key in ("rgb_rel", "baseline_rgb_rel"):
+            entry[key] = float(np.mean([c[key] for c in cases])) if cases else None
+        out.append(entry)
+    return out
 
 
 def _mean_tree(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -125,12 +184,12 @@ def evaluate(
     net: FabricNetwork, materials: Sequence[MaterialData], latents: np.ndarray
 ) -> dict[str, Any]:
     """``metrics.json`` of every material with held-out queries (see the module docstring)."""
-    rows = [
-        material_metrics(net, m, z) for m, z in zip(materials, latents, strict=True) if len(m.test)
-    ]
+    done = [_material(net, m, z) for m, z in zip(materials, latents, strict=True) if len(m.test)]
+    rows = [row for row, _ in done]
     return {
         "materials": rows,
         "mean": {"count": len(rows), **(_mean_tree(rows) if rows else {})},
+        "footprints": _footprint_means([sizes for _, sizes in done]),
         "settings": {
             "queries": "held-out queries of each material (fixed seed, never trained on)",
             "mse": "mean squared error of the decoded component (Eq. 7), or of the Eq. 8 RGB "
@@ -141,6 +200,8 @@ def evaluate(
             "1e-8), p the decoded component, m the material's mean training target per "
             "component and query kind (BRDF, BTDF)",
             "baseline": "per-component mean of the material's training queries",
+            "footprints": "rgb rel per footprint-size case (tile units, [lo, hi)), mean over "
+            "the materials with held-out queries in the case; queries summed",
         },
     }
 

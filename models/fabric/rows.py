@@ -4,6 +4,8 @@
 Metrics are the flattened keys of a material's row: ``loss`` (Eq. 11), ``rgb.rel``,
 ``rgb.mse``, ``C_warp.rel``, ... The per-material mean predictor's errors (``baseline.*``)
 are rows of their own candidate, ``"baseline"``, beside the network's, ``"network"``.
+Then ``rgb.rel`` per footprint-size case (``footprints``), with the case's name as its
+``material`` and ``family`` (the tiny footprints are a failure case of issue 13).
 """
 
 from __future__ import annotations
@@ -52,4 +54,12 @@ def train_fabric_rows(src: RowSource) -> list[ResultRow]:
                              fields)  # fmt: skip
     if isinstance(doc.get("mean"), Mapping):
         rows += _rows_of(src, doc["mean"], {**common, "material": "mean"})
+    footprints = doc.get("footprints")
+    for case in footprints if isinstance(footprints, list) else []:
+        if not isinstance(case, Mapping) or not case.get("case"):
+            continue
+        fields = {**common, "material": str(case["case"]), "family": str(case["case"])}
+        for cand, key in (("network", "rgb_rel"), ("baseline", "baseline_rgb_rel")):
+            if (value := number(case.get(key))) is not None:
+                rows.append(base_row(src, "rgb.rel", value, candidate=cand, **fields))
     return rows

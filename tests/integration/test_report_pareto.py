@@ -243,6 +243,15 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
     assert analytic["n"] == 2 and analytic["worst"] == max(errors)
     assert analytic["std"] == pytest.approx(np.std(errors, ddof=1))
     assert {f["family"] for f in doc["families"]} == {"plastic", "blend"}
+    # The heat table's ratio, recomputed from the two analytic runs' own metrics.json: the
+    # family's mean SMAPE over runs over the runs' mean whole-set SMAPE.
+    own = [read(settings, j, "metrics.json") for j in runs[:2]]
+    plastic = [m["smape"] for d in own for m in d["materials"] if m["family"] == "plastic"]
+    (cell,) = [f for f in doc["families"] if (f["candidate"], f["family"]) == ("analytic",
+                                                                            "plastic")]  # fmt: skip
+    whole = np.mean([d["mean"]["smape"] for d in own])
+    assert cell["ratio"] == pytest.approx(np.mean(plastic) / whole, rel=1e-9)
+    assert read(settings, job, "stability.png")[:8] == PNG
     failed = run_in_process(
         {"kind": "report.stability", "params": {"runs": [f"job:{jobs['score'].id}"]}}, settings
     )

@@ -58,6 +58,23 @@ def test01_lafortune_is_exact_on_lambertian(flat) -> None:
     with np.load(io.BytesIO(art(settings, job, "textures.npz"))) as z:
         p = z["params"].reshape(-1, 55)
     np.testing.assert_allclose(p[:, :3].mean(axis=0), np.asarray(ALBEDO) / np.pi, rtol=2e-3)
+    # Failure cases (models.btf.cases) over the `small` set's 36 slices: the light at 60
+    # degrees in 2 of its 6 directions (12 slices shadowing); near-mirror (half vector within
+    # 12 degrees): light = view = normal and the two 60-degree lights' mirror pair. The
+    # cases cover every slice, and the exact Lambertian fit is exact in each of them.
+    cases = {c["case"]: c for c in m["cases"]}
+    assert list(cases) == ["shadowing", "specular", "rest"]
+    assert cases["shadowing"]["slices"] == 12 and cases["specular"]["slices"] == 3
+    assert cases["rest"]["slices"] == 36 - 12 - 1  # the mirror pair is also shadowing
+    assert all(c["relative_l1"] < 1e-3 for c in cases.values()), cases
+    from jobapi.kinds import registered
+    from jobapi.row_sources import StoreSource
+    from storage.jobs import JobStore
+
+    src = StoreSource(job, JobStore(settings.db_path), ArtifactStore(settings.store_dir))
+    rows = registered()["train.btf"].rows(src)  # type: ignore[misc]
+    by_case = {r.family: r.value for r in rows if r.metric == "relative_l1" and r.family}
+    assert by_case == pytest.approx({k: c["relative_l1"] for k, c in cases.items()})
 
 
 @pytest.mark.parametrize("model", ["neumip", "c2f"])

@@ -91,6 +91,24 @@ def test01_artifacts_and_the_network_beats_the_baseline(
     assert mean["loss"] < 0.8 * mean["baseline"]["loss"]
     assert mean["rgb"]["rel"] < mean["baseline"]["rgb"]["rel"]
     assert all(r["loss"] < r["baseline"]["loss"] for r in metrics["materials"])
+    # Footprint-size cases partition the held-out queries ([lo, hi) in tile units, up to
+    # the sizes' 5-tile top stratum); the paper's strata draw half the sizes under 1 tile
+    # and a tenth of those under 0.1 tile, so every case has queries.
+    cases = {c["case"]: c for c in metrics["footprints"]}
+    assert [c["range"] for c in cases.values()] == [[0.0, 0.1], [0.1, 1.0], [1.0, None]]
+    assert sum(c["queries"] for c in cases.values()) == 3 * 96
+    assert all(c["queries"] > 0 and c["materials"] == 3 for c in cases.values())
+    assert all(0 <= c["rgb_rel"] < math.inf for c in cases.values())
+    from jobapi.kinds import registered
+    from jobapi.row_sources import StoreSource
+
+    src = StoreSource(trained, JobStore(settings.db_path), ArtifactStore(settings.store_dir))
+    rows = registered()["train.fabric"].rows(src)  # type: ignore[misc]
+    tiny = {r.candidate: r.value for r in rows if r.family == "footprint < 0.1 tile"}
+    assert tiny == {
+        "network": pytest.approx(cases["footprint < 0.1 tile"]["rgb_rel"]),
+        "baseline": pytest.approx(cases["footprint < 0.1 tile"]["baseline_rgb_rel"]),
+    }
     curves = read_json(settings, trained, "curves.json")
     assert curves["step"][-1] == TINY["steps"] and len(curves["loss"]) == 200
     assert curves["lr"][0] == 0.05 and math.isclose(curves["lr"][-1], 0.05 * 0.2 * 0.2)
