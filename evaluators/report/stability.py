@@ -298,9 +298,11 @@ register(
         name="report.stability",
         params=ReportStabilityParams,
         runner=run_stability,
-        description="Where trained models fail: seed spread and worst seed, per-family "
-        "errors, whether each training loss had flattened, and for BRDF models NaN/Inf at "
-        "extreme inputs, directional albedo above 1 and reciprocity error.",
+        description="Where trained models fail: seed spread and worst seed, errors per "
+        "family and failure case (BRDF families; fabric patterns and tiny footprints; BTF "
+        "shadowing and specular slices) against each model's whole-set error, drawn as a "
+        "heat table, whether each training loss had flattened, and for BRDF models NaN/Inf "
+        "at extreme inputs, directional albedo above 1 and reciprocity error.",
         artifacts=("stability.json", "stability.png"),
         smoke={"runs": ["step:train.brdf"]},
         summary=summarize,
