@@ -101,3 +101,22 @@ def test03_reports_check_the_papers_claims(chain: tuple[Settings, dict[str, Job]
     assert len(panels) == 2 and all(p["front"] for p in panels), panels  # texture, network bytes
     chosen = _json(settings, jobs["select"], "select.json")
     assert chosen["ladders"], chosen
+
+
+def test04_stability_breaks_the_error_down_by_failure_case(
+    chain: tuple[Settings, dict[str, Job]],
+) -> None:
+    """The recipe's report.stability: per model, the shadowing / specular / rest cases of
+    its own metrics.json, each ratioed to its whole-BTF relative L1."""
+    settings, jobs = chain
+    doc = _json(settings, jobs["stability"], "stability.json")
+    assert len(doc["runs"]) == len(MODELS)
+    for name in MODELS:
+        m = _json(settings, jobs[name], "metrics.json")
+        own = {c["case"]: c["relative_l1"] for c in m["cases"]}
+        cells = {f["family"]: f for f in doc["families"] if f["candidate"] == m["label"]}
+        assert set(cells) == set(own), name
+        for case, cell in cells.items():
+            assert cell["metric"] == "relative_l1"
+            assert math.isclose(cell["mean"], own[case], rel_tol=1e-9), (name, case)
+            assert math.isclose(cell["ratio"], own[case] / m["relative_l1"], rel_tol=1e-9)

@@ -170,3 +170,21 @@ def test03_pareto_and_select_of_network_against_monte_carlo(
         assert lad["chosen"] == (
             min(meets, key=lambda r: r["cost"])["candidate"] if meets else None
         )
+
+
+def test04_stability_of_the_network_by_pattern_and_footprint(
+    chain: tuple[Settings, dict[str, Job]],
+) -> None:
+    """The recipe's report.stability over its one network: a cell per weave pattern and
+    per footprint-size case, each from the model's own metrics.json."""
+    settings, jobs = chain
+    doc = json.loads(artifact(settings, jobs["stability"], "stability.json"))
+    metrics = json.loads(artifact(settings, jobs["model"], "metrics.json"))
+    cells = {(f["candidate"], f["family"]): f for f in doc["families"]}
+    for case in metrics["footprints"]:
+        cell = cells[("network", case["case"])]
+        assert cell["mean"] == pytest.approx(case["rgb_rel"], rel=1e-9)
+        assert cell["ratio"] == pytest.approx(case["rgb_rel"] / metrics["mean"]["rgb"]["rel"])
+    for row in metrics["materials"]:
+        assert cells[("network", row["pattern"])]["mean"] == pytest.approx(row["rgb"]["rel"])
+    assert artifact(settings, jobs["stability"], "stability.png")[:4] == b"\x89PNG"
