@@ -265,7 +265,7 @@ COLUMNS = (
     "metric",
     "error",
     "flattened",
-    "relative_drop",
+    "second_half_drop",
     "nonfinite_total",
     "albedo_max",
     "reciprocity_error",
@@ -282,7 +282,9 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         if isinstance(r, dict):
             conv = r.get("convergence") or {}
             row = {c: r.get(c) for c in COLUMNS}
-            row.update(flattened=conv.get("flattened"), relative_drop=conv.get("relative_drop"))
+            row.update(
+                flattened=conv.get("flattened"), second_half_drop=conv.get("second_half_drop")
+            )
             rows[f"{r.get('candidate')} / seed {r.get('seed')} ({r.get('run')})"] = row
     return ResultTable(
         title="Stability",

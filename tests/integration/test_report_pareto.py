@@ -252,6 +252,15 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
     whole = np.mean([d["mean"]["smape"] for d in own])
     assert cell["ratio"] == pytest.approx(np.mean(plastic) / whole, rel=1e-9)
     assert read(settings, job, "stability.png")[:8] == PNG
+    from jobapi.kinds import registered
+
+    summary = registered()["report.stability"].summary
+    assert summary is not None
+    table = summary(lambda name: read(settings, job, name))
+    assert table is not None
+    got = [row["second_half_drop"] for row in table.rows.values()]
+    assert got == [r["convergence"]["second_half_drop"] for r in doc["runs"]]
+    assert all(v is not None for v in got)
     failed = run_in_process(
         {"kind": "report.stability", "params": {"runs": [f"job:{jobs['score'].id}"]}}, settings
     )
