@@ -16,18 +16,14 @@ from __future__ import annotations
 import json
 import math
 import types
-from pathlib import Path
 from typing import Any
 
 import pytest
 
-from service.cli.batch import load_batch
-from service.cli.batch_local import run_steps_in_process
 from service.settings import Settings
-from storage.artifacts import ArtifactStore
 from storage.jobs import Job
+from tests.helpers.recipes import artifact, run_recipe
 
-RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "btf_eval.yaml"
 MODELS = ("lafortune", "neumip", "neumip8", "teacher", "c2f", "c2f_distill")
 
 
@@ -49,15 +45,11 @@ def shrink(spec: dict[str, Any]) -> dict[str, Any]:
 def chain(
     tmp_path_factory: pytest.TempPathFactory, mi: types.ModuleType
 ) -> tuple[Settings, dict[str, Job]]:
-    settings = Settings.from_env({}).with_(
-        data_dir=tmp_path_factory.mktemp("btf_eval") / "data", pool_processes=1
-    )
-    return settings, run_steps_in_process(load_batch(RECIPE).steps, settings, transform=shrink)
+    return run_recipe(tmp_path_factory, "btf_eval.yaml", shrink)
 
 
 def _json(settings: Settings, job: Job, name: str) -> Any:
-    (digest,) = [a.digest for a in job.artifacts if a.name == name]
-    return json.loads(ArtifactStore(settings.store_dir).read(digest))
+    return json.loads(artifact(settings, job, name))
 
 
 def test01_models_and_storage(chain: tuple[Settings, dict[str, Job]]) -> None:

@@ -22,20 +22,16 @@ from __future__ import annotations
 import json
 import math
 import types
-from pathlib import Path
 from typing import Any
 
 import pytest
 
-from service.cli.batch import load_batch
-from service.cli.batch_local import run_steps_in_process
 from service.settings import Settings
 from service.submission import run_in_process
-from storage.artifacts import ArtifactStore
 from storage.jobs import Job
 from tests.helpers.fabric_recipes import DATASET, TINY
+from tests.helpers.recipes import artifact, run_recipe
 
-RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "fabric_eval.yaml"
 SHRINK: dict[str, dict[str, Any]] = {
     "generate.fabric": DATASET,
     "train.fabric": {**TINY, "steps": 300},
@@ -52,11 +48,6 @@ def chain(
     tmp_path_factory: pytest.TempPathFactory, mi: types.ModuleType
 ) -> tuple[Settings, dict[str, Job]]:
     """Every step of the shrunk recipe, run in order (``mi``: LLVM Mitsuba checked first)."""
-    settings = Settings.from_env({}).with_(
-        data_dir=tmp_path_factory.mktemp("fabric_eval") / "data",
-        lease_seconds=30.0,
-        pool_processes=1,
-    )
 
     def shrink(spec: dict[str, Any]) -> dict[str, Any]:
         params = spec["params"]
@@ -65,12 +56,7 @@ def chain(
             params["spp"] = SPP.get(params["spp"], params["spp"])
         return spec
 
-    return settings, run_steps_in_process(load_batch(RECIPE).steps, settings, transform=shrink)
-
-
-def artifact(settings: Settings, job: Job, name: str) -> bytes:
-    (digest,) = [a.digest for a in job.artifacts if a.name == name]
-    return ArtifactStore(settings.store_dir).read(digest)
+    return run_recipe(tmp_path_factory, "fabric_eval.yaml", shrink, lease_seconds=30.0)
 
 
 def scores(settings: Settings, job: Job) -> dict[str, dict[str, float]]:

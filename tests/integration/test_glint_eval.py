@@ -21,20 +21,19 @@ from __future__ import annotations
 import json
 import math
 import types
-from pathlib import Path
+from collections.abc import Iterable
 from typing import Any
 
 import pytest
 
-from service.cli.batch import load_batch
-from service.cli.batch_local import run_steps_in_process
+from service.cli.batch import Step
 from service.results import RowFilter, select_rows
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job, JobStore
+from tests.helpers.recipes import run_recipe
 
-RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "glint_eval.yaml"
 TYPES = ("scratches", "structured")
 #: The ladder's steps all start with this; its rungs (score candidates) and their renders.
 LADDER = "brushed_metal"
@@ -68,15 +67,15 @@ def shrink(spec: dict[str, Any]) -> dict[str, Any]:
 def chain(
     tmp_path_factory: pytest.TempPathFactory, mi: types.ModuleType
 ) -> tuple[Settings, dict[str, Job]]:
-    settings = Settings.from_env({}).with_(
-        data_dir=tmp_path_factory.mktemp("glint_eval") / "data", pool_processes=1
-    )
-    batch = load_batch(RECIPE)
-    assert [s.name for s in batch.steps][:4] == [
-        "scratches", "scratches_tiny", "scratches_yan", "scratches_score",
-    ]  # fmt: skip
-    steps = [s for s in batch.steps if s.name.startswith((*TYPES, LADDER))]
-    return settings, run_steps_in_process(steps, settings, transform=shrink)
+
+    def keep(steps: Iterable[Step]) -> list[Step]:
+        steps = list(steps)
+        assert [s.name for s in steps][:4] == [
+            "scratches", "scratches_tiny", "scratches_yan", "scratches_score",
+        ]  # fmt: skip
+        return [s for s in steps if s.name.startswith((*TYPES, LADDER))]
+
+    return run_recipe(tmp_path_factory, "glint_eval.yaml", shrink, keep)
 
 
 def _read(settings: Settings, job: Job, name: str) -> Any:

@@ -16,20 +16,17 @@ from __future__ import annotations
 
 import json
 import types
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from service.cli.batch import load_batch
-from service.cli.batch_local import run_steps_in_process
 from service.settings import Settings
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
 from storage.jobs import Job
+from tests.helpers.recipes import artifact, run_recipe
 
-RECIPE = Path(__file__).resolve().parents[2] / "scripts" / "select_brdf.yaml"
 RUNGS = ["analytic", "hybrid16_d0", "hybrid16", "hybrid32_d0", "hybrid32", "table"]
 REF_SPP = 64
 
@@ -51,15 +48,7 @@ def shrink(spec: dict[str, Any]) -> dict[str, Any]:
 def chain(
     tmp_path_factory: pytest.TempPathFactory, mi: types.ModuleType
 ) -> tuple[Settings, dict[str, Job]]:
-    settings = Settings.from_env({}).with_(
-        data_dir=tmp_path_factory.mktemp("select_brdf") / "data", pool_processes=1
-    )
-    return settings, run_steps_in_process(load_batch(RECIPE).steps, settings, transform=shrink)
-
-
-def art(settings: Settings, job: Job, name: str) -> bytes:
-    (digest,) = [a.digest for a in job.artifacts if a.name == name]
-    return ArtifactStore(settings.store_dir).read(digest)
+    return run_recipe(tmp_path_factory, "select_brdf.yaml", shrink)
 
 
 def image(settings: Settings, job: Job, name: str) -> np.ndarray:
@@ -69,7 +58,7 @@ def image(settings: Settings, job: Job, name: str) -> np.ndarray:
 
 def test01_the_ladder_is_rendered_scored_and_chosen(chain: tuple[Settings, dict[str, Job]]) -> None:
     settings, jobs = chain
-    doc = json.loads(art(settings, jobs["select"], "select.json"))
+    doc = json.loads(artifact(settings, jobs["select"], "select.json"))
     (ladder,) = doc["ladders"]
     rungs = {r["candidate"]: r for r in ladder["rungs"]}
     assert set(rungs) == set(RUNGS)
@@ -81,7 +70,7 @@ def test01_the_ladder_is_rendered_scored_and_chosen(chain: tuple[Settings, dict[
     # The table rung is the reference material itself (other seeds, same spp): only noise.
     fitted = [rungs[n]["value"] for n in RUNGS if n != "table"]
     assert rungs["table"]["value"] < min(fitted), rungs
-    assert art(settings, jobs["select"], "select.png")[:4] == b"\x89PNG"
+    assert artifact(settings, jobs["select"], "select.png")[:4] == b"\x89PNG"
 
 
 def test02_depth_zero_rungs_differ_from_the_full_hybrid(
@@ -91,7 +80,7 @@ def test02_depth_zero_rungs_differ_from_the_full_hybrid(
     the same model at every bounce (the network's correction is visible even after 40
     steps), and a different score."""
     settings, jobs = chain
-    doc = json.loads(art(settings, jobs["select"], "select.json"))
+    doc = json.loads(artifact(settings, jobs["select"], "select.json"))
     rungs = {r["candidate"]: r for r in doc["ladders"][0]["rungs"]}
     for size in ("hybrid16", "hybrid32"):
         full = image(settings, jobs["select"], f"rung_{size}.exr")
