@@ -21,10 +21,13 @@ FRONT, DOMINATED, LINE = "#d95f02", "#999999", "#7570b3"
 
 
 def _short(ref: Any) -> str:
-    """A dataset ref shortened for a title: ``job:0123abcd…/image.exr``."""
+    """A dataset ref shortened for a title: ``job:0123abcd…/image.exr``,
+    ``sha256:0123abcd…``."""
     text = str(ref)
     if text.startswith("job:") and len(text) > 16:
         return f"{text[:12]}…{text[36:]}"
+    if text.startswith("sha256:") and len(text) > 20:
+        return f"{text[:15]}…"
     return text
 
 

@@ -20,7 +20,8 @@ Two modes, one of them per spec:
 
 Artifacts: ``select.json`` (``ladders``: rungs with value, cost, ``meets``; ``chosen`` and
 ``why``; in the scene mode also ``mode: "scene"``, the scene, reference and ladder as given,
-and per rung its spp, ``render_seconds``, integrator, material and image), ``select.png``
+and per rung its spp, ``render_seconds``, ``frame_seconds``, integrator, material and
+image), ``select.png``
 (per ladder, the rungs' values as bars by increasing cost, the target as a line, the chosen
 rung highlighted); in the scene mode also ``rung_<name>.exr`` / ``.png`` per rung,
 ``flip_<name>.png`` (the FLIP error map, for ``metric: flip``) and, for a rendered
@@ -198,7 +199,9 @@ def select_rows(src: RowSource) -> list[ResultRow]:
             costs: dict[str, Any] = {"render_seconds": number(r.get("render_seconds"))}
             spp = r.get("spp")
             costs["spp"] = int(spp) if isinstance(spp, int) else None
-            if cost not in ("render_seconds", "spp") and isinstance(cost, str):
+            # frame_seconds is the scene mode's own measure, not a result-row cost: it
+            # goes with the rung's config
+            if cost not in ("render_seconds", "spp", "frame_seconds") and isinstance(cost, str):
                 costs[cost] = number(r.get("cost"))
             out.append(
                 base_row(
@@ -208,7 +211,11 @@ def select_rows(src: RowSource) -> list[ResultRow]:
                     dataset=str(lad.get("dataset")),
                     scene=lad.get("scene"),
                     candidate=str(r.get("candidate")),
-                    config={"material": r.get("material"), "integrator": r.get("integrator")},
+                    config={
+                        "material": r.get("material"),
+                        "integrator": r.get("integrator"),
+                        "frame_seconds": number(r.get("frame_seconds")),
+                    },
                     **costs,
                 )
             )

@@ -4,7 +4,7 @@ and scored by the job, :mod:`evaluators.report.select_scene`)."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     Field,
@@ -22,8 +22,19 @@ from evaluators.score.params import IMAGE_METRICS
 from jobapi.params import JobRef, Ref, StrictModel
 
 RungName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
-#: Costs a scene-mode ladder may be chosen by: measured here, or its model job's.
-SCENE_COSTS = ("render_seconds", "spp", "ns_per_eval", "bytes_per_material", "bytes_per_network")
+#: Costs a scene-mode ladder may be chosen by: measured here (the first three), or its
+#: model job's (the rest). ``frame_seconds`` is the scene mode's own (see
+#: :mod:`evaluators.report.select_scene`); the others are result-row costs.
+SCENE_COSTS = (
+    "frame_seconds",
+    "render_seconds",
+    "spp",
+    "ns_per_eval",
+    "bytes_per_material",
+    "bytes_per_network",
+)
+#: The costs measured in the shard, not read from a model job.
+MEASURED_COSTS = SCENE_COSTS[:3]
 
 
 class ReferenceRender(StrictModel):
@@ -117,7 +128,11 @@ class SelectParams(StrictModel):
         description="The value a rung must reach "
         "(at most, for an error; at least, where higher is better).",
     )
-    cost: CostName = Field(default="render_seconds", description="What cheapest is measured in.")
+    cost: CostName | Literal["frame_seconds"] = Field(
+        default="render_seconds",
+        description="What cheapest is measured in: a result-row cost, or in the scene mode "
+        "frame_seconds (the rung's frame time with its kernels compiled).",
+    )
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
@@ -144,6 +159,11 @@ class SelectParams(StrictModel):
                 raise ValueError(
                     f"runs: give either runs (rungs already scored) or scene, reference and "
                     f"ladder (rendered here), not both; also given: {', '.join(given)}"
+                )
+            if self.cost == "frame_seconds":
+                raise ValueError(
+                    "cost: frame_seconds is measured by the scene mode's renders; runs carry "
+                    "render_seconds"
                 )
             return self
         missing = [k for k in ("scene", "reference", "ladder") if k not in given]
@@ -173,7 +193,7 @@ class SelectParams(StrictModel):
             raise ValueError(f"cost: {self.cost} is not measured here; one of {SCENE_COSTS}")
         base = self.scene.model_dump(mode="json", exclude={"material"})
         for i, rung in enumerate(self.ladder):
-            if self.cost in SCENE_COSTS[2:] and "model" not in rung.material:
+            if self.cost not in MEASURED_COSTS and "model" not in rung.material:
                 raise ValueError(
                     f"ladder.{i}.material: cost {self.cost} is read from a model's job; "
                     f'this rung is not a {{"model": "job:<id>/..."}} material'

@@ -15,8 +15,11 @@ jobs); the shard replays those records (:class:`ReplayContext`). Resolving here 
 a bad material before any render is queued.
 
 Cost: ``render_seconds`` is the shard's own wall time for that rung (scene load, kernel
-compilation, passes; measured in the shard, so it varies with the machine's load), ``spp``
-the rung's samples; ``ns_per_eval``, ``bytes_per_material`` and ``bytes_per_network`` come
+compilation, passes; measured in the shard, so it varies with the machine's load);
+``frame_seconds`` the rung's frame time once its kernels are compiled, what a renderer pays
+per frame: the passes after the first, per sample, times the rung's samples (the first pass
+compiles; a rung of one pass, below 2^22 paths, has only that pass, compile included);
+``spp`` the rung's samples; ``ns_per_eval``, ``bytes_per_material`` and ``bytes_per_network`` come
 from the result rows of the ``train.*`` job a ``{"model": "job:<id>/..."}`` rung names.
 """
 
@@ -170,7 +173,8 @@ class RungTask:
 def render_rung(task: RungTask) -> dict[str, Any]:
     """Render one rung (module level: the executor pickles it). Returns ``{"image":
     (H, W, 3) float32 linear RGB, "seconds": wall seconds of scene load and passes,
-    "integrator": name, "passes": [spp, ...]}``."""
+    "frame_seconds": the frame time with compiled kernels (see the module), "integrator":
+    name, "passes": [spp, ...]}``."""
     from evaluators.render.kind import render_passes
     from materials.backend import load_mitsuba
 
@@ -183,8 +187,15 @@ def render_rung(task: RungTask) -> dict[str, Any]:
         started = time.perf_counter()
         bsdf = resolve_material(params.material, replay, mi)  # type: ignore[arg-type]
         scene, scene_dict, _ = load_scene(params, bsdf, mi, passes[0])
-        image = render_passes(mi, scene, passes, list(task.seeds))
-        seconds = time.perf_counter() - started
+        marks = [time.perf_counter()]
+        image = render_passes(
+            mi,
+            scene,
+            passes,
+            list(task.seeds),
+            on_pass=lambda *_: marks.append(time.perf_counter()),
+        )
+        seconds = marks[-1] - started
     finally:
         replay.close()
     bad = int(np.count_nonzero(~np.isfinite(image)))
@@ -193,9 +204,21 @@ def render_rung(task: RungTask) -> dict[str, Any]:
     return {
         "image": image,
         "seconds": seconds,
+        "frame_seconds": frame_seconds(passes, marks),
         "integrator": str(scene_dict["integrator"]["type"]),
         "passes": passes,
     }
+
+
+def frame_seconds(passes: list[int], marks: list[float]) -> float:
+    """The frame time of a render of ``passes`` (spp each) with compiled kernels, from
+    ``marks``: the clock before the first pass and after each. The passes after the first
+    are timed per sample and scaled to all of them; with one pass, its own time."""
+    if len(marks) != len(passes) + 1:
+        raise ValueError(f"{len(marks)} marks for {len(passes)} passes")
+    if len(passes) == 1:
+        return marks[1] - marks[0]
+    return (marks[-1] - marks[1]) / sum(passes[1:]) * sum(passes)
 
 
 # -- scoring -----------------------------------------------------------------------------
@@ -322,8 +345,12 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
         if error_map is not None:
             ctx.put_bytes(f"flip_{rung.name}.png", write_png(None, magma(error_map)), "image/png")
         spp = rung.spp if rung.spp is not None else params.scene.spp
+        # a shard recorded before frame_seconds existed has only its wall time
+        frame = float(got.get("frame_seconds", got["seconds"]))
         if params.cost == "render_seconds":
             cost = float(got["seconds"])
+        elif params.cost == "frame_seconds":
+            cost = frame
         elif params.cost == "spp":
             cost = float(spp)
         else:
@@ -338,6 +365,7 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
                 "cost": cost,
                 "spp": spp,
                 "render_seconds": float(got["seconds"]),
+                "frame_seconds": frame,
                 "integrator": got["integrator"],
                 "material": rung.material,
             }
@@ -360,6 +388,7 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
         r.update(
             spp=p["spp"],
             render_seconds=p["render_seconds"],
+            frame_seconds=p["frame_seconds"],
             integrator=p["integrator"],
             material=p["material"],
             image=f"rung_{r['candidate']}.exr",

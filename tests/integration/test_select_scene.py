@@ -47,7 +47,7 @@ SPEC: dict[str, Any] = {
     },
 }
 #: Timings vary from run to run; everything else in select.json must not.
-TIMED = ("render_seconds",)
+TIMED = ("render_seconds", "frame_seconds")
 
 
 @pytest.fixture
@@ -97,6 +97,8 @@ def test01_chooses_the_cheapest_rung_meeting_the_recomputed_target(
         assert rung["value"] == pytest.approx(value, rel=1e-6, abs=1e-9)
         assert rung["meets"] == (value <= 0.1)
         assert rung["cost"] == rung["spp"]
+        # one pass each at 16x16: the frame time is that pass, inside the shard's wall time
+        assert 0 < rung["frame_seconds"] <= rung["render_seconds"]
     meeting = [r for r in lad["rungs"] if recomputed[r["candidate"]] <= 0.1]
     assert meeting, recomputed  # the ladder is built so that some rung meets the target
     cheapest = min(meeting, key=lambda r: (r["cost"], r["candidate"]))
@@ -203,6 +205,12 @@ BAD = [
     ({"reference": None}, "params", "reference: required"),
     ({"scene": {"scene": "sphere_env", "material": ROUGH}}, "params", "scene.material"),
     ({"cost": "ns_per_eval"}, "params", "ladder.0.material: cost ns_per_eval"),
+    (
+        {"runs": ["job:" + "0" * 32], "scene": None, "reference": None, "ladder": None,
+         "cost": "frame_seconds"},
+        "params",
+        "cost: frame_seconds is measured by the scene mode",
+    ),  # fmt: skip
     (
         {"ladder": [{"name": "a", "material": {"mitsuba": {"type": "diffuse"}}, "spp": 0}]},
         "params.ladder.0.spp",

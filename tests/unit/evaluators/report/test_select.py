@@ -3,6 +3,8 @@ cheapest that meets the target, for errors and for higher-is-better metrics."""
 
 from __future__ import annotations
 
+import pytest
+
 from evaluators.report.select import ladders
 
 
@@ -31,3 +33,15 @@ def test02_nothing_meets_and_higher_is_better() -> None:
     psnr = [("a", 20.0, 1.0), ("b", 35.0, 2.0), ("c", 40.0, 3.0)]
     (lad,) = ladders([panel(psnr, "psnr")], 30.0, lower=False)
     assert lad["chosen"] == "b" and ">= 30" in lad["why"]
+
+
+def test03_frame_seconds_leaves_out_the_compiling_first_pass() -> None:
+    """Hand-made clocks: four 16-spp passes, the first 5 s (compile + paths), the others 1 s
+    each: 3 s for 48 samples, so 4 s for the frame's 64. One pass: its own time."""
+    from evaluators.report.select_scene import frame_seconds
+
+    assert frame_seconds([16, 16, 16, 16], [10.0, 15.0, 16.0, 17.0, 18.0]) == pytest.approx(4.0)
+    assert frame_seconds([8, 4], [0.0, 3.0, 3.5]) == pytest.approx(0.5 / 4 * 12)
+    assert frame_seconds([7], [1.0, 3.5]) == pytest.approx(2.5)
+    with pytest.raises(ValueError, match="2 marks for 3 passes"):
+        frame_seconds([1, 1, 1], [0.0, 1.0])
