@@ -206,8 +206,13 @@ BAD = [
     ({"scene": {"scene": "sphere_env", "material": ROUGH}}, "params", "scene.material"),
     ({"cost": "ns_per_eval"}, "params", "ladder.0.material: cost ns_per_eval"),
     (
-        {"runs": ["job:" + "0" * 32], "scene": None, "reference": None, "ladder": None,
-         "cost": "frame_seconds"},
+        {
+            "runs": ["job:" + "0" * 32],
+            "scene": None,
+            "reference": None,
+            "ladder": None,
+            "cost": "frame_seconds",
+        },
         "params",
         "cost: frame_seconds is measured by the scene mode",
     ),  # fmt: skip
