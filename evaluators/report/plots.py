@@ -142,6 +142,11 @@ def stability_png(families: list[dict[str, Any]], configs: list[dict[str, Any]])
             a.set_yticks(range(len(cands)), labels, fontsize=7)
             a.set_xticks(range(len(fams)), fams, fontsize=7, rotation=20, ha="right")
             metric = mine[0]["metric"]
-            a.set_title(f"{kind}: {metric} per family / whole-set {metric}", fontsize=8)
+            title = (
+                f"renders (score runs): {metric} per run / the method's mean over them"
+                if kind == "score"
+                else f"{kind}: {metric} per family / whole-set {metric}"
+            )
+            a.set_title(title, fontsize=8)
 
     return figure_png(draw, (width, sum(heights) + 0.6))

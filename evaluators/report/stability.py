@@ -22,6 +22,13 @@ metal; ``train.fabric``: weave pattern and footprint size, the tiny footprints b
 of a tile; ``train.btf``: strongly shadowed and near-specular slices,
 :mod:`models.btf.cases`): the mean error and its ratio to the model's whole-set error.
 
+``score`` runs (renders scored against a reference) add render-level failure families: each
+is a family of its own, labelled by ``labels`` (default: the job's name), and each of its
+candidates' ``render_metric`` (FLIP by default) is ratioed to that candidate's mean over the
+score runs listed. So the fabric recipe's seen and unseen scores give "unseen patterns" per
+method, and the glint recipe's per-type scores "macroscopic structure" per example type.
+They have no training curve and no model checks.
+
 Artifacts: ``stability.json`` (``runs``, ``configs``, ``families``, settings) and
 ``stability.png``, the heat table of those ratios: models x families, one panel per kind.
 Deterministic per spec (no timings).
@@ -29,11 +36,12 @@ Deterministic per spec (no timings).
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-from pydantic import Field
+from pydantic import Field, StringConstraints, model_validator
 
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register, registered
@@ -62,12 +70,16 @@ class ReportStabilityParams(StrictModel):
     =================  ====================  ========  =====================================
     name               type                  default   meaning
     =================  ====================  ========  =====================================
-    ``runs``           list of ``job:<id>``  required  train.brdf / train.fabric / train.btf
+    ``runs``           list of ``job:<id>``  required  train.brdf / train.fabric / train.btf,
+                                                       and score jobs (render families)
     ``tolerance``      float                 0.1       the loss changing by less than this
                                                        fraction over the second half of
                                                        training: flattened
     ``model_checks``   bool                  true      NaN/Inf, energy, reciprocity of
                                                        train.brdf models
+    ``labels``         list of str           names     per run, its family label (score
+                                                       runs); as many as ``runs``
+    ``render_metric``  str                   flip      the error of score runs
     =================  ====================  ========  =====================================
     """
 
@@ -83,6 +95,22 @@ class ReportStabilityParams(StrictModel):
     model_checks: bool = Field(
         default=True, description="Check train.brdf models at extreme inputs."
     )
+    labels: list[Annotated[str, StringConstraints(min_length=1, max_length=64)]] | None = Field(
+        default=None,
+        description="Per run, a short label: a score run's family in the heat table "
+        "(default: the job's name).",
+    )
+    render_metric: str = Field(
+        default="flip", min_length=1, max_length=64, description="The error of score runs."
+    )
+
+    @model_validator(mode="after")
+    def _labels_match(self) -> ReportStabilityParams:
+        if self.labels is not None and len(self.labels) != len(self.runs):
+            raise ValueError(
+                f"labels: {len(self.labels)} labels for {len(self.runs)} runs; give one per run"
+            )
+        return self
 
 
 def loss_curve(kind: str, curves: Any) -> list[float | None]:
@@ -127,17 +155,43 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
 
     if len(set(params.runs)) != len(params.runs):
         raise JobFailed("runs: a job is listed twice")
-    runs, all_rows = [], []
+    runs: list[dict[str, Any]] = []
+    all_rows: list[ResultRow] = []
+    score_rows: list[ResultRow] = []
     for i, ref in enumerate(params.runs):
         job = ctx.input_job(job_id_of(ref), f"runs.{i}")
         kind = registered().get(job.kind)
-        if job.kind not in ERRORS or kind is None or kind.rows is None:
+        if (job.kind not in ERRORS and job.kind != "score") or kind is None or kind.rows is None:
             raise JobFailed(
                 f"runs.{i}: job {job.id} is a {job.kind} job; report.stability "
-                f"checks {', '.join(ERRORS)}"
+                f"checks {', '.join(ERRORS)} and score"
             )
         src = StoreSource(job, ctx.jobs, ctx.store)
         rows = kind.rows(src)
+        label = params.labels[i] if params.labels else (job.name or job.id)
+        if job.kind == "score":
+            scored = render_rows(rows, params.render_metric, label)
+            if not scored:
+                raise JobFailed(
+                    f"runs.{i}: score job {job.id} has no {params.render_metric} of a "
+                    "candidate's whole image"
+                )
+            score_rows += scored
+            runs.append(
+                {
+                    "run": ref,
+                    "kind": "score",
+                    "label": label,
+                    "candidate": None,
+                    "seed": job.seed,
+                    "metric": params.render_metric,
+                    "error": None,
+                    "candidates": {r.candidate: r.value for r in scored},
+                    "convergence": {"flattened": None, "why": "a score job has no training"},
+                }
+            )
+            ctx.progress(0.9 * (i + 1) / len(params.runs), f"checked {i + 1}/{len(params.runs)}")
+            continue
         all_rows += rows
         metric, error, cand = headline(job.kind, rows)
         run: dict[str, Any] = {
@@ -162,8 +216,8 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
         ctx.progress(0.9 * (i + 1) / len(params.runs), f"checked {i + 1}/{len(params.runs)}")
     from evaluators.report.plots import stability_png
 
-    found = configs(runs)
-    fams = families(all_rows)
+    found = configs([r for r in runs if r["kind"] != "score"])
+    fams = families(all_rows) + render_families(score_rows)
     ctx.put_json(
         "stability.json",
         {
@@ -259,6 +313,43 @@ def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
     return out
 
 
+def render_rows(rows: Sequence[ResultRow], metric: str, label: str) -> list[ResultRow]:
+    """A score job's whole-image ``metric`` rows, one per candidate, as family ``label``."""
+    out = []
+    for r in rows:
+        if r.metric == metric and r.material in (None, "mean") and r.candidate is not None:
+            out.append(dataclasses.replace(r, family=label))
+    return out
+
+
+def render_families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
+    """Per (candidate, score run's label): the candidate's metric there and its ratio to the
+    candidate's mean over all the score runs (``whole``); the cells of the score panel."""
+    by_cand: dict[Any, list[float]] = {}
+    for r in rows:
+        by_cand.setdefault(r.candidate, []).append(r.value)
+    acc: dict[tuple[Any, str], list[float]] = {}
+    for r in rows:
+        acc.setdefault((r.candidate, str(r.family)), []).append(r.value)
+    out = []
+    for (cand, fam), v in acc.items():
+        mean, whole = statistics.fmean(v), statistics.fmean(by_cand[cand])
+        out.append(
+            {
+                "kind": "score",
+                "candidate": cand,
+                "family": fam,
+                "metric": rows[0].metric,
+                "mean": mean,
+                "worst": max(v),
+                "n": len(v),
+                "whole": whole,
+                "ratio": mean / whole if whole else None,
+            }
+        )
+    return out
+
+
 #: Columns of the result table, one row per run.
 COLUMNS = (
     "seed",
@@ -285,7 +376,8 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
             row.update(
                 flattened=conv.get("flattened"), second_half_drop=conv.get("second_half_drop")
             )
-            rows[f"{r.get('candidate')} / seed {r.get('seed')} ({r.get('run')})"] = row
+            who = r.get("label") if r.get("kind") == "score" else r.get("candidate")
+            rows[f"{who} / seed {r.get('seed')} ({r.get('run')})"] = row
     return ResultTable(
         title="Stability",
         label_header="Run",
@@ -302,9 +394,10 @@ register(
         runner=run_stability,
         description="Where trained models fail: seed spread and worst seed, errors per "
         "family and failure case (BRDF families; fabric patterns and tiny footprints; BTF "
-        "shadowing and specular slices) against each model's whole-set error, drawn as a "
-        "heat table, whether each training loss had flattened, and for BRDF models NaN/Inf "
-        "at extreme inputs, directional albedo above 1 and reciprocity error.",
+        "shadowing and specular slices; and, from score jobs, each method's image error per "
+        "scene, e.g. unseen patterns or glint example types) against each model's average, "
+        "drawn as a heat table, whether each training loss had flattened, and for BRDF "
+        "models NaN/Inf at extreme inputs, directional albedo above 1 and reciprocity error.",
         artifacts=("stability.json", "stability.png"),
         smoke={"runs": ["step:train.brdf"]},
         summary=summarize,

@@ -162,7 +162,8 @@ def test04_stability_of_the_network_by_pattern_and_footprint(
     chain: tuple[Settings, dict[str, Job]],
 ) -> None:
     """The recipe's report.stability over its one network: a cell per weave pattern and
-    per footprint-size case, each from the model's own metrics.json."""
+    per footprint-size case, each from the model's own metrics.json; and a cell per method
+    and material (seen, unseen) from the score steps."""
     settings, jobs = chain
     doc = json.loads(artifact(settings, jobs["stability"], "stability.json"))
     metrics = json.loads(artifact(settings, jobs["model"], "metrics.json"))
@@ -174,3 +175,11 @@ def test04_stability_of_the_network_by_pattern_and_footprint(
     for row in metrics["materials"]:
         assert cells[("network", row["pattern"])]["mean"] == pytest.approx(row["rgb"]["rel"])
     assert artifact(settings, jobs["stability"], "stability.png")[:4] == b"\x89PNG"
+    # The seen and unseen scores: each method's FLIP on each, ratioed to its mean of the two.
+    seen, unseen = scores(settings, jobs["seen_scores"]), scores(settings, jobs["unseen_scores"])
+    for method in seen:
+        pair = (seen[method]["flip"], unseen[method]["flip"])
+        for label, value in zip(("seen", "unseen"), pair, strict=True):
+            cell = cells[(method, label)]
+            assert cell["kind"] == "score" and cell["mean"] == pytest.approx(value, rel=1e-9)
+            assert cell["ratio"] == pytest.approx(2 * value / sum(pair), rel=1e-9)

@@ -18,6 +18,7 @@ in the result rows against the generate jobs' own ``stats.json`` and the export'
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import types
@@ -73,7 +74,12 @@ def chain(
         assert [s.name for s in steps][:4] == [
             "scratches", "scratches_tiny", "scratches_yan", "scratches_score",
         ]  # fmt: skip
-        return [s for s in steps if s.name.startswith((*TYPES, LADDER))]
+        kept = [s for s in steps if s.name.startswith((*TYPES, LADDER))]
+        # the recipe's stability step over the kept types' scores only
+        (stab,) = [s for s in steps if s.name == "stability"]
+        params = {**stab.spec["params"], "runs": [f"step:{t}_score" for t in TYPES],
+                  "labels": list(TYPES)}  # fmt: skip
+        return [*kept, dataclasses.replace(stab, spec={**stab.spec, "params": params})]
 
     return run_recipe(tmp_path_factory, "glint_eval.yaml", shrink, keep)
 
@@ -235,3 +241,21 @@ def test05_select_the_cheapest_rung_within_the_target(
     (ladder,) = _read(settings, job, "select.json")["ladders"]
     assert ladder["chosen"] == _cheapest(costs, target) is not None
     assert [r["meets"] for r in ladder["rungs"]].count(True) == 2
+
+
+def test06_stability_per_example_type(chain: tuple[Settings, dict[str, Job]]) -> None:
+    """The recipe's report.stability over the per-type scores: the tiny model's FLIP per
+    example type (a family each), ratioed to its mean over the types, from the scores' own
+    metrics.json."""
+    settings, jobs = chain
+    doc = _read(settings, jobs["stability"], "stability.json")
+    flips = {t: _metrics(settings, jobs[f"{t}_score"])["flip"] for t in TYPES}
+    mean = sum(flips.values()) / len(flips)
+    cells = {f["family"]: f for f in doc["families"]}
+    assert set(cells) == set(TYPES)
+    for t, cell in cells.items():
+        assert cell["kind"] == "score" and cell["candidate"] == "tiny" and cell["metric"] == "flip"
+        assert cell["mean"] == pytest.approx(flips[t], rel=1e-9)
+        assert cell["ratio"] == pytest.approx(flips[t] / mean, rel=1e-9)
+    assert [r["label"] for r in doc["runs"]] == list(TYPES)
+    assert all(r["convergence"]["flattened"] is None for r in doc["runs"])

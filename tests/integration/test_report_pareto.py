@@ -261,10 +261,30 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
     got = [row["second_half_drop"] for row in table.rows.values()]
     assert got == [r["convergence"]["second_half_drop"] for r in doc["runs"]]
     assert all(v is not None for v in got)
+    # A score job is a render family of its own: one cell per candidate, its FLIP, ratio 1
+    # (its mean over the one score run listed).
+    flips = read(settings, jobs["score"], "metrics.json")["metrics"]
+    both = run_in_process(
+        {"kind": "report.stability",
+         "params": {"runs": [f"job:{jobs['a0'].id}", f"job:{jobs['score'].id}"],
+                    "labels": ["a0", "sphere"]}}, settings)  # fmt: skip
+    assert both.state == "succeeded", both.error
+    cells = [f for f in read(settings, both, "stability.json")["families"] if f["kind"] == "score"]
+    assert {f["candidate"]: f["mean"] for f in cells} == {
+        k: pytest.approx(v["flip"], rel=1e-12) for k, v in flips.items()
+    }
+    assert all(f["family"] == "sphere" and f["ratio"] == pytest.approx(1.0) for f in cells)
     failed = run_in_process(
-        {"kind": "report.stability", "params": {"runs": [f"job:{jobs['score'].id}"]}}, settings
+        {"kind": "report.stability", "params": {"runs": [f"job:{jobs['gt'].id}"]}}, settings
     )
     assert failed.state == "failed" and "report.stability checks" in str(failed.error)
+    from jobapi.errors import SpecError
+
+    with pytest.raises(SpecError, match="labels: 1 labels for 2 runs"):
+        run_in_process(
+            {"kind": "report.stability",
+             "params": {"runs": [f"job:{jobs['a0'].id}", f"job:{jobs['a1'].id}"],
+                        "labels": ["x"]}}, settings)  # fmt: skip
 
 
 def test05_select_the_cheapest_render_that_meets_a_target(
