@@ -9,9 +9,9 @@ Runs, in-process (a step whose spec already ran in ``--data-dir`` is reused, so 
   are left out: they alone take most of the recipe's 75 minutes), then ``report.stability``
   over them: relative L1 on the strongly shadowed slices (light 50+ degrees from the
   normal), the near-specular ones (half vector within 12 degrees of it) and the rest;
-- **fabric**: the recipe's dataset and network (6,000 steps), then ``report.stability``:
-  held-out RGB error per weave pattern and footprint size, for the network and the
-  per-material mean baseline.
+- **fabric**: the recipe's dataset and network (6,000 steps) and its seen / unseen renders
+  and scores (Sec. 6), then ``report.stability``: the network's held-out RGB error per weave
+  pattern and footprint size, and each method's FLIP on the seen and the unseen material.
 
 Prints, per kind, the heat table as markdown (a cell: the family's error and its ratio to the
 model's whole-set error; above 1, the model does worse there than on average) and each run's
@@ -39,7 +39,15 @@ SCRIPTS = Path(__file__).resolve().parent.parent / "scripts"
 #: Per family: the recipe and the steps of it that run here (the stability step last).
 PLANS = {
     "btf": (SCRIPTS / "btf_eval.yaml", ("leather", "lafortune", "neumip", "neumip8", "c2f")),
-    "fabric": (SCRIPTS / "fabric_eval.yaml", ("dataset", "model")),
+    "fabric": (
+        SCRIPTS / "fabric_eval.yaml",
+        ("dataset", "model")
+        + tuple(
+            f"{m}_{r}"
+            for m in ("seen", "unseen")
+            for r in ("gt", "mc1", "mc_eq", "net16", "net1", "scores")
+        ),
+    ),  # fmt: skip
 }
 
 
@@ -52,10 +60,15 @@ def run_family(family: str, data_dir: Path, btf_epochs: int) -> tuple[Any, dict[
     recipe, names = PLANS[family]
     steps = {s.name: s for s in load_batch(recipe).steps}
     kept = [steps[n] for n in names]
-    trained = [f"step:{s.name}" for s in kept if s.kind.startswith("train.")]
+    # the recipe's stability step over the runs among the kept steps, with their labels
     stab = steps["stability"]
-    spec = {**stab.spec, "params": {**stab.spec["params"], "runs": trained}}
-    kept.append(dataclasses.replace(stab, spec=spec))
+    runs = stab.spec["params"]["runs"]
+    labels = stab.spec["params"].get("labels") or [None] * len(runs)
+    pairs = [(r, lab) for r, lab in zip(runs, labels, strict=True) if r[len("step:") :] in names]
+    params = {**stab.spec["params"], "runs": [r for r, _ in pairs]}
+    if stab.spec["params"].get("labels"):
+        params["labels"] = [lab for _, lab in pairs]
+    kept.append(dataclasses.replace(stab, spec={**stab.spec, "params": params}))
 
     def transform(spec: dict[str, Any]) -> dict[str, Any]:
         params = spec["params"]
@@ -88,8 +101,10 @@ def print_tables(doc: dict[str, Any]) -> None:
         cands = list(dict.fromkeys(str(f["candidate"]) for f in cells))
         fams = list(dict.fromkeys(f["family"] for f in cells))
         metric = cells[0]["metric"]
-        print(f"\n{kind}: {metric} per family (ratio to the model's whole-set {metric})\n")
-        print("| model | whole set | " + " | ".join(fams) + " |")
+        base = "its mean over the scores" if kind == "score" else f"the model's whole-set {metric}"
+        print(f"\n{kind}: {metric} per family (ratio to {base})\n")
+        head = "mean over the scores" if kind == "score" else "whole set"
+        print(f"| model | {head} | " + " | ".join(fams) + " |")
         print("| --- | --- | " + " | ".join("---" for _ in fams) + " |")
         for cand in cands:
             mine = {f["family"]: f for f in cells if str(f["candidate"]) == cand}
@@ -104,6 +119,8 @@ def print_tables(doc: dict[str, Any]) -> None:
     print("\n| run | candidate | error | flattened | loss change, 2nd half |")
     print("| --- | --- | --- | --- | --- |")
     for r in doc["runs"]:
+        if r["kind"] == "score":
+            continue  # a render family: no training, its cells are in the table above
         conv = r["convergence"]
         drop = conv.get("second_half_drop")
         print(f"| {r['run']} | {r['candidate']} | {r['error']:.4g} | {conv.get('flattened')} | "
