@@ -293,24 +293,30 @@ def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
             acc.setdefault((r.kind, r.candidate, r.family), []).append(r.value)
         elif r.material in (None, "mean"):
             whole.setdefault((r.kind, r.candidate), []).append(r.value)
-    out = []
-    for (k, c, f), v in acc.items():
-        mean = statistics.fmean(v)
-        base = statistics.fmean(whole[(k, c)]) if whole.get((k, c)) else None
-        out.append(
-            {
-                "kind": k,
-                "candidate": c,
-                "family": f,
-                "metric": family_metric(k),
-                "mean": mean,
-                "worst": max(v),
-                "n": len(v),
-                "whole": base,
-                "ratio": mean / base if base else None,
-            }
-        )
-    return out
+    return [
+        _cell(k, c, f, family_metric(k), v, whole.get((k, c)) or None)
+        for (k, c, f), v in acc.items()
+    ]
+
+
+def _cell(
+    kind: str, cand: Any, family: str, metric: str, values: list[float], base: list[float] | None
+) -> dict[str, Any]:
+    """One heat-table cell: the family's mean and worst ``values``, and the mean over the
+    mean of ``base`` (the model's whole-set values; ``None``: no ratio)."""
+    mean = statistics.fmean(values)
+    whole = statistics.fmean(base) if base else None
+    return {
+        "kind": kind,
+        "candidate": cand,
+        "family": family,
+        "metric": metric,
+        "mean": mean,
+        "worst": max(values),
+        "n": len(values),
+        "whole": whole,
+        "ratio": mean / whole if whole else None,
+    }
 
 
 def render_rows(rows: Sequence[ResultRow], metric: str, label: str) -> list[ResultRow]:
@@ -331,23 +337,7 @@ def render_families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
     acc: dict[tuple[Any, str], list[float]] = {}
     for r in rows:
         acc.setdefault((r.candidate, str(r.family)), []).append(r.value)
-    out = []
-    for (cand, fam), v in acc.items():
-        mean, whole = statistics.fmean(v), statistics.fmean(by_cand[cand])
-        out.append(
-            {
-                "kind": "score",
-                "candidate": cand,
-                "family": fam,
-                "metric": rows[0].metric,
-                "mean": mean,
-                "worst": max(v),
-                "n": len(v),
-                "whole": whole,
-                "ratio": mean / whole if whole else None,
-            }
-        )
-    return out
+    return [_cell("score", c, f, rows[0].metric, v, by_cand[c]) for (c, f), v in acc.items()]
 
 
 #: Columns of the result table, one row per run.
