@@ -9,6 +9,9 @@ Runs, in-process (a step whose spec already ran in ``--data-dir`` is reused, so 
   are left out: they alone take most of the recipe's 75 minutes), then ``report.stability``
   over them: relative L1 on the strongly shadowed slices (light 50+ degrees from the
   normal), the near-specular ones (half vector within 12 degrees of it) and the rest;
+- **glint**: the recipe's six example types, each its tiny-example render against the Yan
+  reference (Table 3's scores), then ``report.stability``: the tiny model's FLIP per type
+  against its mean over the types;
 - **fabric**: the recipe's dataset and network (6,000 steps) and its seen / unseen renders
   and scores (Sec. 6), then ``report.stability``: the network's held-out RGB error per weave
   pattern and footprint size, and each method's FLIP on the seen and the unseen material.
@@ -19,7 +22,7 @@ convergence verdict, and writes ``stability.png`` of each ``report.stability`` j
 ``--png-dir``.
 
 Run: ``.venv/bin/python benchmarks/bench_stability.py [--data-dir DIR] [--btf-epochs 2]
-[--only btf|fabric] [--png-dir .]``
+[--only btf|fabric|glint] [--png-dir .]``
 """
 
 from __future__ import annotations
@@ -39,6 +42,21 @@ SCRIPTS = Path(__file__).resolve().parent.parent / "scripts"
 #: Per family: the recipe and the steps of it that run here (the stability step last).
 PLANS = {
     "btf": (SCRIPTS / "btf_eval.yaml", ("leather", "lafortune", "neumip", "neumip8", "c2f")),
+    "glint": (
+        SCRIPTS / "glint_eval.yaml",
+        tuple(
+            f"{t}{part}"
+            for t in (
+                "scratches",
+                "isotropic_noise",
+                "anisotropic_noise",
+                "brushed_metal",
+                "leather",
+                "structured",
+            )
+            for part in ("", "_tiny", "_yan", "_score")
+        ),
+    ),
     "fabric": (
         SCRIPTS / "fabric_eval.yaml",
         ("dataset", "model")
