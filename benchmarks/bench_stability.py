@@ -134,11 +134,11 @@ def print_tables(doc: dict[str, Any]) -> None:
                 for f in fams
             ]
             print(f"| {cand} | {whole:.4g} | " + " | ".join(row) + " |")
-    print("\n| run | candidate | error | flattened | loss change, 2nd half |")
-    print("| --- | --- | --- | --- | --- |")
-    for r in doc["runs"]:
-        if r["kind"] == "score":
-            continue  # a render family: no training, its cells are in the table above
+    trained = [r for r in doc["runs"] if r["kind"] != "score"]  # score runs: no training
+    if trained:
+        print("\n| run | candidate | error | flattened | loss change, 2nd half |")
+        print("| --- | --- | --- | --- | --- |")
+    for r in trained:
         conv = r["convergence"]
         drop = conv.get("second_half_drop")
         print(f"| {r['run']} | {r['candidate']} | {r['error']:.4g} | {conv.get('flattened')} | "
