@@ -38,24 +38,15 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from materials.glints.examples import TYPES as GLINT_TYPES  # noqa: E402
+
 SCRIPTS = Path(__file__).resolve().parent.parent / "scripts"
 #: Per family: the recipe and the steps of it that run here (the stability step last).
 PLANS = {
     "btf": (SCRIPTS / "btf_eval.yaml", ("leather", "lafortune", "neumip", "neumip8", "c2f")),
     "glint": (
         SCRIPTS / "glint_eval.yaml",
-        tuple(
-            f"{t}{part}"
-            for t in (
-                "scratches",
-                "isotropic_noise",
-                "anisotropic_noise",
-                "brushed_metal",
-                "leather",
-                "structured",
-            )
-            for part in ("", "_tiny", "_yan", "_score")
-        ),
+        tuple(f"{t}{part}" for t in GLINT_TYPES for part in ("", "_tiny", "_yan", "_score")),
     ),
     "fabric": (
         SCRIPTS / "fabric_eval.yaml",
