@@ -26,7 +26,7 @@ of a tile; ``train.btf``: strongly shadowed and near-specular slices,
 is a family of its own, labelled by ``labels`` (default: the job's name), and each of its
 candidates' ``render_metric`` (FLIP by default) is ratioed to that candidate's mean over the
 score runs listed. So the fabric recipe's seen and unseen scores give "unseen patterns" per
-method, and the glint recipe's per-type scores "macroscopic structure" per example type.
+method, and the glint recipe's per-type scores the tiny model's error per example type.
 They have no training curve and no model checks.
 
 Artifacts: ``stability.json`` (``runs``, ``configs``, ``families``, settings) and
@@ -302,8 +302,8 @@ def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
 def _cell(
     kind: str, cand: Any, family: str, metric: str, values: list[float], base: list[float] | None
 ) -> dict[str, Any]:
-    """One heat-table cell: the family's mean and worst ``values``, and the mean over the
-    mean of ``base`` (the model's whole-set values; ``None``: no ratio)."""
+    """One heat-table cell: the family's mean and worst ``values``, and ``ratio``, that mean
+    over the mean of ``base`` (the model's whole-set values; ``None``: no ratio)."""
     mean = statistics.fmean(values)
     whole = statistics.fmean(base) if base else None
     return {

@@ -115,23 +115,16 @@ def _dirs(data: BtfDataset, i: int) -> tuple[torch.Tensor, torch.Tensor]:
 @torch.no_grad()
 def mean_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> float:
     """Mean absolute error of ``net`` over the slices ``indices`` (texel centres, all three
-    channels)."""
+    channels): the mean of :func:`slice_l1` (slices are of equal size)."""
     if len(indices) == 0:
         return float("nan")
-    total, count = 0.0, 0
-    for i, rgb in data.iter_slices(indices):
-        wi, wo = _dirs(data, i)
-        pred, _ = slice_forward(net, wi, wo)
-        total += float(torch.abs(pred - torch.from_numpy(rgb).reshape(-1, 3)).sum())
-        count += rgb.size
-    return total / count
+    return float(np.mean(slice_l1(net, data, indices)))
 
 
 @torch.no_grad()
 def slice_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> np.ndarray:
     """Mean absolute error of ``net`` on each slice of ``indices`` (``(len(indices),)``
-    float64, in the order of ``indices``); their mean is :func:`mean_l1` (slices are of
-    equal size)."""
+    float64, in the order of ``indices``)."""
     out = np.full(len(indices), np.nan)
     where = {int(i): k for k, i in enumerate(indices)}
     for i, rgb in data.iter_slices(indices):
