@@ -118,17 +118,37 @@ def test03_zero_and_constant_data_stay_finite() -> None:
 def test04_deterministic_and_independent_of_chunking(
     synthetic: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, FitResult],
 ) -> None:
-    """Reference: the fit itself. No randomness, so a second run gives the same bytes; each
-    texel is fitted on its own, so chunks of 3 texels give the same result (within 1e-12)."""
+    """Reference: the fit itself. No randomness, so a second run gives the same bytes. Each
+    texel is fitted on its own, so chunks of 3 texels fit the same model; only round-off may
+    differ, because chunking changes how BLAS batches the sums (Intel and AMD differ here).
+
+    Tolerances, from what the fit returns: parameters are stored as float32, so the model a
+    texel gets is defined to float32 resolution (eps32 = 1.19e-7) of its largest parameter;
+    the off lobes' matrices (no colour) are not fixed by the data, only by the damping, so
+    round-off moves them most, and the bound is per texel, not per entry. The model's values
+    and the per-texel L1 (a mean of ``|f - y|``, so it moves by at most ``max |df|``) are held
+    to eps32 of the data's largest value. Measured differences are 1e-11 of these bounds'
+    scale (AMD EPYC, chunks of 1 and 3); a chunking bug (texels mixed up, a chunk refitted
+    from the wrong start) moves them by O(1)."""
     _, values, wi, wo, result = synthetic
     fractions: list[float] = []
     again = fit_lafortune(values, wi, wo, progress=fractions.append)
     assert again.params.tobytes() == result.params.tobytes()
     assert again.l1.tobytes() == result.l1.tobytes()
     assert fractions[-1] == 1.0 and fractions == sorted(fractions) and len(fractions) > 40
-    chunked = fit_lafortune(values, wi, wo, chunk=3)
-    np.testing.assert_allclose(chunked.params, result.params, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(chunked.l1, result.l1, rtol=0, atol=1e-12)
+    eps32 = float(np.finfo(np.float32).eps)
+    scale = float(np.abs(values).max())
+    for chunk in (1, 3):
+        chunked = fit_lafortune(values, wi, wo, chunk=chunk)
+        per_texel = eps32 * np.abs(result.params).max(axis=1, keepdims=True)
+        assert np.all(np.abs(chunked.params - result.params) <= per_texel), chunk
+        np.testing.assert_allclose(
+            lafortune_eval(chunked.params, wi, wo),
+            lafortune_eval(result.params, wi, wo),
+            rtol=0,
+            atol=eps32 * scale,
+        )
+        np.testing.assert_allclose(chunked.l1, result.l1, rtol=0, atol=eps32 * scale)
 
 
 def _model_torch(p: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
