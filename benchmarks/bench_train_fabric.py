@@ -15,14 +15,17 @@ Two measurements, printed as table rows:
    disk (``~/.drjit``), so a rerun with the same weights shows compile times near 0.
 2. **Training, small preset**: ``generate.fabric`` ``small`` (seed 0; 3 materials x 1280
    queries) then ``train.fabric`` ``small`` (3000 SGD steps of 512 queries, encoder width
-   32 at 64 px, decoder 32), both through the registry as ``matforge run`` does, in a
-   temporary data directory. Wall time of the training job (loading, fitting, scoring,
-   artifacts; training on one thread) and its held-out metrics. ``--skip-train`` omits it.
+   32 at 64 px, decoder 32) once per ``--seeds`` (default 0 1 2), both through the registry
+   as ``matforge run`` does, in a temporary data directory. Wall time of each training job
+   (loading, fitting, scoring, artifacts; training on one thread), its held-out metrics, and
+   the claim the test suite leaves to this benchmark (a tiny run's outcome is not portable
+   across CPUs): the network beats the per-material mean, as network / baseline ratios with
+   their spread over the seeds. ``--skip-train`` omits it.
 
 The machine is shared with other work: the load average is printed with each table.
 
 Run: ``.venv/bin/python benchmarks/bench_train_fabric.py [--widths 32 64] [--batch 262144]
-[--repeats 7] [--threads 2] [--skip-train]``
+[--repeats 7] [--threads 2] [--seeds 0 1 2] [--skip-train]``
 """
 
 from __future__ import annotations
@@ -113,7 +116,9 @@ def decoder_rows(widths: list[int], batch: int, repeats: int, threads: int) -> l
     return rows
 
 
-def train_row(data_dir: Path | None) -> dict[str, Any]:
+def train_rows(data_dir: Path | None, seeds: list[int]) -> list[dict[str, Any]]:
+    """``train.fabric`` ``small`` once per training seed on one ``generate.fabric`` ``small``
+    dataset (seed 0): wall time, job message and held-out ``mean`` metrics per seed."""
     from service.settings import Settings
     from service.submission import run_in_process
     from storage.artifacts import ArtifactStore
@@ -125,16 +130,38 @@ def train_row(data_dir: Path | None) -> dict[str, Any]:
         gen = run_in_process(gen_spec, settings)
         if gen.state != "succeeded":
             sys.exit(f"generate.fabric failed: {gen.error}")
-        spec = {"kind": "train.fabric", "seed": 0,
-                "params": {"dataset": f"job:{gen.id}", "preset": "small"}}  # fmt: skip
-        start = time.perf_counter()
-        job = run_in_process(spec, settings)
-        wall = time.perf_counter() - start
-        if job.state != "succeeded":
-            sys.exit(f"train.fabric failed: {job.error}")
-        (digest,) = [a.digest for a in job.artifacts if a.name == "metrics.json"]
-        mean = json.loads(ArtifactStore(settings.store_dir).read(digest))["mean"]
-        return {"wall_s": wall, "message": job.message, "mean": mean}
+        rows = []
+        for seed in seeds:
+            spec = {"kind": "train.fabric", "seed": seed,
+                    "params": {"dataset": f"job:{gen.id}", "preset": "small"}}  # fmt: skip
+            start = time.perf_counter()
+            job = run_in_process(spec, settings)
+            wall = time.perf_counter() - start
+            if job.state != "succeeded":
+                sys.exit(f"train.fabric failed: {job.error}")
+            (digest,) = [a.digest for a in job.artifacts if a.name == "metrics.json"]
+            mean = json.loads(ArtifactStore(settings.store_dir).read(digest))["mean"]
+            rows.append({"seed": seed, "wall_s": wall, "message": job.message, "mean": mean})
+        return rows
+
+
+def baseline_claims(rows: list[dict[str, Any]]) -> list[str]:
+    """The quality claim the test suite no longer makes (a tiny run's outcome is not portable):
+    the network beats the per-material mean on held-out queries, per metric, as the ratio
+    network / baseline over the seeds: mean and spread (min..max). It holds when the
+    largest ratio is below 1, "not resolved" when the spread straddles 1."""
+    lines = []
+    for label, get in (
+        ("held-out Eq. 11 loss", lambda m: (m["loss"], m["baseline"]["loss"])),
+        ("RGB rel. error", lambda m: (m["rgb"]["rel"], m["baseline"]["rgb"]["rel"])),
+    ):
+        ratios = [a / b for a, b in (get(r["mean"]) for r in rows)]
+        verdict = ("holds" if max(ratios) < 1.0
+                   else "fails" if min(ratios) >= 1.0 else "not resolved")  # fmt: skip
+        spread = f"{min(ratios):.3f}..{max(ratios):.3f}"
+        lines.append(f"| network beats baseline on {label} | {np.mean(ratios):.3f} | "
+                     f"{spread} | {len(ratios)} | {verdict} |")  # fmt: skip
+    return lines
 
 
 def main() -> None:
@@ -144,6 +171,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--skip-train", action="store_true")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
+                        help="training seeds of the small preset (3 per claim)")  # fmt: skip
     parser.add_argument("--data-dir", type=Path, help="keep the jobs here (default: temp)")
     args = parser.parse_args()
     print(f"load average before: {os.getloadavg()[0]:.2f}, cores: {os.cpu_count()}")
@@ -159,15 +188,20 @@ def main() -> None:
               f"{r['torch_ns'] / r['fused_ns']:.1f}x | {r['compile_s']:.2f} | "
               f"{r['compile2_s']:.2f} |")  # fmt: skip
     if not args.skip_train:
-        t = train_row(args.data_dir)
-        m = t["mean"]
+        runs = train_rows(args.data_dir, args.seeds)
         print(f"\ntrain.fabric small (load average now {os.getloadavg()[0]:.2f})")
-        print("| job wall s | held-out Eq. 11 loss | baseline loss | RGB rel. error "
+        print("| seed | job wall s | held-out Eq. 11 loss | baseline loss | RGB rel. error "
               "| baseline RGB rel. error |")  # fmt: skip
+        print("| --- | --- | --- | --- | --- | --- |")
+        for t in runs:
+            m = t["mean"]
+            print(f"| {t['seed']} | {t['wall_s']:.1f} | {m['loss']:.4f} | "
+                  f"{m['baseline']['loss']:.4f} | {m['rgb']['rel']:.3f} | "
+                  f"{m['baseline']['rgb']['rel']:.3f} |")  # fmt: skip
+            print(f"job message (seed {t['seed']}): {t['message']}")
+        print("\n| claim | mean ratio network / baseline | spread over seeds | seeds | verdict |")
         print("| --- | --- | --- | --- | --- |")
-        print(f"| {t['wall_s']:.1f} | {m['loss']:.4f} | {m['baseline']['loss']:.4f} | "
-              f"{m['rgb']['rel']:.3f} | {m['baseline']['rgb']['rel']:.3f} |")  # fmt: skip
-        print(f"job message: {t['message']}")
+        print("\n".join(baseline_claims(runs)))
     print("\ncommand: .venv/bin/python benchmarks/bench_train_fabric.py " + " ".join(sys.argv[1:]))
 
 

@@ -293,7 +293,7 @@ def decoder_drjit(
         if raw:
             return tuple(out)
         inv_k = dr.select(wiz < 0.0, 1.0 / K_BTDF, 1.0 / K_BRDF)
-        c = [dr.maximum(o, 0.0) for o in out[:2]]
+        c = [dr.select(wiz < 0.0, 0.0, dr.maximum(o, 0.0)) for o in out[:2]]
         s_ = [_expm1(dr, dr.maximum(o, 0.0)) * inv_k for o in out[2:]]
         return (c[0], c[1], s_[0], s_[1])
 

@@ -27,6 +27,17 @@ a fixed input the stationary point is ``p = E[y | input]``, the conditional mean
 relative L2 of Lehtinen et al. 2018 and Mueller et al. 2021, with the material's scale
 ``m`` in place of a small constant so that near-zero targets do not dominate). Each term
 is dimensionless, so the four are weighted equally (``mean_c L_c``): C and S balanced.
+
+Two guards keep every term fittable. The diffuse components are exactly 0 for light from
+below the macro surface (``wi.z < 0``: :func:`materials.fabric.shading.diffuse_response`),
+and so is the material's scale ``m`` there; with ``y = m = 0`` the term would be
+``p^2 / (p^2 + EPS)``, near 1 whatever ``p`` is, with a gradient ``~2 / p`` that grows as
+``p`` goes to 0 and took ~99 % of every clipped update. Those C terms are dropped
+(:func:`fittable_mask`; the decoders output C = 0 there, see
+:func:`models.fabric.networks.components`), and each ``L_c`` is the mean over the rows that
+keep it. And no scale is zero: ``m_c`` is floored at :data:`SCALE_FLOOR` of the row's
+largest component scale, so ``|dL/dp| <= 2 |p - y| / (N m_floor^2)``, bounded and 0 at the
+target.
 """
 
 from __future__ import annotations
@@ -47,6 +58,8 @@ LOSSES: tuple[str, ...] = ("paper", "relative_l2")
 EPS = 1e-8
 #: Largest raw specular output the relative L2 exponentiates (``expm1(30) / 100`` = 1e11).
 RAW_MAX = 30.0
+#: Floor of a component's scale, as a fraction of the row's largest component scale.
+SCALE_FLOOR = 0.01
 
 
 def log_targets(value: Tensor, wi_z: Tensor) -> Tensor:
@@ -91,22 +104,51 @@ def linear_prediction(raw: Tensor, wi_z: Tensor) -> Tensor:
     return torch.cat([raw[:, :2], torch.expm1(raw[:, 2:].clamp_max(RAW_MAX)) / k], dim=1)
 
 
+def fittable_mask(wi_z: np.ndarray) -> np.ndarray:
+    """``(N, 4)`` bool: the relative L2 terms a query keeps. C_warp and C_weft are dropped
+    for light from below (``wi.z < 0``), where the diffuse component is 0 by definition."""
+    below = np.asarray(wi_z) < 0
+    keep = np.ones((len(below), 4), dtype=bool)
+    keep[below, :2] = False
+    return keep
+
+
+def floored_scale(scale: np.ndarray) -> np.ndarray:
+    """Scales ``(N, 4)`` floored at :data:`SCALE_FLOOR` of each row's largest one."""
+    s = np.abs(np.asarray(scale, np.float64))
+    return np.maximum(s, SCALE_FLOOR * s.max(axis=1, keepdims=True))
+
+
 def relative_l2_loss(raw: Tensor, value: Tensor, wi_z: Tensor, scale: Tensor) -> LossParts:
     """The relative L2 (module docstring) of raw outputs ``(N, 4)`` against linear targets
     ``value`` ``(N, 4)``; ``scale`` ``(N, 4)`` the material's mean target per component for
-    each query's kind. ``per_component`` holds the four ``L_c``; ``total`` their mean."""
+    each query's kind (floored as :func:`floored_scale`). The C terms of light from below
+    are dropped (:func:`fittable_mask`); each ``L_c`` is the mean over the rows that keep
+    it (0 where none does). ``per_component`` holds the four ``L_c``; ``total`` their
+    mean."""
     pred = linear_prediction(raw, wi_z)
-    denom = pred.detach().square() + scale.square() + EPS
-    per = ((pred - value).square() / denom).mean(dim=0)
+    keep = torch.ones_like(pred, dtype=torch.bool)
+    keep[:, :2] = (wi_z >= 0)[:, None]
+    m = scale.abs()
+    m = torch.maximum(m, SCALE_FLOOR * m.amax(dim=1, keepdim=True))
+    denom = pred.detach().square() + m.square() + EPS
+    term = torch.where(keep, (pred - value).square() / denom, torch.zeros_like(pred))
+    per = term.sum(dim=0) / keep.sum(dim=0).clamp_min(1).to(pred.dtype)
     return LossParts(total=per.mean(), per_component=per.detach())
 
 
-def relative_l2_numpy(pred: np.ndarray, value: np.ndarray, scale: np.ndarray) -> float:
+def relative_l2_numpy(
+    pred: np.ndarray, value: np.ndarray, scale: np.ndarray, wi_z: np.ndarray
+) -> float:
     """The relative L2 in float64 (for metrics): decoded components ``pred``, targets and
-    scales ``(N, 4)`` each."""
+    scales ``(N, 4)`` each, the queries' ``wi_z`` ``(N,)``: the training loss's terms
+    (:func:`relative_l2_loss`), the mean of the four per-component means."""
     p = np.asarray(pred, np.float64)
-    d = (p - np.asarray(value, np.float64)) ** 2 / (p**2 + np.asarray(scale, np.float64) ** 2 + EPS)
-    return float(np.mean(d))
+    m = floored_scale(scale)
+    d = (p - np.asarray(value, np.float64)) ** 2 / (p**2 + m**2 + EPS)
+    keep = fittable_mask(wi_z)
+    per = np.where(keep, d, 0.0).sum(axis=0) / np.maximum(keep.sum(axis=0), 1)
+    return float(np.mean(per))
 
 
 def component_scales(value: np.ndarray, wi_z: np.ndarray) -> np.ndarray:

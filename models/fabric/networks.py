@@ -19,7 +19,8 @@ added before the activation of layer 3) gives 4 raw outputs in the order of Eq. 
 Raw outputs to components (:func:`components`): the specular outputs are fitted in the
 log space of Eq. 9, ``g(S) = ln(k S + 1)`` with ``k`` = :data:`K_BRDF` for ``wi.z >= 0``
 and :data:`K_BTDF` below, so ``S = expm1(max(raw, 0)) / k``; the diffuse ones directly,
-``C = max(raw, 0)``. The clamps only remove small negative excursions of the fit.
+``C = max(raw, 0)``, and 0 for light from below (``wi.z < 0``), where the diffuse
+component is 0 by definition. The clamps only remove small negative excursions of the fit.
 
 Choices the paper leaves open, and ours:
 
@@ -362,8 +363,10 @@ def log_k(wi_z: Tensor) -> Tensor:
 
 
 def components(raw: Tensor, wi_z: Tensor) -> Tensor:
-    """Raw outputs ``(N, 4)`` to the components of Eq. 7 (see the module docstring)."""
-    c = raw[:, :2].clamp_min(0.0)
+    """Raw outputs ``(N, 4)`` to the components of Eq. 7 (see the module docstring). C is 0
+    for light from below (``wi.z < 0``), as the diffuse component is by definition
+    (:func:`materials.fabric.shading.diffuse_response`): no spurious diffuse transmission."""
+    c = torch.where(wi_z[:, None] < 0, 0.0, raw[:, :2].clamp_min(0.0))
     s = torch.expm1(raw[:, 2:].clamp_min(0.0)) / log_k(wi_z)[:, None]
     return torch.cat([c, s], dim=1)
 
@@ -371,7 +374,7 @@ def components(raw: Tensor, wi_z: Tensor) -> Tensor:
 def components_numpy(raw: np.ndarray, wi_z: np.ndarray) -> np.ndarray:
     """numpy twin of :func:`components`: ``(N, 4)`` float32."""
     k = np.where(np.asarray(wi_z) < 0, K_BTDF, K_BRDF).astype(np.float32)[:, None]
-    c = np.maximum(raw[:, :2], 0.0)
+    c = np.where(np.asarray(wi_z)[:, None] < 0, 0.0, np.maximum(raw[:, :2], 0.0))
     s = np.expm1(np.maximum(raw[:, 2:], 0.0)) / k
     return np.concatenate([c, s], axis=1).astype(np.float32)
 

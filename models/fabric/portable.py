@@ -32,8 +32,9 @@ macro frame, ``wo.z > 0``), with ``a = leaky_relu``:
 2. ``s = a(spatial2(a(spatial1([z, e]))))``;
 3. ``h1 = a(angular1([s, wi.x, wi.y, wi.z, wo.x, wo.y]))``,
    ``h3 = a(angular3(a(angular2(h1))) + h1)``, ``raw = angular5(a(angular4(h3)))``;
-4. ``C = max(raw[0:2], 0)``, ``S = expm1(max(raw[2:4], 0)) / k``, ``k = 1000`` if
-   ``wi.z < 0`` else 100 (inverse of Eq. 9); Eq. 8: ``f = sum albedo_c * component_c``.
+4. ``C = max(raw[0:2], 0)`` (0 if ``wi.z < 0``: no diffuse transmission),
+   ``S = expm1(max(raw[2:4], 0)) / k``, ``k = 1000`` if ``wi.z < 0`` else 100 (inverse of
+   Eq. 9); Eq. 8: ``f = sum albedo_c * component_c``.
 """
 
 from __future__ import annotations
@@ -110,7 +111,8 @@ def _paper_architecture_doc(arch: Architecture) -> dict[str, Any]:
             "h1 = a(angular1([s, wi.x, wi.y, wi.z, wo.x, wo.y]))",
             "h3 = a(angular3(a(angular2(h1))) + h1)",
             "raw = angular5(a(angular4(h3)))",
-            "C = max(raw[0:2], 0); S = expm1(max(raw[2:4], 0)) / k, k = 1000 if wi.z < 0 else 100",
+            "C = 0 if wi.z < 0 else max(raw[0:2], 0)",
+            "S = expm1(max(raw[2:4], 0)) / k, k = 1000 if wi.z < 0 else 100",
         ],
     }
 

@@ -144,11 +144,11 @@ def _material(
         "pattern": m.pattern,
         "queries": int(len(q)),
         "loss": fabric_loss_numpy(raw, target),
-        "relative_l2": relative_l2_numpy(pred, gt, scale),
+        "relative_l2": relative_l2_numpy(pred, gt, scale, q[:, 5]),
         **_errors(pred, gt, albedos),
         "baseline": {
             "loss": fabric_loss_numpy(base_log, target),
-            "relative_l2": relative_l2_numpy(base_lin, gt, scale),
+            "relative_l2": relative_l2_numpy(base_lin, gt, scale, q[:, 5]),
             **_errors(base_lin, gt, albedos),
         },
     }, sizes
