@@ -112,7 +112,8 @@ class Client(_RestClient):
     ) -> dict[str, Any]:
         """Wait until the job is finished and return its final document.
 
-        ``progress=True`` shows the CLI's progress bar on stderr. ``check`` (default):
+        ``progress=True`` shows the CLI's progress bar on stderr (not with a ``timeout``:
+        that wait is silent). ``check`` (default):
         raise :class:`JobFailed` unless it succeeded. ``timeout`` (seconds): raise
         ``TimeoutError`` when it is still running then (the job keeps running). A server
         that restarts meanwhile is waited out for a while, as ``matforge wait`` does.
@@ -138,6 +139,12 @@ class Client(_RestClient):
         if check and doc.get("state") != "succeeded":
             raise JobFailed(doc)
         return doc
+
+    def manifest(self, job: str | dict[str, Any]) -> dict[str, Any]:
+        """``GET /api/jobs/{id}/manifest``: a succeeded job's provenance (spec, artifacts,
+        ``matforge_version``, code and package versions, executor, timings)."""
+        result: dict[str, Any] = self._json("GET", f"/api/jobs/{self._full_id(job)}/manifest")
+        return result
 
     def cancel(self, job: str | dict[str, Any]) -> dict[str, Any]:
         """``POST /api/jobs/{id}/cancel``: the job, now cancelled (or already finished)."""

@@ -160,6 +160,8 @@ def test05_one_version(srv: tuple[Server, dict[str, Any]]) -> None:
         assert http.get("/openapi.json").json()["info"]["version"] == version
         manifest = http.get(f"/api/jobs/{doc['id']}/manifest").json()
     assert manifest["matforge_version"] == version
+    with matforge.Client(server.url) as mf:
+        assert mf.manifest(doc["id"][:10]) == manifest
 
 
 def test06_batch(srv: tuple[Server, dict[str, Any]], tmp_path: Path) -> None:
