@@ -93,21 +93,26 @@ class FabricQueries(DatasetReader):
         return self._concat(self._shards[self._material_index(name)])
 
     def numpy(self) -> dict[str, np.ndarray]:
-        """Every query of every material, concatenated in shard order (``material`` says
-        whose): ``material`` (N,) int32, ``center`` (N, 2), ``size`` (N,), ``wi`` (N, 3),
-        ``wo`` (N, 3), ``value`` (N, 4), ``stderr`` (N, 4), float32."""
+        """Every query of every material in memory, concatenated in shard order
+        (``material`` says whose; for sets that fit in memory, else :meth:`material`,
+        :meth:`shard` or :meth:`torch_dataset`): ``material`` (N,) int32, ``center``
+        (N, 2), ``size`` (N,), ``wi`` (N, 3), ``wo`` (N, 3), ``value`` (N, 4), ``stderr``
+        (N, 4), float32."""
         return self._concat([s for shards in self._shards for s in shards])
 
     def __len__(self) -> int:
         return int(sum(len(self.shard(s)["material"]) for sh in self._shards for s in sh))
 
     def torch_dataset(self, materials: list[str] | None = None) -> Any:
-        """A ``torch.utils.data.Dataset`` of queries (of ``materials``, default all): item
-        ``i`` is a dict of tensors ``material`` (int64), ``center`` (2,), ``size`` (),
-        ``wi`` (3,), ``wo`` (3,), ``value`` (4,) and ``stderr`` (4,). Shuffle with the
-        ``DataLoader``."""
-        names = self.names if materials is None else list(materials)
-        arrays = self._concat([s for n in names for s in self._shards[self._material_index(n)]])
+        """A ``torch.utils.data.Dataset`` of queries (of ``materials``, default all), read
+        lazily from the memory-mapped shards: item ``i`` is a dict of tensors ``material``
+        (int64), ``center`` (2,), ``size`` (), ``wi`` (3,), ``wo`` (3,), ``value`` (4,) and
+        ``stderr`` (4,) (:class:`matforge.datasets.torch_data.FabricQueryDataset`).
+        Shuffle with the ``DataLoader``."""
         from matforge.datasets.torch_data import FabricQueryDataset
 
-        return FabricQueryDataset(arrays)
+        names = self.names if materials is None else list(materials)
+        shards = [s for n in names for s in self._shards[self._material_index(n)]]
+        return FabricQueryDataset(
+            [(self.source.path(s), len(self.shard(s)["material"])) for s in shards]
+        )

@@ -28,7 +28,7 @@ from storage.artifacts import ArtifactStore
 from storage.job_queries import resolve_job_id
 from storage.jobs import JobStore
 
-#: ``job:<id>`` with an optional ``/<artifact name>`` (ignored: a dataset is a whole job).
+#: Bytes hashed per read when a cached object is checked.
 _CHUNK = 1 << 20
 
 

@@ -18,20 +18,39 @@ from matforge.datasets.npz_map import open_npz
 
 
 class FabricQueryDataset(Dataset[dict[str, torch.Tensor]]):
-    """Fabric queries: item ``i`` is ``material`` (int64), ``center`` (2,), ``size`` (),
-    ``wi`` (3,), ``wo`` (3,), ``value`` (4,), ``stderr`` (4,) (float32 tensors)."""
+    """Fabric queries, read lazily from the memory-mapped shards ``(path, count)`` (a
+    paper-scale set is far larger than memory). Item ``i`` (shard order): ``material``
+    (int64), ``center`` (2,), ``size`` (), ``wi`` (3,), ``wo`` (3,), ``value`` (4,),
+    ``stderr`` (4,) (float32). The maps are re-opened in each ``DataLoader`` worker."""
 
-    def __init__(self, arrays: dict[str, np.ndarray]) -> None:
-        self.tensors = {
-            k: torch.from_numpy(np.array(v, dtype=np.int64 if k == "material" else np.float32))
-            for k, v in arrays.items()
-        }
+    FIELDS = ("material", "center", "size", "wi", "wo", "value", "stderr")
+
+    def __init__(self, shards: list[tuple[Path, int]]) -> None:
+        self.shards = shards
+        counts = np.array([c for _, c in shards], np.int64)
+        self._starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self._total = int(counts.sum())
+        self._maps: list[dict[str, np.ndarray]] | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_maps"] = None  # memory maps are re-opened in the receiving process
+        return state
 
     def __len__(self) -> int:
-        return int(self.tensors["material"].shape[0])
+        return self._total
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        return {k: v[i] for k, v in self.tensors.items()}
+        if not 0 <= i < self._total:
+            raise IndexError(i)
+        if self._maps is None:
+            self._maps = [open_npz(p, p.name) for p, _ in self.shards]
+        j = int(np.searchsorted(self._starts, i, side="right") - 1)
+        row = i - int(self._starts[j])
+        arrays = self._maps[j]
+        out = {k: torch.from_numpy(np.array(arrays[k][row], np.float32)) for k in self.FIELDS[1:]}
+        out["material"] = torch.tensor(int(arrays["material"][row]), dtype=torch.int64)
+        return out
 
 
 class BtfTexelDataset(Dataset[dict[str, torch.Tensor]]):

@@ -108,6 +108,10 @@ def test02_fabric_queries(data) -> None:
         torch.cat([b["stderr"] for b in batches]).numpy(), second["stderr"]
     )
     assert batches[0]["material"].dtype == torch.int64 and (batches[0]["material"] == 1).all()
+    everything = fq.torch_dataset()
+    assert len(everything) == 128
+    seen = torch.cat([b["value"] for b in DataLoader(everything, batch_size=40, num_workers=1)])
+    np.testing.assert_array_equal(seen.numpy(), got["value"])  # a worker re-opens the maps
 
 
 def test03_btf_slices(data) -> None:
