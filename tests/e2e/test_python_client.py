@@ -175,3 +175,15 @@ def test06_batch(srv: tuple[Server, dict[str, Any]], tmp_path: Path) -> None:
         assert {r["step"] for r in by_batch} == {"g"}
         by_job = mf.results(rows[0]["job_id"])
         assert [{**r, "step": None} for r in by_batch] == by_job
+
+
+def test07_token_from_the_environment(
+    token_server: Server, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("MATFORGE_SERVER", token_server.url)
+    monkeypatch.delenv("MATFORGE_TOKEN", raising=False)
+    with matforge.Client() as mf, pytest.raises(matforge.ServerRefused, match="MATFORGE_TOKEN"):
+        mf.ls()
+    monkeypatch.setenv("MATFORGE_TOKEN", token_server.token or "")
+    with matforge.Client() as mf:
+        assert mf.ls() == []
