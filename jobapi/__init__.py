@@ -10,7 +10,8 @@ Submodules (imported explicitly by their users):
 - :mod:`jobapi.presets`: named presets with per-field overrides;
 - :mod:`jobapi.results`: :class:`~jobapi.results.ResultTable`, what a summary hook returns;
 - :mod:`jobapi.errors`: ``SpecError``, ``JobFailed``, ``JobCancelled`` and the storage errors;
-- :mod:`jobapi.executor`: the executor interface behind ``ctx.map_shards``.
+- :mod:`jobapi.executor`: the executor interface behind ``ctx.map_shards``;
+- :mod:`jobapi.version`: ``__version__``, the one version of matforge.
 
 ``jobapi`` imports nothing of ours but :mod:`storage`; the kinds import ``jobapi`` and never
 ``service`` (import contracts in ``pyproject.toml`` keep both true).
@@ -24,4 +25,5 @@ SUBMODULES: tuple[str, ...] = (
     "executor",
     "kinds",
     "context",
+    "version",
 )

@@ -39,6 +39,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from jobapi.errors import SpecError
+from jobapi.version import __version__
 from service import kinds
 from service.deps import AuthDep, PageAuth, set_token_cookie
 from service.http_methods import MethodsMiddleware
@@ -62,7 +63,8 @@ from storage.jobs import JobStore
 log = logging.getLogger("matforge.api")
 
 TITLE = "matforge"
-VERSION = "0.1.0"
+#: The one version (:mod:`jobapi.version`), also ``matforge.__version__``.
+VERSION = __version__
 DESCRIPTION = """\
 Dataset generation and evaluation service for real-time material models.
 

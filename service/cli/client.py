@@ -1,6 +1,8 @@
-"""A small typed HTTP client of the matforge REST API (used by the CLI and the batch runner).
+"""The typed HTTP client of the matforge REST API: the one implementation under the CLI,
+the batch runner and the public :class:`matforge.Client` (which adds waiting, batches and
+result rows on top of it).
 
-Every failure is one of two types, which the CLI maps to the contract's exit codes:
+Every failure is one of these types, which the CLI maps to the contract's exit codes:
 
 - :class:`ServerUnreachable` (exit 3): the connection was refused or timed out, the name did
   not resolve, the server refused the credentials (401/403, :class:`ServerRefused`), or it
@@ -8,6 +10,8 @@ Every failure is one of two types, which the CLI maps to the contract's exit cod
 - :class:`CorruptObject` (exit 1): the server's copy of an object is damaged on disk.
 - :class:`BadInput` (exit 2): the server rejected what we sent (400, 404, 413, 422), with the
   server's one-line ``error`` message; or the input was malformed before anything was sent.
+  :class:`SpecError` (exit 2) is the 422 of a rejected spec, with the fields it names.
+- :class:`JobFailed` (exit 1): a job that was waited for failed or was cancelled.
 """
 
 from __future__ import annotations
@@ -68,6 +72,44 @@ class BadInput(ClientError):
         self.detail = detail
 
 
+class SpecError(BadInput):
+    """The server rejected a job spec (HTTP 422). ``errors`` lists ``(field, message)``
+    pairs, e.g. ``("params.spp", "Input should be greater than or equal to 1")``;
+    ``field`` is the first field named."""
+
+    def __init__(self, message: str, errors: list[tuple[str, str]], detail: Any = None) -> None:
+        super().__init__(message, status=422, detail=detail)
+        self.errors = errors
+
+    @property
+    def field(self) -> str | None:
+        """The first field the server named (``None`` when it named none)."""
+        return next((loc for loc, _ in self.errors if loc), None)
+
+    @classmethod
+    def from_bad_input(cls, exc: BadInput) -> SpecError:
+        """The :class:`SpecError` of a 422 :class:`BadInput` (its ``detail`` list)."""
+        errors: list[tuple[str, str]] = []
+        if isinstance(exc.detail, list):
+            for item in exc.detail:
+                if isinstance(item, dict):
+                    loc = ".".join(str(p) for p in item.get("loc", ()) if p != "body")
+                    errors.append((loc, str(item.get("msg", item))))
+        return cls(str(exc), errors or [("", str(exc))], exc.detail)
+
+
+class JobFailed(ClientError):
+    """A job that was waited for ended ``failed`` or ``cancelled``; ``job`` is its final
+    document (``job["error"]`` the one-line reason)."""
+
+    exit_code = 1
+
+    def __init__(self, job: dict[str, Any]) -> None:
+        reason = job.get("error") or job.get("state")
+        super().__init__(f"job {job.get('id')} {job.get('state')}: {reason}")
+        self.job = job
+
+
 def check_job_id(job_id: str) -> str:
     """Return ``job_id`` if it is a job id or a prefix of one (1 to 32 lowercase hex digits;
     the server resolves a unique prefix, as git does), else raise :class:`BadInput`."""
@@ -120,13 +162,22 @@ class Client:
     """The REST API of one matforge server.
 
     Args:
-        server: base URL, e.g. ``http://127.0.0.1:8000``.
-        token: bearer token (``MATFORGE_TOKEN``), or ``None`` for a server without auth.
+        server: base URL, e.g. ``http://127.0.0.1:8000`` (default: ``MATFORGE_SERVER``, as
+            the CLI reads it, else ``http://127.0.0.1:8000``).
+        token: bearer token (default: ``MATFORGE_TOKEN`` when ``server`` is not given
+            either), or ``None`` for a server without auth.
         timeout: seconds for connecting and for each read; transfers stream, so a large
             download is not bounded by it as a whole.
     """
 
-    def __init__(self, server: str, token: str | None = None, timeout: float = 30.0) -> None:
+    def __init__(
+        self, server: str | None = None, token: str | None = None, timeout: float = 30.0
+    ) -> None:
+        if server is None:
+            from service.settings import Settings
+
+            settings = Settings.from_env()
+            server, token = settings.server, token if token is not None else settings.token
         self.server = server.rstrip("/")
         headers = {"Accept": "application/json"}
         if token:
@@ -214,7 +265,12 @@ class Client:
     def submit_created(self, spec: Any) -> tuple[dict[str, Any], bool]:
         """``POST /api/jobs``: ``(job document, created)``; ``created`` is false when the
         server returned an existing job of the identical spec (HTTP 200, not 201)."""
-        response = self._request("POST", "/api/jobs", json=spec)
+        try:
+            response = self._request("POST", "/api/jobs", json=spec)
+        except BadInput as exc:
+            if exc.status == 422 and isinstance(exc.detail, list):
+                raise SpecError.from_bad_input(exc) from None
+            raise
         try:
             doc: dict[str, Any] = response.json()
         except ValueError:
@@ -305,6 +361,16 @@ class Client:
                 return art
         have = ", ".join(a.get("name", "?") for a in arts) or "none"
         raise BadInput(f"job {job_id} has no artifact {name!r} (artifacts: {have})")
+
+    def resolve(self, ref: str) -> str:
+        """The 64-hex digest of ``sha256:<hex>``, a bare digest, or ``job:<id>/<name>`` (an
+        artifact of a job; the id may be a unique prefix)."""
+        if ref.startswith("job:"):
+            job, sep, name = ref[4:].partition("/")
+            if not sep or not name:
+                raise BadInput(f"{ref!r}: an artifact ref is job:<id>/<artifact name>")
+            return str(self.artifact(str(self.get(job)["id"]), name)["digest"])
+        return check_digest(ref)
 
     def read_bytes(self, digest: str, max_bytes: int = 64 * 1024 * 1024) -> bytes:
         """``GET /api/artifacts/{digest}`` into memory (small objects such as metrics),

@@ -51,6 +51,15 @@ DataDirOpt = typer.Option(
 )
 
 
+def _print_version(value: bool) -> None:
+    """``--version``: the one version (:mod:`jobapi.version`, also ``matforge.__version__``)."""
+    if value:
+        from jobapi.version import __version__
+
+        print_line(f"matforge {__version__}")
+        raise typer.Exit(0)
+
+
 @app.callback()
 def _global(
     ctx: typer.Context,
@@ -68,6 +77,13 @@ def _global(
     ),
     verbose: bool = typer.Option(
         False, "--verbose", "-v", help="Debug logs (and tracebacks) on stderr."
+    ),
+    version: bool = typer.Option(
+        False,
+        "--version",
+        is_eager=True,
+        callback=_print_version,
+        help="Print matforge's version and exit.",
     ),
 ) -> None:
     """Global options. The token comes from MATFORGE_TOKEN."""

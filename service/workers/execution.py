@@ -20,6 +20,7 @@ from typing import Any
 from jobapi.context import JobContext
 from jobapi.errors import JobCancelled, JobFailed, SpecError
 from jobapi.executor import Executor, InlineExecutor
+from jobapi.version import __version__
 from service import kinds
 from service.specs import canonical_json, validate_spec
 from service.workers.provenance import code_version, package_versions
@@ -166,6 +167,7 @@ def execute(
             "spec_hash": job.spec_hash,
             "seed": spec.seed,
             "artifacts": [a.public() for a in arts],
+            "matforge_version": __version__,
             "code_version": code_version(),
             "packages": package_versions(),
             "worker": job.worker,
