@@ -191,28 +191,35 @@ def child_main(argv: list[str]) -> None:
 # -- the parent -----------------------------------------------------------------------------
 class _Spawner:
     """One long-lived thread that starts the children: their parent-death signal follows the
-    thread that forked them, and request threads come and go."""
+    thread that forked them, and request threads come and go. :meth:`stop` ends the thread
+    (and with it, by that signal, any child it started); the next :meth:`start` starts
+    another."""
+
+    _Item = tuple[list[str], dict[str, str], "cf.Future[subprocess.Popen[bytes]]"]
 
     def __init__(self) -> None:
-        self._queue: queue.Queue[
-            tuple[list[str], dict[str, str], cf.Future[subprocess.Popen[bytes]]] | None
-        ] = queue.Queue()
+        self._queue: queue.Queue[_Spawner._Item | None] | None = None
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
 
     def start(self, cmd: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
         future: cf.Future[subprocess.Popen[bytes]] = cf.Future()
         with self._lock:
-            if self._thread is None:
+            if self._queue is None:
+                self._queue = queue.Queue()
                 self._thread = threading.Thread(
-                    target=self._loop, name="upload-checker-spawner", daemon=True
+                    target=self._loop,
+                    args=(self._queue,),
+                    name="upload-checker-spawner",
+                    daemon=True,
                 )
                 self._thread.start()
             self._queue.put((cmd, env, future))
         return future.result()
 
-    def _loop(self) -> None:
-        while (item := self._queue.get()) is not None:
+    @staticmethod
+    def _loop(items: queue.Queue[_Spawner._Item | None]) -> None:
+        while (item := items.get()) is not None:
             cmd, env, future = item
             try:
                 proc = subprocess.Popen(
@@ -225,9 +232,10 @@ class _Spawner:
 
     def stop(self) -> None:
         with self._lock:
-            thread, self._thread = self._thread, None
-            if thread is not None:
-                self._queue.put(None)
+            items, thread = self._queue, self._thread
+            self._queue = self._thread = None
+            if items is not None:
+                items.put(None)
         if thread is not None:
             thread.join(timeout=5)
 
@@ -235,8 +243,9 @@ class _Spawner:
 class _Child:
     """One checker process and its two pipes."""
 
-    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
+    def __init__(self, proc: subprocess.Popen[bytes], generation: int) -> None:
         self.proc = proc
+        self.generation = generation
         assert proc.stdin is not None and proc.stdout is not None
         self._in = proc.stdin.fileno()
         self._out = proc.stdout.fileno()
@@ -300,7 +309,7 @@ class UploadChecker:
         self._busy: set[_Child] = set()
         self._lock = threading.Lock()
         self._spawner = _Spawner()
-        self._closed = False
+        self._generation = 0  # children of an older one (before a close) are not reused
 
     # -- the pool ---------------------------------------------------------------------------
     def child_pids(self) -> list[int]:
@@ -319,7 +328,9 @@ class UploadChecker:
         env = {k: v for k, v in os.environ.items() if k not in _SECRETS}
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             env[var] = "1"
-        child = _Child(self._spawner.start(cmd, env))
+        with self._lock:
+            generation = self._generation
+        child = _Child(self._spawner.start(cmd, env), generation)
         log.info("started upload checker pid %d", child.pid)
         return child
 
@@ -328,8 +339,6 @@ class UploadChecker:
             raise CheckerBusy(label, max(1, math.ceil(self.queue_wait)))
         try:
             with self._lock:
-                if self._closed:
-                    raise RuntimeError("the upload checker is closed")
                 child = self._idle.pop() if self._idle else None
             if child is not None and not child.alive():
                 child.kill()
@@ -346,7 +355,7 @@ class UploadChecker:
     def _give_back(self, child: _Child, keep: bool) -> None:
         with self._lock:
             self._busy.discard(child)
-            if keep and not self._closed:
+            if keep and child.generation == self._generation:
                 self._idle.append(child)
                 child = None  # type: ignore[assignment]
         if child is not None:
@@ -392,9 +401,10 @@ class UploadChecker:
         return self.run(validate_file, Path(path), name, label=name)
 
     def close(self) -> None:
-        """End every child (a call in flight gets a :class:`FormatError`)."""
+        """End every child (a call in flight gets a :class:`CheckFailed`); a later call
+        starts new ones."""
         with self._lock:
-            self._closed = True
+            self._generation += 1
             children = [*self._idle, *self._busy]
             self._idle.clear()
         for child in children:
