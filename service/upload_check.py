@@ -92,24 +92,26 @@ def _write_all(fd: int, data: bytes) -> None:
         view = view[os.write(fd, view) :]
 
 
-def _read_exact(fd: int, n: int, deadline: float | None) -> bytes | None:
-    """``n`` bytes from ``fd``; ``None`` at end of file; ``TimeoutError`` past ``deadline``
-    (``time.monotonic()``; ``None``: wait forever). ``poll``, not ``select``: a busy web
-    process has descriptors above ``FD_SETSIZE``."""
-    buf = bytearray()
+def _read_exact(fd: int, n: int, deadline: float | None) -> bytearray | None:
+    """``n`` bytes from ``fd``, read in place; ``None`` at end of file; ``TimeoutError``
+    past ``deadline`` (``time.monotonic()``; ``None``: wait forever). ``poll``, not
+    ``select``: a busy web process has descriptors above ``FD_SETSIZE``."""
+    buf = bytearray(n)
+    view = memoryview(buf)
+    got = 0
     poller = select.poll() if deadline is not None else None
     if poller is not None:
         poller.register(fd, select.POLLIN)
-    while len(buf) < n:
+    while got < n:
         if poller is not None and deadline is not None:
             left = deadline - time.monotonic()
             if left <= 0 or not poller.poll(max(1, math.ceil(left * 1000))):
                 raise TimeoutError
-        chunk = os.read(fd, min(n - len(buf), 1 << 20))
-        if not chunk:
+        k = os.readv(fd, [view[got : got + (1 << 20)]])
+        if k == 0:
             return None
-        buf += chunk
-    return bytes(buf)
+        got += k
+    return buf
 
 
 def _send(fd: int, obj: object) -> None:
