@@ -248,6 +248,18 @@ def test07_sigkill_of_serve_leaves_no_checker(tmp_path: Path, http_workers: int)
             body = exr_bytes(np.full((4, 4, 3), float(i), np.float32))
             r = httpx.post(f"{server.url}/api/artifacts?name=k{i}.exr", content=body, timeout=60)
             assert r.status_code == 201, r.text
+        # A checker busy with a long check (~30 s here) when serve dies: only the
+        # parent-death signal ends it at once (an idle one also sees its pipe close).
+        body = slices_zip(10_000)
+
+        def post_slow() -> None:
+            try:
+                httpx.post(f"{server.url}/api/artifacts?name=slow.btf.zip", content=body)
+            except httpx.HTTPError:  # the server is killed under it
+                pass
+
+        threading.Thread(target=post_slow, daemon=True).start()
+        time.sleep(2.0)
         tree = descendants(server.proc.pid)
         # At least a checker, and the extra web process when there is one.
         assert len(tree) >= http_workers, {p: cmdline(p) for p in tree}
