@@ -357,10 +357,10 @@ class UploadChecker:
     def _give_back(self, child: _Child, keep: bool) -> None:
         with self._lock:
             self._busy.discard(child)
-            if keep and child.generation == self._generation:
+            keep = keep and child.generation == self._generation
+            if keep:
                 self._idle.append(child)
-                child = None  # type: ignore[assignment]
-        if child is not None:
+        if not keep:
             child.kill()
         self._free.release()
 
