@@ -11,6 +11,7 @@ error                                       HTTP   body
 ``AmbiguousIdError`` (a short job id)        422   ``{"detail", "error"}``, listing matches
 ``NotFoundError``                            404   ``{"detail", "error"}``
 ``TooLargeError``, body over the limit       413   ``{"detail", "error"}``
+``CheckerBusy`` (every file checker busy)    503   ``{"detail", "error"}``; ``Retry-After``
 ``IntegrityError`` (corrupt object)          500   ``{"detail", "error"}``, never a traceback;
                                                    header ``X-Matforge-Error: integrity``
 ==========================================  =====  ============================================
@@ -43,12 +44,12 @@ from jobapi.version import __version__
 from service import kinds
 from service.deps import AuthDep, PageAuth, set_token_cookie
 from service.http_methods import MethodsMiddleware
+from service.previews import PreviewMaker
 from service.routes import ROUTERS
-from service.routes.artifacts import PreviewCache
 from service.routes.dashboard import render_error_page, static_files
 from service.settings import Settings
 from service.specs import JobSpec
-from service.upload_check import UploadChecker
+from service.upload_check import CheckerBusy, UploadChecker
 from service.web_guard import GuardMiddleware, allowed_hosts
 from storage.artifacts import ArtifactStore
 from storage.errors import (
@@ -163,6 +164,11 @@ def _http_error(request: Request, exc: Exception) -> Response:
     if exc.status_code == 404 and detail == "Not Found":
         detail = f"no route {request.method} {request.url.path}"
     return error_response(request, exc.status_code, detail, headers=exc.headers)
+
+
+def _busy_error(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, CheckerBusy)
+    return error_response(request, 503, str(exc), headers={"Retry-After": str(exc.retry_after)})
 
 
 def _internal_error(request: Request, exc: Exception) -> Response:
@@ -305,7 +311,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     gc.collect()
     gc.freeze()
     yield
-    app.state.upload_checker.close()  # the child process that validates uploads
+    app.state.upload_checker.close()  # the child processes that check uploads
 
 
 def create_app(settings: Settings | None = None, bind_host: str | None = None) -> FastAPI:
@@ -331,8 +337,15 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
     app.state.settings = settings
     app.state.jobs = JobStore(settings.db_path)
     app.state.store = ArtifactStore(settings.store_dir)
-    app.state.previews = PreviewCache()
-    app.state.upload_checker = UploadChecker(settings.upload_check_bytes)
+    app.state.upload_checker = UploadChecker(
+        settings.upload_check_bytes,
+        settings.upload_check_seconds,
+        processes=settings.upload_checkers,
+        queue_wait=settings.upload_queue_seconds,
+    )
+    app.state.previews = PreviewMaker(
+        app.state.upload_checker, max_pixels=settings.preview_max_pixels
+    )
     app.openapi = lambda: build_openapi(app)  # type: ignore[method-assign]
 
     app.add_exception_handler(SpecError, _spec_error)
@@ -341,6 +354,7 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
     app.add_exception_handler(AmbiguousIdError, _status_handler(422))
     app.add_exception_handler(NotFoundError, _status_handler(404))
     app.add_exception_handler(TooLargeError, _status_handler(413))
+    app.add_exception_handler(CheckerBusy, _busy_error)
     app.add_exception_handler(IntegrityError, _integrity_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
     app.add_exception_handler(Exception, _internal_error)

@@ -72,6 +72,18 @@ class Settings:
     ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
     ============================  ===========================  ==============================
 
+    Uploads are checked, and EXR previews made, in a pool of bounded child processes
+    (:mod:`service.upload_check`):
+
+    =================================  ========================  ==============================
+    variable                           field                     default
+    =================================  ========================  ==============================
+    ``MATFORGE_UPLOAD_CHECKERS``       ``upload_checkers``       2 (files checked at once)
+    ``MATFORGE_UPLOAD_CHECK_SECONDS``  ``upload_check_seconds``  120 (time to check one)
+    ``MATFORGE_UPLOAD_QUEUE_SECONDS``  ``upload_queue_seconds``  10 (wait for a checker; 503)
+    ``MATFORGE_PREVIEW_MAX_PIXELS``    ``preview_max_pixels``    2**24 (largest EXR previewed)
+    =================================  ========================  ==============================
+
     ``executor`` picks the backend of the jobs' shards (:mod:`service.workers.executors`):
     ``process`` is a pool of ``pool_processes`` local processes; ``ray`` sends shards to the
     Ray cluster at ``ray_address`` (``host:port`` of its head), or to a private local Ray of
@@ -90,6 +102,10 @@ class Settings:
     max_upload_bytes: int = 512 * 1024 * 1024
     max_body_bytes: int = 1024 * 1024
     upload_check_bytes: int = 2048 * 1024 * 1024
+    upload_checkers: int = 2
+    upload_check_seconds: float = 120.0
+    upload_queue_seconds: float = 10.0
+    preview_max_pixels: int = 1 << 24
     allowed_hosts: tuple[str, ...] = ()
     pool_processes: int = 2
     gc_grace_seconds: float = 24 * 3600.0
@@ -116,6 +132,10 @@ class Settings:
             max_upload_bytes=_int(e, "MATFORGE_MAX_UPLOAD_MB", 512) * 1024 * 1024,
             max_body_bytes=_int(e, "MATFORGE_MAX_BODY_KB", 1024) * 1024,
             upload_check_bytes=_int(e, "MATFORGE_UPLOAD_CHECK_MB", 2048) * 1024 * 1024,
+            upload_checkers=max(1, _int(e, "MATFORGE_UPLOAD_CHECKERS", 2)),
+            upload_check_seconds=_float(e, "MATFORGE_UPLOAD_CHECK_SECONDS", 120.0),
+            upload_queue_seconds=_float(e, "MATFORGE_UPLOAD_QUEUE_SECONDS", 10.0),
+            preview_max_pixels=_int(e, "MATFORGE_PREVIEW_MAX_PIXELS", 1 << 24),
             allowed_hosts=tuple(
                 h.strip().lower()
                 for h in (e.get("MATFORGE_ALLOWED_HOSTS") or "").split(",")
@@ -142,6 +162,10 @@ class Settings:
             "MATFORGE_MAX_UPLOAD_MB": str(self.max_upload_bytes // (1024 * 1024)),
             "MATFORGE_MAX_BODY_KB": str(self.max_body_bytes // 1024),
             "MATFORGE_UPLOAD_CHECK_MB": str(self.upload_check_bytes // (1024 * 1024)),
+            "MATFORGE_UPLOAD_CHECKERS": str(self.upload_checkers),
+            "MATFORGE_UPLOAD_CHECK_SECONDS": repr(self.upload_check_seconds),
+            "MATFORGE_UPLOAD_QUEUE_SECONDS": repr(self.upload_queue_seconds),
+            "MATFORGE_PREVIEW_MAX_PIXELS": str(self.preview_max_pixels),
             "MATFORGE_ALLOWED_HOSTS": ",".join(self.allowed_hosts),
             "MATFORGE_POOL_PROCESSES": str(self.pool_processes),
             "MATFORGE_GC_GRACE_HOURS": repr(self.gc_grace_seconds / 3600.0),

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-import threading
-from collections import OrderedDict
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -20,64 +18,28 @@ from starlette.concurrency import run_in_threadpool
 
 from jobapi.errors import SpecError
 from service.deps import AuthDep, Digest, JobsDep, SettingsDep, StoreDep
+from service.previews import PreviewMaker
 from service.schemas import ErrorPublic, UploadPublic
 from service.submission import import_file
 from storage.artifacts import check_digest
-from storage.errors import FormatError, TooLargeError
+from storage.errors import TooLargeError
 
 router = APIRouter(prefix="/api/artifacts", tags=["artifacts"], dependencies=[AuthDep])
 
 #: Media types a browser may show inline; everything else is sent as an attachment.
 INLINE_TYPES = frozenset({"image/png", "application/json", "text/plain", "text/csv"})
-PREVIEW_MAX_SIDE = 1024
-EXR_MAGIC = b"\x76\x2f\x31\x01"
 _ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorPublic, "description": "no such object"},
     422: {"model": ErrorPublic, "description": "not a sha256 digest"},
     500: {"model": ErrorPublic, "description": "the object is corrupt on disk"},
 }
-
-
-class PreviewCache:
-    """A small thread-safe LRU of rendered PNG previews, keyed by digest (objects are
-    immutable, so entries never go stale)."""
-
-    def __init__(self, max_entries: int = 64) -> None:
-        self.max_entries = max_entries
-        self._items: OrderedDict[str, bytes] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: str) -> bytes | None:
-        with self._lock:
-            value = self._items.get(key)
-            if value is not None:
-                self._items.move_to_end(key)
-            return value
-
-    def put(self, key: str, value: bytes) -> None:
-        with self._lock:
-            self._items[key] = value
-            self._items.move_to_end(key)
-            while len(self._items) > self.max_entries:
-                self._items.popitem(last=False)
-
-
-def render_exr_preview(path: Path, name: str, exposure: float = 0.0) -> bytes:
-    """A tone-mapped sRGB PNG of the EXR at ``path``, at most :data:`PREVIEW_MAX_SIDE`
-    pixels on its long side (strided, no filtering: it is a thumbnail), ``exposure`` stops
-    brighter. Raises ``FormatError`` naming ``name`` when the file is not a readable RGB
-    EXR."""
-    from evaluators.metrics.tonemap import tonemap
-    from storage.formats.exr import read_exr
-    from storage.formats.png import write_png
-
-    with open(path, "rb") as fh:
-        magic = fh.read(4)
-    if magic != EXR_MAGIC:
-        raise FormatError(name, "not an OpenEXR file; previews exist for .exr artifacts only")
-    rgb = read_exr(path, name)  # (H, W, 3) float32, linear
-    step = max(1, -(-max(rgb.shape[:2]) // PREVIEW_MAX_SIDE))
-    return write_png(None, tonemap(rgb[::step, ::step], exposure=exposure))  # sRGB, ACES
+_BUSY: dict[int | str, dict[str, Any]] = {
+    503: {
+        "model": ErrorPublic,
+        "description": "every file checker stayed busy; try again after `Retry-After` seconds",
+        "headers": {"Retry-After": {"schema": {"type": "integer"}}},
+    }
+}
 
 
 def _cache_headers(digest: str, private: bool) -> dict[str, str]:
@@ -130,7 +92,12 @@ def get_artifact(
     response_class=Response,
     responses={
         **_ERRORS,
+        **_BUSY,
         200: {"content": {"image/png": {}}, "description": "tone-mapped sRGB PNG"},
+        422: {
+            "model": ErrorPublic,
+            "description": "not a sha256 digest, not an EXR, or too large to preview",
+        },
     },
     summary="PNG preview of an EXR object",
 )
@@ -145,19 +112,20 @@ def get_preview(
     ] = 0.0,
 ) -> Response:
     """A tone-mapped sRGB PNG of an EXR object (for the dashboard), at most 1024 pixels on
-    its long side, `exposure` stops brighter; cached in memory by digest and exposure. 422
-    when the object is not an EXR."""
+    its long side, `exposure` stops brighter. The image is decoded once, in a memory-capped
+    child process, to a thumbnail that every exposure is made from; cached in memory. 422
+    when the object is not an EXR, or has more than `MATFORGE_PREVIEW_MAX_PIXELS` pixels."""
     d = check_digest(digest)
     key = d if exposure == 0 else f"{d}@{exposure:g}"
     headers = _cache_headers(key + "-preview", private=bool(settings.token))
-    cache: PreviewCache = request.app.state.previews
-    png = cache.get(key)
-    if png is None:
+    previews: PreviewMaker = request.app.state.previews
+
+    def source() -> tuple[Path, str]:
         path = store.open_verified(d)
         record = jobs.find_digest(d)
-        png = render_exr_preview(path, record.name if record else f"sha256:{d}", exposure)
-        cache.put(key, png)
-    return Response(png, media_type="image/png", headers=headers)
+        return path, record.name if record else f"sha256:{d}"
+
+    return Response(previews.png(d, exposure, source), media_type="image/png", headers=headers)
 
 
 def _check_name(name: str) -> str:
@@ -182,6 +150,7 @@ def _check_name(name: str) -> str:
         }
     },
     responses={
+        **_BUSY,
         413: {"model": ErrorPublic, "description": "over the upload size limit"},
         422: {
             "model": ErrorPublic,
