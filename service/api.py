@@ -330,7 +330,9 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
     app.state.jobs = JobStore(settings.db_path)
     app.state.store = ArtifactStore(settings.store_dir)
     app.state.previews = PreviewCache()
-    app.state.upload_checker = UploadChecker(settings.upload_check_bytes)
+    app.state.upload_checker = UploadChecker(
+        settings.upload_check_bytes, max_archive_pixels=settings.archive_max_pixels
+    )
     app.openapi = lambda: build_openapi(app)  # type: ignore[method-assign]
 
     app.add_exception_handler(SpecError, _spec_error)

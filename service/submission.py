@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from jobapi.context import media_type_for
+from jobapi.context import JobLimits, media_type_for
 from jobapi.errors import SpecError
 from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
@@ -154,6 +154,7 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
                     lease_seconds=settings.lease_seconds,
                     executor=executor,
                     scratch=settings.data_dir / "scratch",
+                    limits=JobLimits(archive_pixels=settings.archive_max_pixels),
                 )
         finally:
             executor.close()

@@ -36,12 +36,13 @@ def _limit_memory(max_bytes: int) -> None:
     resource.setrlimit(resource.RLIMIT_DATA, (max_bytes, max_bytes))
 
 
-def _validate(path: str, name: str) -> str:
-    """Runs in the child: the media type, or the exception the format raised."""
+def _validate(path: str, name: str, max_archive_pixels: int | None = None) -> str:
+    """Runs in the child: the media type, or the exception the format raised (an archive
+    whose images' headers add up to more than ``max_archive_pixels``: TooLargeError)."""
     from storage.formats import validate_file
 
     try:
-        return validate_file(Path(path), name)
+        return validate_file(Path(path), name, max_archive_pixels=max_archive_pixels)
     except MemoryError:
         raise TooLargeError(
             f"{name}: decoding it needs more memory than uploads may use; send a smaller file"
@@ -52,9 +53,15 @@ class UploadChecker:
     """``validate(path, name) -> media type`` in a bounded child process (see the module
     docstring); thread-safe; :meth:`close` ends the child."""
 
-    def __init__(self, max_bytes: int, timeout: float = TIMEOUT_SECONDS) -> None:
+    def __init__(
+        self,
+        max_bytes: int,
+        timeout: float = TIMEOUT_SECONDS,
+        max_archive_pixels: int | None = None,
+    ) -> None:
         self.max_bytes = max_bytes
         self.timeout = timeout
+        self.max_archive_pixels = max_archive_pixels
         self._pool: cf.ProcessPoolExecutor | None = None
         self._lock = threading.Lock()
 
@@ -79,7 +86,7 @@ class UploadChecker:
 
     def validate(self, path: Path, name: str) -> str:
         pool = self._get_pool()
-        future = pool.submit(_validate, str(path), name)
+        future = pool.submit(_validate, str(path), name, self.max_archive_pixels)
         try:
             return future.result(timeout=self.timeout)
         except cf.process.BrokenProcessPool:

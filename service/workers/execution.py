@@ -14,10 +14,11 @@ import socket
 import tempfile
 import threading
 import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from jobapi.context import JobContext
+from jobapi.context import JobContext, JobLimits
 from jobapi.errors import JobCancelled, JobFailed, SpecError
 from jobapi.executor import Executor, InlineExecutor
 from service import kinds
@@ -108,6 +109,37 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _chain(exc: BaseException) -> list[BaseException]:
+    seen: list[BaseException] = []
+    cur: BaseException | None = exc
+    while cur is not None and all(cur is not e for e in seen):
+        seen.append(cur)
+        cur = cur.__cause__ or cur.__context__
+    return seen
+
+
+def crash_message(kind: str, exc: BaseException, step: str | None) -> str:
+    """The one-line ``error`` of a job whose runner raised ``exc`` (not a ``JobFailed``).
+
+    Running out of memory is named as such, wherever it happened (in the runner, or in a
+    shard process whose MemoryError came back through the pool) and whatever it led to on
+    the way out (a file closed under a reader's feet used to be reported instead: "I/O
+    operation on closed file"); ``step`` is the runner's last progress line."""
+    at = f" ({step})" if step else ""
+    chain = _chain(exc)
+    if any(isinstance(e, MemoryError) for e in chain):
+        return (
+            f"out of memory in {kind}{at}: the job needs more memory than this worker could "
+            "allocate; use smaller inputs or shards, or a worker with more memory"
+        )
+    if any(isinstance(e, BrokenProcessPool) for e in chain):
+        return (
+            f"a shard process of {kind} died{at} (killed, or out of memory); "
+            "see the worker log, then submit the spec again"
+        )
+    return f"internal error in {kind}: {type(exc).__name__}: {_one_line(exc)}"
+
+
 def execute(
     job: Job,
     *,
@@ -116,9 +148,11 @@ def execute(
     lease_seconds: float,
     executor: Executor | None = None,
     scratch: Path | None = None,
+    limits: JobLimits | None = None,
 ) -> str:
     """Run a job this process has claimed; returns its final state as this worker saw it
-    (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``)."""
+    (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``). ``limits`` are the
+    operator's limits the runner honours (:class:`~jobapi.context.JobLimits`)."""
     assert job.lease_token is not None
     started = time.time()
     hb = Heartbeat(jobs, job, lease_seconds)
@@ -139,6 +173,7 @@ def execute(
                     workdir=workdir,
                     monitor=hb,
                     executor=executor,
+                    limits=limits,
                 )
                 kind.runner(spec.params, ctx)
                 ctx.check_cancelled()
@@ -150,11 +185,7 @@ def execute(
                 return "failed"
             except Exception as exc:
                 log.exception("job %s (%s) crashed", job.id, job.kind)
-                jobs.fail(
-                    job.id,
-                    job.lease_token,
-                    f"internal error in {job.kind}: {type(exc).__name__}: {_one_line(exc)}",
-                )
+                jobs.fail(job.id, job.lease_token, crash_message(job.kind, exc, hb.last_message))
                 return "failed"
         finished = time.time()
         arts = sorted(ctx.artifacts.values(), key=lambda a: a.name)

@@ -20,6 +20,7 @@ import threading
 import time
 from pathlib import Path
 
+from jobapi.context import JobLimits
 from jobapi.errors import ExecutorUnavailable
 from service.settings import Settings
 from service.workers.execution import execute, worker_id
@@ -69,6 +70,7 @@ def run_worker(
                 lease_seconds=settings.lease_seconds,
                 executor=executor,
                 scratch=settings.data_dir / "scratch",
+                limits=JobLimits(archive_pixels=settings.archive_max_pixels),
             )
             log.info("job %s: %s", job.id, state)
             ran += 1
