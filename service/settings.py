@@ -65,6 +65,7 @@ class Settings:
     ``MATFORGE_ARCHIVE_MPIX``     ``archive_max_pixels``       256 Mpix (an archive's images)
     ``MATFORGE_ALLOWED_HOSTS``    ``allowed_hosts``            the bound host (and loopback)
     ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
+    ``MATFORGE_STALL_SECONDS``    ``stall_seconds``            unset: each kind's own
     ``MATFORGE_GC_GRACE_HOURS``   ``gc_grace_seconds``         24 h
     ``MATFORGE_EXECUTOR``         ``executor``                 ``process`` (or ``ray``)
     ``RAY_ADDRESS``               ``ray_address``              unset: a private local Ray
@@ -94,6 +95,7 @@ class Settings:
     archive_max_pixels: int = 256 * 1000 * 1000
     allowed_hosts: tuple[str, ...] = ()
     pool_processes: int = 2
+    stall_seconds: float | None = None
     gc_grace_seconds: float = 24 * 3600.0
     libllvm_path: str = DEFAULT_LIBLLVM
     executor: str = "process"
@@ -125,6 +127,7 @@ class Settings:
                 if h.strip()
             ),
             pool_processes=max(1, _int(e, "MATFORGE_POOL_PROCESSES", min(2, os.cpu_count() or 1))),
+            stall_seconds=_float(e, "MATFORGE_STALL_SECONDS", 0.0) or None,
             gc_grace_seconds=_float(e, "MATFORGE_GC_GRACE_HOURS", 24.0) * 3600.0,
             libllvm_path=e.get("DRJIT_LIBLLVM_PATH") or DEFAULT_LIBLLVM,
             executor=_choice(e, "MATFORGE_EXECUTOR", EXECUTORS),
@@ -153,6 +156,8 @@ class Settings:
             "MATFORGE_EXECUTOR": self.executor,
             "MATFORGE_RAY_MAX_RETRIES": str(self.ray_max_retries),
         }
+        if self.stall_seconds:
+            env["MATFORGE_STALL_SECONDS"] = repr(self.stall_seconds)
         if self.ray_address:
             env["RAY_ADDRESS"] = self.ray_address
         if self.ray_auth_mode:

@@ -155,6 +155,7 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
                     executor=executor,
                     scratch=settings.data_dir / "scratch",
                     limits=JobLimits(archive_pixels=settings.archive_max_pixels),
+                    stall_seconds=settings.stall_seconds,
                 )
         finally:
             executor.close()
