@@ -74,6 +74,10 @@ class Settings:
     ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
     ============================  ===========================  ==============================
 
+    ``stall_seconds``, when set, replaces every kind's stall limit
+    (:attr:`jobapi.kinds.Kind.stall_seconds`): a running job that reports no progress for
+    that long fails as stuck (:class:`service.workers.execution.Heartbeat`).
+
     ``executor`` picks the backend of the jobs' shards (:mod:`service.workers.executors`):
     ``process`` is a pool of ``pool_processes`` local processes; ``ray`` sends shards to the
     Ray cluster at ``ray_address`` (``host:port`` of its head), or to a private local Ray of

@@ -2,8 +2,11 @@
 
 Used both by the worker processes of ``matforge serve`` and by ``matforge run`` (in
 process). The runner's exceptions are mapped here: :class:`JobFailed` becomes the job's
-one-line ``error``; :class:`JobCancelled` leaves a cancelled job as it is; anything else is
-logged with its traceback and reported as an internal error in one line.
+one-line ``error``; :class:`JobCancelled` leaves a cancelled job as it is; a MemoryError
+(however it surfaced) is "out of memory in <kind> (<step>)"; anything else is logged with its
+traceback and reported as an internal error in one line. The :class:`Heartbeat` watches the
+run: no progress for the kind's ``stall_seconds``, or a run past ``timeout_seconds``, fails
+the job; any stop kills the shard processes the runner waits on, so the worker is freed.
 """
 
 from __future__ import annotations

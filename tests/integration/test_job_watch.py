@@ -79,3 +79,32 @@ def test04_cancel_frees_the_worker_for_the_next_job(toy_kind, settings, jobs, st
         worker.join(timeout=60)
     assert jobs.get(slow.id).state == "cancelled"
     assert not worker.is_alive()
+
+
+def test05_a_runner_that_does_not_return_ends_its_worker(toy_kind, settings, jobs, store) -> None:
+    """A single shard runs inline, in the worker's own thread: no process to kill. When the
+    job is cancelled and the runner has not returned ``grace`` seconds later, ``on_wedged``
+    is called (a worker process ends itself there, and its supervisor starts another)."""
+    from service.workers.execution import execute
+    from service.workers.executors import LocalPoolExecutor
+
+    job, _ = submit({"kind": "toy", "params": {"n": 1, "sleep": 8.0}}, jobs, store)
+    claimed = jobs.claim("test-worker", settings.lease_seconds, job_id=job.id)
+    assert claimed is not None
+    wedged = threading.Event()
+    outcome: list[str] = []
+    run = threading.Thread(
+        target=lambda: outcome.append(
+            execute(claimed, jobs=jobs, store=store, lease_seconds=settings.lease_seconds,
+                    executor=LocalPoolExecutor(2), on_wedged=wedged.set)
+        )
+    )  # fmt: skip
+    run.start()
+    time.sleep(0.5)
+    jobs.cancel(job.id)
+    t0 = time.monotonic()
+    # The grace is max(5 s, the lease); the heartbeat looks every lease / 3.
+    assert wedged.wait(timeout=7.5), "on_wedged was not called"
+    assert time.monotonic() - t0 >= 4.5
+    run.join(timeout=20)
+    assert outcome == ["cancelled"]
