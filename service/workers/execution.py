@@ -184,7 +184,10 @@ class Heartbeat:
         while not self._stop.wait(interval):
             if not self.cancelled():
                 self.beat()
-            self.watch()
+            try:
+                self.watch()
+            except Exception:  # a busy database: look again at the next beat
+                log.exception("watching job %s failed", self.job_id)
 
     def __enter__(self) -> Heartbeat:
         self._thread.start()
