@@ -34,7 +34,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from storage.errors import FormatError, TooLargeError
-from storage.formats.exr import exr_header_info, read_exr
+from storage.formats.exr import MAX_PIXELS, exr_header_info, read_exr
 from storage.formats.png import level_table, levels_to_float, png_size, read_png_levels
 
 ANGLE_FILES = ("angles.csv", "angles.json")
@@ -47,6 +47,11 @@ MAX_THETA = 89.0
 #: (``MATFORGE_ARCHIVE_MPIX``); checked from the headers before any pixel is decoded.
 MAX_ARCHIVE_PIXELS = 256_000_000
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+#: The most bytes one image member of an archive may inflate to: the largest image read
+#: (:data:`~storage.formats.exr.MAX_PIXELS`) as uncompressed float32 RGBA, plus 1 MiB of
+#: header. Checked from the zip directory before a member is extracted, so a deflate bomb
+#: cannot fill the disk.
+MAX_MEMBER_BYTES = 16 * MAX_PIXELS + (1 << 20)
 
 
 @dataclass(frozen=True)
@@ -207,6 +212,13 @@ class SliceFolder:
             return self.path / member
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="matforge-btf-")
+        size = self._zip.getinfo(member).file_size
+        if size > MAX_MEMBER_BYTES:
+            raise FormatError(
+                f"{self.label}: {entry.file}",
+                f"inflates to {size} bytes, more than any slice image can be "
+                f"({MAX_MEMBER_BYTES} bytes)",
+            )
         out = Path(self._tmp.name) / f"slice{PurePosixPath(entry.file).suffix.lower()}"
         with self._zip.open(member) as src, open(out, "wb") as dst:
             shutil.copyfileobj(src, dst, 1 << 20)  # streamed: a member is never all in memory

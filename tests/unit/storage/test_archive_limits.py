@@ -104,3 +104,16 @@ def test04_streamed_shard_has_the_bytes_of_shard_bytes(dtype: str) -> None:
     assert buf.getvalue() == shard_bytes(wi, wo, rgb, stderr, dtype)
     with pytest.raises(ValueError, match="slice 2"):
         write_shard(io.BytesIO(), wi, wo, iter(rgb[:2].tolist() + [rgb[0, :4]]), (h, w), stderr)
+
+
+def test05_a_member_inflating_past_any_image_is_refused_before_extraction(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A deflate bomb member is refused from the zip directory (the limit is lowered here
+    so that the test writes kilobytes, not the 513 MiB of the real one)."""
+    from storage.formats import btf_folder
+
+    z = slice_zip(tmp_path / "z.btf.zip", 2, (64, 64), "RGB")
+    monkeypatch.setattr(btf_folder, "MAX_MEMBER_BYTES", 1000)
+    with pytest.raises(btf_folder.FormatError, match=r"z.btf.zip: s0.png: inflates to \d+ bytes"):
+        archive_pixels(z, "z.btf.zip")
