@@ -62,7 +62,7 @@ class Settings:
     ``MATFORGE_MAX_UPLOAD_MB``    ``max_upload_bytes``         512 MiB
     ``MATFORGE_MAX_BODY_KB``      ``max_body_bytes``           1 MiB (JSON bodies)
     ``MATFORGE_UPLOAD_CHECK_MB``  ``upload_check_bytes``       2 GiB (memory to validate one)
-    ``MATFORGE_ARCHIVE_MPIX``     ``archive_max_pixels``       256 Mpix (an archive's images)
+    ``MATFORGE_ARCHIVE_MPIX``     ``archive_max_pixels``       64 Mpix (an archive's images)
     ``MATFORGE_ALLOWED_HOSTS``    ``allowed_hosts``            the bound host (and loopback)
     ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
     ``MATFORGE_STALL_SECONDS``    ``stall_seconds``            unset: each kind's own
@@ -96,7 +96,7 @@ class Settings:
     max_upload_bytes: int = 512 * 1024 * 1024
     max_body_bytes: int = 1024 * 1024
     upload_check_bytes: int = 2048 * 1024 * 1024
-    archive_max_pixels: int = 256 * 1000 * 1000
+    archive_max_pixels: int = 64 * 1000 * 1000
     allowed_hosts: tuple[str, ...] = ()
     pool_processes: int = 2
     stall_seconds: float | None = None
@@ -124,7 +124,7 @@ class Settings:
             max_upload_bytes=_int(e, "MATFORGE_MAX_UPLOAD_MB", 512) * 1024 * 1024,
             max_body_bytes=_int(e, "MATFORGE_MAX_BODY_KB", 1024) * 1024,
             upload_check_bytes=_int(e, "MATFORGE_UPLOAD_CHECK_MB", 2048) * 1024 * 1024,
-            archive_max_pixels=int(_float(e, "MATFORGE_ARCHIVE_MPIX", 256.0) * 1e6),
+            archive_max_pixels=int(_float(e, "MATFORGE_ARCHIVE_MPIX", 64.0) * 1e6),
             allowed_hosts=tuple(
                 h.strip().lower()
                 for h in (e.get("MATFORGE_ALLOWED_HOSTS") or "").split(",")

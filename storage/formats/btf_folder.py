@@ -42,10 +42,12 @@ IMAGE_SUFFIXES = (".exr", ".png")
 COLUMNS = ("file", "theta_i", "phi_i", "theta_o", "phi_o")
 #: Largest polar angle accepted, degrees.
 MAX_THETA = 89.0
-#: Default cap on the pixels an archive's images decode to, all slices together (256
-#: megapixels: 3 GB as float32 RGB). The service passes its setting
-#: (``MATFORGE_ARCHIVE_MPIX``); checked from the headers before any pixel is decoded.
-MAX_ARCHIVE_PIXELS = 256_000_000
+#: Default cap on the pixels an archive's images decode to, all slices together (64
+#: megapixels: 768 MB as float32 RGB; 400 slices of 400 x 400, or one 8192 x 4096 image).
+#: The service passes its setting (``MATFORGE_ARCHIVE_MPIX``; a whole UBO2014 material,
+#: 151 x 151 slices of 400 x 400, is 3650 Mpix); checked from the headers before any pixel
+#: is decoded.
+MAX_ARCHIVE_PIXELS = 64_000_000
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 #: The most bytes one image member of an archive may inflate to: the largest image read
 #: (:data:`~storage.formats.exr.MAX_PIXELS`) as uncompressed float32 RGBA, plus 1 MiB of

@@ -5,8 +5,9 @@ drove the worker past 3.6 GB; its MemoryError was reported as "internal error ..
 operation on closed file". Now:
 
 - the pixels of all of an archive's images are summed from their headers and capped
-  (``MATFORGE_ARCHIVE_MPIX``): at upload (413, naming the member and the sizes) and again in
-  the job, before decoding, for an archive that reached the store some other way;
+  (``MATFORGE_ARCHIVE_MPIX``, default 64 Mpix): at upload (413, naming the member and the
+  sizes) and again in the job, before decoding, for an archive that reached the store
+  some other way;
 - a shard too big for the shard readers is refused before decoding;
 - slices are decoded one at a time and streamed into the shard: the converter's memory
   grows by about one shard's bytes, not by several decoded copies of it;
@@ -20,9 +21,11 @@ import json
 import subprocess
 import sys
 import zipfile
+from functools import partial
 from pathlib import Path
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
@@ -30,6 +33,8 @@ from service.api import create_app
 from service.settings import Settings
 from service.submission import import_file, run_in_process
 from storage.artifacts import ArtifactStore
+from storage.errors import TooLargeError
+from storage.formats import validate_file
 from storage.jobs import JobStore
 
 REPO = Path(__file__).resolve().parents[2]
@@ -65,7 +70,7 @@ def test01_upload_over_the_pixel_cap_is_413(settings: Settings, tmp_path: Path) 
         err = r.json()["error"]
         assert "three.btf.zip: slices/s1.png" in err and "98304 pixels" in err, err
         assert "50000 pixels" in err, err
-    with TestClient(create_app(settings)) as client:  # the default cap: 256 Mpix
+    with TestClient(create_app(settings)) as client:  # the default cap: 64 Mpix
         r = client.post("/api/artifacts?name=three.btf.zip", content=z.read_bytes())
         assert r.status_code == 201, r.text
 
@@ -84,18 +89,28 @@ def test02_the_job_applies_the_cap_before_decoding(settings: Settings, tmp_path:
     assert ok.state == "succeeded", ok.error
 
 
-def test03_the_attack_archive_fails_before_decoding(settings: Settings, tmp_path: Path) -> None:
-    """The issue's archive: three 1-bit 8192 x 4096 PNGs (about 13 KB). Under the default
-    cap (256 Mpix) its 100 Mpix pass, but one shard of the three slices would be 1.2 GB,
-    over what a shard may hold: refused from the headers, in well under a second of
-    decoding and without allocating a slice."""
+def test03_the_attack_archive_is_refused_before_decoding(
+    settings: Settings, tmp_path: Path
+) -> None:
+    """The issue's archive: three 1-bit 8192 x 4096 PNGs (about 13 KB, 100 Mpix). Over the
+    default cap (64 Mpix), it is refused at upload, and by the job when it reached the
+    store some other way (here: a server with a 256 Mpix cap). Under a cap raised to let
+    it through, one shard of the three slices would be 1.2 GB, over what a shard may hold:
+    refused too, from the headers. The old job decoded it all (over 3.6 GB)."""
     z = one_bit_zip(tmp_path / "bomb.btf.zip", 3, (8192, 4096))
     assert z.stat().st_size < 64 * 1024
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
-    ref = f"sha256:{import_file(z, jobs, store).digest}"
+    with pytest.raises(TooLargeError, match=r"bomb.btf.zip: slices/s1.png: .* 100663296 pixels"):
+        import_file(z, jobs, store)
+    lax = partial(validate_file, max_archive_pixels=256_000_000)
+    ref = f"sha256:{import_file(z, jobs, store, validate=lax).digest}"
     job = run_in_process(_spec(ref), settings)
-    assert job.state == "failed", job
-    assert job.error is not None and "shard_slices: a shard of 3 slices of 8192x4096" in job.error
+    assert job.state == "failed" and job.error is not None, job
+    assert job.error.startswith("archive: bomb.btf.zip: slices/s1.png: "), job.error
+    assert "100663296 pixels" in job.error and "64000000 pixels" in job.error, job.error
+    job = run_in_process(_spec(ref), settings.with_(archive_max_pixels=256_000_000))
+    assert job.state == "failed" and job.error is not None, job
+    assert "shard_slices: a shard of 3 slices of 8192x4096" in job.error, job.error
     assert "use shard_slices <= 2" in job.error, job.error
 
 

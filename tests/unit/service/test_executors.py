@@ -53,7 +53,7 @@ def test04_inline_describes_itself() -> None:
 def test05_the_watch_and_archive_settings_reach_the_workers() -> None:
     """Issue 21: the stall limit and the archive pixel cap travel to worker processes."""
     default = Settings.from_env({})
-    assert default.stall_seconds is None and default.archive_max_pixels == 256_000_000
+    assert default.stall_seconds is None and default.archive_max_pixels == 64_000_000
     assert "MATFORGE_STALL_SECONDS" not in default.to_env()
     s = Settings.from_env({"MATFORGE_STALL_SECONDS": "2.5", "MATFORGE_ARCHIVE_MPIX": "0.05"})
     assert s.stall_seconds == 2.5 and s.archive_max_pixels == 50_000
