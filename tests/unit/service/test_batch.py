@@ -103,6 +103,11 @@ def test02_top_level_list_and_defaults() -> None:
     )
     assert batch.steps[0].spec["seed"] == 7 and batch.steps[0].spec["force"] is True
     assert batch.steps[1].spec["seed"] == 3  # the step's own value wins
+    # issue 21: a time limit for every step
+    batch = parse(
+        {"defaults": {"timeout_seconds": 600}, "steps": [{"name": "a", "spec": render()}]}
+    )
+    assert batch.steps[0].spec["timeout_seconds"] == 600
 
 
 def test03_forward_ref_is_rejected() -> None:
