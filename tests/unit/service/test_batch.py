@@ -24,6 +24,7 @@ from service.cli.batch import (
 from service.cli.batch_run import run_batch
 from service.cli.client import BadInput
 from service.cli.results import result_rows, write_rows
+from service.specs import JobSpec
 
 KINDS = {"render", "score"}
 
@@ -33,8 +34,8 @@ def fake_validate(raw: Any) -> Any:
     well-formed ref (the placeholders the batch parser substitutes must pass)."""
     if raw.get("kind") not in KINDS:
         raise SpecError([("kind", f"unknown job kind {raw.get('kind')!r}")])
-    if set(raw) - {"kind", "name", "seed", "params", "force"}:
-        extra = sorted(set(raw) - {"kind", "name", "seed", "params", "force"})[0]
+    if set(raw) - set(JobSpec.model_fields):  # the real envelope's fields
+        extra = sorted(set(raw) - set(JobSpec.model_fields))[0]
         raise SpecError([(extra, "Extra inputs are not permitted")])
 
     def walk(obj: Any, loc: str) -> None:
