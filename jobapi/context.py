@@ -14,6 +14,7 @@ import math
 import pickle
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -23,12 +24,22 @@ from jobapi.errors import JobCancelled, JobFailed, NotFoundError
 from jobapi.executor import Executor, InlineExecutor
 from jobapi.params import JOB_REF, SHA_REF
 from storage.artifacts import ArtifactStore
+from storage.formats.btf_folder import MAX_ARCHIVE_PIXELS
 from storage.formats.media import media_type_for
 from storage.jobs import ArtifactRecord, Job, JobStore
 
 #: Shard key prefix of a published live document (``:`` never occurs in an artifact name,
 #: so these keys cannot meet the shard keys of :meth:`JobContext.map_artifact_shards`).
 LIVE_PREFIX = "live:"
+
+
+@dataclass(frozen=True)
+class JobLimits:
+    """The operator's limits a runner honours, from the service's settings (a spec cannot
+    raise them). ``archive_pixels``: the most pixels all the images of an uploaded archive
+    may decode to (``MATFORGE_ARCHIVE_MPIX``)."""
+
+    archive_pixels: int = MAX_ARCHIVE_PIXELS
 
 
 class Monitor(Protocol):
@@ -59,6 +70,7 @@ class JobContext:
     - ``job_id``: 32-hex job id; ``seed``: the spec's seed; ``workdir``: a private scratch
       directory, removed after the job.
     - ``store``: the artifact store (use :meth:`resolve` / :meth:`put_bytes` instead).
+    - ``limits``: the operator's :class:`JobLimits`.
     """
 
     def __init__(
@@ -72,6 +84,7 @@ class JobContext:
         workdir: Path,
         monitor: Monitor | None = None,
         executor: Executor | None = None,
+        limits: JobLimits | None = None,
     ) -> None:
         self.job_id = job_id
         self.seed = seed
@@ -81,6 +94,7 @@ class JobContext:
         self.workdir = workdir
         self.monitor: Monitor = monitor or NullMonitor()
         self.executor: Executor = executor or InlineExecutor()
+        self.limits = limits or JobLimits()
         self.artifacts: dict[str, ArtifactRecord] = {}
         self._published: dict[str, float] = {}
 

@@ -38,6 +38,11 @@ class Executor(Protocol):
 
     def close(self) -> None: ...
 
+    # Optional: ``abort()``, callable from another thread, makes a blocked ``map`` raise at
+    # once (kill the shard processes, cancel the tasks). The worker calls it when a job is
+    # cancelled, stuck or out of time; a backend without it is waited for, then its worker
+    # ended.
+
 
 class InlineExecutor:
     """Runs shards one after another in the calling process."""

@@ -27,6 +27,10 @@ if TYPE_CHECKING:
     from jobapi.context import JobContext
 
 Runner = Callable[[Any, "JobContext"], None]
+#: A run's time limit unless its kind or its spec says otherwise (24 h).
+DEFAULT_TIMEOUT_SECONDS = 24 * 3600.0
+#: How long a run may go without progress unless its kind says otherwise (30 min).
+DEFAULT_STALL_SECONDS = 30 * 60.0
 #: ``summary(read)``: the kind's result table from its JSON artifacts (``read(name)`` is
 #: the parsed artifact called ``name``, or ``None``), or ``None`` when it has none.
 SummaryHook = Callable[[ArtifactReader], ResultTable | None]
@@ -81,6 +85,12 @@ class Kind:
             measured, one row each, for ``GET /api/results`` and ``matforge results``.
         figures: how the dashboard shows its pictures (:class:`Figure`): which comes first,
             and the axes of those that are plots.
+        timeout_seconds: the default time limit of one run (a spec's ``timeout_seconds``
+            replaces it): a run still going after it is failed, "timed out".
+        stall_seconds: the longest a run may go without progress (a new progress value
+            or message; every finished shard reports one) before it is failed as stuck,
+            its shard processes killed and its worker freed. Set it above the kind's
+            longest silent step.
     """
 
     name: str
@@ -93,6 +103,8 @@ class Kind:
     layout: str = ""
     rows: RowsHook | None = None
     figures: tuple[Figure, ...] = ()
+    timeout_seconds: float = DEFAULT_TIMEOUT_SECONDS
+    stall_seconds: float = DEFAULT_STALL_SECONDS
 
     def figure(self, artifact: str) -> Figure | None:
         """The first of :attr:`figures` whose pattern matches an artifact name, if any."""

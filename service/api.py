@@ -342,6 +342,7 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
         settings.upload_check_seconds,
         processes=settings.upload_checkers,
         queue_wait=settings.upload_queue_seconds,
+        max_archive_pixels=settings.archive_max_pixels,
     )
     app.state.previews = PreviewMaker(
         app.state.upload_checker, max_pixels=settings.preview_max_pixels

@@ -1,12 +1,15 @@
-"""``matforge store verify --repair``: make corrupt objects whole again where that is possible.
+"""``matforge store verify --repair``: make corrupt or missing objects whole again where that
+is possible.
 
-For each corrupt object, in order:
+For each corrupt object, and each object the job store refers to that is gone from disk
+(moved or deleted by hand), in order:
 
 1. a good copy among the files under ``--source`` paths (e.g. the user's originals of an
    upload): a file whose bytes hash to the digest is stored again, which replaces the
    damaged object atomically (:meth:`storage.artifacts.ArtifactStore.put_file`);
 2. the job that produced it: its spec is run again in this process with ``force`` (the same
-   spec gives the same bytes), whose writes replace the damaged object;
+   spec gives the same bytes), whose writes replace the damaged object or put the missing
+   one back;
 3. otherwise it is reported with what the user can do (re-upload the file, or nothing for a
    manifest, which records timings and cannot be made again).
 

@@ -62,8 +62,10 @@ class Settings:
     ``MATFORGE_MAX_UPLOAD_MB``    ``max_upload_bytes``         512 MiB
     ``MATFORGE_MAX_BODY_KB``      ``max_body_bytes``           1 MiB (JSON bodies)
     ``MATFORGE_UPLOAD_CHECK_MB``  ``upload_check_bytes``       2 GiB (memory to validate one)
+    ``MATFORGE_ARCHIVE_MPIX``     ``archive_max_pixels``       64 Mpix (an archive's images)
     ``MATFORGE_ALLOWED_HOSTS``    ``allowed_hosts``            the bound host (and loopback)
     ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
+    ``MATFORGE_STALL_SECONDS``    ``stall_seconds``            unset: each kind's own
     ``MATFORGE_GC_GRACE_HOURS``   ``gc_grace_seconds``         24 h
     ``MATFORGE_EXECUTOR``         ``executor``                 ``process`` (or ``ray``)
     ``RAY_ADDRESS``               ``ray_address``              unset: a private local Ray
@@ -83,6 +85,10 @@ class Settings:
     ``MATFORGE_UPLOAD_QUEUE_SECONDS``  ``upload_queue_seconds``  10 (wait for a checker; 503)
     ``MATFORGE_PREVIEW_MAX_PIXELS``    ``preview_max_pixels``    2**24 (largest EXR previewed)
     =================================  ========================  ==============================
+
+    ``stall_seconds``, when set, replaces every kind's stall limit
+    (:attr:`jobapi.kinds.Kind.stall_seconds`): a running job that reports no progress for
+    that long fails as stuck (:class:`service.workers.execution.Heartbeat`).
 
     ``executor`` picks the backend of the jobs' shards (:mod:`service.workers.executors`):
     ``process`` is a pool of ``pool_processes`` local processes; ``ray`` sends shards to the
@@ -106,8 +112,10 @@ class Settings:
     upload_check_seconds: float = 120.0
     upload_queue_seconds: float = 10.0
     preview_max_pixels: int = 1 << 24
+    archive_max_pixels: int = 64 * 1000 * 1000
     allowed_hosts: tuple[str, ...] = ()
     pool_processes: int = 2
+    stall_seconds: float | None = None
     gc_grace_seconds: float = 24 * 3600.0
     libllvm_path: str = DEFAULT_LIBLLVM
     executor: str = "process"
@@ -136,12 +144,14 @@ class Settings:
             upload_check_seconds=_float(e, "MATFORGE_UPLOAD_CHECK_SECONDS", 120.0),
             upload_queue_seconds=_float(e, "MATFORGE_UPLOAD_QUEUE_SECONDS", 10.0),
             preview_max_pixels=_int(e, "MATFORGE_PREVIEW_MAX_PIXELS", 1 << 24),
+            archive_max_pixels=int(_float(e, "MATFORGE_ARCHIVE_MPIX", 64.0) * 1e6),
             allowed_hosts=tuple(
                 h.strip().lower()
                 for h in (e.get("MATFORGE_ALLOWED_HOSTS") or "").split(",")
                 if h.strip()
             ),
             pool_processes=max(1, _int(e, "MATFORGE_POOL_PROCESSES", min(2, os.cpu_count() or 1))),
+            stall_seconds=_float(e, "MATFORGE_STALL_SECONDS", 0.0) or None,
             gc_grace_seconds=_float(e, "MATFORGE_GC_GRACE_HOURS", 24.0) * 3600.0,
             libllvm_path=e.get("DRJIT_LIBLLVM_PATH") or DEFAULT_LIBLLVM,
             executor=_choice(e, "MATFORGE_EXECUTOR", EXECUTORS),
@@ -166,6 +176,7 @@ class Settings:
             "MATFORGE_UPLOAD_CHECK_SECONDS": repr(self.upload_check_seconds),
             "MATFORGE_UPLOAD_QUEUE_SECONDS": repr(self.upload_queue_seconds),
             "MATFORGE_PREVIEW_MAX_PIXELS": str(self.preview_max_pixels),
+            "MATFORGE_ARCHIVE_MPIX": repr(self.archive_max_pixels / 1e6),
             "MATFORGE_ALLOWED_HOSTS": ",".join(self.allowed_hosts),
             "MATFORGE_POOL_PROCESSES": str(self.pool_processes),
             "MATFORGE_GC_GRACE_HOURS": repr(self.gc_grace_seconds / 3600.0),
@@ -173,6 +184,8 @@ class Settings:
             "MATFORGE_EXECUTOR": self.executor,
             "MATFORGE_RAY_MAX_RETRIES": str(self.ray_max_retries),
         }
+        if self.stall_seconds:
+            env["MATFORGE_STALL_SECONDS"] = repr(self.stall_seconds)
         if self.ray_address:
             env["RAY_ADDRESS"] = self.ray_address
         if self.ray_auth_mode:

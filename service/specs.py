@@ -1,12 +1,15 @@
 """Job specs: validation, canonical form and identity hash.
 
-A spec is ``{"kind": ..., "name": ..., "seed": ..., "params": {...}, "force": false}``.
-Validation is strict and happens before anything is queued: an unknown kind, an unknown
-field, a wrong type or an out-of-range value raises :class:`SpecError` naming the field.
+A spec is ``{"kind": ..., "name": ..., "seed": ..., "params": {...}, "force": false,
+"timeout_seconds": ...}``. Validation is strict and happens before anything is queued: an
+unknown kind, an unknown field, a wrong type or an out-of-range value raises
+:class:`SpecError` naming the field.
 
 Identity: the canonical JSON of ``{"kind", "seed", "params"}`` with every default filled in,
-keys sorted and no whitespace. ``name`` is a label and ``force`` an instruction, so neither
-is part of the identity.
+keys sorted and no whitespace. ``name`` is a label, ``force`` an instruction and
+``timeout_seconds`` a limit on how long a run may take, none of which changes the output
+bytes, so none is part of the identity: a spec that succeeded is reused whatever its time
+limit was. ``timeout_seconds`` is kept in the stored spec (the worker reads it there).
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._
 #: (:func:`service.submission.expand_short_refs`).
 SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)?\Z")
 MAX_SEED = 2**63 - 1
+#: The longest time limit a spec may ask for (30 days).
+MAX_TIMEOUT_SECONDS = 30 * 24 * 3600.0
 
 
 class JobSpec(BaseModel):
@@ -50,6 +55,16 @@ class JobSpec(BaseModel):
         description="a label grouping jobs submitted together (`matforge batch` sets it); "
         "like `name`, not part of the spec's identity",
     )
+    timeout_seconds: float | None = Field(
+        default=None,
+        gt=0,
+        le=MAX_TIMEOUT_SECONDS,
+        allow_inf_nan=False,
+        strict=True,
+        description="the most seconds a run of the job may take before it is failed "
+        "(default: its kind's, `Kind.timeout_seconds`); a limit, not an input: not part "
+        "of the spec's identity",
+    )
 
 
 class ValidSpec(BaseModel):
@@ -63,6 +78,7 @@ class ValidSpec(BaseModel):
     force: bool
     params: BaseModel
     batch: str | None = None
+    timeout_seconds: float | None = None
     canonical: str
     spec_hash: str
 
@@ -73,6 +89,8 @@ class ValidSpec(BaseModel):
             doc["name"] = self.name
         if self.batch is not None:
             doc["batch"] = self.batch
+        if self.timeout_seconds is not None:
+            doc["timeout_seconds"] = self.timeout_seconds
         return doc
 
 
@@ -168,6 +186,7 @@ def validate_spec(raw: Any) -> ValidSpec:
         seed=env.seed,
         force=env.force,
         batch=env.batch,
+        timeout_seconds=env.timeout_seconds,
         params=params,
         canonical=canonical,
         spec_hash=digest,

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from jobapi.context import media_type_for
+from jobapi.context import JobLimits, media_type_for
 from jobapi.errors import SpecError
 from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
@@ -99,7 +99,33 @@ def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
         spec_hash=spec.spec_hash,
         spec=spec.document(),
         force=spec.force,
+        exclude=() if spec.force else lost_results(spec.spec_hash, jobs, store),
     )
+
+
+def lost_results(spec_hash: str, jobs: JobStore, store: ArtifactStore) -> list[str]:
+    """Succeeded jobs of this spec that must not be reused: an artifact or the manifest is
+    gone from the store (moved or deleted by hand) or has the wrong size. Resubmitting the
+    spec runs it again, and the same spec writes the same bytes, so the run restores the
+    lost objects for every job that refers to them. A cheap ``stat`` per object, newest job
+    first, stopping at the first intact one (the one a resubmission returns)."""
+    lost: list[str] = []
+    while (job := jobs.succeeded_with_hash(spec_hash, exclude=lost)) is not None:
+        wanted: list[tuple[str, int | None]] = [(a.digest, a.size) for a in job.artifacts]
+        if job.manifest_digest:
+            wanted.append((job.manifest_digest, None))
+        if all(_present(store, d, size) for d, size in wanted):
+            break
+        lost.append(job.id)
+    return lost
+
+
+def _present(store: ArtifactStore, digest: str, size: int | None) -> bool:
+    try:
+        actual = store.size(digest)
+    except NotFoundError:
+        return False
+    return size is None or actual == size
 
 
 def run_in_process(raw: Any, settings: Settings) -> Job:
@@ -128,6 +154,8 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
                     lease_seconds=settings.lease_seconds,
                     executor=executor,
                     scratch=settings.data_dir / "scratch",
+                    limits=JobLimits(archive_pixels=settings.archive_max_pixels),
+                    stall_seconds=settings.stall_seconds,
                 )
         finally:
             executor.close()

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -287,7 +288,9 @@ class UploadChecker:
     running out of memory; :meth:`close` ends them all.
 
     ``max_bytes``: each child's data segment; ``timeout``: seconds one call may take;
-    ``queue_wait``: seconds a call waits for a free child before :class:`CheckerBusy`.
+    ``queue_wait``: seconds a call waits for a free child before :class:`CheckerBusy`;
+    ``max_archive_pixels``: the most pixels all the images of a BTF archive may decode to,
+    summed from their headers (:class:`~storage.formats.TooLargeError` above).
     """
 
     def __init__(
@@ -297,6 +300,7 @@ class UploadChecker:
         *,
         processes: int = PROCESSES,
         queue_wait: float = QUEUE_WAIT_SECONDS,
+        max_archive_pixels: int | None = None,
     ) -> None:
         if processes < 1:
             raise ValueError(f"an upload checker needs at least 1 process, not {processes}")
@@ -304,6 +308,7 @@ class UploadChecker:
         self.timeout = timeout
         self.processes = processes
         self.queue_wait = queue_wait
+        self.max_archive_pixels = max_archive_pixels
         #: Calls answered by a child (for statistics and tests).
         self.calls = 0
         self._free = threading.BoundedSemaphore(processes)
@@ -400,7 +405,8 @@ class UploadChecker:
         child); ``name`` is the user's file name."""
         from storage.formats import validate_file
 
-        return self.run(validate_file, Path(path), name, label=name)
+        check = functools.partial(validate_file, max_archive_pixels=self.max_archive_pixels)
+        return self.run(check, Path(path), name, label=name)
 
     def close(self) -> None:
         """End every child (a call in flight gets a :class:`CheckFailed`); a later call

@@ -21,7 +21,7 @@ import stat
 import tempfile
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
@@ -56,15 +56,18 @@ class ObjectInfo:
 
 @dataclass(frozen=True)
 class VerifyReport:
-    """Result of :meth:`ArtifactStore.verify_all`."""
+    """Result of :meth:`ArtifactStore.verify_all`: ``corrupt`` objects (bytes that do not
+    hash to their name), ``missing`` ones (referenced but absent from disk) and ``stray``
+    files (names that are not digests)."""
 
     checked: int
     corrupt: list[str]
     stray: list[str]
+    missing: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
-        return not self.corrupt
+        return not self.corrupt and not self.missing
 
 
 @dataclass(frozen=True)
@@ -252,17 +255,23 @@ class ArtifactStore:
             for f in sorted(sub.iterdir()):
                 yield sub.name + f.name, f
 
-    def verify_all(self) -> VerifyReport:
-        """Re-hash every object. ``stray`` lists files whose names are not digests."""
+    def verify_all(self, referenced: Iterable[str] = ()) -> VerifyReport:
+        """Re-hash every object, and check that every digest in ``referenced`` (the job
+        store's references: artifacts, uploads, manifests) has an object at all: a file
+        moved or deleted by hand is as lost as a damaged one. ``stray`` lists files whose
+        names are not digests."""
         checked, corrupt, stray = 0, [], []
+        present: set[str] = set()
         for name, path in self.iter_objects():
             if not DIGEST_RE.fullmatch(name):
                 stray.append(str(path))
                 continue
             checked += 1
+            present.add(name)
             if not self.verify(name):
                 corrupt.append(name)
-        return VerifyReport(checked, corrupt, stray)
+        missing = sorted(d for d in set(referenced) if d not in present)
+        return VerifyReport(checked, corrupt, stray, missing)
 
     def gc(
         self,

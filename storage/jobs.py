@@ -17,7 +17,7 @@ import sqlite3
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -87,6 +87,12 @@ CREATE TABLE IF NOT EXISTS uploads (
 """
 
 
+def _not_in(column: str, values: Collection[str]) -> str:
+    """`` AND <column> NOT IN (?, ...)`` for ``values``, or nothing when there are none
+    (``NOT IN (NULL)`` would match no row)."""
+    return f" AND {column} NOT IN ({','.join('?' * len(values))})" if values else ""
+
+
 class JobStore(JobListing):
     """SQLite-backed job queue. Safe to share between threads (one connection per thread)
     and between processes (SQLite file locking; WAL lets readers run beside a writer). Its
@@ -149,15 +155,15 @@ class JobStore(JobListing):
             raise NotFoundError(f"no job {job_id!r}")
         return self._row_to_job(row)
 
-    def succeeded_with_hash(self, spec_hash: str) -> Job | None:
+    def succeeded_with_hash(self, spec_hash: str, exclude: Collection[str] = ()) -> Job | None:
         """The newest succeeded job of the spec whose canonical hash is ``spec_hash`` (what
-        resubmitting that spec would return), or ``None``."""
+        resubmitting that spec would return), or ``None``; jobs in ``exclude`` are skipped."""
         row = (
             self._conn()
             .execute(
-                f"SELECT {_JOB_COLS} FROM jobs WHERE spec_hash=? AND state='succeeded' "
-                "ORDER BY seq DESC LIMIT 1",
-                (spec_hash,),
+                f"SELECT {_JOB_COLS} FROM jobs WHERE spec_hash=? AND state='succeeded'"
+                f"{_not_in('id', exclude)} ORDER BY seq DESC LIMIT 1",
+                (spec_hash, *exclude),
             )
             .fetchone()
         )
@@ -258,20 +264,22 @@ class JobStore(JobListing):
         spec_hash: str,
         spec: dict[str, Any],
         force: bool = False,
+        exclude: Collection[str] = (),
     ) -> tuple[Job, bool]:
         """Queue a job; returns ``(job, created)``.
 
         Unless ``force``, an identical spec (same hash) that already succeeded, or is queued
-        or running, is returned instead of queueing a duplicate.
+        or running, is returned instead of queueing a duplicate; jobs in ``exclude`` (e.g.
+        succeeded jobs whose artifacts were lost from the store) are never returned.
         """
         now = time.time()
         with self._write() as db:
             if not force:
                 row = db.execute(
                     f"SELECT {_JOB_COLS} FROM jobs WHERE spec_hash=? AND state IN "
-                    "('succeeded','running','queued') ORDER BY (state='succeeded') DESC, seq DESC "
-                    "LIMIT 1",
-                    (spec_hash,),
+                    f"('succeeded','running','queued'){_not_in('id', exclude)} "
+                    "ORDER BY (state='succeeded') DESC, seq DESC LIMIT 1",
+                    (spec_hash, *exclude),
                 ).fetchone()
                 if row is not None:
                     job_id = row["id"]

@@ -11,6 +11,8 @@ measurement's error is not known), ``btf.json``, ``preview.png``.
 
 from __future__ import annotations
 
+import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -20,12 +22,13 @@ from pydantic import Field
 
 from generators.btf.kind import summarize
 from generators.btf.preview import PreviewCollector
-from jobapi.errors import FormatError, JobFailed
+from jobapi.errors import FormatError, JobFailed, TooLargeError
 from jobapi.kinds import Kind, register
 from jobapi.params import Ref, StrictModel
 from materials.btf.directions import check_pairs, pair_count_label, to_vector
-from storage.formats.btf import index_document, shard_bytes, shard_name
+from storage.formats.btf import index_document, shard_name, write_shard
 from storage.formats.btf_folder import SliceEntry, SliceFolder
+from storage.formats.npz import MAX_NPZ_BYTES
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -54,7 +57,13 @@ class ImportBtfParams(StrictModel):
         le=1e6,
         description="Factor from the images' values to the BTF (L_o / E_perp, 1/sr).",
     )
-    shard_slices: int = Field(default=151, ge=1, le=151 * 151, description="Slices per shard.")
+    shard_slices: int = Field(
+        default=151,
+        ge=1,
+        le=151 * 151,
+        description="Slices per shard. A shard holds at most 1 GiB (the shard readers' "
+        "limit), so large slices need fewer per shard; the job says how many fit.",
+    )
     dtype: Literal["float32", "float16"] = Field(
         default="float32", description="Stored type of the slices."
     )
@@ -74,29 +83,63 @@ class ImportTask:
 
 
 def convert_shard(task: ImportTask) -> bytes:
-    """The shard's ``.npz`` bytes: the listed images, scaled, with their directions."""
-    h, w = task.resolution
-    rgb = np.empty((len(task.entries), h, w, 3), dtype=task.dtype)
-    with SliceFolder(Path(task.archive), task.label) as folder:
-        folder.resolution = task.resolution
-        for k, e in enumerate(task.entries):
-            rgb[k] = folder.read(e, png_srgb=task.png_srgb) * np.float32(task.scale)
+    """The shard's ``.npz`` bytes: the listed images, scaled, with their directions.
+
+    The slices are decoded one at a time and streamed into the shard file: memory holds
+    one decoded slice and, at the end, the shard's bytes, never a stack of decoded
+    slices (three 8192 x 4096 slices used to take several gigabytes)."""
+    scale = np.float32(task.scale)
+
+    def slices(folder: SliceFolder) -> Iterator[np.ndarray]:
+        for e in task.entries:
+            rgb = folder.read(e, png_srgb=task.png_srgb)
+            rgb *= scale  # in place: the float32 product, as before, with no second image
+            yield rgb
+            del rgb
+
     angles = np.asarray([e.angles() for e in task.entries], np.float64)
     wi, wo = to_vector(angles[:, 0], angles[:, 1]), to_vector(angles[:, 2], angles[:, 3])
     stderr = np.full(len(task.entries), np.nan, np.float32)
-    return shard_bytes(wi, wo, rgb, stderr, task.dtype)
+    with SliceFolder(Path(task.archive), task.label) as folder, tempfile.TemporaryFile() as fh:
+        folder.resolution = task.resolution
+        write_shard(fh, wi, wo, slices(folder), task.resolution, stderr, task.dtype)
+        fh.seek(0)
+        return fh.read()
+
+
+def check_shard_size(per: int, resolution: tuple[int, int], dtype: str) -> None:
+    """Refuse, before decoding, shards bigger than a shard reader accepts
+    (:data:`storage.formats.npz.MAX_NPZ_BYTES`): such a dataset could never be read back,
+    and converting a shard holds its bytes in memory."""
+    h, w = resolution
+    # Per slice: its pixels, wi and wo (3 float32 each) and stderr (one float32); and the
+    # four arrays' .npy headers, at most 256 bytes each.
+    per_slice = h * w * 3 * np.dtype(dtype).itemsize + 28
+    if per * per_slice + 4 * 256 > MAX_NPZ_BYTES:
+        fits = max(0, (MAX_NPZ_BYTES - 4 * 256) // per_slice)
+        raise JobFailed(
+            f"shard_slices: a shard of {per} slices of {w}x{h} {dtype} holds about "
+            f"{per * per_slice} bytes, over the {MAX_NPZ_BYTES} bytes a shard may hold; "
+            + (f"use shard_slices <= {fits}" if fits else "the slices are too large")
+        )
 
 
 def run_import_btf(params: ImportBtfParams, ctx: JobContext) -> None:
-    """Check the folder, convert its images shard by shard, write the index and preview."""
+    """Check the folder, convert its images shard by shard, write the index and preview.
+
+    Before any pixel is decoded: every image's header is read, and the pixels of all of
+    them together must stay within the operator's cap (``ctx.limits.archive_pixels``,
+    ``MATFORGE_ARCHIVE_MPIX``), whatever way the archive reached the store; and a shard
+    must fit the shard readers' limit."""
     path = ctx.resolve(params.archive)
     label = ctx.ref_record(params.archive).name
     try:
         with SliceFolder(path, label) as folder:
-            resolution = folder.check_images()
+            resolution = folder.check_images(ctx.limits.archive_pixels)
             entries = list(folder.entries)
-    except FormatError as exc:
+    except (FormatError, TooLargeError) as exc:
         raise JobFailed(f"archive: {exc}") from None
+    check_shard_size(min(params.shard_slices, len(entries)), resolution, params.dtype)
     angles = np.asarray([e.angles() for e in entries], np.float64)
     wi, wo = to_vector(angles[:, 0], angles[:, 1]), to_vector(angles[:, 2], angles[:, 3])
     check_pairs(wi, wo, max_theta=89.0)

@@ -10,6 +10,7 @@ import hashlib
 import os
 import sys
 import tempfile
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -264,7 +265,12 @@ def import_(
         from service.submission import import_file
 
         jobs, store = open_local(local, create=True)
-        rec = import_file(path, jobs, store, name=name, max_bytes=st.settings.max_upload_bytes)
+        from storage.formats import validate_file
+
+        rec = import_file(
+            path, jobs, store, name=name, max_bytes=st.settings.max_upload_bytes,
+            validate=partial(validate_file, max_archive_pixels=st.settings.archive_max_pixels),
+        )  # fmt: skip
         doc: dict[str, Any] = {**rec.public(), "ref": f"sha256:{rec.digest}"}
     else:
         with st.client() as client:

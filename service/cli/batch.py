@@ -8,7 +8,8 @@ A batch file is JSON or YAML::
       - name: score
         spec: {kind: score, params: {reference: "step:gold/image.exr",
                                      candidates: {a: "step:alu/image.exr"}}}
-    defaults: {seed: 3}      # optional: top-level spec fields a step's spec lacks (seed, force)
+    defaults: {seed: 3}      # optional: top-level fields a step's spec lacks
+                             # (seed, force, timeout_seconds)
 
 A top-level list of steps is accepted as well. ``spec`` is a spec mapping, or the path of a
 spec file relative to the batch file. Anywhere in a spec, the string
@@ -48,7 +49,7 @@ log = logging.getLogger("matforge.batch")
 
 STEP_NAME = re.compile(r"^[A-Za-z0-9_.-]+\Z")
 PLACEHOLDER_JOB = "0" * 32
-DEFAULT_KEYS = frozenset({"seed", "force"})
+DEFAULT_KEYS = frozenset({"seed", "force", "timeout_seconds"})
 
 
 class BatchError(ValueError):

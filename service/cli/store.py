@@ -1,7 +1,8 @@
 """``matforge store verify`` and ``matforge store gc``: maintenance of a local store.
 
-``verify`` re-hashes every object and exits 1 when any is corrupt, listing them with the
-jobs' artifacts they back; with ``--repair`` it restores them where it can
+``verify`` re-hashes every object, checks that every object the job store refers to exists,
+and exits 1 when any is corrupt or missing, listing them with the jobs' artifacts they back;
+with ``--repair`` it restores them where it can
 (:mod:`service.repair`) and exits 1 only if some could not be. ``gc`` removes objects no
 job, manifest, shard or upload refers to (``JobStore.referenced_digests``) once they are
 older than the grace period, and the work directories that killed workers left in
@@ -51,42 +52,58 @@ def verify(
     ),
     as_json: bool = JsonOpt,
 ) -> None:
-    """Re-hash every object in the store; exit 1 if any is (still) corrupt."""
+    """Re-hash every object in the store and check that every object a job, upload or
+    manifest refers to exists; exit 1 if any is (still) corrupt or missing."""
     settings = state_of(ctx).settings_for(data_dir)
     jobs, store = open_local(settings.data_dir)
     with err_console.status(f"verifying {settings.store_dir}"):
-        report = store.verify_all()
-    corrupt: list[dict[str, Any]] = []
-    for digest in report.corrupt:
+        report = store.verify_all(jobs.referenced_digests())
+    damaged: list[dict[str, Any]] = []
+    for digest, problem in [(d, "corrupt") for d in report.corrupt] + [
+        (d, "missing") for d in report.missing
+    ]:
         rec = jobs.find_digest(digest)
-        corrupt.append({"digest": digest, "name": rec.name if rec else None})
-    if repair and corrupt:
+        damaged.append({"digest": digest, "name": rec.name if rec else None, "problem": problem})
+    if repair and damaged:
         from service.repair import repair as repair_objects
 
         (settings.data_dir / "scratch").mkdir(parents=True, exist_ok=True)
-        with err_console.status(f"repairing {len(corrupt)} object(s)"):
-            outcomes = repair_objects(report.corrupt, jobs, store, settings, sources)
-        for item, outcome in zip(corrupt, outcomes, strict=True):
+        with err_console.status(f"repairing {len(damaged)} object(s)"):
+            outcomes = repair_objects(
+                [item["digest"] for item in damaged], jobs, store, settings, sources
+            )
+        for item, outcome in zip(damaged, outcomes, strict=True):
             item.update(repaired=outcome.repaired, how=outcome.how)
-    left = [item for item in corrupt if not item.get("repaired")]
+    left = [item for item in damaged if not item.get("repaired")]
     if as_json:
-        doc = {"checked": report.checked, "ok": not left, "corrupt": corrupt}
+        doc = {
+            "checked": report.checked,
+            "ok": not left,
+            "corrupt": [i for i in damaged if i["problem"] == "corrupt"],
+            "missing": [i for i in damaged if i["problem"] == "missing"],
+        }
         print_json({**doc, "stray": report.stray})
     else:
-        fixed = len(corrupt) - len(left)
-        status = "all intact" if report.ok else f"{len(corrupt)} CORRUPT"
+        fixed = len(damaged) - len(left)
+        problems = [
+            f"{n} {word}"
+            for n, word in ((len(report.corrupt), "CORRUPT"), (len(report.missing), "MISSING"))
+            if n
+        ]
+        status = "all intact" if report.ok else ", ".join(problems)
         print(
             f"checked {report.checked} objects in {settings.store_dir}: {status}"
-            + (f", {fixed} repaired" if repair and corrupt else "")
+            + (f", {fixed} repaired" if repair and damaged else "")
         )
-        for item in corrupt:
+        for item in damaged:
             if item.get("repaired"):
                 print(f"repaired sha256:{item['digest']}: {item['how']}")
         for path in report.stray:
             print(f"stray file (not a digest name): {path}")
     for item in left:
+        what = "corrupt" if item["problem"] == "corrupt" else "missing (referenced, not on disk)"
         error(
-            f"corrupt object sha256:{item['digest']}"
+            f"{what} object sha256:{item['digest']}"
             + (f" ({item['name']})" if item["name"] else "")
             + (f": not repaired: {item['how']}" if "how" in item else "")
         )

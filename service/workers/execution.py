@@ -2,8 +2,11 @@
 
 Used both by the worker processes of ``matforge serve`` and by ``matforge run`` (in
 process). The runner's exceptions are mapped here: :class:`JobFailed` becomes the job's
-one-line ``error``; :class:`JobCancelled` leaves a cancelled job as it is; anything else is
-logged with its traceback and reported as an internal error in one line.
+one-line ``error``; :class:`JobCancelled` leaves a cancelled job as it is; a MemoryError
+(however it surfaced) is "out of memory in <kind> (<step>)"; anything else is logged with its
+traceback and reported as an internal error in one line. The :class:`Heartbeat` watches the
+run: no progress for the kind's ``stall_seconds``, or a run past ``timeout_seconds``, fails
+the job; any stop kills the shard processes the runner waits on, so the worker is freed.
 """
 
 from __future__ import annotations
@@ -14,10 +17,12 @@ import socket
 import tempfile
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from jobapi.context import JobContext
+from jobapi.context import JobContext, JobLimits
 from jobapi.errors import JobCancelled, JobFailed, SpecError
 from jobapi.executor import Executor, InlineExecutor
 from jobapi.version import __version__
@@ -39,27 +44,61 @@ def worker_id() -> str:
 
 
 class Heartbeat:
-    """Renews a job's lease every ``lease/3`` seconds in a background thread and publishes
-    the latest progress; notices cancellation or a lost lease."""
+    """Renews a job's lease every ``lease/3`` seconds in a background thread, publishes the
+    latest progress, notices cancellation or a lost lease, and watches that the run moves.
 
-    def __init__(self, jobs: JobStore, job: Job, lease_seconds: float) -> None:
+    A live heartbeat alone proves nothing: a runner blocked on shard processes that were
+    stopped (SIGSTOP) or hung beats forever. So the thread also fails the job (fenced by its
+    lease) when it reports no progress (a new progress value or message; every finished
+    shard reports one) for ``stall_seconds``, or runs longer than ``timeout_seconds``
+    (:meth:`limit`). On any stop (that, a cancel, a lost lease) it calls ``abort`` (the
+    executor kills its shard processes, so a runner blocked on them returns at once) and,
+    if the runner still has not returned ``grace`` seconds later, ``on_wedged`` (a worker
+    ends its process group; its supervisor starts another): the worker is freed either way.
+    """
+
+    def __init__(
+        self,
+        jobs: JobStore,
+        job: Job,
+        lease_seconds: float,
+        *,
+        abort: Callable[[], None] | None = None,
+        on_wedged: Callable[[], None] | None = None,
+        grace: float | None = None,
+    ) -> None:
         assert job.lease_token is not None
         self.jobs, self.job_id, self.token = jobs, job.id, job.lease_token
+        self.kind = job.kind
         self.lease = lease_seconds
         self.status: HeartbeatStatus = "ok"
+        #: Why the watch failed the job ("stuck: ...", "timed out ..."), if it did.
+        self.verdict: str | None = None
+        self.stall_seconds: float | None = None
+        self.timeout_seconds: float | None = None
+        self.abort, self.on_wedged = abort, on_wedged
+        self.grace = max(5.0, lease_seconds) if grace is None else grace
         self._progress = 0.0
         self._message: str | None = None
         self._dirty = False
         self._last_push = 0.0
+        self._started = self._progressed = time.monotonic()
+        self._stopped_at: float | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._loop, name=f"heartbeat-{job.id[:8]}", daemon=True
         )
 
+    def limit(self, *, stall_seconds: float | None, timeout_seconds: float | None) -> None:
+        """Set the watch's limits (``None``: no limit), counted from the start of the run."""
+        self.stall_seconds, self.timeout_seconds = stall_seconds, timeout_seconds
+
     # Monitor protocol ---------------------------------------------------------------------
     def report(self, progress: float, message: str | None) -> None:
         with self._lock:
+            if progress != self._progress or (message is not None and message != self._message):
+                self._progressed = time.monotonic()
             self._progress, self._dirty = progress, True
             if message is not None:
                 self._message = message
@@ -73,7 +112,14 @@ class Heartbeat:
             return self._message
 
     def cancelled(self) -> bool:
-        return self.status != "ok"
+        return self.status != "ok" or self.verdict is not None
+
+    def outcome(self) -> str:
+        """The run's final state once it stopped: ``failed`` (the watch's verdict),
+        ``cancelled`` or ``lost``."""
+        if self.verdict is not None:
+            return "failed"
+        return "cancelled" if self.status == "cancelled" else "lost"
 
     # ---------------------------------------------------------------------------------------
     def beat(self) -> None:
@@ -88,12 +134,61 @@ class Heartbeat:
         if status != "ok":
             self.status = status
 
+    def _verdict(self, now: float) -> str | None:
+        ran, idle = now - self._started, now - self._progressed
+        step = f" (last step: {self._message})" if self._message else ""
+        if self.timeout_seconds is not None and ran > self.timeout_seconds:
+            return (
+                f"timed out: still running after {ran:.0f} s, over its time limit of "
+                f"{self.timeout_seconds:g} s{step}; raise the spec's timeout_seconds or "
+                "make the job smaller"
+            )
+        if self.stall_seconds is not None and idle > self.stall_seconds:
+            return (
+                f"stuck: no progress for {idle:.0f} s (the limit for {self.kind} is "
+                f"{self.stall_seconds:g} s){step}; a shard process may have been stopped "
+                "or hung. Its processes were killed; submit the spec again"
+            )
+        return None
+
+    def watch(self) -> None:
+        """One look at the run (the heartbeat thread calls it after every beat)."""
+        now = time.monotonic()
+        if not self.cancelled():
+            verdict = self._verdict(now)
+            if verdict is not None:
+                if self.jobs.fail(self.job_id, self.token, verdict):
+                    log.warning("job %s (%s) failed: %s", self.job_id, self.kind, verdict)
+                    self.verdict = verdict
+                else:  # cancelled, or the lease lost, meanwhile
+                    self.beat()
+        if not self.cancelled():
+            return
+        if self._stopped_at is None:
+            self._stopped_at = now
+            if self.abort is not None:
+                try:
+                    self.abort()
+                except Exception:
+                    log.exception("stopping the shards of job %s failed", self.job_id)
+        elif self.on_wedged is not None and now - self._stopped_at > self.grace:
+            log.error(
+                "job %s (%s) is %s but its runner has not returned %.0f s later; "
+                "ending this worker so that another takes its place",
+                self.job_id, self.kind, self.outcome(), now - self._stopped_at,
+            )  # fmt: skip
+            on_wedged, self.on_wedged = self.on_wedged, None
+            on_wedged()
+
     def _loop(self) -> None:
         interval = max(0.05, self.lease / 3)
         while not self._stop.wait(interval):
-            self.beat()
-            if self.status != "ok":
-                return
+            if not self.cancelled():
+                self.beat()
+            try:
+                self.watch()
+            except Exception:  # a busy database: look again at the next beat
+                log.exception("watching job %s failed", self.job_id)
 
     def __enter__(self) -> Heartbeat:
         self._thread.start()
@@ -109,6 +204,37 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _chain(exc: BaseException) -> list[BaseException]:
+    seen: list[BaseException] = []
+    cur: BaseException | None = exc
+    while cur is not None and all(cur is not e for e in seen):
+        seen.append(cur)
+        cur = cur.__cause__ or cur.__context__
+    return seen
+
+
+def crash_message(kind: str, exc: BaseException, step: str | None) -> str:
+    """The one-line ``error`` of a job whose runner raised ``exc`` (not a ``JobFailed``).
+
+    Running out of memory is named as such, wherever it happened (in the runner, or in a
+    shard process whose MemoryError came back through the pool) and whatever it led to on
+    the way out (a file closed under a reader's feet used to be reported instead: "I/O
+    operation on closed file"); ``step`` is the runner's last progress line."""
+    at = f" ({step})" if step else ""
+    chain = _chain(exc)
+    if any(isinstance(e, MemoryError) for e in chain):
+        return (
+            f"out of memory in {kind}{at}: the job needs more memory than this worker could "
+            "allocate; use smaller inputs or shards, or a worker with more memory"
+        )
+    if any(isinstance(e, BrokenProcessPool) for e in chain):
+        return (
+            f"a shard process of {kind} died{at} (killed, or out of memory); "
+            "see the worker log, then submit the spec again"
+        )
+    return f"internal error in {kind}: {type(exc).__name__}: {_one_line(exc)}"
+
+
 def execute(
     job: Job,
     *,
@@ -117,12 +243,23 @@ def execute(
     lease_seconds: float,
     executor: Executor | None = None,
     scratch: Path | None = None,
+    limits: JobLimits | None = None,
+    stall_seconds: float | None = None,
+    on_wedged: Callable[[], None] | None = None,
 ) -> str:
     """Run a job this process has claimed; returns its final state as this worker saw it
-    (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``)."""
+    (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``).
+
+    ``limits`` are the operator's limits the runner honours (:class:`~jobapi.context.
+    JobLimits`). The run is watched (:class:`Heartbeat`): the spec's ``timeout_seconds``
+    (else the kind's) and ``stall_seconds`` (else the kind's) bound it; on a stop the
+    executor's ``abort()`` kills its shard processes, and ``on_wedged`` is called if the
+    runner still does not return."""
     assert job.lease_token is not None
     started = time.time()
-    hb = Heartbeat(jobs, job, lease_seconds)
+    hb = Heartbeat(
+        jobs, job, lease_seconds, abort=getattr(executor, "abort", None), on_wedged=on_wedged
+    )
     if scratch is not None:
         scratch.mkdir(parents=True, exist_ok=True)
     workdir = Path(tempfile.mkdtemp(prefix=scratch_prefix(job.id), dir=scratch))
@@ -131,6 +268,10 @@ def execute(
             try:
                 spec = validate_spec(job.spec)
                 kind = kinds.get_kind(spec.kind)
+                hb.limit(
+                    stall_seconds=stall_seconds or kind.stall_seconds,
+                    timeout_seconds=spec.timeout_seconds or kind.timeout_seconds,
+                )
                 ctx = JobContext(
                     job_id=job.id,
                     seed=spec.seed,
@@ -140,22 +281,24 @@ def execute(
                     workdir=workdir,
                     monitor=hb,
                     executor=executor,
+                    limits=limits,
                 )
                 kind.runner(spec.params, ctx)
                 ctx.check_cancelled()
             except JobCancelled:
-                log.info("job %s stopped: %s", job.id, hb.status)
-                return "cancelled" if hb.status == "cancelled" else "lost"
+                log.info("job %s stopped: %s", job.id, hb.verdict or hb.status)
+                return hb.outcome()
             except (JobFailed, SpecError) as exc:
+                if hb.cancelled():  # stopped first; what the runner made of it is moot
+                    return hb.outcome()
                 jobs.fail(job.id, job.lease_token, _one_line(exc))
                 return "failed"
             except Exception as exc:
+                if hb.cancelled():  # e.g. the pool its shards ran in was killed on a stop
+                    log.info("job %s stopped (%s): %r", job.id, hb.verdict or hb.status, exc)
+                    return hb.outcome()
                 log.exception("job %s (%s) crashed", job.id, job.kind)
-                jobs.fail(
-                    job.id,
-                    job.lease_token,
-                    f"internal error in {job.kind}: {type(exc).__name__}: {_one_line(exc)}",
-                )
+                jobs.fail(job.id, job.lease_token, crash_message(job.kind, exc, hb.last_message))
                 return "failed"
         finished = time.time()
         arts = sorted(ctx.artifacts.values(), key=lambda a: a.name)
@@ -187,6 +330,7 @@ def execute(
         done = f"done: {last}" if last and last.strip().lower() != "done" else "done"
         if jobs.complete(job.id, job.lease_token, arts, minfo.digest, message=done[:1000]):
             return "succeeded"
-        return "cancelled" if jobs.get(job.id).state == "cancelled" else "lost"
+        state = jobs.get(job.id).state
+        return state if state in ("cancelled", "failed") else "lost"
     finally:
         shutil.rmtree(workdir, ignore_errors=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import multiprocessing as mp
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from jobapi.errors import ExecutorUnavailable
@@ -55,9 +56,30 @@ class LocalPoolExecutor:
                 for fut in done:
                     i = pending.pop(fut)
                     yield i, fut.result()
+        except BrokenProcessPool:
+            self._discard(pool)  # a process died or was killed (abort): the next map starts anew
+            raise
         finally:
             for fut in pending:
                 fut.cancel()
+
+    def abort(self) -> None:
+        """Kill the pool's processes, from any thread: a map blocked on them (stopped by
+        SIGSTOP, hung) raises ``BrokenProcessPool`` at once, and the next map starts a
+        fresh pool. The heartbeat calls it when a job is cancelled, stuck or timed out."""
+        pool = self._pool
+        if pool is None:
+            return
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            try:
+                proc.kill()  # SIGKILL ends a stopped process too
+            except (OSError, ValueError):
+                pass
+
+    def _discard(self, pool: ProcessPoolExecutor) -> None:
+        if self._pool is pool:
+            self._pool = None
+        pool.shutdown(wait=False, cancel_futures=True)
 
     def start(self) -> None:
         pass  # the pool starts with the first map of more than one shard

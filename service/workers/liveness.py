@@ -84,6 +84,21 @@ def stalled_for(
     return age if age > allowed else None
 
 
+def end_worker() -> None:
+    """End this worker now, with its pool processes: it leads its own session, so its
+    process group is the worker and its pool. Its supervisor sees it exit and starts
+    another. Used when its supervisor is gone, and when a stopped job's runner does not
+    return (:class:`~service.workers.execution.Heartbeat`): a wedged thread cannot be
+    interrupted, the process can."""
+    for handler in logging.getLogger().handlers:
+        handler.flush()
+    try:
+        if os.getpgid(0) == os.getpid():
+            os.killpg(0, signal.SIGKILL)
+    finally:
+        os._exit(1)
+
+
 def watch_parent(parent_pid: int, poll_seconds: float = 0.5) -> threading.Thread:
     """Start a thread that kills this process's group when ``parent_pid`` is no longer our
     parent (it died, and we were re-parented). The worker leads its own session, so the
@@ -95,13 +110,7 @@ def watch_parent(parent_pid: int, poll_seconds: float = 0.5) -> threading.Thread
                 log.warning(
                     "worker %d: its supervisor (pid %d) is gone; stopping", os.getpid(), parent_pid
                 )
-                for handler in logging.getLogger().handlers:
-                    handler.flush()
-                try:
-                    if os.getpgid(0) == os.getpid():
-                        os.killpg(0, signal.SIGKILL)
-                finally:
-                    os._exit(1)
+                end_worker()
             time.sleep(poll_seconds)
 
     thread = threading.Thread(target=loop, name="parent-watch", daemon=True)

@@ -80,6 +80,7 @@ class RayExecutor:
         self.max_retries = max(0, max_retries)
         self.auth_mode = auth_mode
         self._owned = False
+        self._pending: dict[Any, int] = {}
         self._task: Any = None
 
     # -- connection -------------------------------------------------------------------------
@@ -143,6 +144,7 @@ class RayExecutor:
         fn_ref = ray.put(fn)  # once per map, not once per shard
         limit = 2 * self.cluster_cpus()
         pending: dict[Any, int] = {}
+        self._pending = pending  # for abort(), from the heartbeat thread
         next_i = 0
         try:
             while next_i < len(items) or pending:
@@ -157,6 +159,15 @@ class RayExecutor:
         finally:
             for ref in pending:  # a cancelled or failed job: drop the rest of the batch
                 ray.cancel(ref)
+
+    def abort(self) -> None:
+        """Cancel (forcibly: the Ray worker is killed) the shards in flight, from any
+        thread: the map blocked on them gets their errors at once."""
+        for ref in list(self._pending):
+            try:
+                ray.cancel(ref, force=True)
+            except Exception:  # already finished, or the cluster is gone
+                log.debug("cancelling a shard failed", exc_info=True)
 
     def _result(self, ref: Any, i: int) -> Any:
         try:

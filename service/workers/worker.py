@@ -18,13 +18,15 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+from jobapi.context import JobLimits
 from jobapi.errors import ExecutorUnavailable
 from service.settings import Settings
 from service.workers.execution import execute, worker_id
 from service.workers.executors import executor_for
-from service.workers.liveness import Beat, beat_path, stalled_for, watch_parent
+from service.workers.liveness import Beat, beat_path, end_worker, stalled_for, watch_parent
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
 
@@ -38,9 +40,12 @@ def run_worker(
     poll_seconds: float = 0.2,
     idle_exit_seconds: float | None = None,
     stop: threading.Event | None = None,
+    on_wedged: Callable[[], None] | None = None,
 ) -> int:
     """Claim and run jobs until ``max_jobs`` ran, ``stop`` is set, or the queue stayed empty
-    for ``idle_exit_seconds``. Returns the number of jobs run."""
+    for ``idle_exit_seconds``. Returns the number of jobs run. ``on_wedged`` is called when
+    a stopped job's runner does not return (:func:`~service.workers.execution.execute`);
+    the worker process passes :func:`~service.workers.liveness.end_worker`."""
     jobs = JobStore(settings.db_path)
     store = ArtifactStore(settings.store_dir)
     executor = executor_for(settings)
@@ -69,6 +74,9 @@ def run_worker(
                 lease_seconds=settings.lease_seconds,
                 executor=executor,
                 scratch=settings.data_dir / "scratch",
+                limits=JobLimits(archive_pixels=settings.archive_max_pixels),
+                stall_seconds=settings.stall_seconds,
+                on_wedged=on_wedged,
             )
             log.info("job %s: %s", job.id, state)
             ran += 1
@@ -225,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     beat = Beat(settings.data_dir, settings.lease_seconds)
     beat.start()
     try:
-        run_worker(settings, max_jobs=args.max_jobs, stop=stop)
+        run_worker(settings, max_jobs=args.max_jobs, stop=stop, on_wedged=end_worker)
     except ExecutorUnavailable as exc:
         log.error("worker cannot start its executor: %s", exc)
         return 3

@@ -56,10 +56,13 @@ def validate_json(path: Path, name: str) -> None:
 
 @dataclass(frozen=True)
 class FileFormat:
-    """A format known to :func:`validate_file`: its media type and validator."""
+    """A format known to :func:`validate_file`: its media type and validator
+    ``validate(path, name)``; a format of many images (an archive) has ``pixel_cap`` set and
+    its validator also takes ``max_pixels``, the cap on all its images' decoded pixels."""
 
     media_type: str
-    validate: Callable[[Path, str], object]
+    validate: Callable[..., object]
+    pixel_cap: bool = False
 
 
 #: Extension (lower case, with the dot) → format. Extend here for new formats.
@@ -74,11 +77,11 @@ VALIDATORS: dict[str, FileFormat] = {
 COMPOUND_VALIDATORS: dict[str, FileFormat] = {
     ".normal.exr": FileFormat(MEDIA_TYPES[".exr"], validate_normal_map),
     ".normal.png": FileFormat(MEDIA_TYPES[".png"], validate_normal_map),
-    ".btf.zip": FileFormat(MEDIA_TYPES[".zip"], validate_btf_archive),
+    ".btf.zip": FileFormat(MEDIA_TYPES[".zip"], validate_btf_archive, pixel_cap=True),
 }
 
 
-def validate_file(path: Path, name: str) -> str:
+def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = None) -> str:
     """Validate a user's file and return its media type.
 
     Parameters
@@ -87,11 +90,17 @@ def validate_file(path: Path, name: str) -> str:
         Where the bytes are (for an upload, a temporary file).
     name
         The user's file name: its extension picks the format, and error messages name it.
+    max_archive_pixels
+        For archives of images (``.btf.zip``): the most pixels all its images may decode
+        to, summed from their headers before any is decoded (default: the format's own,
+        :data:`storage.formats.btf_folder.MAX_ARCHIVE_PIXELS`).
 
     Raises
     ------
     FormatError
         Unsupported extension, or the bytes are not a valid file of that format.
+    TooLargeError
+        An archive whose images decode to more than ``max_archive_pixels``.
     """
     lower = name.lower()
     suffix = Path(name).suffix.lower()
@@ -101,7 +110,10 @@ def validate_file(path: Path, name: str) -> str:
         known = ", ".join(sorted(VALIDATORS))
         shown = f"'{suffix}'" if suffix else "(no extension)"
         raise FormatError(name, f"unsupported file type {shown}; known: {known}")
-    fmt.validate(Path(path), name)
+    if fmt.pixel_cap and max_archive_pixels is not None:
+        fmt.validate(Path(path), name, max_pixels=max_archive_pixels)
+    else:
+        fmt.validate(Path(path), name)
     return fmt.media_type
 
 

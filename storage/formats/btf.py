@@ -19,15 +19,15 @@ tens of gigabytes and never sits in memory.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
 from storage.errors import FormatError
-from storage.formats.npz import npz_bytes, read_npz
+from storage.formats.npz import StreamedArray, npz_bytes, read_npz, write_npz
 
 FORMAT = "matforge.btf"
 VERSION = 1
@@ -60,6 +60,40 @@ def shard_bytes(
             "rgb": rgb.astype(dtype),
             "stderr": np.asarray(stderr, np.float32),
         }
+    )
+
+
+def write_shard(
+    fp: BinaryIO,
+    wi: np.ndarray,
+    wo: np.ndarray,
+    slices: Iterable[np.ndarray],
+    resolution: tuple[int, int],
+    stderr: np.ndarray,
+    dtype: str = "float32",
+) -> None:
+    """Write :func:`shard_bytes`'s bytes to ``fp``, taking the ``(H, W, 3)`` slices one at a
+    time from ``slices`` (one per row of ``wi``): a shard of large slices is never whole in
+    memory. ``resolution`` is ``(H, W)``."""
+    n = len(wi)
+    if np.shape(wi) != (n, 3) or np.shape(wo) != (n, 3) or np.shape(stderr) != (n,):
+        raise ValueError("wi, wo must be (N, 3) and stderr (N,) for N slices")
+    h, w = resolution
+
+    def checked() -> Iterator[np.ndarray]:
+        for k, s in enumerate(slices):
+            if k >= n or np.shape(s) != (h, w, 3):
+                raise ValueError(f"slice {k}: expected {n} slices of shape {(h, w, 3)}")
+            yield np.asarray(s)[None]
+
+    write_npz(
+        fp,
+        {
+            "wi": np.asarray(wi, np.float32),
+            "wo": np.asarray(wo, np.float32),
+            "rgb": StreamedArray((n, h, w, 3), dtype, checked()),
+            "stderr": np.asarray(stderr, np.float32),
+        },
     )
 
 

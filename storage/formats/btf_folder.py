@@ -24,6 +24,7 @@ import csv
 import io
 import json
 import math
+import shutil
 import tempfile
 import zipfile
 from collections.abc import Iterator
@@ -32,16 +33,27 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from storage.errors import FormatError
-from storage.formats.exr import exr_header_info, read_exr
-from storage.formats.png import png_size, read_png
+from storage.errors import FormatError, TooLargeError
+from storage.formats.exr import MAX_PIXELS, exr_header_info, read_exr
+from storage.formats.png import level_table, levels_to_float, png_size, read_png_levels
 
 ANGLE_FILES = ("angles.csv", "angles.json")
 IMAGE_SUFFIXES = (".exr", ".png")
 COLUMNS = ("file", "theta_i", "phi_i", "theta_o", "phi_o")
 #: Largest polar angle accepted, degrees.
 MAX_THETA = 89.0
+#: Default cap on the pixels an archive's images decode to, all slices together (64
+#: megapixels: 768 MB as float32 RGB; 400 slices of 400 x 400, or one 8192 x 4096 image).
+#: The service passes its setting (``MATFORGE_ARCHIVE_MPIX``; a whole UBO2014 material,
+#: 151 x 151 slices of 400 x 400, is 3650 Mpix); checked from the headers before any pixel
+#: is decoded.
+MAX_ARCHIVE_PIXELS = 64_000_000
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+#: The most bytes one image member of an archive may inflate to: the largest image read
+#: (:data:`~storage.formats.exr.MAX_PIXELS`) as uncompressed float32 RGBA, plus 1 MiB of
+#: header. Checked from the zip directory before a member is extracted, so a deflate bomb
+#: cannot fill the disk.
+MAX_MEMBER_BYTES = 16 * MAX_PIXELS + (1 << 20)
 
 
 @dataclass(frozen=True)
@@ -202,8 +214,16 @@ class SliceFolder:
             return self.path / member
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="matforge-btf-")
+        size = self._zip.getinfo(member).file_size
+        if size > MAX_MEMBER_BYTES:
+            raise FormatError(
+                f"{self.label}: {entry.file}",
+                f"inflates to {size} bytes, more than any slice image can be "
+                f"({MAX_MEMBER_BYTES} bytes)",
+            )
         out = Path(self._tmp.name) / f"slice{PurePosixPath(entry.file).suffix.lower()}"
-        out.write_bytes(self._zip.read(member))
+        with self._zip.open(member) as src, open(out, "wb") as dst:
+            shutil.copyfileobj(src, dst, 1 << 20)  # streamed: a member is never all in memory
         return out
 
     def _size(self, entry: SliceEntry) -> tuple[int, int]:
@@ -214,35 +234,42 @@ class SliceFolder:
         w, h = png_size(path, where)
         return h, w
 
-    def check_images(self) -> tuple[int, int]:
-        """Read every image's header: all must be readable and of one size ``(H, W)``."""
+    def check_images(self, max_pixels: int | None = None) -> tuple[int, int]:
+        """Read every image's header: all must be readable and of one size ``(H, W)``, and,
+        when ``max_pixels`` is given, all the images together must not decode to more
+        pixels than that (:class:`TooLargeError` naming the member that crosses it)."""
+        sizes = [self._size(e) for e in self.entries]
         first = self.entries[0]
-        size = self._size(first)
-        for e in self.entries[1:]:
-            s = self._size(e)
-            if s != size:
+        for e, s in zip(self.entries, sizes, strict=True):
+            if s != sizes[0]:
                 raise FormatError(
                     f"{self.label}: {e.file}",
-                    f"is {s[1]}x{s[0]} pixels, but {first.file} is {size[1]}x{size[0]}",
+                    f"is {s[1]}x{s[0]} pixels, but {first.file} is {sizes[0][1]}x{sizes[0][0]}",
                 )
-        self.resolution = size
-        return size
+        if max_pixels is not None:
+            check_decoded_pixels(self.label, [e.file for e in self.entries], sizes, max_pixels)
+        self.resolution = sizes[0]
+        return sizes[0]
 
     def read(self, entry: SliceEntry, *, png_srgb: bool = True) -> np.ndarray:
         """One slice, ``(H, W, 3)`` float32, linear (PNG sRGB decoded unless ``png_srgb``
-        is false); ``FormatError`` naming it if unreadable, non-finite or negative."""
+        is false); ``FormatError`` naming it if unreadable, non-finite or negative.
+
+        Peak memory is the image's integer levels plus one float32 image: PNG levels go
+        through a 256 (or 65536) entry table, sRGB decoding included."""
         where = f"{self.label}: {entry.file}"
         path = self._local(entry)
         if entry.file.lower().endswith(".exr"):
             rgb = read_exr(path, where)
-        else:
-            rgb = read_png(path, where)
-            if png_srgb:
-                rgb = srgb_to_linear(rgb)
-        if not np.all(np.isfinite(rgb)):
-            raise FormatError(where, "has non-finite pixels (NaN or infinity)")
-        if np.any(rgb < 0):
-            raise FormatError(where, "has negative pixels")
+            if not np.all(np.isfinite(rgb)):
+                raise FormatError(where, "has non-finite pixels (NaN or infinity)")
+            if np.any(rgb < 0):
+                raise FormatError(where, "has negative pixels")
+        else:  # a table of finite values in [0, 1]: nothing to check per pixel
+            levels, top = read_png_levels(path, where)
+            table = level_table(top)
+            rgb = levels_to_float(levels, srgb_to_linear(table) if png_srgb else table)
+            del levels
         if self.resolution is not None and rgb.shape[:2] != self.resolution:
             raise FormatError(
                 where, f"is {rgb.shape[1]}x{rgb.shape[0]} pixels, not the common size"
@@ -272,10 +299,47 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def validate_btf_archive(path: Path, name: str | None = None) -> None:
-    """Validator for ``*.btf.zip`` uploads: the angle list and every image header."""
+def check_decoded_pixels(
+    label: str, files: list[str], sizes: list[tuple[int, int]], max_pixels: int
+) -> int:
+    """The pixels ``files`` of ``sizes`` ``(H, W)`` decode to, all together; raises
+    :class:`TooLargeError` naming the archive, the member at which the sum crosses
+    ``max_pixels``, and the sizes, when it is over."""
+    total = sum(h * w for h, w in sizes)
+    if total <= max_pixels:
+        return total
+    running = 0
+    for f, (h, w) in zip(files, sizes, strict=True):
+        running += h * w
+        if running > max_pixels:
+            raise TooLargeError(
+                f"{label}: {f}: the archive's {len(files)} images decode to {total} pixels "
+                f"({_gb(total * 12)} as float32 RGB), over the limit of {max_pixels} pixels "
+                f"({_gb(max_pixels * 12)}); the limit is crossed at {f} ({w}x{h} pixels). "
+                "Send fewer or smaller images"
+            )
+    return total  # unreachable: the loop crosses the limit
+
+
+def _gb(n: int) -> str:
+    return f"{n / 1e9:.2f} GB"
+
+
+def archive_pixels(path: Path, name: str | None = None, max_pixels: int | None = None) -> int:
+    """The pixels a slice folder or ``.btf.zip``'s images decode to, from their headers
+    alone (PNG IHDR, EXR data window), every image checked as :meth:`SliceFolder.check_images`
+    does; :class:`TooLargeError` over ``max_pixels`` (naming the member and the sizes)."""
     with SliceFolder(path, name) as folder:
-        folder.check_images()
+        h, w = folder.check_images(max_pixels)
+        return len(folder.entries) * h * w
+
+
+def validate_btf_archive(
+    path: Path, name: str | None = None, max_pixels: int | None = MAX_ARCHIVE_PIXELS
+) -> None:
+    """Validator for ``*.btf.zip`` uploads: the angle list and every image header, and the
+    decoded size of all images together (at most ``max_pixels``)."""
+    archive_pixels(path, name, max_pixels)
 
 
 def pack_folder(folder: Path, out: Path) -> Path:

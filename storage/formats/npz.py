@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import io
 import zipfile
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -16,17 +19,61 @@ _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 MAX_NPZ_BYTES = 1 << 30
 
 
+@dataclass(frozen=True)
+class StreamedArray:
+    """An array written piece by piece by :func:`write_npz`: its ``shape`` and ``dtype``,
+    and ``pieces``, C-order blocks along the first axis whose sizes add up to the whole
+    (e.g. one image of a stack at a time). Only one piece need be in memory."""
+
+    shape: tuple[int, ...]
+    dtype: str
+    pieces: Iterable[np.ndarray]
+
+
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     """An uncompressed ``.npz`` (readable by ``np.load``) with fixed zip timestamps, so the
     same arrays always give the same bytes (``np.savez`` stamps entries on some versions)."""
     buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
-        for name, arr in arrays.items():
-            entry = io.BytesIO()
-            # np.asarray(order="C"), not np.ascontiguousarray, which turns scalars into (1,).
-            np.lib.format.write_array(entry, np.asarray(arr, order="C"), allow_pickle=False)
-            zf.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE), entry.getvalue())
+    write_npz(buf, arrays)
     return buf.getvalue()
+
+
+def write_npz(fp: BinaryIO, arrays: Mapping[str, np.ndarray | StreamedArray]) -> None:
+    """Write :func:`npz_bytes`'s bytes to the seekable binary file ``fp``; a
+    :class:`StreamedArray` is written one piece at a time (the same bytes as the whole
+    array), so a stack of large images never sits in memory at once."""
+    with zipfile.ZipFile(fp, "w", compression=zipfile.ZIP_STORED) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
+            if not isinstance(arr, StreamedArray):
+                entry = io.BytesIO()
+                # np.asarray(order="C"), not np.ascontiguousarray, which turns scalars
+                # into (1,).
+                np.lib.format.write_array(entry, np.asarray(arr, order="C"), allow_pickle=False)
+                zf.writestr(info, entry.getvalue())
+                continue
+            dtype = np.dtype(arr.dtype)
+            header = io.BytesIO()
+            np.lib.format.write_array_header_1_0(
+                header,
+                {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                 "shape": tuple(arr.shape)},
+            )  # fmt: skip
+            data_size = int(np.prod(arr.shape, dtype=np.int64)) * dtype.itemsize
+            # The size up front, as writestr sets it: the same zip64 choice, the same bytes.
+            info.file_size = header.tell() + data_size
+            written = 0
+            with zf.open(info, "w") as dest:
+                dest.write(header.getvalue())
+                for piece in arr.pieces:
+                    block = np.ascontiguousarray(piece, dtype=dtype)
+                    dest.write(block.data.cast("B"))
+                    written += block.nbytes
+            if written != data_size:
+                raise ValueError(
+                    f"array {name!r}: its pieces hold {written} bytes, not the {data_size} "
+                    f"of shape {tuple(arr.shape)} {dtype}"
+                )
 
 
 def check_npz_headers(path: Path, label: str, max_bytes: int = MAX_NPZ_BYTES) -> None:

@@ -57,6 +57,20 @@ def read_png(path: str | Path, name: str | None = None) -> np.ndarray:
     FormatError
         Not a PNG, truncated or corrupt, empty, or larger than :data:`MAX_SIDE` per side.
     """
+    levels, top = read_png_levels(path, name)
+    return levels_to_float(levels, level_table(top))
+
+
+def read_png_levels(path: str | Path, name: str | None = None) -> tuple[np.ndarray, int]:
+    """A PNG's integer levels and the top level: ``(levels, 255)`` with uint8 ``(H, W, 3)``
+    levels for 8-bit (and palette, 1-bit, alpha) images, ``(levels, 65535)`` with uint16
+    ``(H, W)`` grey levels for 16-bit grey images (clipped to ``[0, 65535]``).
+
+    The smallest form of the pixels: a slice decoder maps them through a 256 or 65536 entry
+    table (:func:`levels_to_float`) instead of doing float64 arithmetic on every pixel,
+    which took several full-size float64 copies of an 8192 x 4096 image. Raises
+    :class:`FormatError` as :func:`read_png` does.
+    """
     p = Path(path)
     label = name or str(p)
     try:
@@ -83,7 +97,13 @@ def read_png(path: str | Path, name: str | None = None) -> np.ndarray:
                     f"image of {width}x{height} pixels exceeds the limit of {MAX_PIXELS} pixels",
                 )
             img.load()
-            return _to_float_rgb(img)
+            if img.mode in ("I;16", "I;16B", "I;16L", "I"):
+                # 16-bit grey: Pillow keeps it as integers (32-bit for mode "I").
+                grey = np.asarray(img)
+                if grey.dtype != np.uint16:
+                    grey = np.clip(grey, 0, 65535).astype(np.uint16)
+                return grey, 65535
+            return np.asarray(img.convert("RGB"), dtype=np.uint8), 255
     except FormatError:
         raise
     except (
@@ -94,6 +114,20 @@ def read_png(path: str | Path, name: str | None = None) -> np.ndarray:
         Image.DecompressionBombError,
     ) as exc:
         raise FormatError(label, f"unreadable PNG (truncated or corrupt?): {exc}") from None
+
+
+def level_table(top: int) -> np.ndarray:
+    """float32 ``level / top`` for every level ``0 .. top`` (computed in float64, rounded
+    once: the values :func:`read_png` has always returned)."""
+    return (np.arange(top + 1, dtype=np.float64) / float(top)).astype(np.float32)
+
+
+def levels_to_float(levels: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """``(H, W, 3)`` float32 ``table[levels]``; grey ``(H, W)`` levels are replicated to
+    three channels. One float32 image is allocated (plus a grey plane for grey images)."""
+    if levels.ndim == 2:
+        return np.ascontiguousarray(np.repeat(table[levels][..., None], 3, axis=-1))
+    return np.ascontiguousarray(table[levels])
 
 
 def png_size(path: str | Path, name: str | None = None) -> tuple[int, int]:
@@ -113,16 +147,7 @@ def png_size(path: str | Path, name: str | None = None) -> tuple[int, int]:
 
 
 def validate_png(path: str | Path, name: str | None = None) -> tuple[int, int]:
-    """Check that ``path`` is a readable PNG; returns ``(width, height)``."""
-    arr = read_png(path, name)
-    return arr.shape[1], arr.shape[0]
-
-
-def _to_float_rgb(img: Image.Image) -> np.ndarray:
-    if img.mode in ("I;16", "I;16B", "I;16L", "I"):
-        # 16-bit grey: Pillow keeps it as integers; scale the full 16-bit range to [0, 1].
-        grey = np.asarray(img, dtype=np.float64) / 65535.0
-        rgb = np.repeat(np.clip(grey, 0.0, 1.0)[..., None], 3, axis=-1)
-    else:
-        rgb = np.asarray(img.convert("RGB"), dtype=np.float64) / 255.0
-    return np.ascontiguousarray(rgb, dtype=np.float32)
+    """Check that ``path`` is a readable PNG (every pixel decoded); returns
+    ``(width, height)``."""
+    levels, _ = read_png_levels(path, name)
+    return levels.shape[1], levels.shape[0]

@@ -95,3 +95,27 @@ def test04_reupload_repairs_a_corrupt_object(server: Server, tmp_path: Path) -> 
     res = run_cli("fetch", ref, "-o", str(tmp_path / "y.png"), env=server.env())
     assert res.returncode == 0, res
     assert (tmp_path / "y.png").read_bytes() == png.read_bytes()
+
+
+def test05_verify_reports_a_moved_object_and_repair_puts_it_back(tmp_path: Path) -> None:
+    """Issue 21 item 7: an object moved out of ``store/objects`` used to pass ``store
+    verify`` ("all intact", exit 0) and ``--repair`` did nothing."""
+    env, data = base_env(), tmp_path / "d"
+    png = _png(tmp_path / "originals" / "pic.png", 5)
+    res = run_cli("import", str(png), "--data-dir", str(data), env=env)
+    assert res.returncode == 0, res
+    d = res.stdout.strip().removeprefix("sha256:")
+    obj = data / "store" / "objects" / d[:2] / d[2:]
+    obj.rename(tmp_path / "moved-away")
+    res = run_cli("store", "verify", "--data-dir", str(data), env=env)
+    assert res.returncode == 1, res
+    assert "1 MISSING" in res.stdout and "all intact" not in res.stdout, res
+    assert f"sha256:{d}" in res.stderr and "pic.png" in res.stderr, res
+    res = run_cli("store", "verify", "--data-dir", str(data), "--json", env=env)
+    assert res.returncode == 1 and [m["digest"] for m in res.json()["missing"]] == [d], res
+    res = run_cli(
+        "store", "verify", "--data-dir", str(data), "--repair",
+        "--source", str(png.parent), env=env,
+    )  # fmt: skip
+    assert res.returncode == 0 and f"repaired sha256:{d}" in res.stdout, res
+    assert obj.read_bytes() == png.read_bytes()

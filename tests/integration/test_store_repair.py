@@ -53,3 +53,34 @@ def test02_repair_by_rerun_copy_or_report(
     assert out[up].repaired and str(png) in out[up].how
     assert not out[lost].repaired and "other.png" in out[lost].how and "import" in out[lost].how
     assert store.verify_all().corrupt == [lost]
+
+
+def _move_out(store: ArtifactStore, digest: str, to: Path) -> None:
+    """What an operator's ``mv`` does: the object leaves ``store/objects``."""
+    to.mkdir(parents=True, exist_ok=True)
+    store.path(digest).rename(to / digest)
+
+
+def test03_a_moved_object_is_missing_repaired_and_never_reused(
+    toy_kind, settings, jobs: JobStore, store: ArtifactStore, tmp_path: Path
+) -> None:
+    """Issue 21 item 7: an object moved out of the store is reported missing (verify used
+    to say "all intact"), ``repair`` re-runs the job that produced it, and resubmitting the
+    spec runs it again instead of returning the job whose artifact is gone."""
+    spec = {"kind": "toy", "params": {"n": 2}}
+    first = run_in_process(spec, settings)
+    digest = first.artifacts[0].digest
+    _move_out(store, digest, tmp_path / "moved")
+    report = store.verify_all(jobs.referenced_digests())
+    assert report.missing == [digest] and report.corrupt == [] and not report.ok
+
+    out = repair([digest], jobs, store, settings)
+    assert out[0].repaired and f"re-ran job {first.id}" in out[0].how, out
+    assert store.verify(digest) and store.verify_all(jobs.referenced_digests()).ok
+
+    _move_out(store, digest, tmp_path / "moved-again")
+    again = run_in_process(spec, settings)  # no force
+    assert again.id != first.id and again.state == "succeeded"
+    assert again.artifacts[0].digest == digest and store.verify(digest)
+    # Intact again: the next resubmission reuses the newest job, as before.
+    assert run_in_process(spec, settings).id == again.id

@@ -24,6 +24,7 @@ from service.cli.batch import (
 from service.cli.batch_run import run_batch
 from service.cli.client import BadInput
 from service.cli.results import result_rows, write_rows
+from service.specs import JobSpec
 
 KINDS = {"render", "score"}
 
@@ -33,8 +34,8 @@ def fake_validate(raw: Any) -> Any:
     well-formed ref (the placeholders the batch parser substitutes must pass)."""
     if raw.get("kind") not in KINDS:
         raise SpecError([("kind", f"unknown job kind {raw.get('kind')!r}")])
-    if set(raw) - {"kind", "name", "seed", "params", "force"}:
-        extra = sorted(set(raw) - {"kind", "name", "seed", "params", "force"})[0]
+    if set(raw) - set(JobSpec.model_fields):  # the real envelope's fields
+        extra = sorted(set(raw) - set(JobSpec.model_fields))[0]
         raise SpecError([(extra, "Extra inputs are not permitted")])
 
     def walk(obj: Any, loc: str) -> None:
@@ -103,6 +104,11 @@ def test02_top_level_list_and_defaults() -> None:
     )
     assert batch.steps[0].spec["seed"] == 7 and batch.steps[0].spec["force"] is True
     assert batch.steps[1].spec["seed"] == 3  # the step's own value wins
+    # issue 21: a time limit for every step
+    batch = parse(
+        {"defaults": {"timeout_seconds": 600}, "steps": [{"name": "a", "spec": render()}]}
+    )
+    assert batch.steps[0].spec["timeout_seconds"] == 600
 
 
 def test03_forward_ref_is_rejected() -> None:

@@ -48,3 +48,33 @@ def test03_unknown_backend_is_refused_with_its_name() -> None:
 
 def test04_inline_describes_itself() -> None:
     assert InlineExecutor().describe() == {"executor": "inline", "executor_nodes": 1}
+
+
+def test05_the_watch_and_archive_settings_reach_the_workers() -> None:
+    """Issue 21: the stall limit and the archive pixel cap travel to worker processes."""
+    default = Settings.from_env({})
+    assert default.stall_seconds is None and default.archive_max_pixels == 64_000_000
+    assert "MATFORGE_STALL_SECONDS" not in default.to_env()
+    s = Settings.from_env({"MATFORGE_STALL_SECONDS": "2.5", "MATFORGE_ARCHIVE_MPIX": "0.05"})
+    assert s.stall_seconds == 2.5 and s.archive_max_pixels == 50_000
+    again = Settings.from_env(s.to_env())
+    assert again.stall_seconds == 2.5 and again.archive_max_pixels == 50_000
+
+
+def test06_abort_frees_a_map_blocked_on_the_pool() -> None:
+    """Issue 21 item 6: ``abort`` from another thread ends a map whose shards would take
+    a minute; the executor then runs the next map in a fresh pool."""
+    import threading
+    import time
+    from concurrent.futures.process import BrokenProcessPool
+
+    ex = LocalPoolExecutor(2)
+    try:
+        threading.Timer(3.0, ex.abort).start()
+        t0 = time.monotonic()
+        with pytest.raises(BrokenProcessPool):
+            list(ex.map(time.sleep, [60.0, 60.0, 60.0]))
+        assert time.monotonic() - t0 < 30
+        assert sorted(r for _, r in ex.map(abs, [-1, -2])) == [1, 2]
+    finally:
+        ex.close()
