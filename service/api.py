@@ -45,6 +45,7 @@ from service.http_methods import MethodsMiddleware
 from service.routes import ROUTERS
 from service.routes.artifacts import PreviewCache
 from service.routes.dashboard import render_error_page, static_files
+from service.routes.results import OPENAPI_MODELS
 from service.settings import Settings
 from service.specs import JobSpec
 from service.upload_check import UploadChecker
@@ -232,6 +233,11 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
         return app.openapi_schema
     doc = get_openapi(title=TITLE, version=VERSION, description=DESCRIPTION, routes=app.routes)
     schemas = doc.setdefault("components", {}).setdefault("schemas", {})
+    for model in OPENAPI_MODELS:  # request bodies the routes read themselves
+        js = model.model_json_schema(ref_template="#/components/schemas/{model}")
+        for def_name, sub in js.pop("$defs", {}).items():
+            schemas.setdefault(def_name, sub)
+        schemas.setdefault(model.__name__, js)
     base = JobSpec.model_json_schema()
     base["title"] = "JobCreate"
     refs = _kind_components(schemas)

@@ -57,6 +57,20 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
         raise SpecError(errors)
 
 
+def _has_short_ref(obj: Any) -> bool:
+    """Whether any string in ``obj`` is a ``job:<prefix>`` ref (iterative, no paths)."""
+    stack = [obj]
+    while stack:
+        value = stack.pop()
+        if isinstance(value, dict):
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)
+        elif isinstance(value, str) and value.startswith("job:") and SHORT_JOB_REF.match(value):
+            return True
+    return False
+
+
 def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     """``raw`` with every ``job:<prefix>/<name>`` (or ``job:<prefix>``) in its params written
     with the full job id, so that a spec's identity (its hash) does not depend on how short
@@ -64,6 +78,8 @@ def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     ambiguous prefix."""
     if not isinstance(raw, dict) or not isinstance(raw.get("params"), dict):
         return raw
+    if not _has_short_ref(raw["params"]):
+        return raw  # the usual case, found without rebuilding a large spec value by value
     errors: list[tuple[str, str]] = []
 
     def expand(value: Any, loc: str) -> Any:
