@@ -226,6 +226,19 @@ def _kind_components(schemas: dict[str, Any]) -> dict[str, str]:
     return refs
 
 
+def _document_kind_filter(doc: dict[str, Any], names: list[str]) -> None:
+    """``GET /api/jobs?kind=`` takes a registered kind only (422 otherwise): say so with an
+    ``enum`` of the kinds registered when the document is built (plugins included)."""
+    op = doc.get("paths", {}).get("/api/jobs", {}).get("get", {})
+    for param in op.get("parameters", []):
+        if param.get("in") == "query" and param.get("name") == "kind" and names:
+            param["schema"] = {
+                "anyOf": [{"type": "string", "enum": names}, {"type": "null"}],
+                "title": "Kind",
+                "description": "only this kind (a registered kind; 422 otherwise)",
+            }
+
+
 def build_openapi(app: FastAPI) -> dict[str, Any]:
     """The OpenAPI document, with every kind's params schema and the job spec body as a
     ``oneOf`` over kinds (discriminated by ``kind``)."""
@@ -261,6 +274,7 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
         }
     else:
         schemas["JobCreate"] = base
+    _document_kind_filter(doc, sorted(refs))
     doc.setdefault("components", {})["securitySchemes"] = {
         "bearer": {
             "type": "http",

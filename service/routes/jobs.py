@@ -105,7 +105,20 @@ def _too_large(size: int) -> str:
 SpecBody = Annotated[Any, Depends(spec_body)]
 _ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorPublic, "description": "no such job"},
-    422: {"model": ErrorPublic, "description": "invalid input; `error` names the field"},
+    422: {
+        "model": ErrorPublic,
+        "description": "invalid input; `error` names the field: a malformed job id, or a "
+        "prefix that several jobs share (ambiguous; `error` lists the matches)",
+    },
+}
+#: What ``POST /api/jobs`` refuses with 422, some of it beyond what a JSON schema can say.
+_SPEC_422: dict[str, Any] = {
+    "model": ErrorPublic,
+    "description": "invalid spec; `error` names the field. Besides what the schema states: "
+    "an unknown kind; a kind's rules across fields (e.g. `select`: either `runs`, or "
+    "`scene`, `reference` and `ladder`, with distinct rung names); a `job:` or `sha256:` "
+    "ref that names no succeeded job's artifact or no stored object; an ambiguous job id "
+    "prefix; a body that is not JSON or YAML, nested too deep, or with YAML aliases",
 }
 
 
@@ -131,7 +144,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
             "JSON size limit)",
         },
         415: {"model": ErrorPublic, "description": "not application/json or YAML"},
-        422: _ERRORS[422],
+        422: _SPEC_422,
     },
 )
 async def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep) -> Any:
@@ -150,7 +163,8 @@ async def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: St
 def list_jobs(jobs: JobsDep, query: JobListDep, response: Response) -> Any:
     """Jobs, newest first unless `sort` says otherwise (without their artifact lists; see
     `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the
-    filters, for paging with `limit` and `offset`."""
+    filters, for paging with `limit` and `offset`. An unknown `kind` or `sort` is a 422
+    that names the parameter."""
     q = query
     total = jobs.count_jobs(q.state, q.kind, name=q.name, batch=q.batch)
     response.headers["X-Total-Count"] = str(total)
