@@ -20,8 +20,11 @@ from anyio import CapacityLimiter
 
 T = TypeVar("T")
 
-#: Specs parsed at once per web process.
+#: Large specs parsed and validated at once per web process.
 PARSE_THREADS = 1
+#: Text up to this size is cheap to parse and validate whatever it holds (a few ms; YAML is
+#: checked on libyaml's events first), and is not limited.
+SMALL_BYTES = 16 * 1024
 # One limiter per event loop: a limiter waits with its loop's primitives (tests run several
 # loops, one per TestClient, over one app).
 _LIMITERS: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, CapacityLimiter] = (
@@ -37,7 +40,13 @@ def _limiter() -> CapacityLimiter:
     return limiter
 
 
-async def off_loop(func: Callable[..., T], *args: object) -> T:
-    """``func(*args)`` in a worker thread, at most :data:`PARSE_THREADS` at once; its result
-    or its exception, as if called here."""
-    return await anyio.to_thread.run_sync(func, *args, limiter=_limiter())
+async def off_loop(func: Callable[..., T], *args: object, size: int) -> T:
+    """``func(*args)`` in a worker thread; its result or its exception, as if called here.
+
+    ``size``: the bytes of the text ``func`` works on. Above :data:`SMALL_BYTES`, at most
+    :data:`PARSE_THREADS` run at once; smaller work (every real spec) takes the thread pool
+    the sync routes share, so that ordinary submissions do not queue behind each other
+    (one parse thread for all of them cost a third of the submissions per second in
+    ``benchmarks/bench_submit.py``)."""
+    limiter = _limiter() if size > SMALL_BYTES else None
+    return await anyio.to_thread.run_sync(func, *args, limiter=limiter)

@@ -102,12 +102,16 @@ def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     return {**raw, "params": params}
 
 
-def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
-    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
-
-    Job refs in the params may use a unique prefix of the job id."""
+def prepare_submission(raw: Any, jobs: JobStore, store: ArtifactStore) -> ValidSpec:
+    """What :func:`submit` checks before it queues: ``raw`` validated (short job refs
+    written out in full) with every ref existing now. Raises ``SpecError``."""
     spec = validate_spec(expand_short_refs(raw, jobs))
     check_refs(spec, jobs, store)
+    return spec
+
+
+def queue_spec(spec: ValidSpec, jobs: JobStore) -> tuple[Job, bool]:
+    """Queue a prepared spec (or find the identical one); returns ``(job, created)``."""
     return jobs.submit(
         kind=spec.kind,
         name=spec.name,
@@ -116,6 +120,13 @@ def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
         spec=spec.document(),
         force=spec.force,
     )
+
+
+def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
+    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
+
+    Job refs in the params may use a unique prefix of the job id."""
+    return queue_spec(prepare_submission(raw, jobs, store), jobs)
 
 
 def run_in_process(raw: Any, settings: Settings) -> Job:

@@ -6,6 +6,7 @@ import json
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
+from starlette.concurrency import run_in_threadpool
 
 from jobapi.context import LIVE_PREFIX
 from jobapi.errors import SpecError
@@ -14,7 +15,7 @@ from service.job_list import JobListDep
 from service.parse_threads import off_loop
 from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
-from service.submission import submit
+from service.submission import prepare_submission, queue_spec
 from service.summaries import job_summary
 from storage.errors import TooLargeError
 
@@ -92,7 +93,7 @@ async def spec_body(request: Request) -> Any:
     raw = await request.body()
     if len(raw) > MAX_SPEC_BYTES:
         raise TooLargeError(_too_large(len(raw)))
-    return await off_loop(parse_spec_body, raw, content_type)
+    return await off_loop(parse_spec_body, raw, content_type, size=len(raw))
 
 
 def _too_large(size: int) -> str:
@@ -147,13 +148,18 @@ _SPEC_422: dict[str, Any] = {
         422: _SPEC_422,
     },
 )
-async def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep) -> Any:
+async def create_job(
+    raw: SpecBody, request: Request, response: Response, jobs: JobsDep, store: StoreDep
+) -> Any:
     """Validate a spec and queue it (201). Every `job:`/`sha256:` reference in the params
     must exist. Resubmitting an identical spec returns the existing job (200) unless
     `"force": true`."""
-    # Validation of a large spec is seconds of CPU in C calls that hold the GIL: in the
-    # parse threads, so that a few of them at most compete with the event loop.
-    job, created = await off_loop(submit, raw, jobs, store)
+    # Validating a large spec costs CPU in C calls that hold the GIL: in the parse thread,
+    # so that one at most competes with the event loop. Queueing waits on SQLite more than
+    # it computes: in the (larger) thread pool, where submissions overlap their waits.
+    size = len(await request.body())  # read already (spec_body), kept by the request
+    spec = await off_loop(prepare_submission, raw, jobs, store, size=size)
+    job, created = await run_in_threadpool(queue_spec, spec, jobs)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/api/jobs/{job.id}"
     return job.document()

@@ -156,7 +156,8 @@ def parse_batch_body(raw: bytes) -> BatchQuery:
 async def batch_body(request: Request) -> BatchQuery:
     """The batch, read here (a body over the limit is a 413, also when sent chunked) and
     parsed in a worker thread, never on the event loop (issue 21, items 5 and 12)."""
-    return await off_loop(parse_batch_body, await request.body())
+    raw = await request.body()
+    return await off_loop(parse_batch_body, raw, size=len(raw))
 
 
 #: The request body in the OpenAPI document (the schemas are added by
