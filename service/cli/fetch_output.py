@@ -70,7 +70,7 @@ def _refuse(path: Path, what: str) -> BadInput:
 def spool(fill: Fill) -> tuple[BinaryIO, int]:
     """Collect and verify an object's bytes; returns the spool (rewound) and the size.
     Raises what ``fill`` raises, with nothing written anywhere but the spool."""
-    buf = tempfile.SpooledTemporaryFile(max_size=SPOOL_BYTES, prefix="matforge-fetch-")  # noqa: SIM115
+    buf = tempfile.SpooledTemporaryFile(max_size=SPOOL_BYTES, prefix="matforge-fetch-")
     try:
         size = fill(buf.write)
     except BaseException:
