@@ -47,6 +47,7 @@ from service.http_methods import MethodsMiddleware
 from service.previews import PreviewMaker
 from service.routes import ROUTERS
 from service.routes.dashboard import render_error_page, static_files
+from service.routes.results import OPENAPI_MODELS
 from service.settings import Settings
 from service.specs import JobSpec
 from service.upload_check import CheckerBusy, UploadChecker
@@ -233,6 +234,19 @@ def _kind_components(schemas: dict[str, Any]) -> dict[str, str]:
     return refs
 
 
+def _document_kind_filter(doc: dict[str, Any], names: list[str]) -> None:
+    """``GET /api/jobs?kind=`` takes a registered kind only (422 otherwise): say so with an
+    ``enum`` of the kinds registered when the document is built (plugins included)."""
+    op = doc.get("paths", {}).get("/api/jobs", {}).get("get", {})
+    for param in op.get("parameters", []):
+        if param.get("in") == "query" and param.get("name") == "kind" and names:
+            param["schema"] = {
+                "anyOf": [{"type": "string", "enum": names}, {"type": "null"}],
+                "title": "Kind",
+                "description": "only this kind (a registered kind; 422 otherwise)",
+            }
+
+
 def build_openapi(app: FastAPI) -> dict[str, Any]:
     """The OpenAPI document, with every kind's params schema and the job spec body as a
     ``oneOf`` over kinds (discriminated by ``kind``)."""
@@ -240,6 +254,11 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
         return app.openapi_schema
     doc = get_openapi(title=TITLE, version=VERSION, description=DESCRIPTION, routes=app.routes)
     schemas = doc.setdefault("components", {}).setdefault("schemas", {})
+    for model in OPENAPI_MODELS:  # request bodies the routes read themselves
+        js = model.model_json_schema(ref_template="#/components/schemas/{model}")
+        for def_name, sub in js.pop("$defs", {}).items():
+            schemas.setdefault(def_name, sub)
+        schemas.setdefault(model.__name__, js)
     base = JobSpec.model_json_schema()
     base["title"] = "JobCreate"
     refs = _kind_components(schemas)
@@ -263,6 +282,7 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
         }
     else:
         schemas["JobCreate"] = base
+    _document_kind_filter(doc, sorted(refs))
     doc.setdefault("components", {})["securitySchemes"] = {
         "bearer": {
             "type": "http",

@@ -4,7 +4,9 @@ FastAPI answers ``HEAD`` of a ``GET`` route and every ``OPTIONS`` with 405, and 
 no ``Allow`` header. :class:`MethodsMiddleware` fixes all three from the app's own routes:
 
 - ``OPTIONS <path>``: 204 with ``Allow`` listing the methods the path's routes accept
-  (404 as before for a path no route matches);
+  (404 as before for a path no route matches); when the server has a token, only for a
+  request that carries it, as the path's own routes require (401 otherwise; issue 21, item
+  12: the route list was answered to anyone);
 - ``HEAD <path>`` of a ``GET`` route: the ``GET`` response's status and headers, no body;
 - a 405 carries ``Allow``.
 """
@@ -14,8 +16,15 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from typing import Any
 
+from starlette.requests import Request
+from starlette.responses import JSONResponse
 from starlette.routing import Mount
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from service.deps import request_authorized, token_matches
+
+#: Paths every client may ask about without the token (as the routes themselves).
+OPEN_PATHS = frozenset({"/api/health"})
 
 
 def _leaf_routes(routes: Iterable[Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -57,6 +66,27 @@ class MethodsMiddleware:
         self.app = app
         self.routes_app = routes_app
 
+    def _authorized(self, scope: Scope) -> bool:
+        """Whether the request may learn a path's methods: as its routes would let it in
+        (bearer token or dashboard cookie; ``?token=`` on the dashboard's pages)."""
+        settings = self.routes_app.state.settings
+        if not settings.token or scope["path"].rstrip("/") in OPEN_PATHS:
+            return True
+        request = Request(scope)
+        if request_authorized(settings, request.headers, request.cookies):
+            return True
+        page = not scope["path"].startswith("/api/")
+        return page and token_matches(settings.token, request.query_params.get("token"))
+
+    async def _unauthorized(self, scope: Scope, receive: Receive, send: Send) -> None:
+        msg = "missing or wrong bearer token: send 'Authorization: Bearer <MATFORGE_TOKEN>'"
+        response = JSONResponse(
+            {"detail": msg, "error": msg},
+            status_code=401,
+            headers={"WWW-Authenticate": "Bearer"},
+        )
+        await response(scope, receive, send)
+
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
@@ -65,6 +95,9 @@ class MethodsMiddleware:
         allowed = allowed_methods(self.routes_app, scope["path"])
         allow = ", ".join(sorted(allowed))
         if method == "OPTIONS" and allowed:
+            if not self._authorized(scope):
+                await self._unauthorized(scope, receive, send)
+                return
             await send(
                 {
                     "type": "http.response.start",

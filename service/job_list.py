@@ -65,6 +65,9 @@ def job_list_query(
         Query(
             max_length=16,
             description="order: " + ", ".join(f"`{k}`" for k in JOB_SORTS) + " (`-`: descending)",
+            # documented as the closed set it is (issue 21, item 12: schemathesis sent other
+            # strings the schema allowed and got the 422)
+            json_schema_extra={"enum": list(JOB_SORTS)},
         ),
     ] = "-created",
     limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,

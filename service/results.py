@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from jobapi import row_sources
+from jobapi.errors import SpecError
 from jobapi.row_sources import job_id_of_ref
 from jobapi.rows import COLUMNS, ResultRow
 from service import kinds
@@ -130,13 +131,18 @@ def batch_rows(
             raise _Missing(m["step"])
         return f"job:{found[m['step']]}" + (f"/{m['name']}" if m["name"] else "")
 
-    for step in steps:
+    for i, step in enumerate(steps):
         name = str(step.get("name"))
         try:
             spec = validate_spec(_substitute(step.get("spec"), resolve))
         except _Missing:
             out.steps.append({"step": name, "kind": None, "job": None, "state": "missing"})
             continue
+        except SpecError as exc:  # name the step: "steps.2.spec.params.spp: ..."
+            at = f"steps.{i}.spec"
+            raise SpecError(
+                [(f"{at}.{loc}" if loc else at, msg) for loc, msg in exc.errors]
+            ) from None
         job = jobs.succeeded_with_hash(spec.spec_hash)
         out.steps.append({"step": name, "kind": spec.kind, "job": job.id if job else None,
                           "state": "succeeded" if job else "missing"})  # fmt: skip

@@ -29,7 +29,7 @@ import uvicorn
 
 from service.api import create_app
 from service.settings import Settings
-from service.web_guard import RedactTokens
+from service.web_guard import RedactTokens, bind_refusal, is_loopback
 from service.workers.liveness import watch_parent
 from service.workers.worker import Supervisor
 
@@ -128,6 +128,15 @@ def serve(
     """
     if http_workers < 1:
         raise ValueError(f"http_workers must be at least 1, not {http_workers}")
+    refusal = bind_refusal(host, settings.allowed_hosts)
+    if refusal is not None:
+        raise ValueError(refusal)  # the CLI exits 2 with it; nothing was started
+    if not settings.token and not is_loopback(host):
+        log.warning(
+            "listening on %s with no MATFORGE_TOKEN: anyone who can reach this address can "
+            "submit jobs and read every artifact",
+            host or "every interface",
+        )
     (settings.data_dir / "scratch").mkdir(parents=True, exist_ok=True)  # workers' job dirs
     config = _config(settings, host, port)
     sockets: list[socket.socket] | None = None

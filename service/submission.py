@@ -57,6 +57,20 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
         raise SpecError(errors)
 
 
+def _has_short_ref(obj: Any) -> bool:
+    """Whether any string in ``obj`` is a ``job:<prefix>`` ref (iterative, no paths)."""
+    stack = [obj]
+    while stack:
+        value = stack.pop()
+        if isinstance(value, dict):
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)
+        elif isinstance(value, str) and value.startswith("job:") and SHORT_JOB_REF.match(value):
+            return True
+    return False
+
+
 def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     """``raw`` with every ``job:<prefix>/<name>`` (or ``job:<prefix>``) in its params written
     with the full job id, so that a spec's identity (its hash) does not depend on how short
@@ -64,6 +78,8 @@ def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     ambiguous prefix."""
     if not isinstance(raw, dict) or not isinstance(raw.get("params"), dict):
         return raw
+    if not _has_short_ref(raw["params"]):
+        return raw  # the usual case, found without rebuilding a large spec value by value
     errors: list[tuple[str, str]] = []
 
     def expand(value: Any, loc: str) -> Any:
@@ -86,12 +102,16 @@ def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     return {**raw, "params": params}
 
 
-def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
-    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
-
-    Job refs in the params may use a unique prefix of the job id."""
+def prepare_submission(raw: Any, jobs: JobStore, store: ArtifactStore) -> ValidSpec:
+    """What :func:`submit` checks before it queues: ``raw`` validated (short job refs
+    written out in full) with every ref existing now. Raises ``SpecError``."""
     spec = validate_spec(expand_short_refs(raw, jobs))
     check_refs(spec, jobs, store)
+    return spec
+
+
+def queue_spec(spec: ValidSpec, jobs: JobStore) -> tuple[Job, bool]:
+    """Queue a prepared spec (or find the identical one); returns ``(job, created)``."""
     return jobs.submit(
         kind=spec.kind,
         name=spec.name,
@@ -126,6 +146,13 @@ def _present(store: ArtifactStore, digest: str, size: int | None) -> bool:
     except NotFoundError:
         return False
     return size is None or actual == size
+
+
+def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
+    """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
+
+    Job refs in the params may use a unique prefix of the job id."""
+    return queue_spec(prepare_submission(raw, jobs, store), jobs)
 
 
 def run_in_process(raw: Any, settings: Settings) -> Job:

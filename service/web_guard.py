@@ -22,7 +22,7 @@ import ipaddress
 import logging
 import re
 from collections.abc import Iterable
-from urllib.parse import urlsplit
+from urllib.parse import unquote_plus, urlsplit
 
 from starlette.datastructures import Headers
 from starlette.responses import JSONResponse
@@ -31,12 +31,33 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 WILDCARDS = frozenset({"", "0.0.0.0", "::"})
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
-_TOKEN = re.compile(r"([?&]token=)[^&\s\"]*", re.IGNORECASE)
+#: A query parameter in a logged line: separator, name, ``=``, value.
+_PARAM = re.compile(r"([?&;])([^=&;?#\s\"]*)=([^&;#\s\"]*)")
+
+
+def _decoded_name(name: str) -> str:
+    """A parameter's name as the server reads it (percent-decoded, ``+`` a space), decoded
+    again while that changes it (``%2574oken``), stripped and in lower case."""
+    for _ in range(4):
+        plain = unquote_plus(name)
+        if plain == name:
+            break
+        name = plain
+    return name.strip().lower()
+
+
+def _redact_param(m: re.Match[str]) -> str:
+    if _decoded_name(m[2]) != "token":
+        return m[0]
+    return f"{m[1]}{m[2]}=***"
 
 
 def redact(text: str) -> str:
-    """``text`` with every ``token=<value>`` query parameter's value replaced by ``***``."""
-    return _TOKEN.sub(r"\1***", text)
+    """``text`` with the value of every ``token`` query parameter replaced by ``***``.
+
+    The name is compared after URL decoding and case-insensitively: ``?%74oken=`` and
+    ``?TOKEN=`` reach the dashboard as ``token`` (issue 21, item 8)."""
+    return _PARAM.sub(_redact_param, text)
 
 
 class RedactTokens(logging.Filter):
@@ -50,7 +71,8 @@ class RedactTokens(logging.Filter):
         return True
 
 
-def _is_loopback(host: str) -> bool:
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (a name or an address) is this machine only: localhost, 127/8, ::1."""
     if host == "localhost":
         return True
     try:
@@ -74,9 +96,30 @@ def allowed_hosts(bind_host: str | None, configured: Iterable[str]) -> frozenset
         hosts |= LOOPBACK_NAMES
     else:
         hosts.add(bind)
-        if _is_loopback(bind):
+        if is_loopback(bind):
             hosts |= LOOPBACK_NAMES
     return frozenset(hosts)
+
+
+def bind_refusal(bind_host: str, configured: Iterable[str]) -> str | None:
+    """Why a server must not start on ``bind_host``, or ``None`` when it may.
+
+    Listening on every interface (``0.0.0.0``, ``::``) with no configured host names leaves
+    the server unable to tell its own names from a rebound one: :func:`allowed_hosts` turns
+    the ``Host`` check off, and any web page could reach the API through DNS rebinding
+    (issue 21, item 11). Such a start is refused; ``*`` in the configured hosts turns the
+    check off knowingly."""
+    bind = bind_host.strip().lower().strip("[]")
+    if bind not in WILDCARDS or any(h.strip() for h in configured):
+        return None
+    shown = bind_host or "(all interfaces)"
+    return (
+        f"refusing to listen on every interface (--host {shown}) with no "
+        "MATFORGE_ALLOWED_HOSTS: the Host check that stops DNS rebinding would be off. Set "
+        "MATFORGE_ALLOWED_HOSTS to the host names clients use (e.g. "
+        "'localhost,127.0.0.1,matforge.lab'; '*' turns the check off), or listen on "
+        "127.0.0.1 (the default)"
+    )
 
 
 def host_name(value: str) -> str:

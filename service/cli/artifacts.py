@@ -2,7 +2,8 @@
 when ``--data-dir`` is given.
 
 Refs are ``job:<job-id>/<artifact-name>`` or ``sha256:<64 hex>``. Fetched bytes are always
-verified against their digest before the destination file appears (written atomically)."""
+verified against their digest before any reaches the destination (see
+:mod:`service.cli.fetch_output`)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from rich.table import Table
 from rich.text import Text
 
 from service.cli.client import BadInput
+from service.cli.fetch_output import Fill, Write, write_stream, write_verified
 from service.cli.state import out_console, print_json, print_line, state_of
 from storage.errors import FormatError, IntegrityError, NotFoundError
 from storage.formats.btf_folder import pack_folder
@@ -99,29 +101,25 @@ def destination(out: Path, name: str) -> Path:
     return out / Path(name).name if out.is_dir() else out
 
 
-def copy_verified(src: Path, digest: str, dest: Path) -> int:
-    """Copy ``src`` to ``dest`` atomically, hashing on the way; raises ``IntegrityError``
-    (and leaves ``dest`` untouched) when the bytes do not match ``digest``."""
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
-    tmp = Path(tmp_name)
-    h, size = hashlib.sha256(), 0
-    try:
-        with os.fdopen(fd, "wb") as out, open(src, "rb") as fh:
+def local_fill(src: Path, digest: str) -> Fill:
+    """A :data:`~service.cli.fetch_output.Fill` of a local object: its bytes, hashed on the
+    way; ``IntegrityError`` after the last chunk when they do not match ``digest``."""
+
+    def fill(write: Write) -> int:
+        h, size = hashlib.sha256(), 0
+        with open(src, "rb") as fh:
             for chunk in iter(lambda: fh.read(_CHUNK), b""):
                 h.update(chunk)
                 size += len(chunk)
-                out.write(chunk)
+                write(chunk)
         if h.hexdigest() != digest:
             raise IntegrityError(
-                f"object sha256:{digest} is corrupt on disk (digest mismatch)"
-                "; run 'matforge store verify'"
+                f"object sha256:{digest} is corrupt on disk (digest mismatch); nothing was "
+                "written; run 'matforge store verify'"
             )
-        os.chmod(tmp, default_file_mode())
-        os.replace(tmp, dest)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return size
+        return size
+
+    return fill
 
 
 def default_file_mode() -> int:
@@ -130,25 +128,6 @@ def default_file_mode() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return 0o666 & ~mask
-
-
-def copy_to_stdout(src: Path, digest: str) -> int:
-    """Stream ``src`` to stdout, hashing on the way; raises ``IntegrityError`` at the end
-    when the bytes did not match ``digest`` (stdout cannot be written atomically)."""
-    out = sys.stdout.buffer
-    h, size = hashlib.sha256(), 0
-    with open(src, "rb") as fh:
-        for chunk in iter(lambda: fh.read(_CHUNK), b""):
-            h.update(chunk)
-            size += len(chunk)
-            out.write(chunk)
-    out.flush()
-    if h.hexdigest() != digest:
-        raise IntegrityError(
-            f"object sha256:{digest} is corrupt on disk (digest mismatch); the bytes written "
-            "to stdout are not to be trusted; run 'matforge store verify'"
-        )
-    return size
 
 
 def artifacts(
@@ -194,7 +173,9 @@ def fetch(
     """Download an artifact's bytes (verified against its digest) to a file or stdout.
 
     A file is written atomically once verified, with the mode your umask gives new files.
-    With ``-o -`` the bytes stream to stdout and a digest mismatch exits 1 at the end.
+    A FIFO or a terminal is written in place (never replaced), and so is stdout (``-o -``),
+    once the bytes were verified; a digest mismatch exits 1 with nothing written. Block
+    devices and sockets are refused (exit 2).
     """
     to_stdout = str(output) == "-"
     if to_stdout and as_json:
@@ -212,10 +193,10 @@ def fetch(
         if not src.is_file():
             raise NotFoundError(f"no object sha256:{digest} in the store at {local}")
         if to_stdout:
-            copy_to_stdout(src, digest)
+            write_stream(local_fill(src, digest), sys.stdout.buffer)
             return
         dest = destination(output, name or digest)
-        size = copy_verified(src, digest, dest)
+        size = write_verified(dest, local_fill(src, digest), mode=default_file_mode())
     else:
         with state_of(ctx).client() as client:
             if job_id is not None and name is not None:

@@ -20,7 +20,6 @@ import builtins
 import hashlib
 import os
 import re
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -413,32 +412,27 @@ class Client:
         return size
 
     def fetch(self, digest: str, dest: Path, mode: int = 0o644) -> int:
-        """Stream ``GET /api/artifacts/{digest}`` to ``dest``; returns the size in bytes.
+        """Download an object to ``dest``; returns the size in bytes.
 
-        The bytes are hashed as they arrive and ``dest`` is written atomically (a temporary
-        file in the same directory, renamed once the digest matched), so ``dest`` never
-        holds unverified bytes. ``dest`` gets ``mode`` (the CLI passes the one the user's
-        umask gives new files).
+        The bytes are hashed as they arrive and reach ``dest`` only once verified: a regular
+        file is written atomically (a temporary file beside it, renamed once the digest
+        matched) with ``mode`` (the CLI passes the one the user's umask gives new files); a
+        FIFO or a terminal is written in place, never renamed over; a block device or a
+        socket is refused with :class:`BadInput` (:mod:`service.cli.fetch_output`).
         """
+        from service.cli.fetch_output import write_verified
+
         d = check_digest(digest)
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
-        tmp = Path(tmp_name)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                size = self._stream(d, fh.write)
-            os.chmod(tmp, mode)
-            os.replace(tmp, dest)
-        finally:
-            tmp.unlink(missing_ok=True)
-        return size
+        return write_verified(dest, lambda write: self._stream(d, write), mode=mode)
 
     def fetch_to(self, digest: str, out: BinaryIO) -> int:
-        """Stream ``GET /api/artifacts/{digest}`` to an open binary stream (``fetch -o -``);
-        a digest mismatch is raised after the bytes were written."""
-        size = self._stream(check_digest(digest), out.write)
-        out.flush()
-        return size
+        """Download an object to an open binary stream (``fetch -o -``); nothing is written
+        to ``out`` unless the bytes match the digest (they are verified first, in memory or
+        a temporary file)."""
+        from service.cli.fetch_output import write_stream
+
+        d = check_digest(digest)
+        return write_stream(lambda write: self._stream(d, write), out)
 
     def upload(self, path: Path, name: str | None = None) -> dict[str, Any]:
         """``POST /api/artifacts?name=``: stream a file to the server, which validates and

@@ -11,6 +11,7 @@ curves; ``static/js/compare.js`` does the rest.
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from typing import Annotated, Any
 
@@ -18,13 +19,14 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import HTMLResponse
 
 from jobapi.errors import SpecError
-from service.deps import JobsDep, PageAuth, set_token_cookie
+from service.deps import JOB_ID_PATTERN, JobsDep, PageAuth, set_token_cookie
 from service.routes.dashboard import EXR_TYPE, picture_views, templates
 from storage.job_queries import resolve_job_id
 from storage.jobs import Job, JobStore
 
 router = APIRouter(include_in_schema=False)
 
+JOB_ID = re.compile(JOB_ID_PATTERN)
 #: At most this many jobs side by side.
 MAX_JOBS = 12
 #: Artifact names shown first when several are common, most telling first.
@@ -36,6 +38,12 @@ def _jobs(store: JobStore, ids: str | None, batch: str | None) -> list[Job]:
         wanted = [i.strip() for i in ids.split(",") if i.strip()]
         if len(wanted) > MAX_JOBS:
             raise SpecError([("query.jobs", f"at most {MAX_JOBS} jobs, got {len(wanted)}")])
+        bad = [i for i in wanted if not JOB_ID.fullmatch(i)]
+        if bad:  # as /api/jobs/{id} answers a malformed id: 422, not 404 (issue 21, item 12)
+            raise SpecError(
+                [("query.jobs", f"not a job id: {bad[0]!r}; expected up to 32 lowercase hex "
+                                "digits (an id or a unique prefix of one)")]
+            )  # fmt: skip
         full = list(dict.fromkeys(resolve_job_id(store, i) for i in wanted))
         return [store.get(i) for i in full]
     if batch:

@@ -6,15 +6,18 @@ import json
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
+from starlette.concurrency import run_in_threadpool
 
 from jobapi.context import LIVE_PREFIX
 from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, StoreDep
 from service.job_list import JobListDep
+from service.parse_threads import off_loop
 from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
-from service.submission import submit
+from service.submission import prepare_submission, queue_spec
 from service.summaries import job_summary
+from storage.errors import TooLargeError
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"], dependencies=[AuthDep])
 
@@ -42,10 +45,38 @@ SPEC_TYPES = frozenset(
 )
 
 
+#: Bytes a spec sent over HTTP may have, checked before it is read or parsed (413 beyond):
+#: far above any real spec (a score of a thousand candidates is about 100 KB), far below the
+#: 1 MiB of other JSON bodies (``MATFORGE_MAX_BODY_KB``), which a batch of many steps needs.
+#: Parsing and validating a 1 MB spec holds the GIL in single C calls (decode, encode,
+#: pydantic) of 40-50 ms each, and the event loop waits for them (issue 21, item 5).
+MAX_SPEC_BYTES = 256 * 1024
+#: YAML values a spec sent over HTTP may hold (counted before it is built; libyaml's events
+#: are cheap, PyYAML's objects are not: a 1 MB flat YAML list took seconds to build). JSON,
+#: parsed in C, is bounded by the body limit alone.
+MAX_YAML_VALUES = 50_000
+
+
+def parse_spec_body(raw: bytes, content_type: str) -> Any:
+    """The parsed and checked spec in a request body (JSON, or YAML when ``content_type``
+    says so); :class:`SpecError` (422) when it does not parse or is hostile."""
+    if not raw.strip():
+        raise SpecError([("body", "empty request body: send a job spec as JSON")])
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SpecError([("body", "the request body is not UTF-8 text")]) from None
+    if "yaml" in content_type:
+        return parse_spec_text(text, "request body", aliases=False, max_values=MAX_YAML_VALUES)
+    return parse_json_text(text, "body")
+
+
 async def spec_body(request: Request) -> Any:
     """The parsed request body of a spec: JSON, or YAML when the content type says so.
 
-    A body that does not parse is a :class:`SpecError` (422) like any other bad spec.
+    A body that does not parse is a :class:`SpecError` (422) like any other bad spec. The
+    parsing runs in a worker thread (:func:`service.parse_threads.off_loop`), never on the
+    event loop.
     """
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if content_type not in SPEC_TYPES:
@@ -56,22 +87,39 @@ async def spec_body(request: Request) -> Any:
             f"Content-Type {shown} is not a job spec's: send application/json "
             "(or application/yaml)",
         )
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > MAX_SPEC_BYTES:
+        raise TooLargeError(_too_large(int(declared)))
     raw = await request.body()
-    if not raw.strip():
-        raise SpecError([("body", "empty request body: send a job spec as JSON")])
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise SpecError([("body", "the request body is not UTF-8 text")]) from None
-    if "yaml" in content_type:
-        return parse_spec_text(text, "request body", aliases=False)
-    return parse_json_text(text, "body")
+    if len(raw) > MAX_SPEC_BYTES:
+        raise TooLargeError(_too_large(len(raw)))
+    return await off_loop(parse_spec_body, raw, content_type, size=len(raw))
+
+
+def _too_large(size: int) -> str:
+    return (
+        f"a job spec of {size} bytes exceeds the limit of {MAX_SPEC_BYTES} bytes; "
+        "large inputs belong in an upload (POST /api/artifacts), referenced by its sha256: ref"
+    )
 
 
 SpecBody = Annotated[Any, Depends(spec_body)]
 _ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorPublic, "description": "no such job"},
-    422: {"model": ErrorPublic, "description": "invalid input; `error` names the field"},
+    422: {
+        "model": ErrorPublic,
+        "description": "invalid input; `error` names the field: a malformed job id, or a "
+        "prefix that several jobs share (ambiguous; `error` lists the matches)",
+    },
+}
+#: What ``POST /api/jobs`` refuses with 422, some of it beyond what a JSON schema can say.
+_SPEC_422: dict[str, Any] = {
+    "model": ErrorPublic,
+    "description": "invalid spec; `error` names the field. Besides what the schema states: "
+    "an unknown kind; a kind's rules across fields (e.g. `select`: either `runs`, or "
+    "`scene`, `reference` and `ladder`, with distinct rung names); a `job:` or `sha256:` "
+    "ref that names no succeeded job's artifact or no stored object; an ambiguous job id "
+    "prefix; a body that is not JSON or YAML, nested too deep, or with YAML aliases",
 }
 
 
@@ -91,16 +139,27 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
             ),
         },
         201: {"description": "A new job was queued."},
-        413: {"model": ErrorPublic, "description": "body over the JSON size limit"},
+        413: {
+            "model": ErrorPublic,
+            "description": f"a spec over {MAX_SPEC_BYTES // 1024} KiB (or a body over the "
+            "JSON size limit)",
+        },
         415: {"model": ErrorPublic, "description": "not application/json or YAML"},
-        422: _ERRORS[422],
+        422: _SPEC_422,
     },
 )
-def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep) -> Any:
+async def create_job(
+    raw: SpecBody, request: Request, response: Response, jobs: JobsDep, store: StoreDep
+) -> Any:
     """Validate a spec and queue it (201). Every `job:`/`sha256:` reference in the params
     must exist. Resubmitting an identical spec returns the existing job (200) unless
     `"force": true`."""
-    job, created = submit(raw, jobs, store)
+    # Validating a large spec costs CPU in C calls that hold the GIL: in the parse thread,
+    # so that one at most competes with the event loop. Queueing waits on SQLite more than
+    # it computes: in the (larger) thread pool, where submissions overlap their waits.
+    size = len(await request.body())  # read already (spec_body), kept by the request
+    spec = await off_loop(prepare_submission, raw, jobs, store, size=size)
+    job, created = await run_in_threadpool(queue_spec, spec, jobs)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/api/jobs/{job.id}"
     return job.document()
@@ -110,7 +169,8 @@ def create_job(raw: SpecBody, response: Response, jobs: JobsDep, store: StoreDep
 def list_jobs(jobs: JobsDep, query: JobListDep, response: Response) -> Any:
     """Jobs, newest first unless `sort` says otherwise (without their artifact lists; see
     `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the
-    filters, for paging with `limit` and `offset`."""
+    filters, for paging with `limit` and `offset`. An unknown `kind` or `sort` is a 422
+    that names the parameter."""
     q = query
     total = jobs.count_jobs(q.state, q.kind, name=q.name, batch=q.batch)
     response.headers["X-Total-Count"] = str(total)

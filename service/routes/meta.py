@@ -15,8 +15,10 @@ router = APIRouter(prefix="/api", tags=["service"], dependencies=[AuthDep])
 
 
 @health_router.get("/health", response_model=HealthPublic, summary="Liveness")
-def health() -> dict[str, str]:
+async def health() -> dict[str, str]:
     """`{"status": "ok"}`; never needs a token."""
+    # async: answered on the event loop, without a hop through the thread pool, whose
+    # threads may be busy validating specs (issue 21, item 5)
     return {"status": "ok"}
 
 

@@ -134,10 +134,15 @@ def test02_ab_slider_and_batch(
 
 
 def test03_bad_ids_are_named(page: Any, server: str) -> None:  # noqa: F811
+    # a malformed id is a 422, as /api/jobs/zzz answers (issue 21, item 12); it was a 404
     response = page.goto(f"{server}/compare?jobs=zzz&token={TOKEN}")
+    assert response is not None and response.status == 422
+    assert "not a job id: 'zzz'" in page.locator("body").inner_text()
+    # a well-formed id of no job is still a 404 that names it
+    response = page.goto(f"{server}/compare?jobs=abc0123&token={TOKEN}")
     assert response is not None and response.status == 404
-    assert "no job 'zzz'" in page.locator("body").inner_text()
-    page.problems.clear()  # the 404 itself is expected
+    assert "no job 'abc0123'" in page.locator("body").inner_text()
+    page.problems.clear()  # the 422 and 404 themselves are expected
 
 
 def test04_training_curves_overlaid(

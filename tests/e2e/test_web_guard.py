@@ -15,7 +15,7 @@ from service import kinds
 from service.api import create_app
 from service.deps import TOKEN_COOKIE
 from service.settings import Settings
-from service.web_guard import RedactTokens, allowed_hosts
+from service.web_guard import RedactTokens, allowed_hosts, redact
 
 from .harness import Server
 
@@ -113,3 +113,30 @@ def test06_redact_filter() -> None:
     )  # fmt: skip
     assert RedactTokens().filter(record)
     assert record.getMessage() == '1.2.3.4:5 - "GET /?a=1&token=***&TOKEN=*** HTTP/1.1" 200'
+
+
+@pytest.mark.parametrize(
+    "name", ["%74oken", "T%4FKEN", "%54%6f%4B%65%6E", "%2574oken", "tok%65n", "+token"]
+)
+def test07_redact_decodes_parameter_names(name: str) -> None:
+    """Issue 21, item 8: ``?%74oken=`` reaches the dashboard as ``token``; its value is
+    redacted like the plain name's, and other parameters are left alone."""
+    line = f"GET /?a=1&{name}=SECRET&b=token HTTP/1.1"
+    assert redact(line) == f"GET /?a=1&{name}=***&b=token HTTP/1.1"
+    assert redact("/?tokens=keep&atoken=keep") == "/?tokens=keep&atoken=keep"
+
+
+def test08_access_log_redacts_percent_encoded_names(token_server: Server) -> None:
+    token = str(token_server.token)
+    r = httpx.get(f"{token_server.url}/?%74oken={token}", timeout=10)
+    assert r.status_code == 200, r.text  # the server reads it as the token
+    httpx.get(f"{token_server.url}/?TO%4BEN={token}", timeout=10)  # 401, still logged
+    deadline = time.monotonic() + 5
+    log = ""
+    while time.monotonic() < deadline:
+        log = token_server.log_path.read_text(errors="replace")
+        if "%74oken=***" in log and "TO%4BEN=***" in log:
+            break
+        time.sleep(0.1)
+    assert "%74oken=***" in log and "TO%4BEN=***" in log, log[-2000:]
+    assert token not in log
