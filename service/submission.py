@@ -110,8 +110,9 @@ def prepare_submission(raw: Any, jobs: JobStore, store: ArtifactStore) -> ValidS
     return spec
 
 
-def queue_spec(spec: ValidSpec, jobs: JobStore) -> tuple[Job, bool]:
-    """Queue a prepared spec (or find the identical one); returns ``(job, created)``."""
+def queue_spec(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
+    """Queue a prepared spec (or find the identical one whose artifacts are all still in
+    ``store``: :func:`lost_results`); returns ``(job, created)``."""
     return jobs.submit(
         kind=spec.kind,
         name=spec.name,
@@ -152,7 +153,7 @@ def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
     """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
 
     Job refs in the params may use a unique prefix of the job id."""
-    return queue_spec(prepare_submission(raw, jobs, store), jobs)
+    return queue_spec(prepare_submission(raw, jobs, store), jobs, store)
 
 
 def run_in_process(raw: Any, settings: Settings) -> Job:

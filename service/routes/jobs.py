@@ -159,7 +159,7 @@ async def create_job(
     # it computes: in the (larger) thread pool, where submissions overlap their waits.
     size = len(await request.body())  # read already (spec_body), kept by the request
     spec = await off_loop(prepare_submission, raw, jobs, store, size=size)
-    job, created = await run_in_threadpool(queue_spec, spec, jobs)
+    job, created = await run_in_threadpool(queue_spec, spec, jobs, store)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/api/jobs/{job.id}"
     return job.document()
