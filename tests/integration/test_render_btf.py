@@ -169,6 +169,7 @@ def test03_model_eval_is_the_portable_model(env: Env, mi: types.ModuleType, mode
     out = eval_grid(mi, bsdf, data.wi[pick], data.wo[pick], *portable.resolution)
     ref = np.stack([portable.slice(data.wi[k], data.wo[k]) for k in pick])
     assert ref.max() > 0.0
+    # float32 Dr.Jit against float32 numpy: measured a tenth of this (AMD EPYC).
     np.testing.assert_allclose(out, ref, rtol=1e-4, atol=1e-6 * ref.max())
     for scene in ("plane_points", "sphere_points"):
         img = image(env, render(env, {"model": f"job:{job.id}", "uv_scale": [4, 2]}, scene))

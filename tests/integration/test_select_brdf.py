@@ -69,6 +69,8 @@ def test01_the_ladder_is_rendered_scored_and_chosen(chain: tuple[Settings, dict[
     assert ladder["chosen"] == (min(meets, key=lambda r: r["cost"])["candidate"] if meets else None)
     # The table rung is the reference material itself (other seeds, same spp): only noise.
     fitted = [rungs[n]["value"] for n in RUNGS if n != "table"]
+    # Measured FLIP (AMD EPYC): table 0.062, the best fit 0.31 (5x): the truth at the
+    # reference's spp against 40-step fits at 4 spp, not a contest between close fits.
     assert rungs["table"]["value"] < min(fitted), rungs
     assert artifact(settings, jobs["select"], "select.png")[:4] == b"\x89PNG"
 

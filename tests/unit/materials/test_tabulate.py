@@ -132,4 +132,8 @@ def test05_unfolded_variant_is_reciprocal() -> None:
     # phi_d and phi_d + 180 deg are the swapped pair: same horizon status, same value.
     first, second = table.rgb[:, :, :180], table.rgb[:, :, 180:]
     np.testing.assert_array_equal(first < 0, second < 0)
-    np.testing.assert_allclose(first, second, rtol=1e-4, atol=1e-7)
+    # Mitsuba sees float32 directions, and a swapped pair's are rounded separately: near
+    # theta_d = 90 degrees the plastic's grazing lobe amplifies that half ulp (6e-8) several
+    # hundred times (measured 3.5e-5 at bin (6, 89), 5e-6 at the 99.9th percentile). A
+    # wrong pairing of phi_d halves moves values by O(1).
+    np.testing.assert_allclose(first, second, rtol=3e-4, atol=1e-7)

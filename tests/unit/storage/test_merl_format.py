@@ -78,6 +78,8 @@ def test03_round_trip(tmp_path: Path) -> None:
     write_merl(path, table)
     back = read_merl(path)
     assert back.phi_d_bins == 180
+    # A division by the scale on write, a multiplication on read: two correctly rounded
+    # float64 operations, 2.2e-16 each (measured 2e-16), the same on any IEEE machine.
     np.testing.assert_allclose(back.rgb, table.rgb, rtol=5e-16, atol=0)
     assert np.array_equal(back.missing, table.missing)
     # Deterministic bytes; re-encoding what was read changes stored values by <= 1 ulp.

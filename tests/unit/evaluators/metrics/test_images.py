@@ -81,7 +81,10 @@ def test04_flip_matches_flip_evaluator(pair) -> None:
     )
     mean, emap = flip(ref, test, mode="hdr")
     assert mean == pytest.approx(float(mean_ref), rel=1e-5)
-    np.testing.assert_allclose(emap, np.asarray(err_ref)[..., 0], atol=1e-5)
+    # Two float32 implementations (numpy here, C++ there) of filters, colour transforms and
+    # powers: measured 4e-6 on AMD EPYC, with powers near 0 amplifying ulps; a wrong filter
+    # or colour space moves the map by 1e-2 or more.
+    np.testing.assert_allclose(emap, np.asarray(err_ref)[..., 0], atol=3e-5)
     ldr_ref, ldr_test = ref / ref.max(), test.clip(0, ref.max()) / ref.max()
     _, mean_ldr, _ = flip_evaluator.evaluate(
         ldr_ref.copy(), ldr_test.copy(), "LDR", applyMagma=False

@@ -64,7 +64,10 @@ def test03_footprint_normalisation() -> None:
     np.testing.assert_allclose(wrap_unit(NUMPY_OPS, x), [0.25, 0.75, 0.0, 0.999], atol=1e-12)
     f = spatial_features_numpy(np.array([0.2, 1.2]), np.array([0.7, -0.3]), np.array([2.0, 2.0]))
     assert f.shape == (2, 3 * BINS) and f.dtype == np.float32
-    np.testing.assert_allclose(f[0], f[1], atol=1e-6)  # periodic in the centre
+    # Periodic in the centre. float32: 1.2 - 1 and 0.2 round apart by 5e-8, times 8 bins
+    # times the Gaussian's largest slope (0.61) is 2.4e-7 (measured 2.3e-7), plus an ulp of
+    # exp; a centre that is not wrapped moves features by O(0.1).
+    np.testing.assert_allclose(f[0], f[1], atol=1e-6)
 
 
 def test04_backends_agree(mitsuba_llvm: None) -> None:
@@ -78,6 +81,9 @@ def test04_backends_agree(mitsuba_llvm: None) -> None:
     t = spatial_features(
         torch_ops(), *(torch.from_numpy(a.astype(np.float32)) for a in (cx, cy, size))
     )
+    # float32 in three backends, each with its own exp and operation order: an ulp of the
+    # distance to a bin (6e-8) times 8 bins times the Gaussian's largest slope (0.61), plus
+    # a few ulps of exp, is under 1e-6 (measured 1.2e-7); a wrong bin moves a feature O(0.1).
     np.testing.assert_allclose(torch.stack(t, 1).numpy(), ref, atol=2e-6)
     d = spatial_features(drjit_ops(), *(llvm.Float(a.astype(np.float32)) for a in (cx, cy, size)))
     dr.eval(d)

@@ -116,12 +116,15 @@ def test03_backends_agree_with_every_option() -> None:
     t = spatial_features(
         torch_ops(), *(torch.from_numpy(a.astype(np.float32)) for a in (cx, cy, size)), enc=enc
     )
-    np.testing.assert_allclose(torch.stack(t, 1).numpy(), ref, atol=2e-6)
+    # float32 in three backends, each with its own exp/log and operation order: an ulp of
+    # the distance to a bin (6e-8) times 12 bins times the Gaussian's largest slope (0.61),
+    # plus a few ulps of exp, is ~7e-7 (measured 6e-7, AMD EPYC); a wrong bin moves O(0.1).
+    np.testing.assert_allclose(torch.stack(t, 1).numpy(), ref, atol=5e-6)
     d = spatial_features(
         drjit_ops(), *(llvm.Float(a.astype(np.float32)) for a in (cx, cy, size)), enc=enc
     )
     dr.eval(*d)
-    np.testing.assert_allclose(np.stack([np.array(v) for v in d], 1), ref, atol=2e-6)
+    np.testing.assert_allclose(np.stack([np.array(v) for v in d], 1), ref, atol=5e-6)
 
 
 def _fit_constant(loss: str, y: torch.Tensor, steps: int = 1500) -> float:
