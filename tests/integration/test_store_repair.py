@@ -84,3 +84,24 @@ def test03_a_moved_object_is_missing_repaired_and_never_reused(
     assert again.artifacts[0].digest == digest and store.verify(digest)
     # Intact again: the next resubmission reuses the newest job, as before.
     assert run_in_process(spec, settings).id == again.id
+
+
+def test04_a_server_submission_does_not_reuse_a_job_that_lost_its_artifact(
+    toy_kind, settings, jobs: JobStore, store: ArtifactStore, tmp_path: Path
+) -> None:
+    """The REST route queues through the same check as ``matforge run``: ``POST /api/jobs``
+    of a spec whose succeeded job lost an object queues a new job (201, created), and of one
+    whose job is intact returns that job (200)."""
+    from fastapi.testclient import TestClient
+
+    from service.api import create_app
+
+    spec = {"kind": "toy", "params": {"n": 2}}
+    first = run_in_process(spec, settings)
+    with TestClient(create_app(settings)) as client:
+        same = client.post("/api/jobs", json=spec)
+        assert same.status_code == 200 and same.json()["id"] == first.id, same.text
+        _move_out(store, first.artifacts[0].digest, tmp_path / "moved")
+        again = client.post("/api/jobs", json=spec)
+        assert again.status_code == 201, again.text
+        assert again.json()["id"] != first.id and again.json()["state"] == "queued"
