@@ -3,8 +3,8 @@
 It is the CLI's own client (:class:`service.cli.client.Client`: the HTTP plumbing, typed
 errors, digest-verified streaming downloads) with what a script wants on top: specs from
 files, waiting (with the CLI's progress bar, or silently), artifacts by ``job:``/``sha256:``
-ref, result rows and batches. ``matforge submit/wait/status/ls/cancel/artifacts/fetch/
-results/batch`` call the same code.
+ref, result rows, batches and job logs. ``matforge submit/wait/status/ls/cancel/artifacts/
+fetch/results/batch/logs`` call the same code.
 
 Errors (all :class:`ClientError`, ``str(err)`` one line):
 
@@ -149,6 +149,12 @@ class Client(_RestClient):
     def cancel(self, job: str | dict[str, Any]) -> dict[str, Any]:
         """``POST /api/jobs/{id}/cancel``: the job, now cancelled (or already finished)."""
         return super().cancel(_job_id(job))
+
+    def logs(self, job: str | dict[str, Any], tail: int | None = None) -> str:
+        """``GET /api/jobs/{id}/logs``: the job's log as text: each attempt's start and end,
+        its progress lines and the worker's log records (``""`` before a worker started
+        it); ``tail`` keeps the last lines. ``matforge logs ID`` prints the same."""
+        return super().logs(_job_id(job), tail)
 
     def artifacts(self, job: str | dict[str, Any]) -> builtins.list[dict[str, Any]]:
         """``GET /api/jobs/{id}/artifacts``: ``[{"name", "digest", "size", "media_type"}]``."""

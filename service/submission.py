@@ -19,6 +19,7 @@ from service.workers.executors import executor_for
 from storage.artifacts import ArtifactStore
 from storage.errors import AmbiguousIdError, FormatError, NotFoundError
 from storage.formats import validate_file
+from storage.job_logs import log_dir
 from storage.job_queries import resolve_job_id
 from storage.jobs import ArtifactRecord, Job, JobStore
 
@@ -184,6 +185,7 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
                     scratch=settings.data_dir / "scratch",
                     limits=JobLimits(archive_pixels=settings.archive_max_pixels),
                     stall_seconds=settings.stall_seconds,
+                    log_dir=log_dir(settings.data_dir),
                 )
         finally:
             executor.close()

@@ -329,6 +329,13 @@ class Client:
         result: dict[str, Any] = self._json("POST", f"/api/jobs/{check_job_id(job_id)}/cancel")
         return result
 
+    def logs(self, job_id: str, tail: int | None = None) -> str:
+        """``GET /api/jobs/{id}/logs``: the job's log as text (``""`` before a worker
+        started it); ``tail``: only its last lines."""
+        params = {} if tail is None else {"tail": tail}
+        response = self._request("GET", f"/api/jobs/{check_job_id(job_id)}/logs", params=params)
+        return response.text
+
     def summary(self, job_id: str) -> dict[str, Any] | None:
         """``GET /api/jobs/{id}/summary``: the job's result table document, or ``None``."""
         result: dict[str, Any] | None = self._json(

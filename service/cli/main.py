@@ -308,6 +308,36 @@ def cancel(
 
 
 @app.command()
+def logs(
+    ctx: typer.Context,
+    job_id: str = typer.Argument(..., metavar="ID", help="Job id, or a unique prefix of it."),
+    tail: int | None = typer.Option(
+        None, "--tail", "-n", min=0, help="Only the last N lines.", show_default=False
+    ),
+    data_dir: Path | None = typer.Option(
+        None,
+        "--data-dir",
+        show_default=False,
+        help="Read the log from this local data directory, not the server.",
+    ),
+) -> None:
+    """Print a job's log: each attempt's start and end, its progress lines and the worker's
+    log records while it ran (empty before a worker started it)."""
+    local = state_of(ctx).local_dir(data_dir)
+    if local is not None:
+        from service.cli.artifacts import open_local
+        from storage.job_logs import JobLog, log_dir
+        from storage.job_queries import resolve_job_id
+
+        jobs, _ = open_local(local)
+        text = JobLog(log_dir(local), resolve_job_id(jobs, job_id)).read(tail)
+    else:
+        with state_of(ctx).client() as client:
+            text = client.logs(job_id, tail)
+    sys.stdout.write(text)
+
+
+@app.command()
 def batch(
     ctx: typer.Context,
     file: Path = typer.Argument(..., help="Batch file (YAML or JSON) of named steps."),

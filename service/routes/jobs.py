@@ -1,16 +1,17 @@
-"""``/api/jobs``: submit, list, show, cancel, and a job's artifacts and manifest."""
+"""``/api/jobs``: submit, list, show, cancel, and a job's artifacts, manifest and log."""
 
 from __future__ import annotations
 
 import json
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
+from fastapi.responses import PlainTextResponse
 from starlette.concurrency import run_in_threadpool
 
 from jobapi.context import LIVE_PREFIX
 from jobapi.errors import SpecError
-from service.deps import AuthDep, JobId, JobsDep, StoreDep
+from service.deps import AuthDep, JobId, JobsDep, SettingsDep, StoreDep
 from service.job_list import JobListDep
 from service.parse_threads import off_loop
 from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
@@ -18,6 +19,7 @@ from service.spec_text import parse_json_text, parse_spec_text
 from service.submission import prepare_submission, queue_spec
 from service.summaries import job_summary
 from storage.errors import TooLargeError
+from storage.job_logs import JobLog, log_dir
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"], dependencies=[AuthDep])
 
@@ -230,6 +232,30 @@ def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any
         raise HTTPException(409, f"job {job_id} is {job.state}: no manifest; {when}")
     manifest: dict[str, Any] = json.loads(store.read(job.manifest_digest))
     return manifest
+
+
+@router.get(
+    "/{job_id}/logs",
+    response_class=Response,
+    responses={
+        **_ERRORS,
+        200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "the log"},
+    },
+    summary="A job's log",
+)
+def get_logs(
+    job_id: JobId,
+    jobs: JobsDep,
+    settings: SettingsDep,
+    tail: Annotated[int | None, Query(ge=0, le=100_000, description="last N lines")] = None,
+) -> PlainTextResponse:
+    """What the job's runs wrote (`text/plain`, one line per entry, UTC time first): each
+    attempt's start (worker, attempt) and end (state, error), its progress lines (one every
+    2 s at most) and the worker's log records while it ran. Empty until a worker starts
+    the job; at most 1 MiB. `tail` keeps the last N lines."""
+    job = jobs.get(job_id)
+    text = JobLog(log_dir(settings.data_dir), job.id).read(tail)
+    return PlainTextResponse(text)
 
 
 @router.get("/{job_id}/live/{name}", responses=_ERRORS, summary="A running job's live document")

@@ -11,7 +11,9 @@ the job; any stop kills the shard processes the runner waits on, so the worker i
 
 from __future__ import annotations
 
+import functools
 import logging
+import math
 import shutil
 import socket
 import tempfile
@@ -30,10 +32,28 @@ from service import kinds
 from service.specs import canonical_json, validate_spec
 from service.workers.provenance import code_version, package_versions
 from storage.artifacts import ArtifactStore
+from storage.job_logs import JobLog
 from storage.jobs import HeartbeatStatus, Job, JobStore
 from storage.scratch import scratch_prefix
 
 log = logging.getLogger("matforge.execution")
+#: Seconds between two progress lines in a job's log.
+LOG_EVERY = 2.0
+
+
+class _JobLogHandler(logging.Handler):
+    """Copies this process's log records into a job's log while it runs the job."""
+
+    def __init__(self, job_log: JobLog) -> None:
+        super().__init__(logging.NOTSET)
+        self.job_log = job_log
+        self.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.job_log.write(self.format(record))
+        except Exception:  # never let logging fail the job
+            self.handleError(record)
 
 
 def worker_id() -> str:
@@ -77,6 +97,10 @@ class Heartbeat:
         self.stall_seconds: float | None = None
         self.timeout_seconds: float | None = None
         self.abort, self.on_wedged = abort, on_wedged
+        #: Called with each new progress line the beat publishes (the job's log), at most
+        #: one every :data:`LOG_EVERY` seconds.
+        self.on_progress: Callable[[str], None] | None = None
+        self._logged: tuple[str | None, float] = (None, -math.inf)
         self.grace = max(5.0, lease_seconds) if grace is None else grace
         self._progress = 0.0
         self._message: str | None = None
@@ -126,6 +150,7 @@ class Heartbeat:
         with self._lock:
             progress, message, self._dirty = self._progress, self._message, False
         self._last_push = time.monotonic()
+        self._log_progress(progress, message, force=False)
         try:
             status = self.jobs.heartbeat(self.job_id, self.token, self.lease, progress, message)
         except Exception:  # a busy database must not kill the job; the next beat retries
@@ -133,6 +158,21 @@ class Heartbeat:
             return
         if status != "ok":
             self.status = status
+
+    def _log_progress(self, progress: float, message: str | None, *, force: bool) -> None:
+        if self.on_progress is None or message is None:
+            return
+        last, at = self._logged
+        now = time.monotonic()
+        if message != last and (force or now - at >= LOG_EVERY):
+            self._logged = (message, now)
+            self.on_progress(f"progress {100 * progress:.0f} %: {message}")
+
+    def flush_log(self) -> None:
+        """Log the last progress line if the rate limit held it back."""
+        with self._lock:
+            progress, message = self._progress, self._message
+        self._log_progress(progress, message, force=True)
 
     def _verdict(self, now: float) -> str | None:
         ran, idle = now - self._started, now - self._progressed
@@ -246,6 +286,7 @@ def execute(
     limits: JobLimits | None = None,
     stall_seconds: float | None = None,
     on_wedged: Callable[[], None] | None = None,
+    log_dir: Path | None = None,
 ) -> str:
     """Run a job this process has claimed; returns its final state as this worker saw it
     (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``).
@@ -254,12 +295,52 @@ def execute(
     JobLimits`). The run is watched (:class:`Heartbeat`): the spec's ``timeout_seconds``
     (else the kind's) and ``stall_seconds`` (else the kind's) bound it; on a stop the
     executor's ``abort()`` kills its shard processes, and ``on_wedged`` is called if the
-    runner still does not return."""
+    runner still does not return. With ``log_dir`` the run is written to the job's log
+    (:class:`storage.job_logs.JobLog`): its start and end, its progress lines and this
+    process's log records while it runs."""
+    run = functools.partial(
+        _execute, job, jobs=jobs, store=store, lease_seconds=lease_seconds, executor=executor,
+        scratch=scratch, limits=limits, stall_seconds=stall_seconds, on_wedged=on_wedged,
+    )  # fmt: skip
+    if log_dir is None:
+        return run(job_log=None)
+    job_log = JobLog(log_dir, job.id)
+    job_log.write(f"attempt {job.attempts}: {job.kind} on worker {job.worker or worker_id()}")
+    handler = _JobLogHandler(job_log)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        state = run(job_log=job_log)
+    except BaseException as exc:
+        job_log.write(f"attempt {job.attempts} ended by {type(exc).__name__}: {exc}")
+        raise
+    finally:
+        root.removeHandler(handler)
+    error = jobs.get(job.id).error if state == "failed" else None
+    job_log.write(f"attempt {job.attempts}: {state}" + (f": {error}" if error else ""))
+    return state
+
+
+def _execute(
+    job: Job,
+    *,
+    jobs: JobStore,
+    store: ArtifactStore,
+    lease_seconds: float,
+    executor: Executor | None,
+    scratch: Path | None,
+    limits: JobLimits | None,
+    stall_seconds: float | None,
+    on_wedged: Callable[[], None] | None,
+    job_log: JobLog | None,
+) -> str:
     assert job.lease_token is not None
     started = time.time()
     hb = Heartbeat(
         jobs, job, lease_seconds, abort=getattr(executor, "abort", None), on_wedged=on_wedged
     )
+    if job_log is not None:
+        hb.on_progress = job_log.write
     if scratch is not None:
         scratch.mkdir(parents=True, exist_ok=True)
     workdir = Path(tempfile.mkdtemp(prefix=scratch_prefix(job.id), dir=scratch))
@@ -333,4 +414,5 @@ def execute(
         state = jobs.get(job.id).state
         return state if state in ("cancelled", "failed") else "lost"
     finally:
+        hb.flush_log()
         shutil.rmtree(workdir, ignore_errors=True)

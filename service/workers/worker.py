@@ -28,6 +28,7 @@ from service.workers.execution import execute, worker_id
 from service.workers.executors import executor_for
 from service.workers.liveness import Beat, beat_path, end_worker, stalled_for, watch_parent
 from storage.artifacts import ArtifactStore
+from storage.job_logs import log_dir
 from storage.jobs import JobStore
 
 log = logging.getLogger("matforge.worker")
@@ -76,6 +77,7 @@ def run_worker(
                 scratch=settings.data_dir / "scratch",
                 limits=JobLimits(archive_pixels=settings.archive_max_pixels),
                 stall_seconds=settings.stall_seconds,
+                log_dir=log_dir(settings.data_dir),
                 on_wedged=on_wedged,
             )
             log.info("job %s: %s", job.id, state)

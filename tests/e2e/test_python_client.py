@@ -69,6 +69,13 @@ def test01_submit_wait_fetch_results(srv: tuple[Server, dict[str, Any]], tmp_pat
             expect = http.get("/api/results", params={"job": job["id"]}).json()
         assert rows == expect
         assert mf.cancel(job["id"])["state"] == "succeeded"  # finished: unchanged
+        # The worker's log of the run: its attempt, and the end the job document shows.
+        log = mf.logs(job["id"][:8])
+        assert f"attempt {done['attempts']}: generate.glint on worker " in log
+        assert log.rstrip().endswith(f"attempt {done['attempts']}: succeeded")
+        assert mf.logs(job, tail=1) == log.splitlines(keepends=True)[-1]
+        with server.http() as http:
+            assert http.get(f"/api/jobs/{job['id']}/logs").text == log
 
 
 def test02_typed_errors(srv: tuple[Server, dict[str, Any]], tmp_path: Path) -> None:

@@ -1,0 +1,63 @@
+"""A job's log through the runs that write it and the three ways to read it.
+
+Oracles: the job documents (attempt, state, error) the log must agree with; the log file
+read directly; ``GET /api/jobs/{id}/logs`` against the CLI's ``matforge logs --data-dir``."""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+
+from fastapi.testclient import TestClient
+
+from jobapi.context import JobContext
+from service.api import create_app
+from service.submission import run_in_process
+from storage.job_logs import JobLog, log_dir
+
+
+def test01_a_run_logs_its_attempt_progress_records_and_end(toy_kind, settings) -> None:
+    runner = toy_kind.runner
+
+    def noisy(params, ctx: JobContext) -> None:
+        logging.getLogger("generators.toy").warning("a warning from the runner")
+        runner(params, ctx)
+
+    object.__setattr__(toy_kind, "runner", noisy)
+    job = run_in_process({"kind": "toy", "params": {"n": 3}}, settings)
+    assert job.state == "succeeded"
+    text = JobLog(log_dir(settings.data_dir), job.id).read()
+    lines = [ln.split(" ", 1)[1] for ln in text.splitlines()]
+    assert lines[0].startswith(f"attempt {job.attempts}: toy on worker ")
+    assert "WARNING generators.toy: a warning from the runner" in lines
+    assert any(ln.startswith("progress ") and "toy" in ln for ln in lines), lines
+    assert lines[-1] == f"attempt {job.attempts}: succeeded"
+
+    failed = run_in_process({"kind": "toy", "params": {"fail": True}}, settings)
+    assert failed.state == "failed"
+    last = JobLog(log_dir(settings.data_dir), failed.id).read(1)
+    assert last.rstrip().endswith(f"attempt 1: failed: {failed.error}")
+
+
+def test02_rest_and_cli_read_the_same_log(toy_kind, settings) -> None:
+    job = run_in_process({"kind": "toy", "params": {"n": 2}}, settings)
+    whole = JobLog(log_dir(settings.data_dir), job.id).read()
+    assert whole
+    with TestClient(create_app(settings)) as client:
+        r = client.get(f"/api/jobs/{job.id[:8]}/logs")
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+        assert r.text == whole
+        assert (
+            client.get(f"/api/jobs/{job.id}/logs", params={"tail": 1}).text
+            == (whole.splitlines(keepends=True)[-1])
+        )
+        assert client.get(f"/api/jobs/{job.id}/logs", params={"tail": -1}).status_code == 422
+        assert client.get(f"/api/jobs/{'e' * 32}/logs").status_code == 404
+    out = subprocess.run(
+        [sys.executable, "-m", "service.cli.main", "logs", job.id[:8], "--tail", "1",
+         "--data-dir", str(settings.data_dir)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == whole.splitlines(keepends=True)[-1]
