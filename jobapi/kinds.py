@@ -108,6 +108,12 @@ def register(kind: Kind) -> Kind:
     return kind
 
 
+def unregister(name: str) -> None:
+    """Remove the kind called ``name`` if there is one (the plugin loader undoes a broken
+    plugin's registrations with it)."""
+    _KINDS.pop(name, None)
+
+
 def registered() -> dict[str, Kind]:
     """The kinds registered so far, by name (a copy)."""
     return dict(_KINDS)
