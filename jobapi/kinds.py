@@ -14,7 +14,7 @@ kind or scans directories.
 from __future__ import annotations
 
 import fnmatch
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -108,10 +108,11 @@ def register(kind: Kind) -> Kind:
     return kind
 
 
-def unregister(name: str) -> None:
-    """Remove the kind called ``name`` if there is one (the plugin loader undoes a broken
-    plugin's registrations with it)."""
-    _KINDS.pop(name, None)
+def restore(snapshot: Mapping[str, Kind]) -> None:
+    """Make the registry ``snapshot`` again (a :func:`registered` copy), in its order: the
+    plugin loader undoes what a plugin's import registered or replaced."""
+    _KINDS.clear()
+    _KINDS.update(snapshot)
 
 
 def registered() -> dict[str, Kind]:

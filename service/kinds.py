@@ -35,7 +35,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from jobapi.kinds import Kind, register, registered, unregister
+from jobapi.kinds import Kind, register, registered, restore
 
 log = logging.getLogger("matforge.kinds")
 
@@ -188,12 +188,7 @@ def _load_entry_point(ep: EntryPoint, builtin: frozenset[str]) -> Plugin:
                 break
             taken[kind.name] = kind
     # Undo everything the import did to the registry, then add back what is kept.
-    for name in list(after):
-        if before.get(name) is not after[name]:
-            unregister(name)
-    for name, kind in before.items():
-        if registered().get(name) is not kind:
-            register(kind)
+    restore(before)
     if error is not None:
         log.error(
             "plugin %s (%s, from %s) not loaded: %s; the other kinds are unaffected",

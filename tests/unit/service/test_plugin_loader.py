@@ -130,6 +130,7 @@ def test03_import_error_is_reported_not_raised(plugins_from, caplog) -> None:
 
 def test04_name_of_a_builtin_kind_is_refused_and_undone(plugins_from, caplog) -> None:
     caplog.set_level(logging.ERROR, logger="matforge.kinds")
+    before = list(jobapi_kinds.registered().items())
     render = jobapi_kinds.registered()["render"]
     found = plugins_from(
         {
@@ -145,6 +146,7 @@ def test04_name_of_a_builtin_kind_is_refused_and_undone(plugins_from, caplog) ->
     assert "kind 'render' collides with the built-in kind" in (found[0].error or "")
     assert kinds.get_kind("render") is render
     assert "fit.first" not in kinds.all_kinds()
+    assert list(kinds.all_kinds().items()) == before  # same kinds, same order
     assert "collides with the built-in kind" in caplog.text
 
 
@@ -184,7 +186,10 @@ def test06_malformed_plugins(plugins_from, body: str, value: str, expected: str)
 
 
 def test07_loads_once(plugins_from) -> None:
-    calls = []
+    # The module counts its imports in the builtins (module state would reset if it were
+    # imported twice); every later lookup must reuse the first load.
+    import builtins
+
     found = plugins_from(
         {
             "plug_count": kind_module(
@@ -195,9 +200,32 @@ def test07_loads_once(plugins_from) -> None:
         },  # fmt: skip
         [("once", "plug_count")],
     )
-    calls.append(found)
-    kinds.all_kinds(), kinds.get_kind("fit.once"), kinds.plugins()
-    import builtins
+    try:
+        assert found[0].kinds == ("fit.once",)
+        kinds.all_kinds(), kinds.get_kind("fit.once"), kinds.plugins(), kinds.load()
+        assert builtins._matforge_plugin_imports == 1  # type: ignore[attr-defined]
+    finally:
+        del builtins._matforge_plugin_imports  # type: ignore[attr-defined]
 
-    assert getattr(builtins, "_matforge_plugin_imports", 0) == 1
-    del builtins._matforge_plugin_imports  # type: ignore[attr-defined]
+
+def test08_readme_table_leaves_plugin_kinds_out(plugins_from) -> None:
+    # The README documents the built-in kinds: it must not change when a plugin is installed
+    # (tests/unit/service/test_readme.py compares it with the generated table).
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[3] / "scripts" / "kinds_table.py"
+    spec = importlib.util.spec_from_file_location("_kinds_table_under_test", path)
+    assert spec is not None and spec.loader is not None
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    plugins_from(
+        {
+            "plug_doc": kind_module(
+                'register(Kind(name="fit.doc", params=P, runner=run, description="d"))'
+            )
+        },  # fmt: skip
+        [("doc", "plug_doc")],
+    )
+    assert "fit.doc" in kinds.all_kinds()
+    text = table.kinds_markdown()
+    assert "### `render`" in text and "fit.doc" not in text
