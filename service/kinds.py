@@ -94,21 +94,21 @@ class Plugin:
 
 
 _lock = threading.RLock()
-_builtin_loaded = False
+_loaded = False
 _plugins: list[Plugin] | None = None
 _builtin_names: frozenset[str] = frozenset()
 
 
 def load_builtin() -> None:
     """Import the built-in kind modules once (thread-safe)."""
-    global _builtin_loaded, _builtin_names
+    global _loaded, _builtin_names
     with _lock:
-        if _builtin_loaded:
+        if _loaded:
             return
         for module in BUILTIN_MODULES:
             importlib.import_module(module)
         _builtin_names = frozenset(registered())
-        _builtin_loaded = True
+        _loaded = True
 
 
 def load() -> None:
