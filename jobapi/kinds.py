@@ -14,7 +14,7 @@ kind or scans directories.
 from __future__ import annotations
 
 import fnmatch
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -118,6 +118,13 @@ def register(kind: Kind) -> Kind:
     """Add ``kind`` to the registry (re-registering the same name replaces it)."""
     _KINDS[kind.name] = kind
     return kind
+
+
+def restore(snapshot: Mapping[str, Kind]) -> None:
+    """Make the registry ``snapshot`` again (a :func:`registered` copy), in its order: the
+    plugin loader undoes what a plugin's import registered or replaced."""
+    _KINDS.clear()
+    _KINDS.update(snapshot)
 
 
 def registered() -> dict[str, Kind]:

@@ -18,9 +18,11 @@ from service.kind_docs import param_rows
 
 
 def kinds_markdown() -> str:
-    """The markdown table of kinds and their parameters."""
+    """The markdown table of the built-in kinds and their parameters (an installed plugin's
+    kinds are its package's to document: the README stays the same with or without it)."""
     lines = []
-    for kind in sorted(kinds.all_kinds().values(), key=lambda k: k.name):
+    builtin = [k for k in kinds.all_kinds().values() if kinds.plugin_of(k.name) is None]
+    for kind in sorted(builtin, key=lambda k: k.name):
         arts = ", ".join(f"`{a}`" for a in kind.artifacts) or "(see below)"
         lines.append(f"### `{kind.name}`\n\n{kind.description}\n\nArtifacts: {arts}\n")
         if kind.layout:

@@ -324,7 +324,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # Import the kind modules (about 1.5 s) before the server accepts connections: done
     # lazily, the first submissions after a start all waited for it, which was the p99 of
     # bench_submit.py at 20 clients (issue 15, B8).
-    kinds.load_builtin()
+    kinds.load()  # built-in kinds, then plugins (a broken plugin is logged, never fatal)
     # What is alive now (the modules, numpy, the kinds) lives as long as the server: out of
     # the collector's sight, a full collection no longer walks it, which stalled every
     # request in flight for ~100 ms once in a few hundred submissions.

@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from jobapi.kinds import Kind
+from service.kinds import plugin_of
 
 
 def type_text(prop: dict[str, Any], *, markdown: bool = False) -> str:
@@ -41,10 +42,12 @@ def param_rows(kind: Kind, *, markdown: bool = False) -> list[tuple[str, str, st
 
 
 def kind_document(kind: Kind) -> dict[str, Any]:
-    """A kind as ``GET /api/kinds`` lists it: name, summary, artifacts, params schema."""
+    """A kind as ``GET /api/kinds`` lists it: name, summary, artifacts, params schema, and
+    ``plugin``: the package that added it (``None`` for a built-in kind)."""
     return {
         "name": kind.name,
         "summary": kind.description,
         "artifacts": list(kind.artifacts),
         "params_schema": kind.params.model_json_schema(),
+        "plugin": plugin_of(kind.name),
     }

@@ -31,7 +31,7 @@ MAX_JOBS = 1000
 def job_rows(job: Job, jobs: JobStore, store: ArtifactStore) -> list[ResultRow]:
     """Every value ``job`` measured (:func:`jobapi.row_sources.job_rows`), once the
     built-in kinds are registered."""
-    kinds.load_builtin()
+    kinds.load()
     return row_sources.job_rows(job, jobs, store)
 
 

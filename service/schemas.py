@@ -93,6 +93,21 @@ class KindPublic(PublicModel):
     summary: str
     artifacts: list[str] = Field(description="fixed artifact names (patterns allowed)")
     params_schema: dict[str, Any] = Field(description="JSON schema of the kind's params")
+    plugin: str | None = Field(
+        default=None,
+        description="the installed package whose plugin (entry point matforge.kinds) adds "
+        "this kind; null for a built-in kind",
+    )
+
+
+class PluginPublic(PublicModel):
+    """An entry point of the group ``matforge.kinds`` (``GET /api/plugins``)."""
+
+    name: str = Field(description="the entry point's name")
+    value: str = Field(description="the module (or module:object) it names")
+    distribution: str | None = Field(description="the installed package that declares it")
+    kinds: list[str] = Field(description="the kinds it added (empty when it is broken)")
+    error: str | None = Field(description="why it was not loaded; null when it loaded")
 
 
 class StatsPublic(PublicModel):

@@ -84,6 +84,14 @@ def kinds(
     from service.kind_docs import kind_document, param_rows
 
     known = registry.all_kinds()
+    for p in registry.plugins():  # on stderr: --json's document stays one list
+        if p.error is not None:
+            err_console.print(
+                f"plugin {p.name!r} ({p.value}, from {p.distribution or 'unknown package'}) "
+                f"not loaded: {p.error}",
+                markup=False,
+                highlight=False,
+            )
     if kind is not None and kind not in known:
         import difflib
 
@@ -100,14 +108,19 @@ def kinds(
         table.add_column("what it makes", overflow="fold", ratio=2)
         table.add_column("artifacts", overflow="fold", ratio=1)
         for k in known.values():
-            table.add_row(k.name, Text(k.description), Text(", ".join(k.artifacts)))
+            origin = registry.plugin_of(k.name)
+            what = k.description + (f" [plugin: {origin}]" if origin else "")
+            table.add_row(k.name, Text(what), Text(", ".join(k.artifacts)))
         console.print(table)
         return
     k = known[kind]
     if as_json:
         print_json(kind_document(k))
         return
+    origin = registry.plugin_of(k.name)
     console.print(Text(k.name, style="bold"), Text(k.description))
+    if origin:
+        console.print(Text(f"plugin: {origin} (entry point group matforge.kinds)"))
     if k.artifacts:
         console.print(Text("artifacts: " + ", ".join(k.artifacts)))
     table = Table(title=f"params of {k.name}")

@@ -8,7 +8,8 @@ from fastapi import APIRouter
 
 from service import kinds
 from service.deps import AuthDep, JobsDep
-from service.schemas import HealthPublic, KindPublic, StatsPublic
+from service.kind_docs import kind_document
+from service.schemas import HealthPublic, KindPublic, PluginPublic, StatsPublic
 
 health_router = APIRouter(prefix="/api", tags=["service"])
 router = APIRouter(prefix="/api", tags=["service"], dependencies=[AuthDep])
@@ -24,16 +25,16 @@ async def health() -> dict[str, str]:
 
 @router.get("/kinds", response_model=list[KindPublic], summary="Registered job kinds")
 def list_kinds() -> list[dict[str, Any]]:
-    """Every job kind with its summary, fixed artifact names and params JSON schema."""
-    return [
-        {
-            "name": k.name,
-            "summary": k.description,
-            "artifacts": list(k.artifacts),
-            "params_schema": k.params.model_json_schema(),
-        }
-        for k in kinds.all_kinds().values()
-    ]
+    """Every job kind with its summary, fixed artifact names, params JSON schema and, for a
+    plugin's kind, the package that added it."""
+    return [kind_document(k) for k in kinds.all_kinds().values()]
+
+
+@router.get("/plugins", response_model=list[PluginPublic], summary="Installed kind plugins")
+def list_plugins() -> list[dict[str, Any]]:
+    """Every entry point of the group ``matforge.kinds``: the kinds it added, or why it was
+    not loaded (an import error, a name taken by a built-in kind, ...)."""
+    return [p.document() for p in kinds.plugins()]
 
 
 @router.get("/stats", response_model=StatsPublic, summary="Job counts by state")

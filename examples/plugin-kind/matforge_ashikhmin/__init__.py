@@ -1,0 +1,1 @@
+"""matforge-ashikhmin: a matforge job kind from another package (see README.md)."""
