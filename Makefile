@@ -10,7 +10,7 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 DATA ?= ./matforge-data
 
-.PHONY: setup system-deps demo test lint typecheck bench clean serve
+.PHONY: setup system-deps demo test lint typecheck bench clean serve check-wheel
 
 setup: $(STAMP)
 
@@ -45,6 +45,11 @@ test: setup
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 	$(VENV)/bin/python -m pytest -q
+
+# The built wheel installed with its dependencies into a new venv (not .venv): import
+# matforge, Client, datasets and the matforge command from the installed files (~2 min).
+check-wheel: setup
+	$(VENV)/bin/python -m pytest -q -m install tests/integration/test_wheel.py
 
 lint: setup
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .

@@ -72,3 +72,45 @@ def test01_wheel_has_the_public_api(tmp_path: Path) -> None:
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.split() == [matforge.__version__, "Client", "open"]
+
+
+@pytest.mark.install
+def test02_wheel_installs_into_a_clean_venv(tmp_path: Path) -> None:
+    """``pip install`` of the wheel, with its dependencies, into a new venv that shares
+    nothing with ``.venv``: ``import matforge``, ``matforge.Client``, ``matforge.datasets``
+    and the ``matforge`` command work there, from the installed files. torch is installed
+    first at the running version, as ``make setup`` does (a bare requirement would pull a
+    CUDA build of several GB). About 2 minutes and 2 GB from pip's cache, so it is marked
+    ``install`` and run by ``make check-wheel``, not by every ``make test``."""
+    from importlib import metadata
+
+    dist = tmp_path / "dist"
+    src = tmp_path / "src"
+    shutil.copytree(REPO, src, ignore=NOT_SOURCE)
+    done = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+         "-w", str(dist), str(src)],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    (wheel,) = dist.glob("matforge-*.whl")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    pip = [str(venv / "bin" / "python"), "-m", "pip", "install", "-q"]
+    torch_pin = f"torch=={metadata.version('torch').split('+')[0]}"
+    for args in ([torch_pin], [str(wheel)]):
+        step = subprocess.run(pip + args, capture_output=True, text=True, timeout=900)
+        assert step.returncode == 0, step.stderr[-3000:]
+    code = (
+        "import sys, matforge, matforge.datasets as d;"
+        "assert matforge.__file__.startswith(sys.prefix), matforge.__file__;"
+        "print(matforge.__version__, matforge.Client.__name__, d.open.__name__)"
+    )
+    env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path)}
+    run = subprocess.run([str(venv / "bin" / "python"), "-c", code], capture_output=True,
+                         text=True, timeout=300, cwd=tmp_path, env=env)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == [matforge.__version__, "Client", "open"]
+    cli = subprocess.run([str(venv / "bin" / "matforge"), "--version"], capture_output=True,
+                         text=True, timeout=300, cwd=tmp_path, env=env)  # fmt: skip
+    assert cli.returncode == 0 and cli.stdout.strip() == f"matforge {matforge.__version__}"
