@@ -235,6 +235,15 @@ def get_manifest(job_id: JobId, jobs: JobsDep, store: StoreDep) -> dict[str, Any
 
 
 @router.get(
+    "/{job_id}/log",
+    response_class=Response,
+    responses={
+        **_ERRORS,
+        200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "the log"},
+    },
+    summary="A job's log (the same as /logs)",
+)
+@router.get(
     "/{job_id}/logs",
     response_class=Response,
     responses={

@@ -48,6 +48,7 @@ def test02_rest_and_cli_read_the_same_log(toy_kind, settings) -> None:
         r = client.get(f"/api/jobs/{job.id[:8]}/logs")
         assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
         assert r.text == whole
+        assert client.get(f"/api/jobs/{job.id}/log").text == whole  # the singular spelling
         assert (
             client.get(f"/api/jobs/{job.id}/logs", params={"tail": 1}).text
             == (whole.splitlines(keepends=True)[-1])
@@ -61,3 +62,19 @@ def test02_rest_and_cli_read_the_same_log(toy_kind, settings) -> None:
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert out.stdout == whole.splitlines(keepends=True)[-1]
+
+
+def test03_a_crash_leaves_its_full_traceback_in_the_log(toy_kind, settings) -> None:
+    """The job's ``error`` is one line; its log has the whole traceback (as ``ray job
+    logs`` would), from the crash record the executor logs."""
+
+    def crash(params, ctx: JobContext) -> None:
+        raise RuntimeError("boom in the runner")
+
+    object.__setattr__(toy_kind, "runner", crash)
+    job = run_in_process({"kind": "toy", "params": {"n": 1}}, settings)
+    assert job.state == "failed" and "\n" not in (job.error or "")
+    text = JobLog(log_dir(settings.data_dir), job.id).read()
+    assert "Traceback (most recent call last):" in text
+    assert "RuntimeError: boom in the runner" in text and "in crash" in text
+    assert text.rstrip().endswith(f"attempt 1: failed: {job.error}")
