@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from jobapi.documents import check_document
 from jobapi.errors import JobCancelled, JobFailed, NotFoundError
 from jobapi.executor import Executor, InlineExecutor
 from jobapi.params import JOB_REF, SHA_REF
@@ -203,7 +204,10 @@ class JobContext:
         return rec
 
     def put_json(self, name: str, obj: Any) -> ArtifactRecord:
-        """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes)."""
+        """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes). A chart document
+        (``curves.json``, ``pareto.json``) must follow its schema (:mod:`jobapi.documents`):
+        :class:`~jobapi.documents.DocumentError` otherwise, which fails the job."""
+        check_document(name, obj)
         text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
         return self.put_bytes(name, text.encode(), "application/json")
 
@@ -215,7 +219,8 @@ class JobContext:
         ``min_interval_s`` to the previous one are dropped (returns ``False``), and so is a
         document that is not valid JSON (NaN): live views are best effort. Nothing here is
         an artifact: when the job succeeds its artifacts are what count, and the live
-        documents are no longer kept.
+        documents are no longer kept. A chart document of the wrong shape is a bug of the
+        kind, not a hiccup: :class:`~jobapi.documents.DocumentError`, as ``put_json`` raises.
         """
         now = time.monotonic()
         if now - self._published.get(name, -math.inf) < min_interval_s:
@@ -224,6 +229,7 @@ class JobContext:
             text = json.dumps(obj, sort_keys=True, allow_nan=False)
         except (TypeError, ValueError):
             return False
+        check_document(name, obj)
         info = self.store.put_bytes(text.encode())
         self.jobs.record_shard(self.job_id, LIVE_PREFIX + name, info.digest)
         self._published[name] = now

@@ -114,14 +114,26 @@ class ReportStabilityParams(StrictModel):
 
 
 def loss_curve(kind: str, curves: Any) -> list[float | None]:
-    """The training loss of a ``curves.json`` (``train.brdf``: the ``train`` phase)."""
+    """The training loss of a ``curves.json`` (with ``phases``, as ``train.brdf`` writes:
+    the ``train`` phase; a ``train.brdf`` document of before the one schema kept it under
+    ``train``)."""
     if not isinstance(curves, dict):
         return []
-    if kind == "train.brdf":
-        curves = curves.get("train") or {}
+    if kind == "train.brdf" and isinstance(curves.get("train"), dict):
+        curves = curves["train"]
     key = "train_loss" if kind == "train.btf" else "loss"
     values = curves.get(key) if isinstance(curves, dict) else None
-    return list(values) if isinstance(values, list) else []
+    if not isinstance(values, list):
+        return []
+    span = next((p for p in curves.get("phases") or [] if p.get("name") == "train"), None)
+    steps = curves.get("step")
+    if span is not None and isinstance(steps, list) and len(steps) == len(values):
+        return [
+            v
+            for s, v in zip(steps, values, strict=True)
+            if span["first_step"] <= s <= span["last_step"]
+        ]
+    return list(values)
 
 
 def headline(kind: str, rows: Sequence[ResultRow]) -> tuple[str, float | None, str | None]:

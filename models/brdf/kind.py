@@ -13,7 +13,8 @@ Artifacts:
 - ``materials.json``: per material ``name``, ``family``, ``split``, ``kd``, ``eta``,
   ``alpha``, ``z``;
 - ``curves.json``, ``curves.png``: loss against step (training phase, and the held-out
-  phase if any);
+  phase if any, its steps counted on; ``phases`` says which is which), in the one schema of
+  ``docs/artifacts.md``; published live while the job runs;
 - ``metrics.json``: per-material ``smape`` (Eq. 6), ``smape_floor`` (stable at exact table
   zeros) and ``mae`` against the source tables at the
   fixed-seed scoring pairs, with means overall, per family and per split

@@ -13,6 +13,9 @@ Artifacts:
   analytic" for each hybrid size and "hybrid <= neural at equal per-material parameters" at
   16x3, 32x3 and every other size with both, each with its numbers and ``holds``
   true / false (``null`` with ``why`` where a configuration is missing);
+  ``panels``: the same configurations as ``report.pareto``'s panels (mean SMAPE against
+  ns per evaluation, and against bytes per material), the one ``pareto.json`` schema of
+  ``docs/artifacts.md`` that the dashboard draws;
 - ``pareto.png``: the same as a picture;
 - ``spread.json``: per configuration the per-seed mean SMAPE (job, seed, value) and
   mean / std / min / max over seeds;
@@ -163,6 +166,7 @@ def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
     common = {"format": REPORT_FORMAT, "materials": n_mat, "runs": list(params.runs)}
     ctx.put_json("pareto.json", {
         **common, "points": points, "front": front, "claims": claims,
+        "panels": panels(points),
         "settings": {
             "accuracy": "mean SMAPE (Eq. 6) over materials per run (metrics.json), then mean "
             "over seeds; std is the sample std (ddof 1)",
@@ -191,6 +195,48 @@ def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
     held = [c["claim"] for c in claims if c.get("holds") is False]
     ctx.progress(1.0, f"front: {', '.join(front) or 'none timed'}; claims not holding: "
                  f"{'; '.join(held) or 'none'}")  # fmt: skip
+
+
+#: The costs of ``pareto.json``'s panels, and their axis labels.
+PANEL_COSTS = {
+    "ns_per_eval": "ns_per_eval: fused Dr.Jit kernel execution, ns per evaluation",
+    "bytes_per_material": "bytes_per_material: float32 parameters per material",
+}
+
+
+def panels(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The configurations as ``report.pareto``'s panels (the one ``pareto.json`` schema,
+    ``docs/artifacts.md``): mean SMAPE over seeds against each cost that some configuration
+    has, each panel with its own front."""
+    from evaluators.metrics.pareto import front_indices
+
+    out = []
+    for cost, label in PANEL_COSTS.items():
+        have = [p for p in points if p.get(cost) is not None]
+        if not have:
+            continue
+        on = front_indices([float(p[cost]) for p in have], [p["smape_mean"] for p in have])
+        pts = [
+            {
+                "candidate": p["config"],
+                "mean": p["smape_mean"],
+                "std": p["smape_std"],
+                "min": p["smape_min"],
+                "max": p["smape_max"],
+                "n": p["n"],
+                "cost": float(p[cost]),
+                "front": i in on,
+                "jobs": p["runs"],
+                "seeds": p["seeds"],
+                "kind": "train.brdf",
+            }
+            for i, p in enumerate(have)
+        ]
+        out.append({
+            "dataset": None, "scene": None, "metric": "smape", "cost": cost,
+            "cost_label": label, "points": pts, "front": [pts[i]["candidate"] for i in on],
+        })  # fmt: skip
+    return out
 
 
 #: Columns of ``pareto.json``'s points, in the result table.

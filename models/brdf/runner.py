@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -19,7 +20,7 @@ from models.brdf.kind import SPEED_REPEATS, TrainBrdfParams, architecture, load_
 from models.brdf.networks import BrdfModel, build_model, copy_materials, copy_network
 from models.brdf.portable import checkpoint_bytes, to_portable
 from models.brdf.report import curves_png, evaluate
-from models.brdf.train import Curves, FitConfig, deterministic_torch, fit
+from models.brdf.train import Curves, FitConfig, curves_document, deterministic_torch, fit
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -68,6 +69,10 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
             train_network=train_network,
         )
 
+    def live(phase: str) -> Callable[[Curves], object]:
+        """Publish the curves so far (earlier phases and this one's points), for the page."""
+        return lambda c: ctx.publish("curves.json", curves_document({**curves, phase: c}))
+
     init_gen = torch.Generator().manual_seed(ctx.sub_seed("train.brdf/init"))
     pair_gen = torch.Generator().manual_seed(ctx.sub_seed("train.brdf/pairs"))
     curves: dict[str, Curves | None] = {"train": None, "heldout": None}
@@ -83,6 +88,7 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
             config(steps, not params.freeze_network),
             pair_gen,
             on_progress=phase_progress(0),
+            on_curves=live("train"),
             phase="train",
         )
         del tables
@@ -96,6 +102,7 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
                 config(held_steps, False),
                 pair_gen,
                 on_progress=phase_progress(steps),
+                on_curves=live("heldout"),
                 phase="heldout",
             )
             final = _merge(model, held_model, materials, {m.name for m in held}, arch)
@@ -192,10 +199,7 @@ def _write(
             ],
         },
     )  # fmt: skip
-    ctx.put_json(
-        "curves.json",
-        {k: (c.as_dict() if c is not None else None) for k, c in curves.items()},
-    )
+    ctx.put_json("curves.json", curves_document(curves))
     arch = model.arch
     size = f" {arch.width}x{arch.depth}, l={arch.latent_dim}" if arch.model != "analytic" else ""
     ctx.put_bytes("curves.png", curves_png(curves, f"train.brdf: {arch.model}{size}"), "image/png")

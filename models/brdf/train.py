@@ -107,6 +107,33 @@ class Curves:
         }
 
 
+def curves_document(phases: dict[str, Curves | None]) -> dict[str, Any]:
+    """The ``curves.json`` document of a run's phases (``train``, then ``heldout`` when it
+    has held-out materials), in the one schema of :mod:`jobapi.documents`: ``step`` counts
+    on across phases (as the progress messages do), ``phases`` says where each one starts and
+    ends, and a series that no point measures (``loss_hybrid`` of an analytic model) is left
+    out."""
+    step: list[int] = []
+    series: dict[str, list[float | None]] = {k: [] for k in SERIES}
+    spans = []
+    offset = 0
+    for name, c in phases.items():
+        if c is None or not c.step:
+            continue
+        step += [offset + s for s in c.step]
+        for key in SERIES:
+            series[key] += getattr(c, key)
+        spans.append({"name": name, "first_step": offset + 1, "last_step": offset + c.step[-1]})
+        offset += c.step[-1]
+    doc: dict[str, Any] = {"step": step, "phases": spans}
+    doc.update({k: v for k, v in series.items() if any(x is not None for x in v)})
+    return doc
+
+
+#: The series of ``curves.json`` (:func:`curves_document`).
+SERIES = ("loss", "loss_analytic", "loss_hybrid", "lr")
+
+
 def _diverged(phase: str, step: int, steps: int, what: str, lr: float) -> JobFailed:
     return JobFailed(
         f"{phase}: training diverged at step {step}/{steps} ({what}); the model is "
@@ -121,11 +148,13 @@ def fit(
     generator: torch.Generator,
     *,
     on_progress: ProgressFn | None = None,
+    on_curves: Callable[[Curves], object] | None = None,
     phase: str = "train",
 ) -> Curves:
     """Fit ``model`` (its ``M`` materials) to ``tables`` ``(M, 90, 90, P, 3)`` in place.
 
-    Returns the loss curve. Raises :class:`JobFailed` on divergence (see module docstring).
+    Returns the loss curve; ``on_curves(curves)`` is called each time a point is added
+    (the live chart). Raises :class:`JobFailed` on divergence (see module docstring).
     """
     if tables.shape[0] != model.n_materials:
         raise ValueError(f"{tables.shape[0]} tables for {model.n_materials} materials")
@@ -178,6 +207,8 @@ def fit(
             curves.loss_hybrid.append(sums[2] / n_sum if parts.hybrid is not None else None)
             curves.lr.append(lr)
             sums, n_sum = [0.0, 0.0, 0.0], 0
+            if on_curves is not None:
+                on_curves(curves)
         if on_progress is not None and (step % report_every == 0 or step == steps):
             on_progress(step, steps, loss)
     model.eval()

@@ -199,7 +199,15 @@ register(
         description="Neural BTF models (Xu et al. 2025): the modified NeuMIP, the NeuMIP Max "
         "teacher, the coarse-to-fine student with distillation (Eq. 3-5), and the 4-lobe "
         "Lafortune baseline, trained on a generate.btf or import.btf job.",
-        artifacts=("model.json", "textures.npz", "metrics.json", "reconstructions.png"),
+        # curves.*: the networks' (not lafortune's); naming them gives the page live curves
+        artifacts=(
+            "model.json",
+            "textures.npz",
+            "metrics.json",
+            "reconstructions.png",
+            "curves.json",
+            "curves.png",
+        ),  # fmt: skip
         smoke={"data": "step:generate.btf", "model": "c2f", "epochs": 2},
         summary=summarize,
         rows=train_btf_rows,

@@ -5,7 +5,8 @@ The page shows one artifact name at a time (``image.exr``, ``preview.png``, ...)
 job that has it: side by side with linked zoom and pan, or two of them under an A/B
 slider; pixels stay square when zoomed, and HDR images (EXR, through the preview route)
 get an exposure slider. Jobs with ``curves.json`` (training runs) get their curves overlaid
-in one chart, a series at a time. The server only gathers the jobs, their pictures and
+in one chart, a series at a time; jobs with ``pareto.json`` (reports) their panels, a panel
+(error against cost) at a time. The server only gathers the jobs, their pictures and
 curves; ``static/js/compare.js`` does the rest.
 """
 
@@ -59,9 +60,11 @@ def panel(job: Job) -> dict[str, Any]:
     for image in picture_views(job.artifacts, job.kind):
         pictures.append({"name": image["name"], "src": image["src"], "hdr": image["name"] in exr})
     curves = next((a for a in job.artifacts if a.name == "curves.json"), None)
+    pareto = next((a for a in job.artifacts if a.name == "pareto.json"), None)
     return {
         "id": job.id,
         "curves": f"/api/artifacts/{curves.digest}" if curves else None,
+        "pareto": f"/api/artifacts/{pareto.digest}" if pareto else None,
         "short": job.id[:12],
         "title": job.name or job.kind,
         "kind": job.kind,

@@ -232,7 +232,9 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
     for run, src in zip(doc["runs"], runs, strict=True):
         metrics = read(settings, src, "metrics.json")
         assert run["error"] == metrics["mean"]["smape"] and run["metric"] == "smape"
-        loss = read(settings, src, "curves.json")["train"]["loss"]
+        curves = read(settings, src, "curves.json")  # one phase: every point is training
+        assert [p["name"] for p in curves["phases"]] == ["train"]
+        loss = curves["loss"]
         assert run["convergence"] == convergence(loss)
         assert [m["name"] for m in run["materials"]] == [m["name"] for m in metrics["materials"]]
         for m in run["materials"]:

@@ -119,7 +119,12 @@ def test01_each_model_trains_and_its_artifacts_agree(
     mats = read_json(settings, job, "materials.json")
     assert mats["per_material_params"] == {"hybrid": 11, "neural": 11, "analytic": 7}[model]
     curves = read_json(settings, job, "curves.json")
-    assert curves["train"]["step"][-1] == TINY["steps"] and curves["heldout"] is None
+    # one schema (jobapi.documents): series at the top level against step, one phase here
+    assert curves["step"][-1] == TINY["steps"] and len(curves["loss"]) == len(curves["step"])
+    assert curves["phases"] == [{"name": "train", "first_step": 1, "last_step": TINY["steps"]}]
+    # a series no point measures is left out (an analytic model has no network term)
+    assert ("loss_hybrid" in curves) == (model != "analytic")
+    assert ("loss_analytic" in curves) == (model != "neural")
     assert read(settings, job, "curves.png")[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -153,7 +158,14 @@ def test04_init_with_frozen_network_fits_only_z_and_p(brdf_env: tuple[Settings, 
     metrics = read_json(settings, base, "metrics.json")
     assert metrics["splits"]["heldout"]["count"] == 1 and metrics["splits"]["train"]["count"] == 2
     curves = read_json(settings, base, "curves.json")
-    assert curves["heldout"]["step"][-1] == TINY["steps"]
+    # the held-out phase's steps follow the training phase's
+    assert [p["name"] for p in curves["phases"]] == ["train", "heldout"]
+    assert curves["phases"][1] == {
+        "name": "heldout",
+        "first_step": TINY["steps"] + 1,
+        "last_step": 2 * TINY["steps"],
+    }
+    assert curves["step"][-1] == 2 * TINY["steps"]
     old = read_json(settings, base, "model.json")
     table = next(m["ref"] for m in old["training"]["materials"] if m["family"] == "plastic")
     for init in ("model.json", "model.pt"):

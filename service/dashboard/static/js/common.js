@@ -86,6 +86,74 @@ const MF = (() => {
     }
   }
 
+  const isNum = (v) => typeof v === "number" && isFinite(v);
+
+  /** A train.brdf curves.json of before the one schema ({train: {step, ...}, heldout}):
+      its phases one after the other, as the kind writes them now. */
+  function curvesOfPhases(doc) {
+    const out = { step: [], phases: [] };
+    let offset = 0;
+    for (const name of ["train", "heldout"]) {
+      const c = doc[name];
+      if (!c || !Array.isArray(c.step) || !c.step.length) continue;
+      const before = out.step.length;
+      out.step.push(...c.step.map((s) => s + offset));
+      for (const [key, values] of Object.entries(c)) {
+        if (key === "step" || !Array.isArray(values)) continue;
+        if (!out[key]) out[key] = new Array(before).fill(null);
+        out[key].push(...values);
+      }
+      for (const [key, values] of Object.entries(out)) {
+        if (key !== "step" && key !== "phases") while (values.length < out.step.length) values.push(null);
+      }
+      out.phases.push({ name, first_step: offset + 1, last_step: offset + c.step[c.step.length - 1] });
+      offset += c.step[c.step.length - 1];
+    }
+    return out;
+  }
+
+  /** The series of a curves.json (docs/artifacts.md, "Chart documents"): {step, series:
+      [[name, values]], lr, epoch, phases}, or null when it has nothing to draw. */
+  function curveSeries(doc) {
+    if (!doc || typeof doc !== "object") return null;
+    if (!Array.isArray(doc.step) && doc.train && Array.isArray(doc.train.step)) doc = curvesOfPhases(doc);
+    const step = doc.step;
+    if (!Array.isArray(step) || !step.length) return null;
+    const fits = (v) => Array.isArray(v) && v.length === step.length && v.some(isNum);
+    const out = { step, series: [], lr: null, epoch: null, phases: Array.isArray(doc.phases) ? doc.phases : [] };
+    for (const [key, value] of Object.entries(doc)) {
+      if (key === "step" || key === "phases") continue;
+      if (key === "lr" || key === "epoch") { if (fits(value)) out[key] = value; continue; }
+      if (fits(value)) out.series.push([key, value]);
+      else if (value && typeof value === "object" && !Array.isArray(value)) {
+        for (const [sub, list] of Object.entries(value)) if (fits(list)) out.series.push([`${key}.${sub}`, list]);
+      }
+    }
+    return out.series.length || out.lr ? out : null;
+  }
+
+  /** The panels of a pareto.json (docs/artifacts.md): each {metric, cost, cost_label,
+      dataset, scene, points: [{candidate, mean, std, min, max, cost, front, jobs}]}.
+      A report.brdf document of before the one schema (configurations as "points") is read
+      as one panel. */
+  function paretoPanels(doc) {
+    if (!doc || typeof doc !== "object") return [];
+    const drawable = (p) => isNum(p.mean) && isNum(p.cost);
+    if (Array.isArray(doc.panels)) {
+      return doc.panels
+        .filter((p) => p && Array.isArray(p.points))
+        .map((p) => ({ ...p, points: p.points.filter(drawable) }))
+        .filter((p) => p.points.length);
+    }
+    if (!Array.isArray(doc.points)) return [];
+    const x = (doc.axes && doc.axes.x) || "ns_per_eval";
+    const points = doc.points.map((p) => ({
+      candidate: p.config, mean: p.smape_mean, std: p.smape_std, min: p.smape_min, max: p.smape_max,
+      cost: p[x], front: Boolean(p.pareto), jobs: p.runs || [], n: p.n,
+    })).filter(drawable);
+    return points.length ? [{ metric: "smape", cost: x, cost_label: x, points }] : [];
+  }
+
   stripToken();
-  return { api, el, seconds, when, badge, progress, localTimes };
+  return { api, el, seconds, when, badge, progress, localTimes, curveSeries, paretoPanels };
 })();

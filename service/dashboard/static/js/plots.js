@@ -1,8 +1,11 @@
-/* Interactive charts of a job's JSON artifacts (the PNGs stay as artifacts for papers):
+/* Interactive charts of a job's JSON artifacts (the PNGs stay as artifacts for papers), in
+   their one schema each (docs/artifacts.md, "Chart documents"; MF.curveSeries and
+   MF.paretoPanels read them, and older documents too):
    - curves.json: every series against "step" (lists, or {name: list} groups), the learning
-     rate on its own log axis; log y when the values span decades;
-   - pareto.json: cost against accuracy per configuration, the front highlighted and joined,
-     seed spread as error bars, the configuration on hover, its run's job on click. */
+     rate on its own log axis, epoch in the tooltip, a line where each phase begins; log y
+     when the values span decades; short runs' points drawn as dots;
+   - pareto.json: one chart per panel, error against cost, the front highlighted and joined,
+     seed spread (min to max) as error bars, the candidate on hover, its run's job on click. */
 "use strict";
 
 (() => {
@@ -22,49 +25,69 @@
     return canvas;
   }
 
-  function curves(doc, canvas = null, live = false) {
-    const steps = doc.step;
-    if (!Array.isArray(steps) || !steps.length) return;
-    const series = [];
-    for (const [key, value] of Object.entries(doc)) {
-      if (key === "step") continue;
-      if (Array.isArray(value) && value.length === steps.length && value.some(number)) {
-        series.push([key, value]);
-      } else if (value && typeof value === "object" && !Array.isArray(value)) {
-        for (const [sub, list] of Object.entries(value)) {
-          if (Array.isArray(list) && list.length === steps.length && list.some(number)) {
-            series.push([`${key}.${sub}`, list]);
-          }
-        }
+  /** Few points are drawn as dots as well: one check of a short run is still seen. */
+  const FEW_POINTS = 30;
+
+  /** A dashed line and the phase's name where each phase after the first begins. */
+  const phaseLines = {
+    id: "phaseLines",
+    afterDatasetsDraw(chart, args, options) {
+      const { ctx, chartArea, scales } = chart;
+      for (const phase of (options.phases || []).slice(1)) {
+        const x = scales.x.getPixelForValue(phase.first_step - 0.5);
+        if (!(x >= chartArea.left && x <= chartArea.right)) continue;
+        ctx.save();
+        ctx.strokeStyle = "#667085";
+        ctx.setLineDash([5, 4]);
+        ctx.beginPath(); ctx.moveTo(x, chartArea.top); ctx.lineTo(x, chartArea.bottom); ctx.stroke();
+        ctx.fillStyle = "#475467";
+        ctx.font = "12px sans-serif";
+        ctx.fillText(phase.name, x + 4, chartArea.top + 14);
+        ctx.restore();
       }
-    }
-    const main = series.filter(([k]) => k !== "lr");
-    const lr = series.find(([k]) => k === "lr");
+    },
+  };
+
+  function curves(doc, canvas = null, live = false) {
+    const c = MF.curveSeries(doc);
+    if (!c) return;
+    const { step: steps, series: main, lr } = c;
+    const radius = steps.length <= FEW_POINTS ? 3 : 0;
     const datasets = main.map(([label, values], i) => ({
       label, data: steps.map((x, j) => ({ x, y: number(values[j]) ? values[j] : null })),
       borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length],
-      pointRadius: 0, borderWidth: 1.6, spanGaps: true, yAxisID: "y",
+      pointRadius: radius, borderWidth: 1.6, spanGaps: true, yAxisID: "y",
     }));
     if (lr) {
       datasets.push({
-        label: "lr", data: steps.map((x, j) => ({ x, y: lr[1][j] })), borderColor: "#98a2b3",
-        borderDash: [4, 3], pointRadius: 0, borderWidth: 1.2, yAxisID: "lr",
+        label: "lr", data: steps.map((x, j) => ({ x, y: lr[j] })), borderColor: "#98a2b3",
+        backgroundColor: "#98a2b3", borderDash: [4, 3], pointRadius: radius, borderWidth: 1.2,
+        yAxisID: "lr",
       });
     }
     const values = main.flatMap(([, v]) => v);
     const target = canvas || card("training curves", "curves-chart");
     const previous = window.Chart.getChart(target);
     if (previous) previous.destroy();
+    const last = steps[steps.length - 1];
     new window.Chart(target, {
       type: "line",
       data: { datasets },
+      plugins: [phaseLines],
       options: {
         responsive: true, maintainAspectRatio: false, animation: false, parsing: false,
         interaction: { mode: "nearest", axis: "x", intersect: false },
-        plugins: { title: { display: true, text: live ?
-          `Training curves, live: step ${steps[steps.length - 1]}` : "Training curves (curves.json)" } },
+        plugins: {
+          phaseLines: { phases: c.phases },
+          title: { display: true, text: live ?
+            `Training curves, live: step ${last}` : "Training curves (curves.json)" },
+          tooltip: { callbacks: { footer: (items) => (c.epoch && items.length ?
+            `epoch ${c.epoch[items[0].dataIndex]}` : "") } },
+        },
         scales: {
-          x: { type: "linear", title: { display: true, text: "step" } },
+          // one step alone still gets an x range around it
+          x: { type: "linear", title: { display: true, text: "step" },
+               ...(steps.length === 1 ? { min: 0, max: 2 * last } : {}) },
           y: { type: spansDecades(values, 30) ? "logarithmic" : "linear",
                title: { display: true, text: "loss / error (lower is better ↓)" } },
           ...(lr ? { lr: { type: "logarithmic", position: "right", grid: { drawOnChartArea: false },
@@ -101,20 +124,30 @@
     },
   };
 
+  /** At most this many panels drawn (all are in pareto.json). */
+  const MAX_PANELS = 6;
+
   function pareto(doc) {
-    const xKey = (doc.axes && doc.axes.x) || "ns_per_eval";
-    const yKey = (doc.axes && doc.axes.y) || "smape_mean";
-    const sKey = (doc.axes && doc.axes.spread) || "smape_std";
-    const points = (doc.points || []).filter((p) => number(p[xKey]) && number(p[yKey]));
-    if (!points.length) return;
+    const panels = MF.paretoPanels(doc);
+    const several = new Set(panels.map((p) => `${p.dataset || ""} ${p.scene || ""}`)).size > 1;
+    panels.slice(0, MAX_PANELS).forEach((panel, k) => paretoPanel(panel, k, several));
+    if (panels.length > MAX_PANELS) {
+      box.append(MF.el("p", { class: "muted small",
+        text: `${MAX_PANELS} of ${panels.length} panels drawn; all are in pareto.json` }));
+    }
+  }
+
+  function paretoPanel(panel, k, several) {
+    const points = panel.points;
     const point = (p) => ({
-      x: p[xKey], y: p[yKey],
-      yMin: number(p[sKey]) ? p[yKey] - p[sKey] : null,
-      yMax: number(p[sKey]) ? p[yKey] + p[sKey] : null,
+      x: p.cost, y: p.mean,
+      // error bars: min to max over seeds, as pareto.png draws them (else mean ± std)
+      yMin: number(p.min) ? p.min : number(p.std) ? p.mean - p.std : null,
+      yMax: number(p.max) ? p.max : number(p.std) ? p.mean + p.std : null,
       point: p,
     });
-    const front = points.filter((p) => p.pareto).sort((a, b) => a[xKey] - b[xKey]);
-    const rest = points.filter((p) => !p.pareto);
+    const front = points.filter((p) => p.front).sort((a, b) => a.cost - b.cost);
+    const rest = points.filter((p) => !p.front);
     const datasets = [
       { type: "line", label: "front", data: front.map(point), borderColor: "#1f9d55",
         borderWidth: 1.5, pointRadius: 0, fill: false, order: 2 },
@@ -122,35 +155,40 @@
         backgroundColor: "#1f9d55", pointRadius: 6, pointHoverRadius: 8, order: 1 },
       { type: "scatter", label: "beaten", data: rest.map(point), borderColor: "#667085",
         backgroundColor: "#98a2b3", pointRadius: 5, pointHoverRadius: 7, order: 1 },
-    ];
-    const xs = points.map((p) => p[xKey]);
-    const ys = points.map((p) => p[yKey]);
-    const chart = new window.Chart(card("speed against accuracy", "pareto-chart"), {
+    ].filter((d) => d.data.length >= (d.type === "line" ? 2 : 1));  // a line needs two points
+    const xs = points.map((p) => p.cost);
+    const ys = points.map((p) => p.mean);
+    const where = several ? ` [${[panel.dataset, panel.scene].filter(Boolean).join(" ")}]` : "";
+    const title = `${panel.metric} against ${panel.cost}${where}`;
+    const id = k === 0 ? "pareto-chart" : `pareto-chart-${k}`;
+    const canvas = card(title, id);
+    canvas.dataset.panel = `${panel.metric} ${panel.cost}`;
+    const chart = new window.Chart(canvas, {
       type: "scatter",
       data: { datasets },
       plugins: [errorBars],
       options: {
         responsive: true, maintainAspectRatio: false, animation: false,
         plugins: {
-          title: { display: true, text: `${yKey} against ${xKey} (lower-left is better; click a point: its run)` },
+          title: { display: true, text: `${title} (lower-left is better; click a point: its run)` },
           tooltip: {
             filter: (item) => item.dataset.type !== "line",
             callbacks: {
-              title: (items) => items.map((i) => i.raw.point.config),
+              title: (items) => items.map((i) => i.raw.point.candidate),
               label: (item) => {
                 const p = item.raw.point;
-                const spreadText = number(p[sKey]) ? ` ± ${p[sKey].toPrecision(3)}` : "";
-                const detail = ["model", "width", "depth", "latent_dim", "seeds"]
-                  .filter((k) => p[k] !== undefined && p[k] !== null)
-                  .map((k) => `${k} ${Array.isArray(p[k]) ? p[k].join(",") : p[k]}`).join(", ");
-                return [`${yKey} ${p[yKey].toPrecision(4)}${spreadText}, ${xKey} ${p[xKey].toPrecision(4)}`, detail];
+                const spreadText = number(p.std) ? ` ± ${p.std.toPrecision(3)}` : "";
+                const seeds = number(p.n) ? `, ${p.n} seed(s)` : "";
+                return `${panel.metric} ${p.mean.toPrecision(4)}${spreadText}, ${panel.cost} ${p.cost.toPrecision(4)}${seeds}`;
               },
             },
           },
         },
         scales: {
-          x: { type: spansDecades(xs, 30) ? "logarithmic" : "linear", title: { display: true, text: `${xKey} (lower is better ←)` } },
-          y: { type: spansDecades(ys, 30) ? "logarithmic" : "linear", title: { display: true, text: `${yKey} (lower is better ↓)` },
+          x: { type: spansDecades(xs, 30) ? "logarithmic" : "linear",
+               title: { display: true, text: `${panel.cost_label || panel.cost} (lower is better ←)` } },
+          y: { type: spansDecades(ys, 30) ? "logarithmic" : "linear",
+               title: { display: true, text: `${panel.metric} (lower is better ↓)` },
                suggestedMin: Math.min(...points.map(point).map((p) => (number(p.yMin) ? p.yMin : p.y))),
                suggestedMax: Math.max(...points.map(point).map((p) => (number(p.yMax) ? p.yMax : p.y))) },
         },
@@ -158,7 +196,7 @@
           const hit = elements.find((e) => chart.data.datasets[e.datasetIndex].type !== "line");
           if (!hit) return;
           const p = chart.data.datasets[hit.datasetIndex].data[hit.index].point;
-          const run = (p.runs || [])[0];
+          const run = (p.jobs || [])[0];
           if (run) window.location.href = `/jobs/${run.replace(/^job:/, "").split("/")[0]}`;
         },
       },

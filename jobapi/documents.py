@@ -1,0 +1,208 @@
+"""The one schema of each JSON artifact that the dashboard draws: ``curves.json`` and
+``pareto.json`` (``docs/artifacts.md``, "Chart documents"). :class:`~jobapi.context.JobContext`
+validates them when a kind writes them (``put_json``) or publishes them live (``publish``),
+so that a kind that writes another shape fails its first test instead of drawing nothing.
+
+``curves.json`` (``train.brdf``, ``train.btf``, ``train.fabric``, any plugin):
+
+- ``step``: list of N >= 1 ints, strictly increasing: the x axis (optimiser steps, counted
+  across phases);
+- every other key whose value is a list: a *series* of N numbers or ``null`` (a loss or an
+  error, lower is better), at least one of them a number;
+- every key whose value is an object: a *group* ``{name: series}``, drawn as ``key.name``;
+- reserved: ``lr`` (a series, the learning rate, drawn on its own axis), ``epoch`` (N
+  numbers, a second coordinate, never drawn as a series), ``phases`` (a list of ``{"name",
+  "first_step", "last_step"}``, consecutive, within ``step``);
+- any key whose value is a string: a note (e.g. ``loss_definition``).
+
+``pareto.json`` (``report.pareto``, ``report.brdf``):
+
+- ``format``: a string; ``runs``: the ``job:<id>`` refs reported on;
+- ``panels``: a non-empty list; each panel has ``metric`` and ``cost`` (strings; ``dataset``,
+  ``scene`` and ``cost_label`` strings or ``null``), ``points`` (a non-empty list of
+  ``{"candidate": str, "mean": number, "cost": number, "front": bool}``, optionally ``std``,
+  ``min``, ``max`` numbers, ``n``, ``jobs`` a list of ``job:<id>``) and ``front`` (the
+  candidates on the front, each one of the points');
+- ``claims`` (optional): a list of ``{"claim": str, "holds": bool or null}`` objects;
+- other keys are a kind's own (``report.brdf``'s ``points`` per configuration).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+__all__ = ["DocumentError", "check_document", "check_curves", "check_pareto"]
+
+#: Where the schemas are written down (named in every error).
+SCHEMA_DOC = "docs/artifacts.md (Chart documents)"
+#: Keys of ``curves.json`` that are not loss series.
+CURVE_COORDINATES = ("step", "epoch")
+
+
+class DocumentError(ValueError):
+    """A chart document that does not follow its schema; the message names the document,
+    the field and what is wrong."""
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _fail(name: str, field: str, what: str) -> DocumentError:
+    return DocumentError(f"{name}: {field}: {what} (schema: {SCHEMA_DOC})")
+
+
+def check_curves(doc: Any, name: str = "curves.json") -> None:
+    """Raise :class:`DocumentError` unless ``doc`` follows the ``curves.json`` schema."""
+    if not isinstance(doc, dict):
+        raise _fail(name, "(document)", f"an object expected, got {type(doc).__name__}")
+    step = doc.get("step")
+    if not isinstance(step, list) or not step:
+        raise _fail(name, "step", "a non-empty list of step numbers is required at the top level")
+    for i, s in enumerate(step):
+        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
+            raise _fail(name, f"step[{i}]", f"a step number (int >= 0) expected, got {s!r}")
+        if i and s <= step[i - 1]:
+            raise _fail(name, f"step[{i}]", f"steps must increase, {s} follows {step[i - 1]}")
+    n = len(step)
+
+    def series(field: str, values: Any, *, any_number: bool = True) -> None:
+        if not isinstance(values, list) or len(values) != n:
+            got = f"{len(values)} values" if isinstance(values, list) else type(values).__name__
+            raise _fail(name, field, f"a list of {n} values (one per step) expected, got {got}")
+        for i, v in enumerate(values):
+            if v is not None and not _number(v):
+                raise _fail(name, f"{field}[{i}]", f"a finite number or null expected, got {v!r}")
+        if any_number and not any(_number(v) for v in values):
+            raise _fail(name, field, "every value is null: nothing to draw")
+
+    found = 0
+    for key, value in doc.items():
+        if key == "step":
+            continue
+        if key == "epoch":
+            series(key, value)
+        elif key == "phases":
+            _check_phases(name, value, step)
+        elif isinstance(value, str):
+            continue
+        elif isinstance(value, list):
+            series(key, value)
+            found += key != "lr"
+        elif isinstance(value, dict):
+            if not value:
+                raise _fail(name, key, "an empty group of series")
+            for sub, values in value.items():
+                series(f"{key}.{sub}", values)
+                found += 1
+        else:
+            raise _fail(
+                name, key, "a series (list), a group of series (object) or a note (string) "
+                f"expected, got {type(value).__name__}"
+            )  # fmt: skip
+    if not found:
+        raise _fail(name, "(document)", "no series besides step, epoch and lr: nothing to draw")
+
+
+def _check_phases(name: str, phases: Any, step: list[int]) -> None:
+    if not isinstance(phases, list) or not phases:
+        raise _fail(name, "phases", "a non-empty list of {name, first_step, last_step} expected")
+    previous = None
+    if isinstance(phases[0], dict) and isinstance(phases[0].get("first_step"), int):
+        if step[0] < phases[0]["first_step"]:
+            raise _fail(name, "phases[0]", f"step {step[0]} is before the first phase")
+    for i, p in enumerate(phases):
+        where = f"phases[{i}]"
+        if not isinstance(p, dict) or set(p) != {"name", "first_step", "last_step"}:
+            raise _fail(name, where, "an object of exactly name, first_step, last_step expected")
+        first, last = p["first_step"], p["last_step"]
+        if not isinstance(p["name"], str) or not p["name"]:
+            raise _fail(name, f"{where}.name", "a non-empty string expected")
+        if not (isinstance(first, int) and isinstance(last, int) and first <= last):
+            raise _fail(name, where, f"first_step <= last_step (ints) expected, got {first!r}, "
+                                     f"{last!r}")  # fmt: skip
+        if previous is not None and first != previous + 1:
+            raise _fail(name, where, f"phases are consecutive: first_step {first} should be "
+                                     f"{previous + 1}")  # fmt: skip
+        if not any(first <= s <= last for s in step):
+            raise _fail(name, where, f"no step of the curves in {first}..{last}")
+        previous = last
+    if step[-1] > previous:  # type: ignore[operator]
+        raise _fail(name, "phases", f"step {step[-1]} is after the last phase's last_step")
+
+
+def check_pareto(doc: Any, name: str = "pareto.json") -> None:
+    """Raise :class:`DocumentError` unless ``doc`` follows the ``pareto.json`` schema."""
+    if not isinstance(doc, dict):
+        raise _fail(name, "(document)", f"an object expected, got {type(doc).__name__}")
+    if not isinstance(doc.get("format"), str):
+        raise _fail(name, "format", "a string naming the document's format is required")
+    runs = doc.get("runs")
+    if not isinstance(runs, list) or not all(isinstance(r, str) for r in runs):
+        raise _fail(name, "runs", "a list of job:<id> strings is required")
+    panels = doc.get("panels")
+    if not isinstance(panels, list) or not panels:
+        raise _fail(name, "panels", "a non-empty list of panels is required (points alone "
+                                    "are not drawn)")  # fmt: skip
+    for i, panel in enumerate(panels):
+        _check_panel(name, f"panels[{i}]", panel)
+    claims = doc.get("claims", [])
+    if not isinstance(claims, list):
+        raise _fail(name, "claims", "a list expected")
+    for i, c in enumerate(claims):
+        if not isinstance(c, dict) or not isinstance(c.get("claim"), str):
+            raise _fail(name, f"claims[{i}]", "an object with a claim string expected")
+        if c.get("holds") not in (True, False, None):
+            raise _fail(name, f"claims[{i}].holds", f"true, false or null, got {c['holds']!r}")
+
+
+def _check_panel(name: str, where: str, panel: Any) -> None:
+    if not isinstance(panel, dict):
+        raise _fail(name, where, "an object expected")
+    for key in ("metric", "cost"):
+        if not isinstance(panel.get(key), str) or not panel[key]:
+            raise _fail(name, f"{where}.{key}", "a non-empty string is required")
+    for key in ("dataset", "scene", "cost_label"):
+        if panel.get(key) is not None and not isinstance(panel[key], str):
+            raise _fail(name, f"{where}.{key}", f"a string or null expected, got {panel[key]!r}")
+    points = panel.get("points")
+    if not isinstance(points, list) or not points:
+        raise _fail(name, f"{where}.points", "a non-empty list of points is required")
+    candidates = []
+    for j, p in enumerate(points):
+        at = f"{where}.points[{j}]"
+        if not isinstance(p, dict) or not isinstance(p.get("candidate"), str):
+            raise _fail(name, at, "an object with a candidate string expected")
+        for key in ("mean", "cost"):
+            if not _number(p.get(key)):
+                raise _fail(name, f"{at}.{key}", f"a finite number is required, got "
+                                                 f"{p.get(key)!r}")  # fmt: skip
+        for key in ("std", "min", "max"):
+            if p.get(key) is not None and not _number(p[key]):
+                raise _fail(name, f"{at}.{key}", f"a finite number or absent, got {p[key]!r}")
+        if not isinstance(p.get("front"), bool):
+            raise _fail(name, f"{at}.front", "true or false is required (on the front or not)")
+        jobs = p.get("jobs", [])
+        if not isinstance(jobs, list) or not all(isinstance(j, str) for j in jobs):
+            raise _fail(name, f"{at}.jobs", "a list of job:<id> strings expected")
+        candidates.append(p["candidate"])
+    front = panel.get("front")
+    if not isinstance(front, list) or any(c not in candidates for c in front):
+        raise _fail(name, f"{where}.front", "a list of the candidates of its points expected")
+    flagged = [p["candidate"] for p in points if p["front"]]
+    if sorted(flagged) != sorted(front):
+        raise _fail(name, f"{where}.front", f"lists {front} but the points on the front are "
+                                            f"{flagged}")  # fmt: skip
+
+
+#: Checked documents by artifact name (the last path component).
+CHECKS = {"curves.json": check_curves, "pareto.json": check_pareto}
+
+
+def check_document(name: str, doc: Any) -> None:
+    """Check ``doc`` against the schema of the artifact ``name`` if it has one (by its file
+    name: ``curves.json``, ``pareto.json``, also under a folder); other names pass."""
+    check = CHECKS.get(name.rsplit("/", 1)[-1])
+    if check is not None:
+        check(doc, name)

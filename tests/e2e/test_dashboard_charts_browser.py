@@ -1,0 +1,189 @@
+"""Issue 26 §1: every kind that writes ``curves.json`` or ``pareto.json`` gets its charts drawn,
+in headless Chromium: its job page, and the compare view of two of its jobs, show a chart
+with at least one visible data point per series (per panel for the compare view's menus).
+
+The kinds are found from the registry (every kind whose artifacts name ``curves.json`` or
+``pareto.json``), so a new one is tested too. Each is run twice with its own smoke params
+(seeds 0 and 1; the inputs are the smoke runs of the kinds they name, as
+``tests/integration/test_kinds_smoke.py`` makes them). Screenshots:
+``/tmp/matforge-charts-<kind>.png`` and ``/tmp/matforge-charts-<kind>-compare.png``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service import kinds
+from service.cli.batch import substitute_refs
+from service.settings import Settings
+from service.specs import STEP_REF
+from service.submission import run_in_process
+from storage.jobs import Job
+
+from .harness import dashboard_server
+from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
+]
+
+CHARTED = ("curves.json", "pareto.json")
+#: The kinds that write a chart document, and which.
+KINDS = {
+    k.name: next(n for n in CHARTED if n in k.artifacts)
+    for k in sorted(kinds.all_kinds().values(), key=lambda k: k.name)
+    if any(n in k.artifacts for n in CHARTED) and k.smoke
+}
+
+#: Per dataset of a Chart.js chart: how many of its points are visible, i.e. inside the
+#: chart area and drawn as a dot (radius > 0), or joined by a line to another such point.
+VISIBLE = """canvas => {
+  const chart = Chart.getChart(canvas);
+  if (!chart) return null;
+  const a = chart.chartArea;
+  return chart.data.datasets.map((d, i) => {
+    const meta = chart.getDatasetMeta(i);
+    const inside = meta.data.filter((e, j) => d.data[j] && d.data[j].y !== null
+      && isFinite(e.x) && isFinite(e.y) && e.x >= a.left - 0.5 && e.x <= a.right + 0.5
+      && e.y >= a.top - 0.5 && e.y <= a.bottom + 0.5);
+    const dots = inside.filter(e => e.options && e.options.radius > 0).length;
+    const line = (d.type || chart.config.type) === "line" && d.borderWidth > 0
+      && inside.length >= 2 ? inside.length : 0;
+    return {label: d.label, hidden: meta.hidden, visible: Math.max(dots, line)};
+  });
+}"""
+
+
+class Runs:
+    """Smoke jobs by kind (seed 0) and their second runs (seed 1), inputs first."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.done: dict[tuple[str, int], Job] = {}
+
+    def job(self, name: str, seed: int = 0) -> Job:
+        if (name, seed) not in self.done:
+            kind = kinds.get_kind(name)
+
+            def resolve(ref: str) -> str:
+                m = STEP_REF.match(ref)
+                assert m is not None
+                dep = self.job(m["step"])
+                assert dep.state == "succeeded", f"{name} needs {m['step']}: {dep.error}"
+                return f"job:{dep.id}" if m["name"] is None else f"job:{dep.id}/{m['name']}"
+
+            params: dict[str, Any] = substitute_refs(kind.smoke, resolve)
+            spec = {"kind": name, "seed": seed, "name": f"{name} s{seed}", "params": params}
+            self.done[name, seed] = run_in_process(spec, self.settings)
+        return self.done[name, seed]
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """Two finished jobs of every kind that writes a chart document."""
+    kinds.load_builtin()
+    data = Path(tmp_path_factory.mktemp("dashboard-charts")) / "data"
+    (data / "scratch").mkdir(parents=True)
+    runs = Runs(Settings.from_env({}).with_(data_dir=data, pool_processes=1))
+    pairs = {}
+    for name in KINDS:
+        pair = [runs.job(name, 0), runs.job(name, 1)]
+        assert all(j.state == "succeeded" for j in pair), [j.error for j in pair]
+        pairs[name] = [j.id for j in pair]
+    yield {"data": data, "pairs": pairs}
+
+
+@pytest.fixture(scope="module")
+def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    log_dir = tmp_path_factory.mktemp("server-log")
+    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
+    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
+        yield url
+
+
+def visible(pg: Any, selector: str) -> list[dict[str, Any]]:
+    """Wait for the chart at ``selector`` to have datasets; their visible points."""
+    pg.wait_for_function(
+        "s => { const c = document.querySelector(s); const ch = c && Chart.getChart(c);"
+        " return ch && ch.data.datasets.length > 0 && ch.chartArea; }",
+        arg=selector,
+    )
+    return pg.locator(selector).evaluate(VISIBLE)  # type: ignore[no-any-return]
+
+
+def assert_every_series_seen(found: list[dict[str, Any]], where: str) -> None:
+    assert found, f"{where}: no series"
+    unseen = [d["label"] for d in found if d["hidden"] or d["visible"] < 1]
+    assert not unseen, f"{where}: series with no visible point: {unseen} ({found})"
+
+
+def test_the_charted_kinds_are_all_here() -> None:
+    # the kinds known to write them today; a new one joins the parametrised tests below
+    assert {"train.brdf", "train.btf", "train.fabric"} <= {
+        k for k, n in KINDS.items() if n == "curves.json"
+    }
+    assert {"report.brdf", "report.pareto"} <= {k for k, n in KINDS.items() if n == "pareto.json"}
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_job_page_draws_the_chart(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+    kind: str,
+) -> None:
+    pg = page
+    job_id = prepared["pairs"][kind][0]
+    pg.goto(f"{server}/jobs/{job_id}?token={TOKEN}")
+    plots = pg.locator("#plots")
+    if KINDS[kind] == "curves.json":
+        found = visible(pg, "#curves-chart")
+        assert_every_series_seen(found, f"{kind} job page")
+        names = {d["label"] for d in found}
+        assert "epoch" not in names and ("loss" in names or "train_loss" in names), names
+    else:
+        charts = pg.locator("#plots canvas")
+        pg.wait_for_function("() => document.querySelectorAll('#plots canvas').length > 0")
+        assert charts.count() >= 1
+        for i in range(charts.count()):
+            found = charts.nth(i).evaluate(VISIBLE)
+            assert_every_series_seen(found, f"{kind} job page, chart {i}")
+    assert "cannot draw" not in plots.inner_text()
+    plots.scroll_into_view_if_needed()
+    pg.screenshot(path=str(SHOTS / f"matforge-charts-{kind}.png"), full_page=True)
+    assert pg.problems == [], pg.problems
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_compare_view_overlays_two_jobs(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+    kind: str,
+) -> None:
+    pg = page
+    ids = prepared["pairs"][kind]
+    pg.goto(f"{server}/compare?jobs={','.join(ids)}&token={TOKEN}")
+    menu, chart = (
+        ("#c-series", "#c-curves-chart")
+        if KINDS[kind] == "curves.json"
+        else ("#c-panel", "#c-pareto-chart")
+    )
+    visible(pg, chart)
+    options = pg.locator(f"{menu} option").all_inner_texts()
+    assert options, f"{kind}: an empty {menu} menu"
+    for option in options:
+        pg.select_option(menu, option)
+        found = visible(pg, chart)
+        assert_every_series_seen(found, f"{kind} compare view, {option}")
+        title = pg.locator(chart).evaluate("c => Chart.getChart(c).options.plugins.title.text")
+        assert title.startswith(f"{option}: 2 "), title  # both jobs in every series
+    pg.select_option(menu, options[0])
+    pg.locator(chart).scroll_into_view_if_needed()
+    pg.screenshot(path=str(SHOTS / f"matforge-charts-{kind}-compare.png"), full_page=True)
+    assert pg.problems == [], pg.problems
