@@ -82,16 +82,21 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
     run = f"job:{ctx.job_id}"
     ctx.put_json(
         "pareto.json",
-        {
-            "points": [
-                {"config": "hybrid 16x3", "model": "hybrid", "ns_per_eval": 2.0,
-                 "smape_mean": 0.20, "smape_std": 0.02, "pareto": True, "runs": [run]},
-                {"config": "hybrid 32x3", "model": "hybrid", "ns_per_eval": 100.0,
-                 "smape_mean": 0.12, "smape_std": 0.01, "pareto": True, "runs": [run]},
-                {"config": "neural 16x3", "model": "neural", "ns_per_eval": 30.0,
-                 "smape_mean": 0.30, "smape_std": 0.05, "pareto": False, "runs": [OTHER_RUN]},
-            ],
-            "front": ["hybrid 16x3", "hybrid 32x3"],
+        {  # the one pareto.json schema (docs/artifacts.md): panels of points
+            "format": "matforge.pareto/1",
+            "runs": [run, OTHER_RUN],
+            "panels": [{
+                "dataset": None, "scene": None, "metric": "smape", "cost": "ns_per_eval",
+                "cost_label": "ns_per_eval", "front": ["hybrid 16x3", "hybrid 32x3"],
+                "points": [
+                    {"candidate": "hybrid 16x3", "cost": 2.0, "mean": 0.20, "std": 0.02,
+                     "front": True, "jobs": [run]},
+                    {"candidate": "hybrid 32x3", "cost": 100.0, "mean": 0.12, "std": 0.01,
+                     "front": True, "jobs": [run]},
+                    {"candidate": "neural 16x3", "cost": 30.0, "mean": 0.30, "std": 0.05,
+                     "front": False, "jobs": [OTHER_RUN]},
+                ],
+            }],
         },
     )  # fmt: skip
     mats = [material(i, f"fabric_material_with_a_long_name_{i}") for i in range(3)]

@@ -53,6 +53,14 @@ TRAIN_METRICS = {
     "settings": {"pairs": 2048},
 }  # fmt: skip
 PARETO = {
+    # report.brdf's document: its configurations (points, what its summary reads) and the
+    # panels of the one pareto.json schema (docs/artifacts.md)
+    "format": "matforge.brdf-report/1",
+    "runs": [],
+    "panels": [{"metric": "smape", "cost": "ns_per_eval", "front": ["analytic", "hybrid 16x3"],
+                "points": [{"candidate": "analytic", "mean": 0.2, "cost": 2.0, "front": True},
+                           {"candidate": "hybrid 16x3", "mean": 0.1, "cost": 60.0,
+                            "front": True}]}],
     "points": [
         {"config": "analytic", "n": 3, "smape_mean": 0.2, "ns_per_eval": 2.0, "pareto": True},
         {"config": "hybrid 16x3", "n": 3, "smape_mean": 0.1, "ns_per_eval": 60.0,
