@@ -249,13 +249,15 @@ def _storage_at(model: PortableBtf, res: tuple[int, int]) -> dict[str, int]:
 
 
 def curves_png(curves: Curves, title: str) -> bytes:
-    """Training L1 and held-out L1 against epoch (log scale)."""
+    """Training L1 and held-out L1 against step (log scale); a short run's checks as dots
+    too (a run of one check is a point, which a line alone does not show)."""
+    marker = "o" if len(curves.step) <= 30 else None
 
     def draw(fig: Any, ax: Any) -> None:
-        ax.plot(curves.step, curves.train_l1, label="train L1 (jittered)")
-        ax.plot(curves.step, curves.test_l1, label="held-out L1")
+        ax.plot(curves.step, curves.train_l1, label="train L1 (jittered)", marker=marker)
+        ax.plot(curves.step, curves.test_l1, label="held-out L1", marker=marker)
         if curves.train_loss != curves.train_l1:
-            ax.plot(curves.step, curves.train_loss, label="Eq. 5 loss", alpha=0.6)
+            ax.plot(curves.step, curves.train_loss, label="Eq. 5 loss", alpha=0.6, marker=marker)
         loss_axes(ax, "L1", title)
 
     return figure_png(draw)

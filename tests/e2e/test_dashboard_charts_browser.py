@@ -113,7 +113,7 @@ def visible(pg: Any, selector: str) -> list[dict[str, Any]]:
         " return ch && ch.data.datasets.length > 0 && ch.chartArea; }",
         arg=selector,
     )
-    return pg.locator(selector).evaluate(VISIBLE)  # type: ignore[no-any-return]
+    return pg.locator(selector).evaluate(VISIBLE)
 
 
 def assert_every_series_seen(found: list[dict[str, Any]], where: str) -> None:
