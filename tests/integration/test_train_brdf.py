@@ -193,3 +193,30 @@ def test05_bad_inputs_are_refused_clearly(brdf_env: tuple[Settings, str]) -> Non
     job = train(settings, {**TINY, "dataset": f"job:{gen}", "holdout_families": ["velvet"]})
     assert job.state == "failed" and job.error is not None
     assert "no material of family velvet" in job.error
+
+
+def test06_live_curves_through_both_phases(
+    brdf_env: tuple[Settings, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 26 §1: train.brdf publishes its curves as it trains, as train.fabric and
+    train.btf do, in the one curves.json schema (publish checks it), the held-out phase's
+    points following the training phase's; the last publication is the artifact's curves."""
+    from jobapi.context import JobContext
+
+    published: list[dict[str, Any]] = []
+    original = JobContext.publish
+
+    def spy(self: JobContext, name: str, obj: Any, *, min_interval_s: float = 1.0) -> bool:
+        if name == "curves.json":
+            published.append(json.loads(json.dumps(obj)))
+        return original(self, name, obj, min_interval_s=min_interval_s)
+
+    monkeypatch.setattr(JobContext, "publish", spy)
+    settings, gen = brdf_env
+    params = {**TINY, "dataset": f"job:{gen}", "holdout_families": ["metal"], "lr": 0.004}
+    job = train(settings, params)
+    assert job.state == "succeeded", job.error
+    assert len(published) == 2 * TINY["steps"]  # one per point; every step is a point here
+    assert [len(d["step"]) for d in published] == list(range(1, 2 * TINY["steps"] + 1))
+    assert [p["name"] for p in published[TINY["steps"]]["phases"]] == ["train", "heldout"]
+    assert published[-1] == read_json(settings, job, "curves.json")
