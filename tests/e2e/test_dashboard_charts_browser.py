@@ -91,11 +91,12 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     (data / "scratch").mkdir(parents=True)
     runs = Runs(Settings.from_env({}).with_(data_dir=data, pool_processes=1))
     pairs = {}
+    jobs = runs.settings  # the store and jobs database, for the live test below
     for name in KINDS:
         pair = [runs.job(name, 0), runs.job(name, 1)]
         assert all(j.state == "succeeded" for j in pair), [j.error for j in pair]
         pairs[name] = [j.id for j in pair]
-    yield {"data": data, "pairs": pairs}
+    yield {"data": data, "pairs": pairs, "settings": jobs}
 
 
 @pytest.fixture(scope="module")
@@ -187,3 +188,65 @@ def test_compare_view_overlays_two_jobs(
     pg.locator(chart).scroll_into_view_if_needed()
     pg.screenshot(path=str(SHOTS / f"matforge-charts-{kind}-compare.png"), full_page=True)
     assert pg.problems == [], pg.problems
+
+
+def test_live_train_brdf_curves_old_and_new(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+) -> None:
+    """A running train.brdf job's page draws its live curves (the kind publishes them), in
+    the one schema with its two phases, and a document of before the schema (phases under
+    ``train`` and ``heldout``, as such a job's curves.json is) too, as the same points."""
+    import json
+
+    from jobapi.context import LIVE_PREFIX
+    from jobapi.documents import check_curves
+    from storage.artifacts import ArtifactStore
+    from storage.jobs import JobStore
+
+    settings: Settings = prepared["settings"]
+    jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
+    try:
+        job, _ = jobs.submit(kind="train.brdf", name="live", seed=99, spec_hash="d" * 64,
+                             spec={"kind": "train.brdf", "params": {}})  # fmt: skip
+        claimed = jobs.claim("test-host:1", 120.0, job_id=job.id)
+        assert claimed is not None and claimed.lease_token
+        old = {
+            "train": {"step": [1, 2, 3], "loss": [3.0, 2.0, 1.5], "lr": [0.1, 0.1, 0.05]},
+            "heldout": {"step": [1, 2], "loss": [2.5, 2.0], "lr": [0.1, 0.1]},
+        }
+        new = {
+            "step": [1, 2, 3, 4, 5],
+            "loss": [3.0, 2.0, 1.5, 2.5, 2.0],
+            "lr": [0.1, 0.1, 0.05, 0.1, 0.1],
+            "phases": [
+                {"name": "train", "first_step": 1, "last_step": 3},
+                {"name": "heldout", "first_step": 4, "last_step": 5},
+            ],
+        }
+        check_curves(new)
+        pg = page
+        drawn = (
+            "() => { const c = Chart.getChart(document.getElementById('curves-chart'));"
+            " return c && c.data.datasets.length ? c.data.datasets.map(d => [d.label,"
+            " d.data.map(p => [p.x, p.y])]) : null; }"
+        )
+        seen = []
+        for doc in (new, old):
+            info = store.put_bytes(json.dumps(doc).encode())
+            jobs.record_shard(job.id, LIVE_PREFIX + "curves.json", info.digest)
+            pg.goto(f"{server}/jobs/{job.id}?token={TOKEN}")
+            pg.wait_for_function(drawn)
+            assert_every_series_seen(pg.locator("#curves-chart").evaluate(VISIBLE), "live")
+            seen.append(pg.evaluate(drawn))
+        assert seen[0] == seen[1]
+        assert seen[0][0] == [
+            "loss",
+            [[s, v] for s, v in zip(new["step"], new["loss"], strict=True)],
+        ]
+        pg.screenshot(path=str(SHOTS / "matforge-charts-train.brdf-live.png"), full_page=True)
+        jobs.cancel(job.id)
+        assert pg.problems == [], pg.problems
+    finally:
+        jobs.close()
