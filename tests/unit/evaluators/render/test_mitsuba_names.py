@@ -196,3 +196,16 @@ def test08_nested_and_any_name_children_pass(
     kinds.load_builtin()
     validate_spec(render(material))
     mi.load_dict(material)
+
+
+def test09_loader_types_take_what_mitsuba_says(mi: types.ModuleType) -> None:
+    """``rgb`` and ``spectrum`` are built by Mitsuba's loader, not plugins: the hand-written
+    LOADER_PROPERTIES is held to Mitsuba here (``filename`` is refused anyway)."""
+    from evaluators.render.sources.mitsuba import LOADER_PROPERTIES
+
+    assert set(LOADER_PROPERTIES) == {"rgb", "spectrum"}
+    for t, value in (("rgb", [0.2, 0.5, 0.8]), ("spectrum", 0.5)):
+        assert LOADER_PROPERTIES[t] == {"value", "filename"}
+        mi.load_dict({"type": "diffuse", "reflectance": {"type": t, "value": value}})
+        with pytest.raises(Exception, match="either 'value' or 'filename'"):
+            mi.load_dict({"type": "diffuse", "reflectance": {"type": t, "value": value, "x": 1}})
