@@ -157,7 +157,7 @@ def plugin_properties(mi: types.ModuleType, name: str) -> tuple[frozenset[str], 
         return None
     if NONSENSE not in (_unreferenced(mi, {**base, NONSENSE: 0.5}) or set()):
         return None
-    library = Path(mi.__file__).parent / "plugins" / f"{name}.so"
+    library = Path(str(mi.__file__)).parent / "plugins" / f"{name}.so"
     found = {k for k, v in BASES.get(name, {}).items() if not isinstance(v, dict)}
     todo = sorted(_candidates(library) - set(base) - {NONSENSE})
     while read := _read(mi, base, todo):
@@ -184,7 +184,7 @@ def _properties(name: str, doc: str, table: dict[str, frozenset[str]]) -> str:
 
 def names_module(mi: types.ModuleType) -> str:
     """The text of ``mitsuba_names.py`` for the Mitsuba module ``mi`` (a variant set)."""
-    root = Path(mi.__file__).parent
+    root = Path(str(mi.__file__)).parent
     plugins = sorted(p.name.removesuffix(".so") for p in (root / "plugins").glob("*.so"))
     manager = mi.PluginManager.instance()
     by_type: dict[str, list[str]] = {}
