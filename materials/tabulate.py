@@ -133,8 +133,10 @@ def mitsuba_evaluator(bsdf: Any) -> Evaluator:
         try:
             bsdf = mi.load_dict(dict(bsdf))
         except Exception as exc:  # Mitsuba raises plain RuntimeError/TypeError on bad dicts
-            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else repr(exc)
-            raise ValueError(f"Mitsuba could not build the BSDF: {first}") from exc
+            # the whole message on one line: its first line names the plugin, the next
+            # ones the unreferenced properties
+            text = " ".join(str(exc).split()) or repr(exc)
+            raise ValueError(f"Mitsuba could not build the BSDF: {text}") from exc
 
     def evaluate(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
         wi32 = np.ascontiguousarray(wi, dtype=np.float32)

@@ -8,14 +8,30 @@ test_mitsuba_names.py`` fails when the checked-in module no longer matches Mitsu
 - plugin names: every ``plugins/<name>.so`` of the installed Mitsuba, grouped by
   ``mi.PluginManager.instance().plugin_type(name)``;
 - named conductors: the ``data/ior/<name>.eta.spd`` files that have a ``<name>.k.spd``
-  (what ``conductor`` and ``roughconductor`` accept as ``material``), plus ``none``.
+  (what ``conductor`` and ``roughconductor`` accept as ``material``), plus ``none``;
+- the properties each BSDF and texture plugin reads. Mitsuba has no API that lists them, but
+  it refuses a property that its plugin did not read ("Found 1 unreferenced property in bsdf
+  plugin of type ..."), so they are found by asking it: every identifier in the string table
+  of the plugin's ``.so`` (a property name is a string literal there; its suffixes too, since
+  the linker may store ``"k"`` as the tail of another string) is given to the plugin, on a
+  dict that loads (``BASES``), as a float; the plugin read it unless Mitsuba calls it
+  unreferenced (a wrong type, a conflict or a missing partner is an error of another kind, and
+  means it was read). Short names may be built from immediates rather than stored as strings
+  (``dielectric.so`` holds no ``"int_ior"``), so the names of Mitsuba's documented plugin
+  parameters (``DOCUMENTED``) are tried as well; a documented name that the installed
+  Mitsuba does not read is left out, as any other candidate. Plugins that take nested
+  plugins under any key (``twosided``'s BSDF) are found the same way, with a nested
+  ``diffuse`` and ``checkerboard``. A plugin that cannot load without a file (``bitmap``,
+  ``measured``, ...) is not listed, and its properties are left to Mitsuba.
 """
 
 from __future__ import annotations
 
+import re
 import sys
 import types
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -40,9 +56,135 @@ def _frozenset(name: str, doc: str, values: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: A dict that loads, per plugin that needs more than its ``type`` (``blendbsdf`` and
+#: ``bitmap`` crash the process without one). The keys of these dicts name nothing: the
+#: plugins read their nested objects under any key.
+_DIFFUSE = {"type": "diffuse"}
+BASES: dict[str, dict[str, Any]] = {
+    "blendbsdf": {"weight": 0.5, "a": _DIFFUSE, "b": _DIFFUSE},
+    "blackbody": {"temperature": 3000.0},
+    "bumpmap": {"height": {"type": "checkerboard"}, "bsdf": _DIFFUSE},
+    "mask": {"opacity": 0.5, "bsdf": _DIFFUSE},
+    "mesh_attribute": {"name": "vertex_color"},
+    "rawconstant": {"value": 0.5},
+    "srgb": {"color": [0.5, 0.5, 0.5]},
+    "twosided": {"bsdf": _DIFFUSE},
+    "uniform": {"value": 0.5},
+}
+#: Plugins that need a file (or an array, which a JSON spec cannot hold) to load at all.
+NEEDS_DATA = frozenset({"bitmap", "measured", "measured_polarized", "normalmap"})
+#: Read by Mitsuba's loader for every plugin, whatever the plugin's strings hold.
+GENERIC_PROPERTIES = ("id",)
+#: Every parameter name in the ``.. pluginparameters::`` tables of Mitsuba 3.9.1's
+#: ``src/bsdfs``, ``src/textures`` and ``src/spectra`` (the plugin reference): candidates
+#: only, each kept for a plugin only if that plugin reads it.
+DOCUMENTED = (
+    "accel alpha alpha_sample alpha_u alpha_v anisotropic azimuthal_roughness base_color "
+    "bitmap clearcoat clearcoat_gloss clearcoat_sampling_rate color color0 color1 data delta "
+    "diff_trans diffuse_reflectance diffuse_reflectance_sampling_rate "
+    "diffuse_transmittance_sampling_rate distribution eta eumelanin ext_ior filename "
+    "filter_type flatness flip_invalid_normals format int_ior k left_handed "
+    "longitudinal_roughness main_specular_sampling_rate material metallic name nonlinear "
+    "normalmap opacity pheomelanin polarizing range raw reflectance roughness sample_visible "
+    "scale scale_tilt sheen sheen_tint sigma_a spec_tint spec_trans specular "
+    "specular_reflectance specular_reflectance_sampling_rate specular_transmittance "
+    "specular_transmittance_sampling_rate temperature theta to_uv transmittance "
+    "use_pigmentation use_shadowing_function value values volume wavelength wavelength_max "
+    "wavelength_min wavelengths weight wrap_mode"
+).split()
+#: A name no plugin reads: a plugin that reads it reads every property, and is not listed.
+NONSENSE = "zz_matforge_probe"
+_IDENTIFIER = re.compile(r"[a-z][a-z0-9_]{0,39}")
+
+
+def _candidates(library: Path) -> set[str]:
+    """Every identifier (and identifier suffix) in ``library``, and the documented names."""
+    found = {*GENERIC_PROPERTIES, *DOCUMENTED}
+    for token in re.findall(rb"[A-Za-z0-9_]+", library.read_bytes()):
+        word = token.decode()
+        for i in range(len(word)):
+            if _IDENTIFIER.fullmatch(word[i:]):
+                found.add(word[i:])
+    return found
+
+
+def _unreferenced(mi: types.ModuleType, plugin: dict[str, Any]) -> set[str] | None:
+    """The keys of ``plugin`` that Mitsuba calls unreferenced: ``None`` when it loaded, an
+    empty set when it failed otherwise (a wrong type, a missing partner, ...)."""
+    try:
+        mi.load_dict(plugin)
+    except Exception as exc:  # Mitsuba raises RuntimeError (and others) with C++ text
+        text = str(exc)
+        count = re.search(r"Found (\d+) unreferenced propert", text)
+        listed = set(re.findall(r'^\s*- \w+ "([^"]+)"', text, re.MULTILINE))
+        # a list Mitsuba cut short names fewer than it counted: treat as another error
+        return listed if count and int(count.group(1)) == len(listed) else set()
+    return None
+
+
+def _read(mi: types.ModuleType, base: dict[str, Any], names: list[str]) -> set[str]:
+    """The ``names`` that the plugin reads when all of them are given at once (as floats).
+
+    One load answers for all the names when it gets as far as the check for unreferenced
+    properties; an error before that (a float where a string or a bool is read) splits the
+    names in halves, down to the one name that the plugin read and refused."""
+    if not names:
+        return set()
+    left = _unreferenced(mi, {**base, **dict.fromkeys(names, 0.5)})
+    if left is None:
+        return set(names)
+    if left:
+        return set(names) - left
+    if len(names) == 1:
+        return set(names)
+    mid = len(names) // 2
+    return _read(mi, base, names[:mid]) | _read(mi, base, names[mid:])
+
+
+def plugin_properties(mi: types.ModuleType, name: str) -> tuple[frozenset[str], bool] | None:
+    """``(properties, takes_any_children)`` of plugin ``name``, found by probing Mitsuba
+    (see the module docstring); ``None`` when the plugin cannot be probed: it needs data,
+    does not load from its base dict, or reads every property.
+
+    The candidates are given all at once (a ``roughplastic`` takes 80 ms to build, too long
+    to try 2,000 names one by one), then again without the ones read, until a round reads
+    none: a property read only in the absence of another (``alpha_u`` without ``alpha``)
+    is found in a later round."""
+    if name in NEEDS_DATA:
+        return None
+    base = {"type": name, **BASES.get(name, {})}
+    if _unreferenced(mi, base) is not None:
+        return None
+    if NONSENSE not in (_unreferenced(mi, {**base, NONSENSE: 0.5}) or set()):
+        return None
+    library = Path(str(mi.__file__)).parent / "plugins" / f"{name}.so"
+    found = {k for k, v in BASES.get(name, {}).items() if not isinstance(v, dict)}
+    todo = sorted(_candidates(library) - set(base) - {NONSENSE})
+    while read := _read(mi, base, todo):
+        found |= read
+        todo = [n for n in todo if n not in read]
+    children = any(
+        NONSENSE not in (_unreferenced(mi, {**base, NONSENSE: child}) or set())
+        for child in (_DIFFUSE, {"type": "checkerboard"})
+    )
+    return frozenset(found), children
+
+
+def _properties(name: str, doc: str, table: dict[str, frozenset[str]]) -> str:
+    lines = [f"#: {doc}", f"{name}: dict[str, frozenset[str]] = {{"]
+    for plugin in sorted(table):
+        lines.append(f'    "{plugin}": frozenset(')
+        lines.append("        {")
+        lines.extend(f'            "{v}",' for v in sorted(table[plugin]))
+        lines.append("        }")
+        lines.append("    ),")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
+
+
 def names_module(mi: types.ModuleType) -> str:
     """The text of ``mitsuba_names.py`` for the Mitsuba module ``mi`` (a variant set)."""
-    root = Path(mi.__file__).parent
+    root = Path(str(mi.__file__)).parent
     plugins = sorted(p.name.removesuffix(".so") for p in (root / "plugins").glob("*.so"))
     manager = mi.PluginManager.instance()
     by_type: dict[str, list[str]] = {}
@@ -54,6 +196,14 @@ def names_module(mi: types.ModuleType) -> str:
         for p in ior.glob("*.eta.spd")
         if (ior / p.name.replace(".eta.spd", ".k.spd")).is_file()
     ]
+    properties: dict[str, frozenset[str]] = {}
+    any_children: list[str] = []
+    for name in sorted(by_type["BSDF"] + by_type["Texture"]):
+        probed = plugin_properties(mi, name)
+        if probed is not None:
+            properties[name] = probed[0]
+            if probed[1]:
+                any_children.append(name)
     return "\n\n".join(
         [
             HEADER.format(version=mi.__version__).rstrip() + "\n",
@@ -72,6 +222,17 @@ def names_module(mi: types.ModuleType) -> str:
                 "CONDUCTOR_MATERIALS",
                 "Named conductors of ``conductor`` / ``roughconductor`` (``material``).",
                 [*conductors, "none"],
+            ),
+            _properties(
+                "PLUGIN_PROPERTIES",
+                "The properties each BSDF and texture plugin reads (probed: see "
+                "``scripts/mitsuba_names.py``);\n#: a plugin not listed here is left to Mitsuba.",
+                properties,
+            ),
+            _frozenset(
+                "ANY_NAME_CHILDREN",
+                "Plugins that read nested plugin dicts (BSDFs, textures) under any key.",
+                any_children,
             ),
         ]
     )

@@ -28,7 +28,46 @@ def type_text(prop: dict[str, Any], *, markdown: bool = False) -> str:
 def param_rows(kind: Kind, *, markdown: bool = False) -> list[tuple[str, str, str, str]]:
     """``(name, type, default, description)`` of each of a kind's params, in schema order;
     the default is ``required`` for a required param."""
+    return _rows(kind.params.model_json_schema(), markdown=markdown)
+
+
+def _refs(node: Any) -> list[str]:
+    """The names of the ``$defs`` models that ``node`` refers to, in order of appearance."""
+    if isinstance(node, dict):
+        own = [str(node["$ref"]).rsplit("/", 1)[-1]] if "$ref" in node else []
+        return own + [r for v in node.values() for r in _refs(v)]
+    if isinstance(node, list):
+        return [r for v in node for r in _refs(v)]
+    return []
+
+
+def nested_models(kind: Kind) -> list[tuple[str, str, list[tuple[str, str, str, str]]]]:
+    """``(model name, description, rows)`` of each model that a kind's params nest (the
+    ``ProceduralExample`` of ``generate.glint``'s ``example``, and the models inside it), in
+    the order they are first named, with rows as :func:`param_rows` gives them: the fields
+    and allowed values that a param's type names only by its model's name."""
     schema = kind.params.model_json_schema()
+    defs = schema.get("$defs", {})
+    order: list[str] = []
+    todo = _refs(schema.get("properties", {}))
+    while todo:
+        name = todo.pop(0)
+        if name in order or name not in defs:
+            continue
+        order.append(name)
+        todo.extend(_refs(defs[name].get("properties", {})))
+    return [
+        (
+            name,
+            " ".join(str(defs[name].get("description", "")).split()),
+            _rows(defs[name]),
+        )
+        for name in order
+        if defs[name].get("properties")
+    ]
+
+
+def _rows(schema: dict[str, Any], *, markdown: bool = False) -> list[tuple[str, str, str, str]]:
     required = set(schema.get("required", []))
     rows = []
     for name, prop in schema.get("properties", {}).items():

@@ -14,6 +14,7 @@ limit was. ``timeout_seconds`` is kept in the stored spec (the worker reads it t
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import re
@@ -114,37 +115,92 @@ def _model_names() -> set[str]:
     return names
 
 
+#: Error types that say a union member does not have the input's shape at all (a key it
+#: does not take, a key it needs, or another type), as opposed to a wrong value in a member
+#: whose shape fits.
+_SHAPE_ERRORS = frozenset({"extra_forbidden", "missing"})
+_QUOTED = re.compile(r"'((?:[^'\\]|\\.)*)'")
+
+
+def _did_you_mean(err: Any) -> str:
+    """``"; did you mean 'x'?"`` for a string that misses an enum or ``Literal`` value by a
+    typo (pydantic lists the allowed values, quoted, in ``ctx["expected"]``)."""
+    value, expected = err.get("input"), (err.get("ctx") or {}).get("expected")
+    if err.get("type") not in ("literal_error", "enum") or not isinstance(value, str):
+        return ""
+    allowed = _QUOTED.findall(str(expected or ""))
+    by_case = {a.lower(): a for a in allowed}
+    guess = by_case.get(value.lower())
+    if guess is None:
+        starts = [a for a in allowed if a.startswith(value) or value.startswith(a)]
+        close = starts[:1] or difflib.get_close_matches(value, allowed, n=1, cutoff=0.6)
+        guess = close[0] if close else None
+    return f"; did you mean {guess!r}?" if guess is not None and guess != value else ""
+
+
+def _misfit(err_type: str, inner: tuple[Any, ...]) -> bool:
+    """Whether an error of a union member says the member does not fit the input's shape."""
+    if err_type in _SHAPE_ERRORS:
+        return len(inner) <= 1
+    return not inner and err_type.endswith(("_type", "_parsing"))
+
+
 def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, str]]:
     """One ``(field path, message)`` per field. A union's members each fail with their own
     error, under a loc part naming the member (pydantic internals, e.g.
-    ``function-after[_check_ref(), str]``): those are merged into one message at the
-    union's field, each member's reason after the other."""
+    ``function-after[_check_ref(), str]``). When exactly one member fits the input's shape
+    (``{"procedural": "scratch"}`` is a procedural example with a wrong value, not a normal
+    map without its ``normal_map``), that member's errors are given at their own fields;
+    otherwise they are merged into one message at the union's field, each member's reason
+    after the other. A string that misses an enum or ``Literal`` value, at any depth, gets
+    "did you mean"."""
     models = _model_names()
 
     def is_member(part: Any) -> bool:
         return isinstance(part, str) and (part in models or bool(_MEMBER_TAG.fullmatch(part)))
 
-    grouped: dict[str, list[str]] = {}
+    def join(*parts: str) -> str:
+        return ".".join(p for p in parts if p)
+
+    # field -> member (None: not in a union) -> [(inner path, message, misfit)]
+    fields: dict[str, dict[str | None, list[tuple[str, str, bool]]]] = {}
     for err in exc.errors():
         loc = tuple(err.get("loc", ()))
-        msg = str(err["msg"]).removeprefix("Value error, ")
+        msg = str(err["msg"]).removeprefix("Value error, ") + _did_you_mean(err)
         cut = next((i for i, part in enumerate(loc) if is_member(part)), None)
+        member: str | None = None
+        inner: tuple[Any, ...] = ()
         if cut is not None:
+            member = str(loc[cut])
             inner = tuple(part for part in loc[cut + 1 :] if not is_member(part))
-            msg = f"{_loc(inner)}: {msg}" if inner else msg
             loc = loc[:cut]
         path = _loc(loc)
         key = f"{prefix}{path}" if path else prefix.rstrip(".")
-        msgs = grouped.setdefault(key, [])
-        if msg not in msgs:
-            msgs.append(msg)
-    return [
-        (
-            key,
-            msgs[0] if len(msgs) == 1 else "none of its accepted forms fits: " + "; or ".join(msgs),
+        entry = (_loc(inner), msg, _misfit(str(err.get("type", "")), inner))
+        fields.setdefault(key, {}).setdefault(member, []).append(entry)
+    out: list[tuple[str, str]] = []
+    for key, members in fields.items():
+        fitting = [m for m, errs in members.items() if not any(e[2] for e in errs)]
+        if len(members) > 1 and len(fitting) == 1 and fitting[0] is not None:
+            for inner_path, msg, _ in members[fitting[0]]:
+                if (join(key, inner_path), msg) not in out:
+                    out.append((join(key, inner_path), msg))
+            continue
+        msgs: list[str] = []
+        for errs in members.values():
+            for inner_path, msg, _ in errs:
+                text = f"{inner_path}: {msg}" if inner_path else msg
+                if text not in msgs:
+                    msgs.append(text)
+        out.append(
+            (
+                key,
+                msgs[0]
+                if len(msgs) == 1
+                else "none of its accepted forms fits: " + "; or ".join(msgs),
+            )
         )
-        for key, msgs in grouped.items()
-    ]
+    return out
 
 
 def canonical_json(obj: Any) -> str:

@@ -33,6 +33,7 @@ from evaluators.render.integrators import integrator_for
 from evaluators.render.rows import render_rows
 from evaluators.render.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
 from evaluators.render.sources import MaterialParam, resolve_material
+from evaluators.render.sources.common import mitsuba_message
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import StrictModel
@@ -208,7 +209,7 @@ def load_scene(
     try:
         scene = mi.load_dict(scene_dict)
     except Exception as exc:  # Mitsuba reports scene errors as RuntimeError with C++ text
-        raise JobFailed(f"scene {params.scene}: {str(exc).strip().splitlines()[0]}") from None
+        raise JobFailed(f"scene {params.scene}: {mitsuba_message(exc)}") from None
     return scene, scene_dict, setup
 
 

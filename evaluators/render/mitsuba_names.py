@@ -205,3 +205,287 @@ CONDUCTOR_MATERIALS: frozenset[str] = frozenset(
         "none",
     }
 )
+
+
+#: The properties each BSDF and texture plugin reads (probed: see ``scripts/mitsuba_names.py``);
+#: a plugin not listed here is left to Mitsuba.
+PLUGIN_PROPERTIES: dict[str, frozenset[str]] = {
+    "blackbody": frozenset(
+        {
+            "id",
+            "temperature",
+            "wavelength_max",
+            "wavelength_min",
+        }
+    ),
+    "blendbsdf": frozenset(
+        {
+            "id",
+            "weight",
+        }
+    ),
+    "bumpmap": frozenset(
+        {
+            "flip_invalid_normals",
+            "id",
+            "scale",
+            "use_shadowing_function",
+        }
+    ),
+    "checkerboard": frozenset(
+        {
+            "color0",
+            "color1",
+            "id",
+            "to_uv",
+        }
+    ),
+    "circular": frozenset(
+        {
+            "id",
+            "left_handed",
+            "transmittance",
+        }
+    ),
+    "conductor": frozenset(
+        {
+            "eta",
+            "id",
+            "k",
+            "material",
+            "specular_reflectance",
+        }
+    ),
+    "d65": frozenset(
+        {
+            "color",
+            "id",
+            "scale",
+        }
+    ),
+    "dielectric": frozenset(
+        {
+            "ext_ior",
+            "id",
+            "int_ior",
+            "specular_reflectance",
+            "specular_transmittance",
+        }
+    ),
+    "diffuse": frozenset(
+        {
+            "id",
+            "reflectance",
+        }
+    ),
+    "hair": frozenset(
+        {
+            "azimuthal_roughness",
+            "eumelanin",
+            "ext_ior",
+            "id",
+            "int_ior",
+            "longitudinal_roughness",
+            "pheomelanin",
+            "scale",
+            "scale_tilt",
+            "sigma_a",
+        }
+    ),
+    "mask": frozenset(
+        {
+            "id",
+            "opacity",
+        }
+    ),
+    "mesh_attribute": frozenset(
+        {
+            "id",
+            "name",
+            "scale",
+        }
+    ),
+    "null": frozenset(
+        {
+            "id",
+        }
+    ),
+    "plastic": frozenset(
+        {
+            "diffuse_reflectance",
+            "ext_ior",
+            "id",
+            "int_ior",
+            "nonlinear",
+            "specular_reflectance",
+        }
+    ),
+    "polarizer": frozenset(
+        {
+            "id",
+            "polarizing",
+            "theta",
+            "transmittance",
+        }
+    ),
+    "pplastic": frozenset(
+        {
+            "alpha",
+            "alpha_u",
+            "alpha_v",
+            "diffuse_reflectance",
+            "distribution",
+            "eta",
+            "ext_ior",
+            "id",
+            "int_ior",
+            "sample_visible",
+            "specular_reflectance",
+        }
+    ),
+    "principled": frozenset(
+        {
+            "anisotropic",
+            "base_color",
+            "clearcoat",
+            "clearcoat_gloss",
+            "clearcoat_sampling_rate",
+            "diffuse_reflectance_sampling_rate",
+            "eta",
+            "flatness",
+            "id",
+            "main_specular_sampling_rate",
+            "metallic",
+            "roughness",
+            "sheen",
+            "sheen_tint",
+            "spec_tint",
+            "spec_trans",
+            "specular",
+        }
+    ),
+    "principledthin": frozenset(
+        {
+            "anisotropic",
+            "base_color",
+            "diff_trans",
+            "diffuse_reflectance_sampling_rate",
+            "diffuse_transmittance_sampling_rate",
+            "eta",
+            "flatness",
+            "id",
+            "roughness",
+            "sheen",
+            "sheen_tint",
+            "spec_tint",
+            "spec_trans",
+            "specular_reflectance_sampling_rate",
+            "specular_transmittance_sampling_rate",
+        }
+    ),
+    "rawconstant": frozenset(
+        {
+            "id",
+            "value",
+        }
+    ),
+    "retarder": frozenset(
+        {
+            "delta",
+            "id",
+            "theta",
+            "transmittance",
+        }
+    ),
+    "roughconductor": frozenset(
+        {
+            "alpha",
+            "alpha_u",
+            "alpha_v",
+            "distribution",
+            "eta",
+            "id",
+            "k",
+            "material",
+            "sample_visible",
+            "specular_reflectance",
+        }
+    ),
+    "roughdielectric": frozenset(
+        {
+            "alpha",
+            "alpha_u",
+            "alpha_v",
+            "distribution",
+            "ext_ior",
+            "id",
+            "int_ior",
+            "sample_visible",
+            "specular_reflectance",
+            "specular_transmittance",
+        }
+    ),
+    "roughplastic": frozenset(
+        {
+            "alpha",
+            "alpha_u",
+            "alpha_v",
+            "diffuse_reflectance",
+            "distribution",
+            "ext_ior",
+            "id",
+            "int_ior",
+            "nonlinear",
+            "sample_visible",
+            "specular_reflectance",
+        }
+    ),
+    "srgb": frozenset(
+        {
+            "color",
+            "id",
+            "unbounded",
+        }
+    ),
+    "thindielectric": frozenset(
+        {
+            "ext_ior",
+            "id",
+            "int_ior",
+            "specular_reflectance",
+            "specular_transmittance",
+        }
+    ),
+    "twosided": frozenset(
+        {
+            "allow_transmission",
+            "id",
+        }
+    ),
+    "uniform": frozenset(
+        {
+            "id",
+            "value",
+            "wavelength_max",
+            "wavelength_min",
+        }
+    ),
+    "volume": frozenset(
+        {
+            "id",
+            "volume",
+        }
+    ),
+}
+
+
+#: Plugins that read nested plugin dicts (BSDFs, textures) under any key.
+ANY_NAME_CHILDREN: frozenset[str] = frozenset(
+    {
+        "blendbsdf",
+        "bumpmap",
+        "d65",
+        "mask",
+        "twosided",
+    }
+)

@@ -81,7 +81,7 @@ def kinds(
     """The job kinds (from the registry): what each makes; with KIND, its params."""
     from service import kinds as registry
     from service.cli.client import BadInput
-    from service.kind_docs import kind_document, param_rows
+    from service.kind_docs import kind_document, nested_models, param_rows
 
     known = registry.all_kinds()
     for p in registry.plugins():  # on stderr: --json's document stays one list
@@ -130,6 +130,14 @@ def kinds(
     for name, type_, default, desc in param_rows(k):
         table.add_row(Text(name), Text(type_), Text(default), Text(desc))
     console.print(table)
+    for model, about, rows in nested_models(k):  # what a param's type names by model name
+        sub = Table(title=f"{model}: {about}" if about else model)
+        for col in ("field", "type", "default"):
+            sub.add_column(col, overflow="fold")
+        sub.add_column("description", overflow="fold", ratio=1)
+        for name, type_, default, desc in rows:
+            sub.add_row(Text(name), Text(type_), Text(default), Text(desc))
+        console.print(sub)
 
 
 def register(app: typer.Typer) -> None:

@@ -198,7 +198,11 @@ def test07_unknown_bsdf_is_refused_and_a_bad_property_fails_the_job(settings: Se
     spec = {"kind": "generate.btf", "params": {"surface": {"bsdf": {"type": "nosuchbsdf"}}}}
     with pytest.raises(SpecError, match=r"params.surface.*bsdf.*unknown Mitsuba BSDF.*nosuchbsdf"):
         run_in_process(spec, settings)  # before queueing: Mitsuba has no such plugin
-    bad = {"type": "diffuse", "bogus": 1.0}
-    job = run_in_process({"kind": "generate.btf", "params": {"surface": {"bsdf": bad}}}, settings)
+    bad = {"type": "diffuse", "bogus": 1.0}  # a property diffuse does not read (issue 26 §4)
+    with pytest.raises(SpecError, match=r"params.surface.*unknown property 'bogus'"):
+        run_in_process({"kind": "generate.btf", "params": {"surface": {"bsdf": bad}}}, settings)
+    nested = {"type": "twosided", "bsdf": {"type": "diffuse"}, "extra": {"type": "checkerboard"}}
+    spec = {"kind": "generate.btf", "params": {"surface": {"bsdf": nested}}}
+    job = run_in_process(spec, settings)  # only Mitsuba sees a texture where it wants BSDFs
     assert job.state == "failed" and "surface.bsdf" in job.error
-    assert "unreferenced property" in job.error
+    assert "unreferenced property" in job.error and 'object "extra"' in job.error, job.error

@@ -182,10 +182,16 @@ def test06_anisotropic_source_is_refused_or_recorded(settings: Settings) -> None
 
 
 def test07_a_source_mitsuba_cannot_build_fails_the_job(settings: Settings) -> None:
-    # (an unknown plugin type is refused before queueing; a bad property only Mitsuba sees)
-    job = run(settings, {"source": {"mitsuba": {"type": "diffuse", "bogus": 1.0}}})
+    # (an unknown plugin type or property is refused before queueing (issue 26 §4); a
+    # texture nested where twosided takes BSDFs only Mitsuba sees, and its whole message,
+    # naming the object, is the job's error)
+    with pytest.raises(SpecError, match="unknown property 'bogus'"):
+        run(settings, {"source": {"mitsuba": {"type": "diffuse", "bogus": 1.0}}})
+    nested = {"type": "twosided", "bsdf": {"type": "diffuse"}, "extra": {"type": "checkerboard"}}
+    job = run(settings, {"source": {"mitsuba": nested}})
     assert job.state == "failed" and job.error
     assert "unreferenced property" in job.error and "material" in job.error
+    assert 'object "extra"' in job.error and "\n" not in job.error, job.error
 
 
 @pytest.mark.parametrize(

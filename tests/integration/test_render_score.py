@@ -232,9 +232,17 @@ def test07_render_refuses_bad_materials(runner: Runner) -> None:
     # a plugin Mitsuba does not have is refused before queueing (issue 14 §6) ...
     with pytest.raises(SpecError, match=r"params.material: mitsuba: type: unknown .* 'nope'"):
         runner.run("render", {**SMALL, "material": {"mitsuba": {"type": "nope"}}})
-    # ... a property only Mitsuba can check fails the job with its one-line message
-    with pytest.raises(JobFailed, match=r"^material.mitsuba: .*unreferenced property"):
+    # ... so is a property the plugin does not read (issue 26 §4) ...
+    with pytest.raises(SpecError, match=r"params.material: .*unknown property 'bogus'"):
         runner.run("render", {**SMALL, "material": {"mitsuba": {"type": "diffuse", "bogus": 1}}})
+    with pytest.raises(SpecError, match=r"unknown property 'reflectanse'.*'reflectance'"):
+        runner.run(
+            "render", {**SMALL, "material": {"mitsuba": {"type": "diffuse", "reflectanse": 1}}}
+        )
+    # ... what only Mitsuba can check fails the job with its whole message on one line
+    nested = {"type": "twosided", "bsdf": {"type": "diffuse"}, "extra": {"type": "checkerboard"}}
+    with pytest.raises(JobFailed, match=r'^material.mitsuba: .*unreferenced property.*"extra"'):
+        runner.run("render", {**SMALL, "material": {"mitsuba": nested}})
     with pytest.raises(SpecError, match="params.resolution"):
         validate_spec({"kind": "render", "params": {"resolution": [4, 4]}})
     with pytest.raises(SpecError, match="params.scene"):

@@ -249,25 +249,30 @@ MaterialParam = Annotated[dict[str, Any], _MaterialSchema()]
 # -- resolving inside a job ----------------------------------------------------------------
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    line = text.splitlines()[0] if text else type(exc).__name__
+def mitsuba_message(exc: BaseException) -> str:
+    """Mitsuba's whole message on one line: its lines joined (the name of an unreferenced
+    property is on the second line: "Found 1 unreferenced property in bsdf plugin of type
+    "roughconductor":" then "- float "alpah": 0.2"), without its source locations."""
+    text = " ".join(str(exc).split())
+    if not text:
+        return type(exc).__name__
     # Mitsuba prefixes messages with source locations: "[parser.cpp:1718] At ...".
-    return re.sub(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*", "", line).strip()
+    return re.sub(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*", "", text).strip()
 
 
 def load_bsdf(plugin: Any, mi: types.ModuleType, where: str) -> Any:
     """Instantiate a Mitsuba BSDF from a plugin dict (or check an instantiated object).
 
     ``where`` names the param in error messages, e.g. ``"material.mitsuba"``. Raises
-    :class:`JobFailed` with Mitsuba's own first line when the dict is not a valid BSDF.
+    :class:`JobFailed` with Mitsuba's whole message, on one line, when the dict is not a
+    valid BSDF.
     """
     obj = plugin
     if isinstance(plugin, Mapping):
         try:
             obj = mi.load_dict(dict(plugin))
         except Exception as exc:  # Mitsuba raises RuntimeError/TypeError with C++ text
-            raise JobFailed(f"{where}: {_first_line(exc)}") from None
+            raise JobFailed(f"{where}: {mitsuba_message(exc)}") from None
     if not isinstance(obj, mi.BSDF):
         kind = type(obj).__name__
         raise JobFailed(f"{where}: plugin is a {kind}, not a BSDF")

@@ -1,9 +1,9 @@
 """``{"mitsuba": {<Mitsuba 3 BSDF plugin dict>}}``: any BSDF Mitsuba 3 builds in.
 
-The dict is checked at spec time against the plugin and conductor names of the installed
-Mitsuba (listed in :mod:`evaluators.render.mitsuba_names`, so the web process does not
-import Mitsuba), with no file paths anywhere in it, and instantiated with
-``mitsuba.load_dict`` inside the job.
+The dict is checked at spec time against the plugin names, conductor names and plugin
+properties of the installed Mitsuba (listed in :mod:`evaluators.render.mitsuba_names`, so
+the web process does not import Mitsuba), with no file paths anywhere in it, and
+instantiated with ``mitsuba.load_dict`` inside the job.
 """
 
 from __future__ import annotations
@@ -14,10 +14,12 @@ from typing import TYPE_CHECKING, Annotated, Any
 from pydantic import AfterValidator
 
 from evaluators.render.mitsuba_names import (
+    ANY_NAME_CHILDREN,
     BSDF_PLUGINS,
     CONDUCTOR_MATERIALS,
     MITSUBA_VERSION,
     OTHER_PLUGINS,
+    PLUGIN_PROPERTIES,
     TEXTURE_PLUGINS,
 )
 from evaluators.render.sources.common import register_material_source
@@ -32,8 +34,14 @@ if TYPE_CHECKING:
 FORBIDDEN_KEYS = frozenset({"filename"})
 
 
-#: Types Mitsuba's dict loader builds itself (not plugins): constant colours and spectra.
-LOADER_TYPES = frozenset({"rgb", "spectrum"})
+#: Types Mitsuba's dict loader builds itself (not plugins): constant colours and spectra,
+#: with the keys it takes besides ``type`` (its message: "'rgb' dictionary should contain 2
+#: entries ('type' and either 'value' or 'filename')"; a test holds Mitsuba to it).
+LOADER_PROPERTIES: dict[str, frozenset[str]] = {
+    "rgb": frozenset({"value", "filename"}),
+    "spectrum": frozenset({"value", "filename"}),
+}
+LOADER_TYPES = frozenset(LOADER_PROPERTIES)
 #: Plugins whose string ``material`` names a conductor of Mitsuba's table.
 CONDUCTOR_TYPES = frozenset({"conductor", "roughconductor"})
 #: Words people type for a conductor, for the hint of the error (Mitsuba wants symbols).
@@ -96,17 +104,42 @@ def _check_conductor(node: dict[str, Any], path: str) -> None:
         )
 
 
+def _check_properties(node: dict[str, Any], path: str) -> None:
+    """Refuse a key that the node's plugin does not read, as Mitsuba would in the job
+    ("unreferenced property"). A plugin that takes nested plugins under any key
+    (``twosided``, ``blendbsdf``, ...) takes any key whose value is a plugin dict; a plugin
+    whose properties could not be probed (``bitmap``, ...) is left to Mitsuba."""
+    t = node.get("type")
+    if not isinstance(t, str):
+        return
+    known = PLUGIN_PROPERTIES.get(t) or LOADER_PROPERTIES.get(t)
+    if known is None:
+        return
+    for key, value in node.items():
+        if key == "type" or key in known or key in FORBIDDEN_KEYS:
+            continue
+        if t in ANY_NAME_CHILDREN and isinstance(value, dict) and "type" in value:
+            continue
+        raise ValueError(
+            f"{path}{key}: unknown property {key!r} of Mitsuba's {t!r} plugin"
+            f"{_hint(key, known)} ({t} reads: {', '.join(sorted(known))})"
+        )
+
+
 def _check_plugin_dict(value: dict[str, Any]) -> dict[str, Any]:
     """Check a ``{"mitsuba": ...}`` dict against the names Mitsuba knows
     (:mod:`evaluators.render.mitsuba_names`, generated from Mitsuba and checked against it
     by a test), so that a typo is refused before queueing, not in the worker: the top
     ``type`` is a BSDF plugin, nested ``type``s are BSDFs, textures or ``rgb`` /
-    ``spectrum``, a conductor's ``material`` is in Mitsuba's table, and no ``filename``."""
+    ``spectrum``, every key is a property the plugin reads (``"alpah"`` is refused with
+    "did you mean 'alpha'?"), a conductor's ``material`` is in Mitsuba's table, and no
+    ``filename``."""
 
     def walk(node: Any, path: str, top: bool = False) -> None:
         if isinstance(node, dict):
             _check_type(node, path, top)
             _check_conductor(node, path)
+            _check_properties(node, path)
             for k, v in node.items():
                 if k in FORBIDDEN_KEYS:
                     raise ValueError(

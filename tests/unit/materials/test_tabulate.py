@@ -124,6 +124,9 @@ def test04_anisotropic_sources_are_refused() -> None:
     assert table.rgb.shape == (90, 90, 180, 3)
     with pytest.raises(ValueError, match="Mitsuba could not build"):
         tabulate_mitsuba({"type": "no_such_plugin"})
+    # issue 26 §4: both the plugin (first line) and the property (second line) are kept
+    with pytest.raises(ValueError, match=r'type "roughconductor":.*- float "alpah": 0.2'):
+        tabulate_mitsuba({"type": "roughconductor", "alpah": 0.2})
 
 
 def test05_unfolded_variant_is_reciprocal() -> None:

@@ -99,3 +99,16 @@ def test04_new_sources_plug_in(monkeypatch, mitsuba_module) -> None:
         P.model_validate({"material": {"grey": "dark"}})
     bsdf = ms.resolve_material({"grey": 0.25}, None, mitsuba_module)
     assert isinstance(bsdf, mitsuba_module.BSDF)
+
+
+def test05_mitsubas_whole_message_is_kept(mitsuba_module) -> None:
+    """Issue 26 §4: Mitsuba names the unreferenced property on its message's second line;
+    the job's one-line error joins the lines instead of cutting at the first."""
+    with pytest.raises(JobFailed) as exc:
+        ms.resolve_material(
+            {"mitsuba": {"type": "roughconductor", "alpah": 0.2}}, None, mitsuba_module
+        )
+    text = str(exc.value)
+    assert "\n" not in text and "[parser.cpp" not in text, text
+    assert text.startswith("material.mitsuba: ") and 'type "roughconductor":' in text, text
+    assert '- float "alpah": 0.2' in text, text
