@@ -232,7 +232,12 @@ def test09_batch_parallel_and_continue_on_error(server: Server, tmp_path: Path) 
     steps = {
         "steps": [
             {"name": "a", "spec": render(41)},
-            {"name": "bad", "spec": render(42, type="diffuse", no_such_param=1)},
+            {
+                "name": "bad",
+                "spec": render(
+                    42, type="twosided", bsdf={"type": "diffuse"}, extra={"type": "checkerboard"}
+                ),
+            },
             {
                 "name": "needs_bad",
                 "spec": {

@@ -40,6 +40,15 @@ def render_spec(seed: int = 0, **material: Any) -> dict[str, Any]:
     return spec
 
 
+#: A material our checks pass and Mitsuba refuses in the job: twosided takes nested plugins
+#: under any key, but reads only its BSDFs, so a texture there is an "unreferenced property".
+IN_JOB_FAILURE = {
+    "type": "twosided",
+    "bsdf": {"type": "diffuse"},
+    "extra": {"type": "checkerboard"},
+}
+
+
 def job_count(server: Server) -> int:
     with server.http() as http:
         jobs = http.get("/api/jobs").json()
@@ -352,7 +361,7 @@ def test12_bad_batch_exits_2_before_submitting(server: Server, tmp_path: Path) -
 
 
 def test13_failed_job_exits_1(server: Server, tmp_path: Path) -> None:
-    spec = write_spec(tmp_path / "fail.json", render_spec(type="diffuse", bogus=1.0))
+    spec = write_spec(tmp_path / "fail.json", render_spec(**IN_JOB_FAILURE))
     res = run_cli("submit", str(spec), "--wait", "--json", env=server.env())
     assert res.returncode == 1, f"{res}\n{server.log_tail()}"
     doc = res.json()
@@ -369,7 +378,7 @@ def test13_failed_job_exits_1(server: Server, tmp_path: Path) -> None:
         json.dumps(
             {
                 "steps": [
-                    {"name": "bad", "spec": render_spec(type="diffuse", bogus=1.0)},
+                    {"name": "bad", "spec": render_spec(**IN_JOB_FAILURE)},
                     {"name": "later", "spec": render_spec(seed=21)},
                 ]
             }
@@ -472,7 +481,7 @@ def test21_run_failures(tmp_path: Path) -> None:
     bad = write_spec(tmp_path / "bad.json", {"kind": "render", "params": {"nope": 1}})
     res = run_cli("run", str(bad), "--data-dir", str(tmp_path / "d"), env=env)
     assert res.returncode == 2 and "params.nope" in res.stderr, res
-    failing = write_spec(tmp_path / "fail.json", render_spec(type="diffuse", bogus=1.0))
+    failing = write_spec(tmp_path / "fail.json", render_spec(**IN_JOB_FAILURE))
     res = run_cli("run", str(failing), "--data-dir", str(tmp_path / "d"), "--json", env=env)
     assert res.returncode == 1, res
     assert res.json()["state"] == "failed" and "Traceback" not in res.stderr
