@@ -27,26 +27,14 @@ import json
 import multiprocessing as mp
 import os
 import platform
-import signal
-import socket
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 from typing import Any
 
 import httpx
+from served import served
 
-REPO = Path(__file__).resolve().parent.parent
 BODY_LIMIT = 1024 * 1024  # the server's default MATFORGE_MAX_BODY_KB
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def hostile_body(kind: str, json_bytes: int = BODY_LIMIT) -> tuple[bytes, str]:
@@ -70,26 +58,6 @@ def _attack(url: str, kind: str, json_bytes: int, stop_at: float, counts: Any) -
                 counts.value += 1
             if r.status_code not in (413, 422):
                 raise SystemExit(f"hostile {kind} spec answered {r.status_code}: {r.text[:200]}")
-
-
-def _start_server(port: int, data_dir: Path) -> subprocess.Popen[bytes]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
-    exe = str(Path(sys.executable).parent / "matforge")
-    args = [exe, "serve", "--host", "127.0.0.1", "--port", str(port), "--workers", "0",
-            "--data-dir", str(data_dir)]  # fmt: skip
-    proc = subprocess.Popen(
-        args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        start_new_session=True,
-    )  # fmt: skip
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=1).status_code == 200:
-                return proc
-        except httpx.TransportError:
-            time.sleep(0.2)
-    os.killpg(proc.pid, signal.SIGKILL)
-    raise SystemExit("matforge serve did not start in 60 s")
 
 
 def measure(
@@ -138,18 +106,12 @@ def main() -> None:
     ap.add_argument("--json-kb", type=int, default=BODY_LIMIT // 1024,
                     help="size of the hostile JSON specs")  # fmt: skip
     args = ap.parse_args()
-    port = _free_port()
-    with tempfile.TemporaryDirectory(prefix="bench-hostile-") as tmp:
-        proc = _start_server(port, Path(tmp) / "data")
-        try:
-            rows = [
-                measure(f"http://127.0.0.1:{port}", k, args.seconds, args.attackers,
-                        args.interval, args.json_kb * 1024)
-                for k in args.kinds.split(",")
-            ]  # fmt: skip
-        finally:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(30)
+    with served() as server:
+        rows = [
+            measure(server.url, k, args.seconds, args.attackers, args.interval,
+                    args.json_kb * 1024)
+            for k in args.kinds.split(",")
+        ]  # fmt: skip
     print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"load {os.getloadavg()[0]:.1f}")  # fmt: skip
     print("| hostile specs | attackers | health probes | p50 | p99 | max | specs refused |")

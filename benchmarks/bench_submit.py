@@ -17,26 +17,15 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import signal
-import socket
 import statistics
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import httpx
-
-REPO = Path(__file__).resolve().parent.parent
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from served import served
 
 
 def _spec(seed: int) -> dict[str, Any]:
@@ -77,72 +66,41 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=0, help="untimed submissions per client")
     ap.add_argument("--http-workers", type=int, default=1, help="matforge serve --http-workers")
     a = ap.parse_args()
-    port = _free_port()
-    url = f"http://127.0.0.1:{port}"
-    with tempfile.TemporaryDirectory() as data:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
-        proc = subprocess.Popen(
-            [
-                str(REPO / ".venv/bin/matforge"),
-                "serve",
-                "--port",
-                str(port),
-                "--data-dir",
-                data,
-                "--workers",
-                "0",
-                "--http-workers",
-                str(a.http_workers),
-            ],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
+    with served(http_workers=a.http_workers) as server:
+        url, proc = server.url, server.proc
+        latencies: list[float] = []
+        lock = threading.Lock()
+        barrier = threading.Barrier(a.clients)
+
+        def client(c: int) -> None:
+            mine = []
+            with httpx.Client(base_url=url, timeout=30) as http:
+                for i in range(a.per_client, a.per_client + a.warmup):
+                    r = http.post("/api/jobs", json=_spec(c * 100000 + i))
+                    assert r.status_code == 201, r.text
+                barrier.wait()
+                for i in range(a.per_client):
+                    spec = _spec(c * 100000 + i)
+                    t0 = time.perf_counter()
+                    r = http.post("/api/jobs", json=spec)
+                    mine.append(time.perf_counter() - t0)
+                    assert r.status_code == 201, r.text
+            with lock:
+                latencies.extend(mine)
+
+        threads = [threading.Thread(target=client, args=(c,)) for c in range(a.clients)]
+        t0, cpu0, server0 = (
+            time.perf_counter(),
+            time.process_time(),
+            _group_cpu_seconds(proc.pid),
         )
-        try:
-            deadline = time.time() + 60
-            while time.time() < deadline:
-                try:
-                    if httpx.get(f"{url}/api/health", timeout=1).status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    time.sleep(0.2)
-            latencies: list[float] = []
-            lock = threading.Lock()
-            barrier = threading.Barrier(a.clients)
-
-            def client(c: int) -> None:
-                mine = []
-                with httpx.Client(base_url=url, timeout=30) as http:
-                    for i in range(a.per_client, a.per_client + a.warmup):
-                        r = http.post("/api/jobs", json=_spec(c * 100000 + i))
-                        assert r.status_code == 201, r.text
-                    barrier.wait()
-                    for i in range(a.per_client):
-                        spec = _spec(c * 100000 + i)
-                        t0 = time.perf_counter()
-                        r = http.post("/api/jobs", json=spec)
-                        mine.append(time.perf_counter() - t0)
-                        assert r.status_code == 201, r.text
-                with lock:
-                    latencies.extend(mine)
-
-            threads = [threading.Thread(target=client, args=(c,)) for c in range(a.clients)]
-            t0, cpu0, server0 = (
-                time.perf_counter(),
-                time.process_time(),
-                _group_cpu_seconds(proc.pid),
-            )
-            for t in threads:
-                t.start()
-            for t in threads:
-                t.join()
-            wall = time.perf_counter() - t0
-            client_cpu = time.process_time() - cpu0
-            server_cpu = _group_cpu_seconds(proc.pid) - server0
-        finally:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=30)
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        wall = time.perf_counter() - t0
+        client_cpu = time.process_time() - cpu0
+        server_cpu = _group_cpu_seconds(proc.pid) - server0
     lat = sorted(latencies)
     n = len(lat)
     p50 = statistics.median(lat) * 1e3

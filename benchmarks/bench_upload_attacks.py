@@ -30,13 +30,9 @@ import argparse
 import io
 import os
 import platform
-import signal
-import socket
 import statistics
 import struct
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 import zipfile
@@ -48,18 +44,11 @@ from pathlib import Path
 import httpx
 import numpy as np
 import OpenEXR
+from served import served
 
-REPO = Path(__file__).resolve().parent.parent
 SAMPLE_S = 0.05
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-# -- the hostile files ------------------------------------------------------------------------
 def flat_exr(h: int, w: int, value: float = 0.5) -> bytes:
     """A half-float ZIP EXR of one grey value: a small file for a large image."""
     buf = io.BytesIO()
@@ -287,46 +276,14 @@ def attacks(url: str, sampler: Sampler, files: dict[str, bytes]) -> list[Phase]:
 def serve_and_attack(
     files: dict[str, bytes], http_workers: int, env_extra: dict[str, str]
 ) -> list[Phase]:
-    port = _free_port()
-    url = f"http://127.0.0.1:{port}"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
-    env.update(env_extra)
-    with tempfile.TemporaryDirectory() as data:
-        proc = subprocess.Popen(
-            [
-                str(REPO / ".venv/bin/matforge"),
-                "serve",
-                "--port",
-                str(port),
-                "--data-dir",
-                data,
-                "--workers",
-                "0",
-                "--http-workers",
-                str(http_workers),
-            ],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
-        )
+    with served(http_workers=http_workers, env_extra=env_extra, timeout=90) as server:
+        url, proc = server.url, server.proc
+        time.sleep(1.0)  # the extra web processes finish starting
+        sampler = Sampler(proc.pid)
         try:
-            deadline = time.time() + 90
-            while time.time() < deadline:
-                try:
-                    if httpx.get(f"{url}/api/health", timeout=1).status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    time.sleep(0.2)
-            time.sleep(1.0)  # the extra web processes finish starting
-            sampler = Sampler(proc.pid)
-            try:
-                return attacks(url, sampler, files)
-            finally:
-                sampler.stop()
+            return attacks(url, sampler, files)
         finally:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=60)
+            sampler.stop()
 
 
 def main() -> None:
