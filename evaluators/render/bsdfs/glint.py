@@ -6,7 +6,8 @@ The BRDF of a footprint P is the microfacet model with the footprint's P-NDF (Se
     f_P(wi, wo) = D_P(h) G(wi, wo) F(wi . h) / (4 cos_i cos_o),
 
 ``h`` the half vector and ``D_P`` the density of projected normals ``s = (h_x, h_y)`` over
-the footprint (which is the NDF per solid angle with ``int D cos_h dw = 1``). ``D_P`` comes
+the footprint (which is the NDF per solid angle with ``int D cos_h dw = 1``), ``s`` taken in the
+example's axes (x along dp/du, y along dp/dv: :func:`example_slopes`). ``D_P`` comes
 from one of two evaluators of the same microstructure (:mod:`materials.glints.pndf_drjit`):
 
 - ``tiny_example``: the example's NDF maps at the footprint's level, or its lobes below the
@@ -120,6 +121,30 @@ def layer_pndf(
     )  # fmt: skip
 
 
+def example_slopes(mi: types.ModuleType, si: Any, h: Any) -> tuple[Any, Any]:
+    """The projected normal ``(s_x, s_y)`` of the local half vector ``h`` in the example's
+    axes: x along dp/du, y along dp/dv (both projected into the shading plane).
+
+    Mitsuba's shading frame need not follow the uv directions (on its ``sphere`` the frame's
+    t axis is opposite to dp/dv), while the example's normals are written in (u, v, n), so
+    ``h`` is re-expressed in the orthonormal tangent frame ``(t_u, b)`` with ``t_u`` the unit
+    projection of dp/du and ``b = n x t_u`` flipped to the side of dp/dv. Where dp/du
+    vanishes (a sphere's poles) the shading frame's ``(h.x, h.y)`` is used.
+    """
+    import drjit as dr
+
+    du = si.to_local(si.dp_du)
+    dv = si.to_local(si.dp_dv)
+    norm = dr.sqrt(du.x * du.x + du.y * du.y)
+    ok = norm > 1e-12
+    inv = dr.select(ok, 1.0 / dr.maximum(norm, 1e-30), 0.0)
+    tx, ty = du.x * inv, du.y * inv
+    side = dr.select(tx * dv.y - ty * dv.x < 0.0, -1.0, 1.0)  # b = (-ty, tx) . dv
+    sx = tx * h.x + ty * h.y
+    sy = side * (tx * h.y - ty * h.x)
+    return dr.select(ok, sx, h.x), dr.select(ok, sy, h.y)
+
+
 def _fresnel(mi: types.ModuleType, fresnel: tuple[Any, ...], cos_d: Any) -> Any:
     if fresnel[0] == "conductor":
         eta, k = fresnel[1], fresnel[2]
@@ -186,7 +211,7 @@ def _define_class(mi: types.ModuleType) -> type:
                 d = smooth.eval(h)
             else:
                 c, cov = self._footprint(si, layer.fallback_texels)
-                d = layer_pndf(mi, layer, c, cov, (h.x, h.y), active)
+                d = layer_pndf(mi, layer, c, cov, example_slopes(mi, si, h), active)
             g = ggx.G(wi, wo, h)
             cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
             f = _fresnel(mi, layer.fresnel, cos_d)
