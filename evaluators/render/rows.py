@@ -34,7 +34,12 @@ def material_source(material: Any) -> str | None:
 
 
 def _glint_layer(
-    src: RowSource, spec: Mapping[str, Any], method: str, texels: float, oversample: int
+    src: RowSource,
+    spec: Mapping[str, Any],
+    method: str,
+    texels: float,
+    oversample: int,
+    yan_rate: int = 1,
 ) -> tuple[float | None, int | None]:
     """Bytes and example side of one glint layer (``None`` where its data job is unknown)."""
     from evaluators.render.sources.glint import layer_bytes
@@ -47,25 +52,29 @@ def _glint_layer(
     stats = stats if isinstance(stats, Mapping) else {}
     size = number((stats.get("example") or {}).get("size"))
     tiny = number((stats.get("bytes") or {}).get("total"))
-    nbytes = layer_bytes(method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample)
+    nbytes = layer_bytes(
+        method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample, yan_rate=yan_rate
+    )
     return nbytes, int(size) if size is not None else None
 
 
 def glint_facts(src: RowSource, glint: Mapping[str, Any]) -> dict[str, Any]:
     """``bytes_per_material`` and config entries (``method``, ``example``) of a render's
     ``{"glint": glint}`` material (defaults as :class:`~evaluators.render.sources.glint.
-    GlintSpec`'s: tiny_example, 256 texels per uv, oversample 2)."""
+    GlintSpec`'s: tiny_example, 256 texels per uv, oversample 2, yan_rate 1)."""
     method = str(glint.get("method") or "tiny_example")
     texels = number(glint.get("texels_per_uv"))
     texels = 256.0 if texels is None else texels
     over = number(glint.get("oversample"))
     over_i = 2 if over is None else int(over)
-    nbytes, size = _glint_layer(src, glint, method, texels, over_i)
+    rate = number(glint.get("yan_rate"))
+    rate_i = 1 if rate is None else int(rate)
+    nbytes, size = _glint_layer(src, glint, method, texels, over_i, rate_i)
     config: dict[str, Any] = {"method": method, "example": size, "texels_per_uv": texels}
     coat = glint.get("clearcoat")
     if isinstance(coat, Mapping):
         coat_method = str(coat.get("method") or method)
-        coat_bytes, _ = _glint_layer(src, coat, coat_method, texels, over_i)
+        coat_bytes, _ = _glint_layer(src, coat, coat_method, texels, over_i, rate_i)
         nbytes = None if nbytes is None or coat_bytes is None else nbytes + coat_bytes
         config["clearcoat"] = coat_method
     return {"bytes_per_material": nbytes, "config": config}

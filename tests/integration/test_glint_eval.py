@@ -11,7 +11,7 @@ Oracles: every metric is finite and in its range, the documented artifacts exist
 tiny-example render is closer to its own reference than to the other type's reference
 (PSNR and SSIM), i.e. the scores see the microstructure. For the ladder: each rung's memory
 in the result rows against the generate jobs' own ``stats.json`` and the export's size
-(one 32-byte lobe per texel), the Pareto front by brute force over the score's own
+(2 x 2 32-byte lobes per texel), the Pareto front by brute force over the score's own
 ``metrics.json`` and those bytes, and ``select``'s choice recomputed from the same numbers
 (the cheapest rung within the target), at the recipe's target and at one between the rungs.
 """
@@ -50,6 +50,8 @@ DATA = {"tiny8": "brushed_metal_8", "tiny16": "brushed_metal_16", "tiny32": "bru
 #: Texels per uv of the shrunk renders; Yan exports one texel per example texel.
 TEXELS = 128
 LOBE_BYTES = 32
+#: ``yan_rate`` of the recipe's Yan reference (2 x 2 lobes per texel, as fine as the model).
+YAN_RATE = 2
 
 
 def shrink(spec: dict[str, Any]) -> dict[str, Any]:
@@ -96,7 +98,8 @@ def _metrics(settings: Settings, job: Job) -> dict[str, float]:
 def _rung_costs(settings: Settings, jobs: dict[str, Job]) -> dict[str, tuple[float, float]]:
     """Per rung: (FLIP from the score's metrics.json, bytes from first principles)."""
     flips = _read(settings, jobs["brushed_metal_ladder"], "metrics.json")["metrics"]
-    nbytes = {"smooth_ggx": 8.0, "yan": float(TEXELS * TEXELS * LOBE_BYTES)}
+    rate = YAN_RATE  # the recipe's Yan: rate x rate lobes per exported texel
+    nbytes = {"smooth_ggx": 8.0, "yan": float(TEXELS * TEXELS * rate * rate * LOBE_BYTES)}
     for rung, step in DATA.items():
         stats = _read(settings, jobs[step], "stats.json")
         nbytes[rung] = float(stats["bytes"]["total"])

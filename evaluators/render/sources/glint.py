@@ -14,8 +14,10 @@ and distribution), or the ``surface`` given here. ``method`` picks the evaluator
 - ``tiny_example``: the job's NDF maps and lobes (tiled distributions; the Dr.Jit twin of
   the stochastic distribution is not written yet, so stochastic surfaces refuse this method);
 - ``yan``: the surface exported over ``[0, texels_per_uv]^2`` global texels at
-  ``oversample`` texels per example texel (Fig. 9's protocol), its lobes at one seed per
-  exported texel, and Eq. 1 over them;
+  ``oversample`` texels per example texel (Fig. 9's protocol), its lobes at ``yan_rate`` x
+  ``yan_rate`` seeds per exported texel (default 1; the tiny example has 2 x 2, so a
+  reference that judges it wants ``yan_rate`` >= 2), and Eq. 1 over them by brute force
+  (every lobe in the footprint; no hierarchy over normals);
 - ``smooth_ggx``: no glints: a smooth anisotropic GGX NDF of the surface's roughness
   (:func:`slope_alphas`), the bottom rung of the glint ladder (``select``).
 
@@ -24,8 +26,8 @@ surface's slopes: ``alpha^2 = mean(tan^2 theta) + 2 sigma_r^2`` over a sample of
 
 Memory (:func:`material_bytes`, the ``bytes_per_material`` of a glint render's result rows):
 ``tiny_example`` the job's NDF maps plus lobes (``stats.json``), ``yan`` one
-:data:`~materials.glints.lobes.LOBE_BYTES` record per exported texel, ``smooth_ggx`` its two
-float32 roughnesses.
+:data:`~materials.glints.lobes.LOBE_BYTES` record per lobe (``yan_rate^2`` per exported
+texel), ``smooth_ggx`` its two float32 roughnesses.
 """
 
 from __future__ import annotations
@@ -107,6 +109,13 @@ class GlintSpec(StrictModel):
     surface_seed: int = Field(default=0, ge=0, le=2**31 - 1, description="Stochastic seed.")
     oversample: int = Field(
         default=2, ge=1, le=8, description="yan: exported texels per example texel."
+    )
+    yan_rate: int = Field(
+        default=1,
+        ge=1,
+        le=4,
+        description="yan: lobes per exported texel along each axis (rate^2 per texel); the "
+        "tiny example has 2, so a reference that judges it wants 2 or more.",
     )
     clearcoat: CoatSpec | None = Field(default=None, description="Optional clearcoat layer.")
 
@@ -214,17 +223,22 @@ SMOOTH_GGX_BYTES = 8
 
 
 def layer_bytes(
-    method: str, *, tiny_bytes: float | None, texels_per_uv: float, oversample: int
+    method: str,
+    *,
+    tiny_bytes: float | None,
+    texels_per_uv: float,
+    oversample: int,
+    yan_rate: int = 1,
 ) -> float | None:
     """Bytes a layer's evaluator holds for its microstructure: ``tiny_example`` the
     ``generate.glint`` job's NDF maps plus lobes (``tiny_bytes``, ``stats.json``'s
     ``bytes.total``; ``None`` if unknown), ``yan`` the exported map's lobes (one per export
-    texel, ``(ceil(texels_per_uv) * oversample)^2`` records of ``LOBE_BYTES``, as
+    texel, ``(ceil(texels_per_uv) * oversample * yan_rate)^2`` records of ``LOBE_BYTES``, as
     :func:`make_layer` builds them), ``smooth_ggx`` :data:`SMOOTH_GGX_BYTES`."""
     if method == "smooth_ggx":
         return float(SMOOTH_GGX_BYTES)
     if method == "yan":
-        side = int(math.ceil(texels_per_uv)) * int(oversample)
+        side = int(math.ceil(texels_per_uv)) * int(oversample) * int(yan_rate)
         return float(side * side * LOBE_BYTES)
     return tiny_bytes
 
@@ -239,6 +253,7 @@ def make_layer(
     texels_per_uv: float,
     oversample: int,
     field: str,
+    yan_rate: int = 1,
 ) -> GlintLayer:
     """A :class:`GlintLayer` for ``method`` over ``surface``."""
     lobes: Lobes = data["lobes"]
@@ -277,7 +292,7 @@ def make_layer(
         )
     side = int(math.ceil(texels_per_uv))
     explicit = export_normal_map(surface, side, oversample=oversample)
-    ref = make_lobes(explicit, rate=1, sigma_r=lobes.sigma_r)
+    ref = make_lobes(explicit, rate=yan_rate, sigma_r=lobes.sigma_r)
     return GlintLayer(
         method=method,
         lobes=jit_lobes(mi, ref),
@@ -308,6 +323,7 @@ def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     base = make_layer(
         mi, data, surface, spec.method, ("conductor", eta, k),
         texels_per_uv=spec.texels_per_uv, oversample=spec.oversample, field="material.glint",
+        yan_rate=spec.yan_rate,
     )  # fmt: skip
     coat = None
     if spec.clearcoat is not None:
@@ -316,7 +332,7 @@ def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
             mi, cdata, surface_of(cdata, spec.surface, spec.surface_seed),
             spec.clearcoat.method or spec.method, ("dielectric", spec.clearcoat.ior),
             texels_per_uv=spec.texels_per_uv, oversample=spec.oversample,
-            field="material.glint.clearcoat",
+            field="material.glint.clearcoat", yan_rate=spec.yan_rate,
         )  # fmt: skip
     key = hashlib.sha256(json.dumps([ctx.job_id, _as_dict(spec)], sort_keys=True).encode())
     name = put_layers(key.hexdigest(), base, coat)
