@@ -72,6 +72,10 @@ LOSS_DEFINITIONS = {
     "relative_l2": "relative L2: mean over the 4 components of mean (p - y)^2 / (sg(p)^2 + "
     "m^2 + 1e-8), p linear (S = expm1(raw) / k), m the material's mean target per component "
     "and query kind; the curves' per-component values are these terms, not MSEs",
+    "relative_l2_mean": "relative L2 with each denominator + se^2 (the target's Monte Carlo "
+    "standard error), plus 1.0 x mean over (material, light side, component) of "
+    "(batch mean residual)^2 / m^2; the curves' per-component values are the relative L2 "
+    "terms",
 }
 
 
@@ -116,7 +120,8 @@ class TrainingSet:
         # per component for the row's kind, BRDF or BTDF); the paper's loss neither.
         self.value: torch.Tensor | None = None
         self.scale: torch.Tensor | None = None
-        if loss == "relative_l2":
+        self.stderr: torch.Tensor | None = None
+        if loss.startswith("relative_l2"):
             scale = np.concatenate(
                 [
                     component_scales(m.value[m.train], m.query[m.train, 5])[
@@ -127,6 +132,11 @@ class TrainingSet:
             )
             self.value = torch.from_numpy(value).to(device)
             self.scale = torch.from_numpy(scale).to(device)
+        if loss == "relative_l2_mean":
+            se = [m.stderr[m.train] if m.stderr is not None else None for m in materials]
+            if any(x is None for x in se):
+                raise JobFailed("dataset: relative_l2_mean needs the shards' stderr arrays")
+            self.stderr = torch.from_numpy(np.concatenate(se)).to(device)  # type: ignore[arg-type]
         counts = [len(m.train) for m in materials]
         if min(counts) < 1:
             raise JobFailed("dataset: a material has no training queries (lower holdout)")
@@ -191,10 +201,20 @@ def fit(
         mats, index, rows = mats.to(dev), index.to(dev), rows.to(dev)
         query = data.query[rows]
         raw = net(data.maps[mats], data.params[mats], index, query)
-        if config.loss == "relative_l2":
+        if config.loss.startswith("relative_l2"):
             if data.value is None or data.scale is None:
-                raise ValueError("relative_l2 needs TrainingSet(..., loss='relative_l2')")
-            parts = relative_l2_loss(raw, data.value[rows], query[:, 5], data.scale[rows])
+                raise ValueError(f"{config.loss} needs TrainingSet(..., loss={config.loss!r})")
+            mean = config.loss == "relative_l2_mean"
+            if mean and data.stderr is None:
+                raise ValueError("relative_l2_mean needs TrainingSet(..., loss='relative_l2_mean')")
+            parts = relative_l2_loss(
+                raw,
+                data.value[rows],
+                query[:, 5],
+                data.scale[rows],
+                stderr=data.stderr[rows] if mean and data.stderr is not None else None,
+                group=index if mean else None,
+            )
         else:
             parts = fabric_loss(raw, data.target[rows])
         opt.zero_grad(set_to_none=True)
