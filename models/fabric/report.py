@@ -218,7 +218,9 @@ def evaluate(
 
 
 def curves_png(curves: Curves, title: str) -> bytes:
-    """Loss and per-component MSE against step (log scale), as deterministic PNG bytes."""
+    """Loss and per-component MSE against step (log scale), as deterministic PNG bytes;
+    with the relative L2 losses also each component's training mean ratio (right axis, the
+    +-3 % goal shaded)."""
 
     def draw(fig: Any, ax: Any) -> None:
         paper = curves.loss_name == "paper"
@@ -228,5 +230,12 @@ def curves_png(curves: Curves, title: str) -> bytes:
             label = f"MSE {name}" if paper else f"rel. L2 {name}"
             ax.plot(curves.step, values, "--", label=label, linewidth=0.8)
         loss_axes(ax, "loss (mean per query)", title)
+        if curves.mean_ratio is not None:
+            right = ax.twinx()
+            right.axhspan(0.97, 1.03, color="0.9", zorder=0)
+            for name, values in curves.mean_ratio.items():
+                right.plot(curves.step, values, ":", label=f"mean ratio {name}", linewidth=1.0)
+            right.set_ylabel("sum pred / sum target (goal 1 +- 3 %)")
+            right.legend(loc="lower left", fontsize="x-small")
 
     return figure_png(draw)

@@ -37,7 +37,7 @@ import torch
 from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
 from models.fabric.losses import component_scales, fabric_loss, log_targets, relative_l2_loss
-from models.fabric.networks import COMPONENTS, FabricNetwork
+from models.fabric.networks import COMPONENTS, FabricNetwork, components
 
 #: Divergence: a loss above max(factor * the first step's loss, floor) fails the job.
 DIVERGENCE_FACTOR = 1000.0
@@ -89,16 +89,23 @@ class Curves:
     lr: list[float] = field(default_factory=list)
     seconds: float = 0.0
     loss_name: str = "paper"
+    #: Per component, ``sum pred / sum target`` over each interval's training batches (the
+    #: decoded, rendered components: clamped, C = 0 below the horizon); the mean holds
+    #: within +-3 % when it stays in [0.97, 1.03]. Only for the relative L2 losses.
+    mean_ratio: dict[str, list[float]] | None = None
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready lists; no timing, so the same spec gives the same bytes."""
-        return {
+        out: dict[str, object] = {
             "step": self.step,
             "loss": self.loss,
             "mse": self.components,
             "lr": self.lr,
             "loss_definition": LOSS_DEFINITIONS[self.loss_name],
         }
+        if self.mean_ratio is not None:
+            out["mean_ratio"] = self.mean_ratio
+        return out
 
 
 def milestone_steps(steps: int) -> list[int]:
@@ -191,6 +198,9 @@ def fit(
     report_every = max(1, steps // 100)
     curves = Curves(loss_name=config.loss)
     loss_sum, comp_sum, n_sum = 0.0, torch.zeros(4, dtype=torch.float64), 0
+    pred_sum, value_sum = torch.zeros(4, dtype=torch.float64), torch.zeros(4, dtype=torch.float64)
+    if data.value is not None:
+        curves.mean_ratio = {c: [] for c in COMPONENTS}
     limit = math.inf
     dev = data.device
     started = time.perf_counter()
@@ -232,12 +242,22 @@ def fit(
         loss_sum += loss
         comp_sum += parts.per_component.double().cpu()
         n_sum += 1
+        if data.value is not None:
+            with torch.no_grad():
+                pred_sum += components(raw.detach(), query[:, 5]).double().sum(dim=0).cpu()
+                value_sum += data.value[rows].double().sum(dim=0).cpu()
         if step % every == 0 or step == steps:
             curves.step.append(step)
             curves.loss.append(loss_sum / n_sum)
             for c, v in zip(COMPONENTS, (comp_sum / n_sum).tolist(), strict=True):
                 curves.components[c].append(v)
             curves.lr.append(lr)
+            if curves.mean_ratio is not None:
+                ratio = torch.where(value_sum.abs() > 1e-30, pred_sum / value_sum, 1.0)
+                for c, v in zip(COMPONENTS, ratio.tolist(), strict=True):
+                    curves.mean_ratio[c].append(v)
+                pred_sum.zero_()
+                value_sum.zero_()
             loss_sum, comp_sum, n_sum = 0.0, torch.zeros(4, dtype=torch.float64), 0
             if on_curves is not None:
                 on_curves(curves)

@@ -167,3 +167,30 @@ def test06_metrics_mean_ratio_is_the_ratio_of_sums() -> None:
     for c in ("C_warp", "C_weft", "S_warp", "S_weft", "rgb"):
         assert abs(out[c]["ratio"] - 1.02) <= 1e-12  # a uniform 2 % excess, exactly
     assert _errors(gt, np.zeros_like(gt), albedos)["S_warp"]["ratio"] == 1.0  # no target
+
+
+def test07_curves_carry_the_mean_ratio_of_the_rendered_components(synthetic_materials) -> None:  # type: ignore[no-untyped-def]
+    """The series follows the one curves.json schema (``jobapi.documents.check_curves``, a
+    group per component), is finite at every point, is drawn, and is absent for the paper
+    loss (which carries no linear targets)."""
+    from jobapi.documents import check_curves
+    from models.fabric.networks import build_network
+    from models.fabric.report import curves_png
+
+    config = FitConfig(steps=20, batch=64, materials_per_step=2, lr=0.05, momentum=0.9,
+                       weight_decay=0.0, clip=1.0, loss="relative_l2")  # fmt: skip
+    torch.manual_seed(0)
+    net = build_network(TINY, len(synthetic_materials))
+    data = TrainingSet(synthetic_materials, "cpu", "relative_l2")
+    curves = fit(net, data, config, torch.Generator().manual_seed(5))
+    doc = curves.as_dict()
+    check_curves(doc)
+    ratio = doc["mean_ratio"]
+    assert isinstance(ratio, dict) and set(ratio) == {"C_warp", "C_weft", "S_warp", "S_weft"}
+    assert all(len(v) == len(curves.step) and np.isfinite(v).all() for v in ratio.values())
+    assert curves_png(curves, "t")[:8] == b"\x89PNG\r\n\x1a\n"
+    net = build_network(TINY, len(synthetic_materials))
+    plain = TrainingSet(synthetic_materials, "cpu")
+    paper_config = dataclasses.replace(config, loss="paper")
+    paper = fit(net, plain, paper_config, torch.Generator().manual_seed(5))
+    assert "mean_ratio" not in paper.as_dict()
