@@ -63,6 +63,7 @@ from generators.fabric.params import (
     Resolved,
     plan_sets,
     scene_record,
+    sweep_beta,
 )
 from generators.fabric.preview import (
     _PREVIEW_WI,
@@ -79,7 +80,7 @@ from generators.rows import fabric_stats_rows
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate
-from materials.fabric.params import FabricParams, sample_params
+from materials.fabric.params import FabricParams, YarnPair, sample_params
 from materials.fabric.yarn import YarnGeometry
 from storage.formats.npz import npz_bytes
 
@@ -128,7 +129,13 @@ def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
     out = []
     for name, j, k in plan_sets(cfg):
         geometry = sample_params(ctx.rng(f"generate.fabric/{name}/texture/{j}"), name)
-        shading = sample_params(ctx.rng(f"generate.fabric/{name}/shading/{j}/{k}"), name)
+        if cfg.beta_sweep:
+            # one shading draw per texture set; only beta differs (generators.fabric.params)
+            shading = sample_params(ctx.rng(f"generate.fabric/{name}/shading/{j}/0"), name)
+            b = sweep_beta(k, cfg.shading_sets[name])
+            shading = shading.replace(beta=YarnPair(b, b))
+        else:
+            shading = sample_params(ctx.rng(f"generate.fabric/{name}/shading/{j}/{k}"), name)
         params = shading.replace(psi_deg=geometry.psi_deg, u_max_deg=geometry.u_max_deg)
         label = f"{name}-t{j:02d}-s{k:02d}"
         seed = ctx.sub_seed(f"generate.fabric/queries/{label}")

@@ -23,7 +23,9 @@ from jobapi.presets import preset_value
 from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS
 from materials.fabric.samplers import check_sampling
 
-PresetName = Literal["small", "paper"]
+PresetName = Literal["small", "paper", "beta"]
+#: The ``beta`` preset's range of the height scaling (Sec. 5.1's beta U(0.1, 1.0)).
+BETA_SWEEP = (0.1, 1.0)
 #: Replicates of the estimator (Sobol's standard error; ``aggregate.py``).
 REPLICATES = 4
 #: Most materials and queries per material one job may hold.
@@ -42,6 +44,7 @@ class FabricPreset:
     samples: int
     shard_queries: int
     map_resolution: int
+    beta_sweep: bool = False
 
 
 #: Named presets. ``paper``: Sec. 5.1 (81 + 192 + 192 materials, 160 x 20480 = 3.28 M
@@ -64,6 +67,19 @@ PRESETS: dict[str, FabricPreset] = {
         samples=2048,
         shard_queries=65_536,
         map_resolution=256,
+    ),
+    # A data set that can teach beta: per pattern, 16 materials that differ only in beta
+    # (both yarns, evenly spaced over BETA_SWEEP, ends included); geometry, alpha, w and
+    # the albedos are one draw per texture set, as Eq. 7 leaves w and the albedos out.
+    "beta": FabricPreset(
+        patterns=("plain", "twill_3x3", "satin_5x5"),
+        texture_sets={"*": 1},
+        shading_sets={"*": 16},
+        queries_per_material=1280,
+        samples=256,
+        shard_queries=640,
+        map_resolution=64,
+        beta_sweep=True,
     ),
 }
 
@@ -160,7 +176,7 @@ class FabricGenParams(StrictModel):
     ========================  ==================  ===========  ===========  ================
     name                      type                small        paper        meaning
     ========================  ==================  ===========  ===========  ================
-    ``preset``                small | paper       (default)                 defaults below
+    ``preset``                small|paper|beta    (default)                 defaults below
     ``patterns``              list of names       plain,       the seven    weave patterns
                                                   twill_3x3,   of Sec. 5.1
                                                   satin_5x5
@@ -209,7 +225,9 @@ class FabricGenParams(StrictModel):
     preset: PresetName = Field(
         default="small",
         description="Named defaults: 'small' (3 materials, one per weave family, 1280 "
-        "queries each) or 'paper' (Sec. 5.1: 465 materials, 3.28 M queries each).",
+        "queries each), 'paper' (Sec. 5.1: 465 materials, 3.28 M queries each) or 'beta' "
+        "(per weave family, shading_sets materials (16) that differ only in beta, evenly "
+        "spaced over 0.1-1; alpha, w, albedos and geometry held).",
     )
     patterns: list[str] | None = Field(
         default=None,
@@ -349,6 +367,7 @@ class FabricGenParams(StrictModel):
             btdf_fraction=self.btdf_fraction,
             sizes=self.sizes,
             scene=None if self.scene is None else self.scene.design(),
+            beta_sweep=PRESETS[self.preset].beta_sweep,
         )
 
 
@@ -368,6 +387,7 @@ class Resolved:
     btdf_fraction: float
     sizes: str = "strata"
     scene: SceneDesign | None = None
+    beta_sweep: bool = False
 
 
 def scene_record(scene: SceneDesign) -> dict[str, Any]:
@@ -383,6 +403,13 @@ def scene_record(scene: SceneDesign) -> dict[str, Any]:
         "environment_scale": scene.environment_scale,
         "hit_pixels": len(pixel_footprints(scene)),
     }
+
+
+def sweep_beta(k: int, n: int) -> float:
+    """The ``beta`` preset's ``k``-th of ``n`` values: evenly spaced over :data:`BETA_SWEEP`,
+    both ends included (the lower end alone when ``n == 1``)."""
+    lo, hi = BETA_SWEEP
+    return lo if n == 1 else lo + (hi - lo) * k / (n - 1)
 
 
 def plan_sets(cfg: Resolved) -> list[tuple[str, int, int]]:

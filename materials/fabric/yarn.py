@@ -193,6 +193,14 @@ class _Located(NamedTuple):
 
 #: Width of the taper that takes each term of the height to zero at the float's boundary,
 #: as a fraction of the half width (across) and of the half length (along).
+#:
+#: This makes a different yarn from Jin et al.'s: with ``TAPER = 0.5`` the height (and so
+#: the normal) follows Jin's profile only where both ``|xi|`` and ``|eta|`` are below 0.5,
+#: the inner 25 % of a float's area; outside it the smoothstep bends the surface down to
+#: the base plane, which Jin's yarn does not do. A review measured facets steeper than 70
+#: degrees on 34 % of the projected area here against 16 % for Jin's profile. The taper is
+#: what keeps the height continuous at float boundaries (the watertight ground truth); an
+#: option with Jin's exact profile is not offered yet.
 TAPER = 0.5
 
 

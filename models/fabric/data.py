@@ -46,7 +46,9 @@ class MaterialData:
 
     ``query`` is ``(N, 8)`` float32 ``cx, cy, size, wi.x, wi.y, wi.z, wo.x, wo.y`` (tile
     units, macro frame); ``value`` ``(N, 4)`` float32 components (Eq. 7, unit albedos);
-    ``train`` and ``test`` index rows; ``maps`` ``(6, R, R)``; ``params`` ``(5,)``
+    ``train`` and ``test`` index rows; ``stderr`` ``(N, 4)`` float32 the values' Monte
+    Carlo standard errors (``None`` where the shards lack them); ``maps`` ``(6, R, R)``;
+    ``params`` ``(5,)``
     (:data:`models.fabric.networks.PARAM_NAMES`); ``record`` the ``materials.json`` params.
     """
 
@@ -59,6 +61,7 @@ class MaterialData:
     value: np.ndarray
     train: np.ndarray
     test: np.ndarray
+    stderr: np.ndarray | None = None
 
     def albedos(self) -> np.ndarray:
         """``(4, 3)`` albedos of Eq. 8: rows kd_warp, kd_weft, ks_warp, ks_weft."""
@@ -141,6 +144,8 @@ def load_dataset(
         if not shards:
             raise JobFailed(f"dataset: material {rec['name']!r} has no shards")
         cat = {k: np.concatenate([s[k] for s in shards]) for k in _KEYS}
+        has_se = all("stderr" in s for s in shards)
+        se = np.concatenate([s["stderr"] for s in shards]) if has_se else None
         query = np.concatenate(
             [cat["center"], cat["size"][:, None], cat["wi"], cat["wo"][:, :2]], axis=1
         ).astype(np.float32)
@@ -162,6 +167,7 @@ def load_dataset(
                 value=value.astype(np.float32),
                 train=train,
                 test=test,
+                stderr=None if se is None else se[keep].astype(np.float32),
             )
         )
     return out

@@ -38,6 +38,22 @@ and so is the material's scale ``m`` there; with ``y = m = 0`` the term would be
 keep it. And no scale is zero: ``m_c`` is floored at :data:`SCALE_FLOOR` of the row's
 largest component scale, so ``|dL/dp| <= 2 |p - y| / (N m_floor^2)``, bounded and 0 at the
 target.
+
+``loss: "relative_l2_mean"`` adds two things to the relative L2 (:func:`relative_l2_loss`
+with ``stderr`` and ``group``). Monte Carlo weights: each term's denominator gains the
+query's stored squared standard error ``se_c^2`` (``generate.fabric``'s ``stderr``), so a
+noisy estimate weighs less, ``(p - y)^2 / (sg(p)^2 + m^2 + se^2 + EPS)``; the weight does not
+depend on ``p``, so a query's stationary point stays its target. A mean-preserving term:
+the relative L2 weights a query by ``1 / (p^2 + m^2)``, so where the network cannot fit
+everything, bright queries lose and the material's mean drifts. Per group ``g`` (a material
+of the batch and its light side, BRDF or BTDF) and component ``c``,
+
+    M_gc = (mean_{n in g} (p_nc - y_nc))^2 / m_gc^2,
+
+is 0 exactly when the batch's mean prediction of that group equals its mean target, and
+``MEAN_WEIGHT * mean_{g, c} M_gc`` joins the total (the C terms of light from below are
+left out, as above). Its gradient is ``2 r_gc / (n_g m_gc^2)`` per row, bounded by the
+floored scale.
 """
 
 from __future__ import annotations
@@ -53,7 +69,9 @@ from models.fabric.networks import K_BRDF, K_BTDF, log_k
 #: Eq. 11 weights (Sec. 4.2: "set as 0.4 and 0.1 in practice").
 LAMBDA_S, LAMBDA_C = 0.4, 0.1
 #: Training losses: Eq. 9-11 and the unbiased relative L2.
-LOSSES: tuple[str, ...] = ("paper", "relative_l2")
+LOSSES: tuple[str, ...] = ("paper", "relative_l2", "relative_l2_mean")
+#: Weight of the mean-preserving term of ``relative_l2_mean`` against the relative L2.
+MEAN_WEIGHT = 1.0
 #: Floor of the relative L2's denominator (squared component units).
 EPS = 1e-8
 #: Largest raw specular output the relative L2 exponentiates (``expm1(30) / 100`` = 1e11).
@@ -119,22 +137,59 @@ def floored_scale(scale: np.ndarray) -> np.ndarray:
     return np.maximum(s, SCALE_FLOOR * s.max(axis=1, keepdims=True))
 
 
-def relative_l2_loss(raw: Tensor, value: Tensor, wi_z: Tensor, scale: Tensor) -> LossParts:
+def relative_l2_loss(
+    raw: Tensor,
+    value: Tensor,
+    wi_z: Tensor,
+    scale: Tensor,
+    *,
+    stderr: Tensor | None = None,
+    group: Tensor | None = None,
+    mean_weight: float = MEAN_WEIGHT,
+) -> LossParts:
     """The relative L2 (module docstring) of raw outputs ``(N, 4)`` against linear targets
     ``value`` ``(N, 4)``; ``scale`` ``(N, 4)`` the material's mean target per component for
     each query's kind (floored as :func:`floored_scale`). The C terms of light from below
     are dropped (:func:`fittable_mask`); each ``L_c`` is the mean over the rows that keep
     it (0 where none does). ``per_component`` holds the four ``L_c``; ``total`` their
-    mean."""
+    mean.
+
+    ``stderr`` ``(N, 4)``: the targets' Monte Carlo standard errors, added in quadrature to
+    each denominator. ``group`` ``(N,)`` int64: the row's material slot in the batch; with
+    it the mean-preserving term (per slot and light side, module docstring) times
+    ``mean_weight`` joins ``total``."""
     pred = linear_prediction(raw, wi_z)
     keep = torch.ones_like(pred, dtype=torch.bool)
     keep[:, :2] = (wi_z >= 0)[:, None]
     m = scale.abs()
     m = torch.maximum(m, SCALE_FLOOR * m.amax(dim=1, keepdim=True))
     denom = pred.detach().square() + m.square() + EPS
-    term = torch.where(keep, (pred - value).square() / denom, torch.zeros_like(pred))
+    if stderr is not None:
+        denom = denom + stderr.square()
+    resid = pred - value
+    term = torch.where(keep, resid.square() / denom, torch.zeros_like(pred))
     per = term.sum(dim=0) / keep.sum(dim=0).clamp_min(1).to(pred.dtype)
-    return LossParts(total=per.mean(), per_component=per.detach())
+    total = per.mean()
+    if group is not None:
+        total = total + mean_weight * mean_term(resid, keep, m, group, wi_z)
+    return LossParts(total=total, per_component=per.detach())
+
+
+def mean_term(resid: Tensor, keep: Tensor, m: Tensor, group: Tensor, wi_z: Tensor) -> Tensor:
+    """``mean_{g, c} (mean_{n in g} resid_nc)^2 / m_gc^2`` over the (group, light side,
+    component) cells that hold a kept row; ``resid``, ``keep``, ``m`` ``(N, 4)`` (``m``
+    floored, constant within a cell), ``group`` ``(N,)``."""
+    cell = group.long() * 2 + (wi_z < 0).long()
+    n_cells = int(cell.max()) + 1 if len(cell) else 1
+    k = keep.to(resid.dtype)
+    zeros = torch.zeros((n_cells, 4), dtype=resid.dtype, device=resid.device)
+    rsum = zeros.index_add(0, cell, resid * k)
+    cnt = zeros.index_add(0, cell, k)
+    msum = zeros.index_add(0, cell, m.detach() * k)
+    used = cnt > 0
+    c = cnt.clamp_min(1)
+    cell_term = (rsum / c).square() / (msum / c).square().clamp_min(EPS)
+    return torch.where(used, cell_term, zeros).sum() / used.sum().clamp_min(1)
 
 
 def relative_l2_numpy(

@@ -5,7 +5,8 @@ never trained on), against the dataset's Monte Carlo estimates:
 
 - per component of Eq. 7 (``C_warp, C_weft, S_warp, S_weft``, decoded as in
   :func:`models.fabric.networks.components`): ``mse`` and ``rel`` = ``sum |pred - gt| /
-  sum |gt|`` (relative L1 over the queries);
+  sum |gt|`` (relative L1 over the queries), ``ratio`` = ``sum pred / sum gt`` (whether
+  the mean holds; the goal is within +-3 %);
 - ``rgb``: the same two figures of the Eq. 8 value ``f = sum_c albedo_c component_c`` with
   the material's albedos, over queries and the three channels;
 - ``loss``: Eq. 11 in the training space (log-mapped specular targets), whatever loss
@@ -75,14 +76,23 @@ def _errors(pred: np.ndarray, gt: np.ndarray, albedos: np.ndarray) -> dict[str, 
         out[name] = {
             "mse": float(np.mean(d * d)),
             "rel": float(np.sum(np.abs(d)) / max(float(np.sum(np.abs(gt[:, k]))), 1e-30)),
+            "ratio": _ratio(pred[:, k], gt[:, k]),
         }
     rgb_p, rgb_g = pred @ albedos, gt @ albedos
     d = rgb_p - rgb_g
     out["rgb"] = {
         "mse": float(np.mean(d * d)),
         "rel": float(np.sum(np.abs(d)) / max(float(np.sum(np.abs(rgb_g))), 1e-30)),
+        "ratio": _ratio(rgb_p, rgb_g),
     }
     return out
+
+
+def _ratio(pred: np.ndarray, gt: np.ndarray) -> float:
+    """Mean prediction over mean target (1 where the target sums to 0): whether the mean
+    holds, the goal being within +-3 %."""
+    t = float(np.sum(gt))
+    return float(np.sum(pred)) / t if abs(t) > 1e-30 else 1.0
 
 
 #: Footprint-size cases (tile units, half-open ``[lo, hi)``): the tiny footprints of
@@ -195,6 +205,7 @@ def evaluate(
             "mse": "mean squared error of the decoded component (Eq. 7), or of the Eq. 8 RGB "
             "value with the material's albedos",
             "rel": "sum |pred - gt| / sum |gt| over the held-out queries (and RGB channels)",
+            "ratio": "sum pred / sum gt over the held-out queries (and RGB channels)",
             "loss": "Eq. 11 in the training space (specular log-mapped, Eq. 9)",
             "relative_l2": "mean over components and queries of (p - y)^2 / (p^2 + m^2 + "
             "1e-8), p the decoded component, m the material's mean training target per "
@@ -207,7 +218,9 @@ def evaluate(
 
 
 def curves_png(curves: Curves, title: str) -> bytes:
-    """Loss and per-component MSE against step (log scale), as deterministic PNG bytes."""
+    """Loss and per-component MSE against step (log scale), as deterministic PNG bytes;
+    with the relative L2 losses also each component's training mean ratio (right axis, the
+    +-3 % goal shaded)."""
 
     def draw(fig: Any, ax: Any) -> None:
         paper = curves.loss_name == "paper"
@@ -217,5 +230,12 @@ def curves_png(curves: Curves, title: str) -> bytes:
             label = f"MSE {name}" if paper else f"rel. L2 {name}"
             ax.plot(curves.step, values, "--", label=label, linewidth=0.8)
         loss_axes(ax, "loss (mean per query)", title)
+        if curves.mean_ratio is not None:
+            right = ax.twinx()
+            right.axhspan(0.97, 1.03, color="0.9", zorder=0)
+            for name, values in curves.mean_ratio.items():
+                right.plot(curves.step, values, ":", label=f"mean ratio {name}", linewidth=1.0)
+            right.set_ylabel("sum pred / sum target (goal 1 +- 3 %)")
+            right.legend(loc="lower left", fontsize="x-small")
 
     return figure_png(draw)

@@ -37,7 +37,7 @@ import torch
 from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
 from models.fabric.losses import component_scales, fabric_loss, log_targets, relative_l2_loss
-from models.fabric.networks import COMPONENTS, FabricNetwork
+from models.fabric.networks import COMPONENTS, FabricNetwork, components
 
 #: Divergence: a loss above max(factor * the first step's loss, floor) fails the job.
 DIVERGENCE_FACTOR = 1000.0
@@ -72,6 +72,10 @@ LOSS_DEFINITIONS = {
     "relative_l2": "relative L2: mean over the 4 components of mean (p - y)^2 / (sg(p)^2 + "
     "m^2 + 1e-8), p linear (S = expm1(raw) / k), m the material's mean target per component "
     "and query kind; the curves' per-component values are these terms, not MSEs",
+    "relative_l2_mean": "relative L2 with each denominator + se^2 (the target's Monte Carlo "
+    "standard error), plus 1.0 x mean over (material, light side, component) of "
+    "(batch mean residual)^2 / m^2; the curves' per-component values are the relative L2 "
+    "terms",
 }
 
 
@@ -85,16 +89,23 @@ class Curves:
     lr: list[float] = field(default_factory=list)
     seconds: float = 0.0
     loss_name: str = "paper"
+    #: Per component, ``sum pred / sum target`` over each interval's training batches (the
+    #: decoded, rendered components: clamped, C = 0 below the horizon); the mean holds
+    #: within +-3 % when it stays in [0.97, 1.03]. Only for the relative L2 losses.
+    mean_ratio: dict[str, list[float]] | None = None
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready lists; no timing, so the same spec gives the same bytes."""
-        return {
+        out: dict[str, object] = {
             "step": self.step,
             "loss": self.loss,
             "mse": self.components,
             "lr": self.lr,
             "loss_definition": LOSS_DEFINITIONS[self.loss_name],
         }
+        if self.mean_ratio is not None:
+            out["mean_ratio"] = self.mean_ratio
+        return out
 
 
 def milestone_steps(steps: int) -> list[int]:
@@ -116,7 +127,8 @@ class TrainingSet:
         # per component for the row's kind, BRDF or BTDF); the paper's loss neither.
         self.value: torch.Tensor | None = None
         self.scale: torch.Tensor | None = None
-        if loss == "relative_l2":
+        self.stderr: torch.Tensor | None = None
+        if loss.startswith("relative_l2"):
             scale = np.concatenate(
                 [
                     component_scales(m.value[m.train], m.query[m.train, 5])[
@@ -127,6 +139,11 @@ class TrainingSet:
             )
             self.value = torch.from_numpy(value).to(device)
             self.scale = torch.from_numpy(scale).to(device)
+        if loss == "relative_l2_mean":
+            se = [m.stderr[m.train] if m.stderr is not None else None for m in materials]
+            if any(x is None for x in se):
+                raise JobFailed("dataset: relative_l2_mean needs the shards' stderr arrays")
+            self.stderr = torch.from_numpy(np.concatenate(se)).to(device)  # type: ignore[arg-type]
         counts = [len(m.train) for m in materials]
         if min(counts) < 1:
             raise JobFailed("dataset: a material has no training queries (lower holdout)")
@@ -181,6 +198,9 @@ def fit(
     report_every = max(1, steps // 100)
     curves = Curves(loss_name=config.loss)
     loss_sum, comp_sum, n_sum = 0.0, torch.zeros(4, dtype=torch.float64), 0
+    pred_sum, value_sum = torch.zeros(4, dtype=torch.float64), torch.zeros(4, dtype=torch.float64)
+    if data.value is not None:
+        curves.mean_ratio = {c: [] for c in COMPONENTS}
     limit = math.inf
     dev = data.device
     started = time.perf_counter()
@@ -191,10 +211,20 @@ def fit(
         mats, index, rows = mats.to(dev), index.to(dev), rows.to(dev)
         query = data.query[rows]
         raw = net(data.maps[mats], data.params[mats], index, query)
-        if config.loss == "relative_l2":
+        if config.loss.startswith("relative_l2"):
             if data.value is None or data.scale is None:
-                raise ValueError("relative_l2 needs TrainingSet(..., loss='relative_l2')")
-            parts = relative_l2_loss(raw, data.value[rows], query[:, 5], data.scale[rows])
+                raise ValueError(f"{config.loss} needs TrainingSet(..., loss={config.loss!r})")
+            mean = config.loss == "relative_l2_mean"
+            if mean and data.stderr is None:
+                raise ValueError("relative_l2_mean needs TrainingSet(..., loss='relative_l2_mean')")
+            parts = relative_l2_loss(
+                raw,
+                data.value[rows],
+                query[:, 5],
+                data.scale[rows],
+                stderr=data.stderr[rows] if mean and data.stderr is not None else None,
+                group=index if mean else None,
+            )
         else:
             parts = fabric_loss(raw, data.target[rows])
         opt.zero_grad(set_to_none=True)
@@ -212,12 +242,22 @@ def fit(
         loss_sum += loss
         comp_sum += parts.per_component.double().cpu()
         n_sum += 1
+        if data.value is not None:
+            with torch.no_grad():
+                pred_sum += components(raw.detach(), query[:, 5]).double().sum(dim=0).cpu()
+                value_sum += data.value[rows].double().sum(dim=0).cpu()
         if step % every == 0 or step == steps:
             curves.step.append(step)
             curves.loss.append(loss_sum / n_sum)
             for c, v in zip(COMPONENTS, (comp_sum / n_sum).tolist(), strict=True):
                 curves.components[c].append(v)
             curves.lr.append(lr)
+            if curves.mean_ratio is not None:
+                ratio = torch.where(value_sum.abs() > 1e-30, pred_sum / value_sum, 1.0)
+                for c, v in zip(COMPONENTS, ratio.tolist(), strict=True):
+                    curves.mean_ratio[c].append(v)
+                pred_sum.zero_()
+                value_sum.zero_()
             loss_sum, comp_sum, n_sum = 0.0, torch.zeros(4, dtype=torch.float64), 0
             if on_curves is not None:
                 on_curves(curves)
