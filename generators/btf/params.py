@@ -78,7 +78,8 @@ class DirectionPreset(StrictModel):
     """``{"preset": "small" | "ubo2014"}``: every light x view pair of a direction set."""
 
     preset: Literal["small", "ubo2014"] = Field(
-        description="'small': 6 directions, 36 pairs; 'ubo2014': 151 directions, 22801 pairs."
+        description="'small': 6 directions, 36 pairs; 'ubo2014': UBO2014's dome, 151 "
+        "directions on 10 rings up to 75 degrees, 22801 pairs."
     )
 
 

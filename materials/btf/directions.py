@@ -27,10 +27,25 @@ SMALL_DIRECTIONS: tuple[tuple[float, float], ...] = (
     (60.0, 60.0),
     (60.0, 240.0),
 )
-#: The UBO2014 count: 151 directions, here on 8 rings of polar angle ``k * 11.25`` degrees
-#: with 1, 6, 12, 18, 24, 30, 36 and 24 azimuths (evenly spaced, alternate rings offset by
-#: half a step). The dataset's own angles come with an imported archive.
-UBO_RINGS: tuple[tuple[float, int], ...] = tuple((k * 11.25, n) for k, n in enumerate(
+#: UBO2014's own dome (btflib's ``create_ubo_dome1_sampling``, Weinmann et al. 2014):
+#: ``(theta_deg, azimuth count, azimuth offset_deg)`` per ring, 10 rings from 0 to 75
+#: degrees, 151 directions; azimuths evenly spaced from the ring's offset.
+UBO_RINGS: tuple[tuple[float, int, float], ...] = (
+    (0.0, 1, 0.0),
+    (11.0, 6, 15.0),
+    (23.5, 12, 0.0),
+    (30.0, 12, 15.0),
+    (37.5, 12, 0.0),
+    (45.0, 18, 0.0),
+    (52.5, 18, 7.5),
+    (60.0, 24, 0.0),
+    (67.5, 24, 7.5),
+    (75.0, 24, 0.0),
+)
+#: The set this project used as ``ubo2014`` before it had UBO2014's dome: 151 directions
+#: on 8 rings every 11.25 degrees up to 78.75, alternate rings offset by half a step. Kept
+#: as the preset ``rings8_legacy`` because figures in BENCHMARKS.md were measured on it.
+LEGACY_RINGS: tuple[tuple[float, int], ...] = tuple((k * 11.25, n) for k, n in enumerate(
     (1, 6, 12, 18, 24, 30, 36, 24)
 ))  # fmt: skip
 
@@ -51,9 +66,18 @@ def to_angles(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ubo2014_directions() -> np.ndarray:
-    """The 151 directions of :data:`UBO_RINGS`, ``(151, 3)``."""
+    """UBO2014's 151 dome directions of :data:`UBO_RINGS`, ``(151, 3)``, ring by ring."""
     dirs = []
-    for k, (theta, count) in enumerate(UBO_RINGS):
+    for theta, count, offset in UBO_RINGS:
+        for j in range(count):
+            dirs.append(to_vector(theta, offset + j * 360.0 / count))
+    return np.asarray(dirs)
+
+
+def legacy_ring_directions() -> np.ndarray:
+    """The 151 directions of :data:`LEGACY_RINGS`, ``(151, 3)``."""
+    dirs = []
+    for k, (theta, count) in enumerate(LEGACY_RINGS):
         offset = 0.5 * (360.0 / count) if k % 2 else 0.0
         for j in range(count):
             dirs.append(to_vector(theta, offset + j * 360.0 / count))
@@ -66,8 +90,10 @@ def preset_pairs(name: str) -> tuple[np.ndarray, np.ndarray]:
         dirs = to_vector(*np.asarray(SMALL_DIRECTIONS).T)
     elif name == "ubo2014":
         dirs = ubo2014_directions()
+    elif name == "rings8_legacy":
+        dirs = legacy_ring_directions()
     else:
-        raise ValueError(f"unknown direction preset {name!r}; known: small, ubo2014")
+        raise ValueError(f"unknown direction preset {name!r}; known: small, ubo2014, rings8_legacy")
     wi = np.repeat(dirs, len(dirs), axis=0)
     wo = np.tile(dirs, (len(dirs), 1))
     return wi, wo

@@ -8,6 +8,7 @@ import pytest
 
 from materials.btf.directions import (
     check_pairs,
+    legacy_ring_directions,
     preset_pairs,
     to_angles,
     to_vector,
@@ -24,6 +25,28 @@ def test01_ubo2014_has_151_distinct_directions_on_the_hemisphere() -> None:
     wi, wo = preset_pairs("ubo2014")
     assert wi.shape == wo.shape == (151 * 151, 3)
     check_pairs(wi, wo)  # no pair twice
+
+
+def test01b_ubo2014_is_ubo2014s_dome() -> None:
+    """Reference: btflib's ``create_ubo_dome1_sampling`` as listed in the project notes
+    (inclinations, azimuth counts, ring offsets), typed here, not read from the module."""
+    theta, phi = to_angles(ubo2014_directions())
+    rings = [0, 11, 23.5, 30, 37.5, 45, 52.5, 60, 67.5, 75]
+    counts = [1, 6, 12, 12, 12, 18, 18, 24, 24, 24]
+    offsets = [0, 15, 0, 15, 0, 0, 7.5, 0, 7.5, 0]
+    assert sum(counts) == 151 and theta.max() < 75.0 + 1e-9  # nothing beyond UBO's 75
+    start = 0
+    for t, n, off in zip(rings, counts, offsets, strict=True):
+        ring_t, ring_p = theta[start : start + n], phi[start : start + n]
+        np.testing.assert_allclose(ring_t, t, atol=1e-9)  # float angle round trip
+        if n > 1:  # the pole's azimuth is undefined
+            expected = (off + np.arange(n) * 360.0 / n) % 360.0
+            np.testing.assert_allclose(np.sort(ring_p), np.sort(expected), atol=1e-7)
+        start += n
+    # the old 8-ring set is kept under its own name, unchanged
+    wi, _ = preset_pairs("rings8_legacy")
+    np.testing.assert_allclose(wi[::151], legacy_ring_directions(), atol=0)
+    assert to_angles(legacy_ring_directions())[0].max() > 78.0
 
 
 def test02_small_preset_is_every_pair_of_six() -> None:
