@@ -36,7 +36,7 @@ from evaluators.render.sources.common import load_bsdf
 from generators.btf.params import BtfGenParams, FlatSurface
 from generators.btf.preview import PreviewCollector
 from generators.rows import summary_rows
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.backend import active_variant, load_mitsuba
 from materials.btf.directions import pair_count_label, to_angles
@@ -231,6 +231,14 @@ register(
         "UBO2014's convention: a flat plane of any Mitsuba BSDF or a procedural displaced "
         "surface (leather, fabric, wood, stone), one slice per light x view pair.",
         artifacts=("slices-0000.npz", "btf.json", "height.exr", "preview.png"),
+        figures=(
+            Figure(
+                "preview.png",
+                caption="A grid of slices and the centre texel's apparent BRDF (as Fig. 9 of "
+                "Xu et al.).",
+                lead=True,
+            ),
+        ),
         smoke={
             "surface": {"procedural": "stone", "size": 8},
             "directions": [[0, 0, 0, 0], [45, 0, 30, 180]],

@@ -36,7 +36,7 @@ from generators.glint.params import GlintGenParams, MapExample, ProceduralExampl
 from generators.glint.preview import preview_png
 from generators.rows import glint_rows
 from jobapi.errors import FormatError, JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.glints.examples import procedural_example
 from materials.glints.lobes import LOBE_BYTES, make_lobes
@@ -187,6 +187,13 @@ register(
         description="Tiny-example glint data (Xing et al. 2024, Sec. 5): a procedural or "
         "uploaded normal-map example, its 4D Gaussian lobes and multi-scale NDF maps (Eq. 2).",
         artifacts=("example.exr", "ndf.npz", "lobes.npz", "preview.png", "stats.json"),
+        figures=(
+            Figure(
+                "preview.png",
+                caption="The example, the preview surface and one NDF image per level.",
+                lead=True,
+            ),
+        ),
         smoke={"example": {"procedural": "isotropic_noise", "size": 8}, "ndf_resolution": 16},
         summary=summarize,
         rows=glint_rows(summarize),

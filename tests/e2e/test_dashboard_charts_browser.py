@@ -11,6 +11,7 @@ The kinds are found from the registry (every kind whose artifacts name ``curves.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,16 @@ VISIBLE = """canvas => {
     return {label: d.label, hidden: meta.hidden, visible: Math.max(dots, line)};
   });
 }"""
+
+
+#: Every tick label of every chart on the page (numeric axes only).
+TICK_LABELS = """() => [...document.querySelectorAll("canvas")].flatMap(c => {
+  const ch = Chart.getChart(c);
+  if (!ch) return [];
+  return Object.values(ch.scales).filter(s => s.type !== "category")
+    .flatMap(s => s.ticks.map(t => String(t.label === undefined ? "" : t.label)))
+    .filter(t => t !== "");
+})"""
 
 
 class Runs:
@@ -154,7 +165,14 @@ def test_job_page_draws_the_chart(
         for i in range(charts.count()):
             found = charts.nth(i).evaluate(VISIBLE)
             assert_every_series_seen(found, f"{kind} job page, chart {i}")
+        # §5: no per-column bars under the Pareto panels (ns and bytes on one axis before)
+        assert pg.locator("#metrics-charts canvas").count() == 0
     assert "cannot draw" not in plots.inner_text()
+    # §5: tick labels in SI prefixes (1 µ, 1.53 MB), never 1.00000000000000E-6 or 1.528e+06
+    labels = pg.evaluate(TICK_LABELS)
+    assert labels, f"{kind}: no tick labels"
+    raw = [t for t in labels if re.search(r"\d[eE][+-]?\d", t) or len(t) > 12]
+    assert not raw, f"{kind}: tick labels not in SI form: {raw}"
     plots.scroll_into_view_if_needed()
     pg.screenshot(path=str(SHOTS / f"matforge-charts-{kind}.png"), full_page=True)
     assert pg.problems == [], pg.problems

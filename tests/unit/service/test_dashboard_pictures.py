@@ -3,6 +3,8 @@ generate.fabric's preview first (the lead picture), generate.merl's slices with 
 
 from __future__ import annotations
 
+import pytest
+
 from service import kinds
 from service.routes.dashboard import breakable, picture_views
 from storage.jobs import ArtifactRecord
@@ -21,6 +23,19 @@ def test01_fabric_preview_leads() -> None:
     assert "Fig. 2" in images[0]["note"]
     plain = picture_views(arts, "no.such.kind")  # an unregistered kind: names in order, no lead
     assert [i["group"] for i in plain] == ["image", "image", "flip"]
+
+
+@pytest.mark.parametrize("kind", ["generate.fabric", "generate.glint", "generate.btf"])
+def test01b_generators_preview_leads(kind: str) -> None:
+    """README: every kind's lead picture comes first, at full size (the ``lead`` group is
+    the one job.html draws full width); alphabetical order would put ``a_map.png`` first."""
+    kinds.load_builtin()
+    images = picture_views([png("a_map.png"), png("preview.png")], kind)
+    assert [(i["name"], i["group"]) for i in images] == [
+        ("preview.png", "lead"),
+        ("a_map.png", "image"),
+    ]
+    assert images[0]["note"]
 
 
 def test02_merl_slices_have_labelled_axes() -> None:

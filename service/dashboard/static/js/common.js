@@ -154,6 +154,39 @@ const MF = (() => {
     return points.length ? [{ metric: "smape", cost: x, cost_label: x, points }] : [];
   }
 
+  /** The unit of a metric or cost column, from its name: "dB" (PSNR), "B" (bytes), "s"
+      (seconds; a name in ns is converted by siValue), else "" (a ratio or a count). */
+  function unitOf(name) {
+    const n = String(name || "").toLowerCase();
+    if (/psnr/.test(n)) return "dB";
+    if (/bytes?(\b|_|$)/.test(n)) return "B";
+    if (/(^|_|\.)ns(_|$)|_ns\b|nanosec/.test(n)) return "ns";
+    if (/seconds?(\b|_|$)|(^|_)s$|_sec(_|$)/.test(n)) return "s";
+    return "";
+  }
+
+  const PREFIXES = [[1e9, "G"], [1e6, "M"], [1e3, "k"], [1, ""], [1e-3, "m"], [1e-6, "µ"],
+    [1e-9, "n"], [1e-12, "p"]];
+
+  /** A number with an SI prefix and its unit, three significant digits: 1.53 MB, 12.4 µs,
+      31.2 dB (dB and unitless ratios near 1 keep their plain form; "ns" is shown in s). */
+  function si(value, unit = "") {
+    if (typeof value !== "number" || !isFinite(value)) return String(value);
+    let v = value;
+    let u = unit;
+    if (u === "ns") { v = value * 1e-9; u = "s"; }
+    if (u === "dB") return `${+v.toPrecision(3)} dB`;
+    if (v === 0) return u ? `0 ${u}` : "0";
+    const a = Math.abs(v);
+    if (!u && a >= 1e-3 && a < 1e4) return `${+v.toPrecision(3)}`;
+    const binary = u === "B";
+    const [scale, prefix] = PREFIXES.find(([f]) => a >= f * (binary ? 1 : 0.9999)) ||
+      PREFIXES[PREFIXES.length - 1];
+    if (binary && scale < 1) return `${+v.toPrecision(3)} B`;
+    return `${+(v / scale).toPrecision(3)} ${prefix}${u}`.trim();
+  }
+
   stripToken();
-  return { api, el, seconds, when, badge, progress, localTimes, curveSeries, paretoPanels };
+  return { api, el, seconds, when, badge, progress, localTimes, curveSeries, paretoPanels,
+           unitOf, si };
 })();

@@ -69,7 +69,7 @@
     }
   });
 
-  /** One bar chart per metric that varies: nothing for constant columns (n, queries), a
+  /** One bar chart per metric that varies (none on a page with Pareto panels): nothing for constant columns (n, queries), a
       metric's baseline ("baseline.<metric>") drawn beside it, the best row highlighted,
       the better direction in the title, and a y axis that fits the values (PSNR does not
       start at 0; values over decades get a log axis). */
@@ -77,6 +77,11 @@
     const node = document.getElementById("metrics-data");
     const box = document.getElementById("metrics-charts");
     if (!node || !box || typeof window.Chart === "undefined") return;
+    // A report's Pareto panels (plots.js) already chart every point against its own cost
+    // axis: per-column bars of its table would put ns and bytes on one axis, one chart per
+    // column however few the rows.
+    const plots = document.getElementById("plots");
+    if (plots && plots.dataset.pareto) return;
     const metrics = JSON.parse(node.textContent);
     const better = metrics.better || {};
     const best = metrics.best || {};
@@ -113,6 +118,8 @@
       const log = positive && Math.max(...all) / Math.min(...all) >= 100;
       const sense = better[name];
       const arrow = sense === "lower" ? " (lower is better ↓)" : sense === "higher" ? " (higher is better ↑)" : "";
+      const unit = MF.unitOf(name);
+      const shown = unit ? `${name} [${unit === "ns" ? "s" : unit}]` : name;
       const canvas = MF.el("canvas", { "aria-label": `${name} per ${metrics.label_header || "row"}`, role: "img",
                                        "data-metric": name });
       box.append(MF.el("div", { class: "card" }, MF.el("div", { class: "chart-box" }, canvas)));
@@ -125,11 +132,13 @@
           animation: false,
           plugins: {
             legend: { display: Boolean(baseline) },
-            title: { display: true, text: name + arrow },
+            title: { display: true, text: shown + arrow },
+            tooltip: { callbacks: { label: (item) => `${item.dataset.label}: ${MF.si(item.raw, unit)}` } },
             subtitle: { display: best[name] !== undefined, text: `best: ${best[name]}` },
           },
           scales: {
-            y: log ? { type: "logarithmic" } : { beginAtZero: sense !== "higher" || !positive, grace: "5%" },
+            y: { ...(log ? { type: "logarithmic" } : { beginAtZero: sense !== "higher" || !positive, grace: "5%" }),
+                 ticks: { callback: (v) => MF.si(v, unit) } },
           },
         },
       });

@@ -89,8 +89,10 @@
           x: { type: "linear", title: { display: true, text: "step" },
                ...(steps.length === 1 ? { min: 0, max: 2 * last } : {}) },
           y: { type: spansDecades(values, 30) ? "logarithmic" : "linear",
+               ticks: { callback: (v) => MF.si(v) },
                title: { display: true, text: "loss / error (lower is better ↓)" } },
           ...(lr ? { lr: { type: "logarithmic", position: "right", grid: { drawOnChartArea: false },
+                           ticks: { callback: (v) => MF.si(v) },
                            title: { display: true, text: "learning rate" } } } : {}),
         },
       },
@@ -163,6 +165,9 @@
     const id = k === 0 ? "pareto-chart" : `pareto-chart-${k}`;
     const canvas = card(title, id);
     canvas.dataset.panel = `${panel.metric} ${panel.cost}`;
+    const xUnit = MF.unitOf(panel.cost);
+    const yUnit = MF.unitOf(panel.metric);
+    const withUnit = (label, unit) => (unit ? `${label} [${unit === "ns" ? "s" : unit}]` : label);
     const chart = new window.Chart(canvas, {
       type: "scatter",
       data: { datasets },
@@ -177,18 +182,20 @@
               title: (items) => items.map((i) => i.raw.point.candidate),
               label: (item) => {
                 const p = item.raw.point;
-                const spreadText = number(p.std) ? ` ± ${p.std.toPrecision(3)}` : "";
+                const spreadText = number(p.std) ? ` ± ${MF.si(p.std, yUnit)}` : "";
                 const seeds = number(p.n) ? `, ${p.n} seed(s)` : "";
-                return `${panel.metric} ${p.mean.toPrecision(4)}${spreadText}, ${panel.cost} ${p.cost.toPrecision(4)}${seeds}`;
+                return `${panel.metric} ${MF.si(p.mean, yUnit)}${spreadText}, ${panel.cost} ${MF.si(p.cost, xUnit)}${seeds}`;
               },
             },
           },
         },
         scales: {
           x: { type: spansDecades(xs, 30) ? "logarithmic" : "linear",
-               title: { display: true, text: `${panel.cost_label || panel.cost} (lower is better ←)` } },
+               ticks: { callback: (v) => MF.si(v, xUnit) },
+               title: { display: true, text: `${withUnit(panel.cost_label || panel.cost, xUnit)} (lower is better ←)` } },
           y: { type: spansDecades(ys, 30) ? "logarithmic" : "linear",
-               title: { display: true, text: `${panel.metric} (lower is better ↓)` },
+               ticks: { callback: (v) => MF.si(v, yUnit) },
+               title: { display: true, text: `${withUnit(panel.metric, yUnit)} (lower is better ↓)` },
                suggestedMin: Math.min(...points.map(point).map((p) => (number(p.yMin) ? p.yMin : p.y))),
                suggestedMax: Math.max(...points.map(point).map((p) => (number(p.yMax) ? p.yMax : p.y))) },
         },
