@@ -9,8 +9,21 @@ export DRJIT_LIBLLVM_PATH ?= $(LIBLLVM)
 HOST ?= 127.0.0.1
 PORT ?= 8000
 DATA ?= ./matforge-data
+# torch build: cpu (default: the +cpu wheel, from the configured index or else PyTorch's CPU
+# index) or cuda (PyPI's default CUDA build, several GB): `make setup TORCH=cuda`.
+TORCH ?= cpu
+TORCH_VERSION := 2.13.0
+TORCH_CPU_INDEX := https://download.pytorch.org/whl/cpu
+ifeq ($(TORCH),cuda)
+TORCH_INSTALL := $(PIP) install -q "torch==$(TORCH_VERSION)"
+else ifeq ($(TORCH),cpu)
+TORCH_INSTALL := $(PIP) install -q "torch==$(TORCH_VERSION)+cpu" || \
+	$(PIP) install -q "torch==$(TORCH_VERSION)+cpu" --index-url $(TORCH_CPU_INDEX)
+else
+$(error TORCH must be cpu or cuda, not $(TORCH))
+endif
 
-.PHONY: setup system-deps demo test lint typecheck bench clean serve check-wheel
+.PHONY: setup system-deps demo test test-fast docs lint typecheck bench clean serve check-wheel
 
 setup: $(STAMP)
 
@@ -29,12 +42,15 @@ system-deps:
 		echo "WARNING: no apt-get: Mitsuba will fall back to scalar_rgb (slow)" >&2; \
 	fi
 
-$(STAMP): pyproject.toml | system-deps
+$(STAMP): pyproject.toml constraints.txt | system-deps
 	@test -x $(PY) || python3.11 -m venv $(VENV) || python3 -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
-	# The CPU wheel of torch first: a bare range would pull a CUDA build of several GB.
-	$(PIP) install -q "torch==2.13.0"
-	$(PIP) install -q -e ".[dev]"
+	# torch first, the build TORCH names: a bare range would pull a CUDA build of several GB.
+	# constraints.txt pins what decides the bytes of a job's artifacts (the manifest
+	# records the versions installed).
+	$(TORCH_INSTALL)
+	# dev includes the ray extra, so that the Ray tests run in `make test`
+	$(PIP) install -q -e ".[dev]" -c constraints.txt
 	@touch $(STAMP)
 
 system-deps-check: system-deps
@@ -45,6 +61,14 @@ test: setup
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 	$(VENV)/bin/python -m pytest -q
+
+# The inner loop: unit tests not marked slow, in well under 2 minutes.
+test-fast: setup
+	$(VENV)/bin/python -m pytest -q -m 'not slow and not gpu and not bitwise and not install' tests/unit
+
+# The docs site (mkdocs, --strict: a broken link or a missing page fails), built into site/.
+docs: setup
+	$(VENV)/bin/mkdocs build --strict
 
 # The built wheel installed with its dependencies into a new venv (not .venv): import
 # matforge, Client, datasets and the matforge command from the installed files (~2 min).

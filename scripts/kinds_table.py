@@ -1,9 +1,9 @@
-"""Print the README's table of job kinds, generated from the registry.
+"""Print the kinds reference of the docs site, generated from the registry.
 
-Run: ``.venv/bin/python scripts/kinds_table.py --write`` to rewrite the part of README.md
-between the markers ``<!-- kinds:start -->`` and ``<!-- kinds:end -->`` (without
-``--write`` it prints the table); ``tests/unit/service/test_readme.py`` fails when the
-README's table is stale.
+Run: ``.venv/bin/python scripts/kinds_table.py --write`` to rewrite the part of
+``docs/reference/kinds.md`` between the markers ``<!-- kinds:start -->`` and
+``<!-- kinds:end -->`` (without ``--write`` it prints the table);
+``tests/unit/service/test_readme.py`` fails when the page is stale.
 """
 
 from __future__ import annotations
@@ -37,11 +37,11 @@ def kinds_markdown() -> str:
 
 
 START, END = "<!-- kinds:start -->", "<!-- kinds:end -->"
-README = Path(__file__).resolve().parent.parent / "README.md"
+PAGE = Path(__file__).resolve().parent.parent / "docs" / "reference" / "kinds.md"
 
 
-def readme_with_table(text: str) -> str:
-    """``text`` (the README) with the part between the markers replaced by the table."""
+def page_with_table(text: str) -> str:
+    """``text`` (the kinds page) with the part between the markers replaced by the table."""
     head, _, rest = text.partition(START)
     _, _, tail = rest.partition(END)
     return f"{head}{START}\n{kinds_markdown()}{END}{tail}"
@@ -49,6 +49,6 @@ def readme_with_table(text: str) -> str:
 
 if __name__ == "__main__":
     if "--write" in sys.argv[1:]:
-        README.write_text(readme_with_table(README.read_text(encoding="utf-8")), encoding="utf-8")
+        PAGE.write_text(page_with_table(PAGE.read_text(encoding="utf-8")), encoding="utf-8")
     else:
         sys.stdout.write(kinds_markdown())

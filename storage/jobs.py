@@ -17,7 +17,7 @@ import sqlite3
 import threading
 import time
 import uuid
-from collections.abc import Collection, Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -98,8 +98,16 @@ class JobStore(JobListing):
     and between processes (SQLite file locking; WAL lets readers run beside a writer). Its
     list queries are in :class:`storage.job_queries.JobListing`."""
 
-    def __init__(self, path: str | Path, busy_timeout_s: float = 30.0) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        busy_timeout_s: float = 30.0,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        """``clock`` gives the wall time in seconds since the epoch for leases, heartbeats
+        and timestamps (tests pass a fake one instead of sleeping)."""
         self.path = Path(path)
+        self._clock = clock
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._busy_ms = int(busy_timeout_s * 1000)
         self._local = threading.local()
@@ -272,7 +280,7 @@ class JobStore(JobListing):
         or running, is returned instead of queueing a duplicate; jobs in ``exclude`` (e.g.
         succeeded jobs whose artifacts were lost from the store) are never returned.
         """
-        now = time.time()
+        now = self._clock()
         with self._write() as db:
             if not force:
                 row = db.execute(
@@ -313,13 +321,13 @@ class JobStore(JobListing):
             db.execute(
                 "INSERT OR IGNORE INTO uploads (digest, name, media_type, size, "
                 "created_at) VALUES (?,?,?,?,?)",
-                (digest, name, media_type, size, time.time()),
+                (digest, name, media_type, size, self._clock()),
             )
 
     # -- leasing -------------------------------------------------------------------------
     def claim(self, worker: str, lease_seconds: float, job_id: str | None = None) -> Job | None:
         """Atomically take the oldest queued job (or ``job_id``) under a fresh lease."""
-        now = time.time()
+        now = self._clock()
         token = uuid.uuid4().hex
         with self._write() as db:
             if job_id is None:
@@ -350,7 +358,7 @@ class JobStore(JobListing):
         message: str | None = None,
     ) -> HeartbeatStatus:
         """Renew the lease and publish progress; says whether the worker still holds it."""
-        now = time.time()
+        now = self._clock()
         sets = ["lease_expires=?", "updated_at=?"]
         args: list[Any] = [now + lease_seconds, now]
         if progress is not None:
@@ -379,7 +387,7 @@ class JobStore(JobListing):
         message: str = "done",
     ) -> bool:
         """Fenced success: records artifacts only if ``token`` still holds the lease."""
-        now = time.time()
+        now = self._clock()
         with self._write() as db:
             cur = db.execute(
                 "UPDATE jobs SET state='succeeded', progress=1, message=?, finished_at=?, "
@@ -400,7 +408,7 @@ class JobStore(JobListing):
 
     def fail(self, job_id: str, token: str, error: str) -> bool:
         """Fenced failure with a one-line error."""
-        now = time.time()
+        now = self._clock()
         line = " ".join(error.split())[:1000] or "job failed"
         with self._write() as db:
             cur = db.execute(
@@ -414,7 +422,7 @@ class JobStore(JobListing):
     def cancel(self, job_id: str) -> Job:
         """Cancel a queued or running job; a finished job is returned unchanged. A running
         job's worker learns of it at its next heartbeat and stops."""
-        now = time.time()
+        now = self._clock()
         with self._write() as db:
             row = db.execute("SELECT state FROM jobs WHERE id=?", (job_id,)).fetchone()
             if row is None:
@@ -433,7 +441,7 @@ class JobStore(JobListing):
 
         Returns ``(requeued ids, failed ids)``.
         """
-        t = time.time() if now is None else now
+        t = self._clock() if now is None else now
         requeued, failed = [], []
         with self._write() as db:
             rows = db.execute(
@@ -477,7 +485,7 @@ class JobStore(JobListing):
         with self._write() as db:
             db.execute(
                 "INSERT OR REPLACE INTO shards (job_id, key, digest, created_at) VALUES (?,?,?,?)",
-                (job_id, key, digest, time.time()),
+                (job_id, key, digest, self._clock()),
             )
 
     def shards(self, job_id: str) -> dict[str, str]:

@@ -111,3 +111,14 @@ def ray_local(ray_session: Any) -> Any:
     """A local Ray of 2 CPUs, shared by the tests that use it (started once)."""
     ray_session.local(num_cpus=2)
     return ray_session
+
+
+#: The per-test limit of a test marked ``slow`` that sets none itself (the default of
+#: pyproject.toml, 180 s, is for the rest).
+SLOW_TIMEOUT_S = 600
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))

@@ -8,15 +8,20 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
-_PACKAGES = (
+#: The packages that decide artifact bytes: the ones ``constraints.txt`` pins (a test keeps
+#: the two lists the same).
+PINNED_PACKAGES = (
     "mitsuba",
     "drjit",
     "torch",
     "numpy",
+    "scipy",
     "flip-evaluator",
     "scikit-image",
     "OpenEXR",
     "colour-science",
+    "pillow",
+    "matplotlib",
 )
 _REPO = Path(__file__).resolve().parent.parent
 
@@ -49,7 +54,7 @@ def code_version() -> str:
 def package_versions() -> dict[str, str | None]:
     """Installed versions of the packages that determine artifact bytes."""
     out: dict[str, str | None] = {"python": platform.python_version()}
-    for name in _PACKAGES:
+    for name in PINNED_PACKAGES:
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:

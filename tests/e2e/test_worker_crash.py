@@ -28,7 +28,8 @@ from .harness import (
 pytestmark = pytest.mark.slow
 
 LEASE_SECONDS = 2.0
-#: A render that takes several seconds on 2 cores, so the worker can be killed mid-job.
+#: A render of 8 passes of 2^22 paths (256 x 256 x 512 spp), so that after its first pass
+#: has reported progress the worker can be killed with passes still to run.
 SLOW_RENDER: dict[str, Any] = {
     "kind": "render",
     "seed": 7,
@@ -68,12 +69,19 @@ def test01_sigkilled_worker_job_is_requeued_and_succeeds(tmp_path: Path) -> None
             job_id = created.json()["id"]
             seen: list[dict[str, Any]] = []
 
+            # the real signal that the render is under way and not about to end: a pass has
+            # reported its progress ("pass i/n: done/spp spp") and passes remain
             running = poll(
                 http,
                 job_id,
-                lambda d: d["state"] == "running" and d["worker"],
-                60,
-                "the job to start",
+                lambda d: (
+                    d["state"] == "running"
+                    and d["worker"]
+                    and (d["message"] or "").startswith("pass ")
+                    and 0.02 < d["progress"] < 0.9
+                ),
+                120,
+                "the render's first pass",
                 seen,
             )
             assert running["attempts"] == 1
@@ -81,7 +89,7 @@ def test01_sigkilled_worker_job_is_requeued_and_succeeds(tmp_path: Path) -> None
             pid = int(pid_text)
             # only ever kill a worker of this server
             assert pid in worker_pids(server.data_dir), (running, server.log_tail())
-            os.kill(pid, signal.SIGKILL)  # mid-job: the render takes seconds
+            os.kill(pid, signal.SIGKILL)  # mid-render: passes remain
             killed.add(pid)
             after_kill = http.get(f"/api/jobs/{job_id}").json()
             assert after_kill["state"] == "running", (

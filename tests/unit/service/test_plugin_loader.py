@@ -209,7 +209,8 @@ def test07_loads_once(plugins_from) -> None:
 
 
 def test08_readme_table_leaves_plugin_kinds_out(plugins_from) -> None:
-    # The README documents the built-in kinds: it must not change when a plugin is installed
+    # The kinds reference (docs/reference/kinds.md) documents the built-in kinds: it must not
+    # change when a plugin is installed
     # (tests/unit/service/test_readme.py compares it with the generated table).
     import importlib.util
 

@@ -4,11 +4,25 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
 from storage.errors import NotFoundError
 from storage.jobs import ArtifactRecord, JobStore
+
+
+class FakeClock:
+    """A wall clock the test moves by hand: leases expire without sleeping."""
+
+    def __init__(self, t: float = 1_800_000_000.0) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+    def advance(self, seconds: float) -> None:
+        self.t += seconds
 
 
 def _submit(jobs: JobStore, h: str = "h1", force: bool = False):
@@ -60,11 +74,13 @@ def test04_claim_order_and_lease(jobs: JobStore) -> None:
     assert job.lease_expires is not None and job.lease_expires > time.time()
 
 
-def test05_fencing(jobs: JobStore) -> None:
+def test05_fencing(tmp_path: Path) -> None:
     """A worker whose lease was reaped and re-claimed cannot complete the job."""
+    clock = FakeClock()
+    jobs = JobStore(tmp_path / "jobs.db", clock=clock)
     _submit(jobs)
-    old = jobs.claim("w:old", 0.01)
-    time.sleep(0.05)
+    old = jobs.claim("w:old", 5)
+    clock.advance(6)  # past the 5 s lease, without sleeping
     requeued, failed = jobs.reap(max_attempts=3)
     assert requeued == [old.id] and failed == []
     new = jobs.claim("w:new", 30)
@@ -79,11 +95,13 @@ def test05_fencing(jobs: JobStore) -> None:
     assert [a.name for a in done.artifacts] == ["x.json"]
 
 
-def test06_reaper_gives_up_after_max_attempts(jobs: JobStore) -> None:
+def test06_reaper_gives_up_after_max_attempts(tmp_path: Path) -> None:
+    clock = FakeClock()
+    jobs = JobStore(tmp_path / "jobs.db", clock=clock)
     job, _ = _submit(jobs)
     for _ in range(2):
-        assert jobs.claim("w:x", 0.01) is not None
-        time.sleep(0.03)
+        assert jobs.claim("w:x", 5) is not None
+        clock.advance(6)
         jobs.reap(max_attempts=2)
     final = jobs.get(job.id)
     assert final.state == "failed" and final.attempts == 2
