@@ -14,6 +14,7 @@ from fastapi import Depends, Query
 
 from jobapi.errors import SpecError
 from service import kinds
+from service.job_columns import JobFilter, parse_filters, parse_keys
 from service.schemas import JobState
 from storage.job_queries import JOB_SORTS
 
@@ -32,6 +33,9 @@ class JobListQuery:
     sort: str = "-created"
     limit: int = 200
     offset: int = 0
+    columns: tuple[str, ...] = ()
+    filters: tuple[JobFilter, ...] = ()
+    tag: str | None = None
 
 
 def _unknown(filter_name: str, value: str, known: list[str]) -> SpecError:
@@ -72,6 +76,25 @@ def job_list_query(
     ] = "-created",
     limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 200,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="skip this many (paging)")] = 0,
+    columns: Annotated[
+        list[str] | None,
+        Query(
+            max_length=16,
+            description="add these values to each job as `columns` (repeatable or "
+            "comma-separated): `params.<path>` (e.g. `params.model`) or `metric.<name>` "
+            "(the mean of its result rows, e.g. `metric.smape_mean`)",
+        ),
+    ] = None,
+    filter: Annotated[
+        list[str] | None,
+        Query(
+            max_length=16,
+            description="only jobs whose value passes `<column><op><value>` "
+            "(op: = != < <= > >=; repeatable, all must pass), e.g. `params.model=hybrid`, "
+            "`metric.smape_mean<0.1`",
+        ),
+    ] = None,
+    tag: Annotated[str | None, Query(max_length=64, description="only jobs with this tag")] = None,
 ) -> JobListQuery:
     """The validated options; raises :class:`SpecError` (422) naming an unknown kind or
     sort order."""
@@ -89,6 +112,9 @@ def job_list_query(
         sort=sort,
         limit=limit,
         offset=offset,
+        columns=tuple(parse_keys(columns or [])),
+        filters=tuple(parse_filters(filter or [])),
+        tag=tag or None,
     )
 
 

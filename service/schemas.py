@@ -74,6 +74,14 @@ class JobPublic(PublicModel):
     spec: dict[str, Any] = Field(description="the validated spec, defaults filled in")
     manifest: str | None = Field(default=None, description="`sha256:` ref of the manifest")
     artifacts: list[ArtifactPublic] = Field(description="empty until the job succeeded")
+    tags: list[str] = Field(
+        default_factory=list, description="labels added with `matforge tag` (sorted)"
+    )
+    columns: dict[str, Any] | None = Field(
+        default=None,
+        description="in `GET /api/jobs?columns=`: the job's value for each asked column "
+        "(`params.<path>`, `metric.<name>`), null where it has none",
+    )
 
 
 class UploadPublic(PublicModel):

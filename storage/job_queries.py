@@ -17,7 +17,8 @@ from storage.job_records import Job
 JOB_COLS = (
     "id, kind, name, seed, spec_hash, spec, state, progress, message, error, worker, "
     "attempts, lease_token, lease_expires, created_at, started_at, finished_at, "
-    "updated_at, manifest_digest"
+    "updated_at, manifest_digest, "
+    "(SELECT group_concat(tag, char(31)) FROM job_tags WHERE job_tags.job_id = jobs.id) AS tags"
 )
 
 #: A job id or a prefix of one, as users type it (git-style short ids).
@@ -53,14 +54,23 @@ def job_filter(
     kind: str | None = None,
     name: str | None = None,
     batch: str | None = None,
+    tag: str | None = None,
 ) -> tuple[str, list[str]]:
     """``(" WHERE ...", args)`` for the list filters (``("", [])`` when none is set);
     ``name`` matches any job whose name contains it, ignoring case; ``batch`` is the exact
-    batch label of the job's spec."""
+    batch label of the job's spec, or of a batch that asked for the job again and was
+    given it (its spec already ran: :meth:`storage.jobs.JobStore.submit`); ``tag`` an
+    exact tag."""
     where, args = [], []
     if batch:
-        where.append("json_extract(spec, '$.batch')=?")
-        args.append(batch)
+        where.append(
+            "(json_extract(spec, '$.batch')=? OR "
+            "id IN (SELECT job_id FROM batch_members WHERE batch=?))"
+        )
+        args += [batch, batch]
+    if tag:
+        where.append("id IN (SELECT job_id FROM job_tags WHERE tag=?)")
+        args.append(tag)
     if state:
         where.append("state=?")
         args.append(state)
@@ -121,10 +131,11 @@ class JobListing:
         name: str | None = None,
         batch: str | None = None,
         sort: str = "-created",
+        tag: str | None = None,
     ) -> list[Job]:
         """Jobs in the order ``sort`` names (a key of :data:`JOB_SORTS`; by default newest
         first), filtered by state, kind and a case-insensitive substring of the name."""
-        where, args = job_filter(state=state, kind=kind, name=name, batch=batch)
+        where, args = job_filter(state=state, kind=kind, name=name, batch=batch, tag=tag)
         sql = f"SELECT {JOB_COLS} FROM jobs{where} ORDER BY {JOB_SORTS[sort]} LIMIT ? OFFSET ?"
         rows = self._conn().execute(sql, (*args, limit, offset)).fetchall()
         return [self._row_to_job(r, with_artifacts=False) for r in rows]
@@ -136,7 +147,8 @@ class JobListing:
         *,
         name: str | None = None,
         batch: str | None = None,
+        tag: str | None = None,
     ) -> int:
         """How many jobs :meth:`list_jobs` would page through with these filters."""
-        where, args = job_filter(state=state, kind=kind, name=name, batch=batch)
+        where, args = job_filter(state=state, kind=kind, name=name, batch=batch, tag=tag)
         return int(self._conn().execute(f"SELECT COUNT(*) FROM jobs{where}", args).fetchone()[0])

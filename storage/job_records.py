@@ -53,6 +53,7 @@ class Job:
     updated_at: float
     manifest_digest: str | None
     artifacts: list[ArtifactRecord] = field(default_factory=list)
+    tags: tuple[str, ...] = ()
 
     @property
     def finished(self) -> bool:
@@ -88,6 +89,7 @@ class Job:
             "spec": self.spec,
             "manifest": f"sha256:{self.manifest_digest}" if self.manifest_digest else None,
             "artifacts": [a.public() for a in self.artifacts],
+            "tags": list(self.tags),
         }
 
 

@@ -77,6 +77,17 @@ CREATE TABLE IF NOT EXISTS shards (
     created_at REAL NOT NULL,
     PRIMARY KEY (job_id, key)
 );
+CREATE TABLE IF NOT EXISTS job_tags (
+    job_id TEXT NOT NULL REFERENCES jobs(id),
+    tag TEXT NOT NULL,
+    PRIMARY KEY (job_id, tag)
+);
+CREATE INDEX IF NOT EXISTS job_tags_tag ON job_tags(tag);
+CREATE TABLE IF NOT EXISTS batch_members (
+    batch TEXT NOT NULL,
+    job_id TEXT NOT NULL REFERENCES jobs(id),
+    PRIMARY KEY (batch, job_id)
+);
 CREATE TABLE IF NOT EXISTS uploads (
     digest TEXT PRIMARY KEY,
     name TEXT NOT NULL,
@@ -152,6 +163,7 @@ class JobStore(JobListing):
     def _row_to_job(self, row: sqlite3.Row, with_artifacts: bool = True) -> Job:
         d = dict(row)
         d["spec"] = json.loads(d["spec"])
+        d["tags"] = tuple(sorted(d["tags"].split("\x1f"))) if d.get("tags") else ()
         arts: list[ArtifactRecord] = []
         if with_artifacts and d["state"] == "succeeded":
             arts = self.artifacts(d["id"])
@@ -292,6 +304,13 @@ class JobStore(JobListing):
                 if row is not None:
                     job_id = row["id"]
                     existing = True
+                    batch = spec.get("batch")
+                    if isinstance(batch, str) and batch != json.loads(row["spec"]).get("batch"):
+                        # the batch that asked again for a job shows it in its group
+                        db.execute(
+                            "INSERT OR IGNORE INTO batch_members (batch, job_id) VALUES (?, ?)",
+                            (batch, job_id),
+                        )
                 else:
                     existing = False
             else:
@@ -315,6 +334,39 @@ class JobStore(JobListing):
                     ),
                 )
         return self.get(job_id), not existing
+
+    def rename(self, job_id: str, name: str | None) -> Job:
+        """Give a job a new ``name`` (``None``: no name); the spec's identity is unchanged
+        (a name is a label, not an input). Raises ``NotFoundError``."""
+        with self._write() as db:
+            row = db.execute("SELECT spec FROM jobs WHERE id=?", (job_id,)).fetchone()
+            if row is None:
+                raise NotFoundError(f"no job {job_id!r}")
+            spec = json.loads(row["spec"])
+            if name is None:
+                spec.pop("name", None)
+            else:
+                spec["name"] = name
+            db.execute(
+                "UPDATE jobs SET name=?, spec=? WHERE id=?",
+                (name, json.dumps(spec, sort_keys=True), job_id),
+            )
+        return self.get(job_id)
+
+    def tag(self, job_id: str, add: Collection[str] = (), remove: Collection[str] = ()) -> Job:
+        """Add and remove tags of a job (adding one it has, or removing one it lacks, is no
+        change). Raises ``NotFoundError``."""
+        with self._write() as db:
+            if db.execute("SELECT 1 FROM jobs WHERE id=?", (job_id,)).fetchone() is None:
+                raise NotFoundError(f"no job {job_id!r}")
+            db.executemany(
+                "INSERT OR IGNORE INTO job_tags (job_id, tag) VALUES (?, ?)",
+                [(job_id, t) for t in add],
+            )
+            db.executemany(
+                "DELETE FROM job_tags WHERE job_id=? AND tag=?", [(job_id, t) for t in remove]
+            )
+        return self.get(job_id)
 
     def record_upload(self, digest: str, name: str, media_type: str, size: int) -> None:
         with self._write() as db:

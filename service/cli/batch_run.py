@@ -105,6 +105,7 @@ class _Run:
         try:
             spec = _resolve(step, self.by_name())
             spec.setdefault("batch", self.label)
+            spec.setdefault("name", step.name)  # two renders of a batch: not both "render"
             doc, created = self.client.submit_created(spec)
         except ClientError as exc:
             self.fail(i, "error", str(exc), exc.exit_code)

@@ -20,7 +20,7 @@ import builtins
 import hashlib
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -298,9 +298,15 @@ class Client:
         sort: str | None = None,
         limit: int | None = None,
         offset: int = 0,
+        columns: Sequence[str] = (),
+        filters: Sequence[str] = (),
+        tag: str | None = None,
+        batch: str | None = None,
     ) -> tuple[builtins.list[dict[str, Any]], int | None]:
         """``GET /api/jobs``: one page of jobs and how many match in all (``None`` when the
-        server does not say)."""
+        server does not say). ``columns`` (``params.<path>``, ``metric.<name>``) adds each
+        job's values as its ``columns``; ``filters`` (``params.model=hybrid``,
+        ``metric.smape_mean<0.1``) keeps the jobs that pass all of them."""
         query: dict[str, Any] = {
             "state": state,
             "kind": kind,
@@ -308,6 +314,10 @@ class Client:
             "sort": sort,
             "limit": limit,
             "offset": offset or None,
+            "columns": builtins.list(columns) or None,
+            "filter": builtins.list(filters) or None,
+            "tag": tag,
+            "batch": batch,
         }
         params = {k: v for k, v in query.items() if v is not None and v != ""}
         response = self._request("GET", "/api/jobs", params=params)
@@ -327,6 +337,20 @@ class Client:
     def cancel(self, job_id: str) -> dict[str, Any]:
         """``POST /api/jobs/{id}/cancel``: the job, now cancelled (or already finished)."""
         result: dict[str, Any] = self._json("POST", f"/api/jobs/{check_job_id(job_id)}/cancel")
+        return result
+
+    def rename(self, job_id: str, name: str | None) -> dict[str, Any]:
+        """``PATCH /api/jobs/{id}``: give the job a new name (``None``: no name)."""
+        body = {"name": name or ""}
+        result: dict[str, Any] = self._json("PATCH", f"/api/jobs/{check_job_id(job_id)}", json=body)
+        return result
+
+    def tag(
+        self, job_id: str, add: Sequence[str] = (), remove: Sequence[str] = ()
+    ) -> dict[str, Any]:
+        """``PATCH /api/jobs/{id}``: add and remove tags; the job, with its ``tags``."""
+        body = {"add_tags": builtins.list(add), "remove_tags": builtins.list(remove)}
+        result: dict[str, Any] = self._json("PATCH", f"/api/jobs/{check_job_id(job_id)}", json=body)
         return result
 
     def logs(self, job_id: str, tail: int | None = None) -> str:

@@ -9,35 +9,98 @@ from rich.table import Table
 from rich.text import Text
 
 from service.cli.results import STATE_STYLE
-from service.cli.state import err_console, out_console, print_json, state_of
+from service.cli.state import err_console, out_console, print_json, print_line, state_of
 
 JsonOpt = typer.Option(False, "--json", help="Print one JSON document on stdout.")
 
 
-def jobs_table(docs: list[dict[str, Any]]) -> Table:
-    """Jobs as a table that fits the console: short ids (any unique prefix works as an
-    id), kind, name, state, progress, creation time, and the message cut to what fits."""
-    table = Table(title=None, expand=False)
-    table.add_column("id", no_wrap=True)
-    table.add_column("kind", no_wrap=True)
-    table.add_column("name", overflow="ellipsis", no_wrap=True, max_width=32)
-    table.add_column("state", no_wrap=True)
-    table.add_column("done", justify="right", no_wrap=True)
-    table.add_column("created (UTC)", no_wrap=True)
-    table.add_column("message", overflow="ellipsis", no_wrap=True, ratio=1)
+#: Characters a column of a Rich table takes beyond its cells: one space of padding each
+#: side and its border; a table has one more border.
+_OVERHEAD = 3
+#: Below this many characters for the message, the name gives up its width first; below
+#: this, the creation time is left out.
+_MIN_MESSAGE = 10
+
+
+def _clip(text: str, width: int) -> str:
+    return text if len(text) <= width else text[: max(0, width - 1)] + "\u2026"
+
+
+def jobs_table(
+    docs: list[dict[str, Any]],
+    width: int = 120,
+    columns: list[tuple[str, str]] | None = None,
+) -> Table:
+    """Jobs as a table of at most ``width`` characters: short ids (any unique prefix works
+    as an id; the 12 characters are never cut), kind, state and progress at their full
+    width; then the name, the creation time and the message. When the table does not fit,
+    the message is cut first, then the name, then the creation time is left out.
+
+    ``columns``: extra ``(header, cell)`` columns after ``done``, each cell taken from the
+    job's params or metrics (:func:`service.job_columns.cell_text`), e.g.
+    ``("params.model", ...)``; they keep their full width as well."""
+    from service.job_columns import cell_text
+
+    extra = columns or []
+    rows = []
     for d in docs:
         state = str(d.get("state"))
-        created = str(d.get("created_at") or "")[:19].replace("T", " ")
         message = d.get("error") if state == "failed" else d.get("message")
-        table.add_row(
-            str(d.get("id"))[:12],
-            Text(str(d.get("kind"))),
-            Text(str(d.get("name") or "")),
-            Text(state, style=STATE_STYLE.get(state, "")),
-            f"{100 * float(d.get('progress') or 0):.0f}%",
-            created,
-            Text(" ".join(str(message or "").split())),
+        rows.append(
+            {
+                "id": str(d.get("id"))[:12],
+                "kind": str(d.get("kind")),
+                "state": state,
+                "done": f"{100 * float(d.get('progress') or 0):.0f}%",
+                **{h: cell_text(d, key) for h, key in extra},
+                "name": " ".join(
+                    [*str(d.get("name") or "").split(), *(f"#{t}" for t in d.get("tags") or [])]
+                ),
+                "created (UTC)": str(d.get("created_at") or "")[:19].replace("T", " "),
+                "message": " ".join(str(message or "").split()),
+            }
         )
+    fixed = ["id", "kind", "state", "done", *(h for h, _ in extra)]
+
+    def natural(col: str) -> int:
+        return max([len(col), *(len(r[col]) for r in rows)])
+
+    widths = {c: natural(c) for c in fixed}
+    name_w = min(natural("name"), 32)
+    created_w = natural("created (UTC)")
+    shown_created = True
+
+    def room() -> int:  # what is left for the message
+        cols = len(fixed) + 2 + shown_created
+        used = sum(widths.values()) + name_w + (created_w if shown_created else 0)
+        return width - 1 - _OVERHEAD * (cols + 1) - used + _OVERHEAD
+
+    if room() < _MIN_MESSAGE:
+        name_w = max(min(natural("name"), 8), name_w - (_MIN_MESSAGE - room()))
+    if room() < _MIN_MESSAGE:
+        shown_created = False
+    message_w = max(room(), 0)
+    layout = [(c, widths[c]) for c in fixed] + [("name", name_w)]
+    if shown_created:
+        layout.append(("created (UTC)", created_w))
+    if message_w >= len("message"):
+        layout.append(("message", message_w))
+    table = Table(title=None, expand=False)
+    for col, w in layout:
+        table.add_column(
+            col,
+            no_wrap=True,
+            overflow="ellipsis",
+            min_width=w,
+            max_width=w,
+            justify="right" if col == "done" else "left",
+        )
+    for r in rows:
+        cells = []
+        for col, w in layout:
+            style = STATE_STYLE.get(r[col], "") if col == "state" else ""
+            cells.append(Text(_clip(r[col], w), style=style))
+        table.add_row(*cells)
     return table
 
 
@@ -54,18 +117,50 @@ def ls(
         None, "--name", show_default=False, help="Only jobs whose name contains this (any case)."
     ),
     limit: int = typer.Option(20, "--limit", "-n", min=1, max=1000, help="At most this many."),
+    column: list[str] = typer.Option(
+        [],
+        "--column",
+        "-c",
+        help="Also show this value (repeatable or comma-separated): params.<path> "
+        "(e.g. params.model) or metric.<name> (the mean of its results, e.g. metric.psnr).",
+    ),
+    filters: list[str] = typer.Option(
+        [],
+        "--filter",
+        "-f",
+        help="Only jobs whose value passes, e.g. params.model=hybrid or "
+        "'metric.smape_mean<0.1' (ops = != < <= > >=; repeatable: all must pass).",
+    ),
+    tag: str | None = typer.Option(None, "--tag", show_default=False, help="Only this tag."),
+    batch: str | None = typer.Option(
+        None, "--batch", show_default=False, help="Only jobs of this batch run (its label)."
+    ),
     as_json: bool = JsonOpt,
 ) -> None:
     """List jobs on the server, newest first (ids shortened; any unique prefix is an id)."""
+    from service.job_columns import parse_filters, parse_keys
+
+    keys = parse_keys(column, "--column")
+    parse_filters(filters, "--filter")  # exit 2 here, before asking the server
     with state_of(ctx).client() as client:
-        docs, total = client.list_page(state=state, kind=kind, name=name, limit=limit)
+        docs, total = client.list_page(
+            state=state,
+            kind=kind,
+            name=name,
+            limit=limit,
+            columns=keys,
+            filters=filters,
+            tag=tag,
+            batch=batch,
+        )
     if as_json:
         print_json(docs)
         return
     if not docs:
         err_console.print("no jobs match", markup=False, highlight=False)
         return
-    out_console().print(jobs_table(docs))
+    console = out_console()
+    console.print(jobs_table(docs, console.width, [(k, k) for k in keys]))
     if total is not None and total > len(docs):
         err_console.print(
             f"showing {len(docs)} of {total} jobs; use --limit to see more",
@@ -140,7 +235,40 @@ def kinds(
         console.print(sub)
 
 
+def tag(
+    ctx: typer.Context,
+    job_id: str = typer.Argument(..., metavar="JOB", help="Job id, or a unique prefix of it."),
+    tags: list[str] = typer.Argument(..., metavar="TAG...", help="Tags to add."),
+    remove: bool = typer.Option(False, "--remove", "-r", help="Remove these tags instead."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Add tags to a job (``ls --tag T`` finds it); with --remove, take them off."""
+    with state_of(ctx).client() as client:
+        doc = client.tag(job_id, remove=tags) if remove else client.tag(job_id, add=tags)
+    if as_json:
+        print_json(doc)
+    else:
+        print_line(f"{doc.get('id')} tags: {', '.join(doc.get('tags') or []) or '(none)'}")
+
+
+def rename(
+    ctx: typer.Context,
+    job_id: str = typer.Argument(..., metavar="JOB", help="Job id, or a unique prefix of it."),
+    name: str = typer.Argument(..., help="The new name ('' for none)."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Give a job a new name (its spec's identity is unchanged: a name is a label)."""
+    with state_of(ctx).client() as client:
+        doc = client.rename(job_id, name or None)
+    if as_json:
+        print_json(doc)
+    else:
+        print_line(f"{doc.get('id')} name: {doc.get('name') or '(none)'}")
+
+
 def register(app: typer.Typer) -> None:
-    """Add ``ls`` and ``kinds`` to the app."""
+    """Add ``ls``, ``kinds``, ``tag`` and ``rename`` to the app."""
     app.command("ls")(ls)
     app.command("kinds")(kinds)
+    app.command("tag")(tag)
+    app.command("rename")(rename)

@@ -59,9 +59,10 @@ def state_of(ctx: typer.Context) -> CliState:
     return obj
 
 
-#: Width of tables written to a pipe or file: wide enough that a table of many metric
-#: columns keeps its natural width (Rich would squeeze it into 80 columns otherwise).
-PIPE_WIDTH = 1000
+#: Width of text written to a pipe or file (``matforge kinds | less``): plain, narrow
+#: lines. Tables of many value columns are split to fit it (:mod:`service.cli.tables`);
+#: ``--json`` and ``--out`` give everything, unformatted.
+PIPE_WIDTH = 100
 
 
 def _width(stream: Any, piped: int) -> int | None:
@@ -82,7 +83,7 @@ def out_console() -> Console:
 
 
 def table_console(to_stderr: bool) -> Console:
-    """A console for a results table, on stderr or stdout, not squeezed when piped."""
+    """A console for a results table, on stderr or stdout (:data:`PIPE_WIDTH` when piped)."""
     if not to_stderr:
         return out_console()
     return Console(stderr=True, width=_width(sys.stderr, PIPE_WIDTH))

@@ -3,23 +3,32 @@
 from __future__ import annotations
 
 import json
+import logging
+import re
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 from fastapi.responses import PlainTextResponse
+from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 
 from jobapi.context import LIVE_PREFIX
 from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, SettingsDep, StoreDep
+from service.job_columns import job_values, metric_means
 from service.job_list import JobListDep
 from service.parse_threads import off_loop
+from service.results import job_rows
 from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
 from service.submission import prepare_submission, queue_spec
 from service.summaries import job_summary
+from storage.artifacts import ArtifactStore
 from storage.errors import TooLargeError
 from storage.job_logs import JobLog, log_dir
+from storage.jobs import Job, JobStore
+
+log = logging.getLogger("matforge.api")
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"], dependencies=[AuthDep])
 
@@ -168,24 +177,100 @@ async def create_job(
 
 
 @router.get("", response_model=list[JobPublic], summary="List jobs, newest first")
-def list_jobs(jobs: JobsDep, query: JobListDep, response: Response) -> Any:
+def list_jobs(jobs: JobsDep, store: StoreDep, query: JobListDep, response: Response) -> Any:
     """Jobs, newest first unless `sort` says otherwise (without their artifact lists; see
     `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the
     filters, for paging with `limit` and `offset`. An unknown `kind` or `sort` is a 422
-    that names the parameter."""
+    that names the parameter. `columns` adds each job's value of params or metrics as
+    `columns`; `filter` keeps the jobs whose values pass (both: `service.job_columns`)."""
     q = query
-    total = jobs.count_jobs(q.state, q.kind, name=q.name, batch=q.batch)
+    base = {"name": q.name, "batch": q.batch, "tag": q.tag}
+    if not q.filters:
+        total = jobs.count_jobs(q.state, q.kind, **base)
+        found = jobs.list_jobs(q.state, q.kind, q.limit, q.offset, sort=q.sort, **base)
+        values = [job_values_of(j, q.columns, jobs, store) for j in found] if q.columns else []
+    else:
+        keys = list(dict.fromkeys([*q.columns, *(f.key for f in q.filters)]))
+        matched, values = [], []
+        for j in jobs.list_jobs(q.state, q.kind, MAX_FILTERED, 0, sort=q.sort, **base):
+            v = job_values_of(j, keys, jobs, store)
+            if all(f.passes(v[f.key]) for f in q.filters):
+                matched.append(j)
+                values.append(v)
+        total = len(matched)
+        found = matched[q.offset : q.offset + q.limit]
+        values = values[q.offset : q.offset + q.limit]
     response.headers["X-Total-Count"] = str(total)
-    found = jobs.list_jobs(
-        q.state, q.kind, q.limit, q.offset, name=q.name, batch=q.batch, sort=q.sort
-    )
-    return [j.document() for j in found]
+    docs = [j.document() for j in found]
+    if q.columns:
+        for doc, v in zip(docs, values, strict=True):
+            doc["columns"] = {k: v[k] for k in q.columns}
+    return docs
+
+
+#: Jobs a list with ``filter`` looks through (newest first, by the other filters).
+MAX_FILTERED = 5000
+
+
+def job_values_of(job: Job, keys: Any, jobs: JobStore, store: ArtifactStore) -> dict[str, Any]:
+    """``job``'s value for each column key; metrics from its result rows (a job that did
+    not succeed, or whose rows cannot be read, has none)."""
+
+    def metrics() -> dict[str, float]:
+        if job.state != "succeeded":
+            return {}
+        try:
+            return metric_means(job_rows(jobs.get(job.id), jobs, store))
+        except Exception:  # a job's unreadable artifacts hide its metrics, not the list
+            log.debug("no result rows for job %s", job.id, exc_info=True)
+            return {}
+
+    return job_values(job.spec, keys, metrics)
 
 
 @router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS, summary="A job")
 def get_job(job_id: JobId, jobs: JobsDep) -> Any:
     """The job document, with its artifacts once it succeeded."""
     return jobs.get(job_id).document()
+
+
+#: A tag: what ``matforge tag`` accepts (no spaces or commas, so lists stay readable).
+TAG = re.compile(r"^[A-Za-z0-9_.:+\-]{1,64}$")
+
+
+class JobPatch(BaseModel):
+    """``PATCH /api/jobs/{id}``: what to change (each field optional)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str | None = Field(default=None, max_length=200, description='a new name (`""`: no name)')
+    add_tags: list[str] = Field(default_factory=list, max_length=64, description="tags to add")
+    remove_tags: list[str] = Field(
+        default_factory=list, max_length=64, description="tags to remove"
+    )
+
+
+@router.patch("/{job_id}", response_model=JobPublic, responses=_ERRORS, summary="Rename, tag")
+def patch_job(job_id: JobId, patch: JobPatch, jobs: JobsDep) -> Any:
+    """Rename a job (`name`) and add or remove its tags; the job, as changed. A name and
+    tags are labels, not inputs: the spec's identity (`spec_hash`) does not change. A tag
+    is 1 to 64 letters, digits or `_.:+-` (a 422 names the one that is not)."""
+    for field_name in ("add_tags", "remove_tags"):
+        for i, t in enumerate(getattr(patch, field_name)):
+            if not TAG.match(t):
+                raise SpecError(
+                    [
+                        (
+                            f"body.{field_name}.{i}",
+                            f"{t!r} is not a tag: 1 to 64 letters, digits or _.:+-",
+                        )
+                    ]
+                )
+    jobs.get(job_id)  # 404 first
+    if "name" in patch.model_fields_set:
+        jobs.rename(job_id, " ".join((patch.name or "").split()) or None)
+    job = jobs.tag(job_id, add=patch.add_tags, remove=patch.remove_tags)
+    return job.document()
 
 
 @router.post(

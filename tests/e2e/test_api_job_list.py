@@ -105,7 +105,8 @@ def test04_short_ids(client: TestClient) -> None:
 
 
 def test05_batch_label(client: TestClient) -> None:
-    """A spec's ``batch`` label groups jobs; like ``name`` it is not part of the identity."""
+    """A spec's ``batch`` label groups jobs; like ``name`` it is not part of the identity.
+    A reused job (same spec) also joins the batch that asked for it."""
     a = client.post("/api/jobs", json={**render(1), "batch": "run one"}).json()
     b = client.post("/api/jobs", json={**render(2), "batch": "run one"}).json()
     client.post("/api/jobs", json=render(3))
@@ -115,7 +116,11 @@ def test05_batch_label(client: TestClient) -> None:
     got = client.get("/api/jobs", params={"batch": "run one"})
     assert [j["id"] for j in got.json()] == [b["id"], a["id"]]
     assert got.headers["x-total-count"] == "2"
-    assert client.get("/api/jobs", params={"batch": "run two"}).json() == []
+    # ... and joins the batch that asked for it again, so that batch's group shows it
+    two = client.get("/api/jobs", params={"batch": "run two"})
+    assert [j["id"] for j in two.json()] == [a["id"]] and two.headers["x-total-count"] == "1"
+    client.post("/api/jobs", json={**render(1), "batch": "run two"})  # asked twice: once
+    assert len(client.get("/api/jobs", params={"batch": "run two"}).json()) == 1
     assert a["batch"] == "run one" and a["spec"]["batch"] == "run one"
 
 

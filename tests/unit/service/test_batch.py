@@ -492,3 +492,13 @@ def test_short_job_refs_pass_local_validation() -> None:
     assert batch.steps[0].spec["params"]["reference"] == "job:3f2a9c/image.exr"  # kept as written
     padded = pad_short_job_refs({"a": ["job:3f2a9c/x.exr", "job:" + "1" * 32 + "/y"]})
     assert padded == {"a": ["job:3f2a9c" + "0" * 26 + "/x.exr", "job:" + "1" * 32 + "/y"]}
+
+
+def test30_a_step_without_a_spec_name_takes_the_step_name() -> None:
+    """Two renders of one batch show as ``gold`` and ``alu`` in ``ls``, not both ``render``;
+    a spec's own name is kept."""
+    batch = three_steps()
+    batch.steps[1].spec["name"] = "aluminium sphere"
+    client = FakeClient()
+    run_batch(batch, client, quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
+    assert [s["name"] for s in client.submitted] == ["gold", "aluminium sphere", "score"]

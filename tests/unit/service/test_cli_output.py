@@ -4,7 +4,9 @@ and the notices of a resubmitted spec."""
 from __future__ import annotations
 
 import io
+from typing import Any
 
+import pytest
 from rich.console import Console
 
 from service.cli.follow import eta_of, format_eta
@@ -48,3 +50,77 @@ def test03_reuse_notices() -> None:
     assert len(lines) == 2 and "'second' is ignored" in lines[1] and "'first'" in lines[1]
     running = reuse_notices({}, {**doc, "state": "running"}, created=False)
     assert "(same spec, running)" in running[0]
+
+
+def _jobs(message: str, name: str = "a fairly long job name for a render") -> list[dict[str, Any]]:
+    return [
+        {
+            "id": f"{i:x}" * 32,
+            "kind": kind,
+            "name": name,
+            "state": state,
+            "progress": 0.5,
+            "created_at": "2026-12-03T06:00:00.000Z",
+            "message": message,
+            "tags": ["gold"] if i == 1 else [],
+        }
+        for i, (kind, state) in enumerate(
+            [("generate.fabric", "running"), ("score", "succeeded"), ("report.pareto", "queued")],
+            start=1,
+        )
+    ]
+
+
+@pytest.mark.parametrize("width", [60, 80, 100, 120, 200])
+def test04_ls_keeps_id_kind_state_progress_whole_and_cuts_the_message_first(width: int) -> None:
+    """At any terminal width the 12-character id, the kind, the state and the progress
+    are printed whole; the table fits the width; the message (then the name) gives way."""
+    from service.cli.listing import jobs_table
+
+    docs = _jobs("rendering pass 3 of 16 " * 10)
+    out = io.StringIO()
+    Console(file=out, width=width).print(jobs_table(docs, width))
+    lines = out.getvalue().splitlines()
+    assert max(len(line) for line in lines) <= width
+    text = out.getvalue()
+    for d in docs:
+        row = next(line for line in lines if d["id"][:12] in line)
+        for cell in (d["kind"], d["state"], "50%"):
+            assert cell in row, (width, cell, row)
+    if width >= 100:
+        assert "2026-12-03 06:00:00" in text  # the creation time fits too
+    if width >= 120:
+        assert "a fairly long job" in text
+    if width >= 200:
+        assert "rendering pass 3 of 16" in text
+
+
+def test05_ls_extra_columns_keep_their_width() -> None:
+    from service.cli.listing import jobs_table
+
+    docs = [
+        {**d, "columns": {"params.model": "hybrid", "metric.psnr": 31.23456}} for d in _jobs("x")
+    ]
+    out = io.StringIO()
+    cols = [("params.model", "params.model"), ("metric.psnr", "metric.psnr")]
+    Console(file=out, width=100).print(jobs_table(docs, 100, cols))
+    text = out.getvalue()
+    assert "params.model" in text and "hybrid" in text and "31.23" in text
+    assert max(len(line) for line in text.splitlines()) <= 100
+
+
+def test06_piped_output_is_narrow(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``matforge kinds | less``: stdout is not a terminal and COLUMNS is unset, so lines
+    are at most :data:`service.cli.state.PIPE_WIDTH` characters (they were 1,758)."""
+    from typer.testing import CliRunner
+
+    from service.cli.main import app
+    from service.cli.state import PIPE_WIDTH
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    for args in (["kinds"], ["kinds", "generate.glint"], ["kinds", "train.brdf"]):
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        lines = res.stdout.splitlines()
+        assert len(lines) > 5
+        assert max(len(line) for line in lines) <= PIPE_WIDTH <= 120, args

@@ -1,0 +1,189 @@
+"""Parameter and metric columns of the job list, and filters on them.
+
+A *column key* names one value of a job:
+
+- ``params.<path>``: a value of the job's spec params, ``.``-separated at any depth
+  (``params.model``, ``params.material.mitsuba.alpha``);
+- ``metric.<name>``: the mean of the job's result rows for that metric
+  (:mod:`jobapi.rows`; e.g. ``metric.smape_mean``, ``metric.psnr``), over its candidates,
+  materials and scenes; a job without such rows has none.
+
+A *filter* is ``<key><op><value>`` with ``op`` one of ``=``, ``!=``, ``<``, ``<=``, ``>``,
+``>=``: ``params.model=hybrid``, ``metric.smape_mean<0.1``. ``=``/``!=`` compare as numbers
+when both sides are numbers, else as text (``true``/``false``/``null`` match JSON values
+as written); the order comparisons need numbers. A job without the value never passes a
+filter (``!=`` included: "a job whose model is not hybrid" has a model).
+
+``GET /api/jobs?columns=&filter=``, ``matforge ls --column --filter`` and the dashboard's
+job list come through here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import operator
+import re
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from jobapi.errors import SpecError
+
+#: A column key: ``params.`` or ``metric.`` and a dotted path of names.
+KEY = re.compile(r"^(params|metric)\.[A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*$")
+_FILTER = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(<=|>=|!=|=|<|>)\s*(.*?)\s*$", re.DOTALL)
+_ORDER: dict[str, Callable[[float, float], bool]] = {
+    "<": operator.lt,
+    "<=": operator.le,
+    ">": operator.gt,
+    ">=": operator.ge,
+}
+#: Most columns or filters one list takes.
+MAX_KEYS = 16
+
+
+def check_key(key: str, where: str) -> str:
+    """``key`` if it is a column key, else :class:`SpecError` naming ``where``."""
+    if not KEY.match(key):
+        raise SpecError(
+            [
+                (
+                    where,
+                    f"{key!r} is not a column: use params.<name>[.<name>...] or "
+                    "metric.<name> (e.g. params.model, metric.smape_mean)",
+                )
+            ]
+        )
+    return key
+
+
+def parse_keys(texts: Iterable[str], where: str = "query.columns") -> list[str]:
+    """Column keys from repeated and/or comma-separated ``texts``, in order, once each."""
+    keys: list[str] = []
+    for text in texts:
+        for part in text.split(","):
+            if part.strip() and part.strip() not in keys:
+                keys.append(check_key(part.strip(), where))
+    if len(keys) > MAX_KEYS:
+        raise SpecError([(where, f"at most {MAX_KEYS} columns")])
+    return keys
+
+
+def _number(text: str) -> float | None:
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
+@dataclass(frozen=True)
+class JobFilter:
+    """One parsed filter: ``key op value`` (``value`` as typed)."""
+
+    key: str
+    op: str
+    value: str
+
+    def passes(self, actual: Any) -> bool:
+        """Whether a job whose value for :attr:`key` is ``actual`` passes (``None``: the job
+        has no such value, and never passes)."""
+        if actual is None:
+            return False
+        if isinstance(actual, bool):
+            got_num: float | None = None
+            got_text = "true" if actual else "false"
+        elif isinstance(actual, int | float):
+            got_num, got_text = float(actual), repr(actual)
+        elif isinstance(actual, str):
+            got_num, got_text = _number(actual), actual
+        else:
+            got_num, got_text = None, json.dumps(actual, sort_keys=True)
+        want = _number(self.value)
+        if self.op in _ORDER:
+            return got_num is not None and want is not None and _ORDER[self.op](got_num, want)
+        if got_num is not None and want is not None:
+            same = math.isclose(got_num, want, rel_tol=1e-12, abs_tol=0.0)  # "0.1" vs 0.1
+        else:
+            same = got_text == self.value
+        return same if self.op == "=" else not same
+
+
+def parse_filters(texts: Iterable[str], where: str = "query.filter") -> list[JobFilter]:
+    """Filters from ``texts`` (each ``key op value``); :class:`SpecError` naming ``where``
+    and the text for one that does not parse."""
+    out = []
+    for text in texts:
+        m = _FILTER.match(text)
+        if m is None or not m[3]:
+            raise SpecError(
+                [
+                    (
+                        where,
+                        f"{text!r} is not a filter: use <column><op><value> with op one of "
+                        "=, !=, <, <=, >, >= (e.g. params.model=hybrid, metric.smape_mean<0.1)",
+                    )
+                ]
+            )
+        key = check_key(m[1], where)
+        if m[2] in _ORDER and _number(m[3]) is None:
+            raise SpecError([(where, f"{text!r}: {m[2]} needs a number, got {m[3]!r}")])
+        out.append(JobFilter(key, m[2], m[3]))
+    if len(out) > MAX_KEYS:
+        raise SpecError([(where, f"at most {MAX_KEYS} filters")])
+    return out
+
+
+def param_value(spec: Mapping[str, Any], key: str) -> Any:
+    """The value of ``params.<path>`` in a job's ``spec`` (``None`` when it has none)."""
+    value: Any = spec.get("params")
+    for part in key.split(".")[1:]:
+        if isinstance(value, Mapping) and part in value:
+            value = value[part]
+        elif isinstance(value, list) and part.isdigit() and int(part) < len(value):
+            value = value[int(part)]
+        else:
+            return None
+    return value
+
+
+def metric_means(rows: Iterable[Any]) -> dict[str, float]:
+    """The mean value of each metric over ``rows`` (:class:`jobapi.rows.ResultRow`), finite
+    values only."""
+    sums: dict[str, list[float]] = {}
+    for r in rows:
+        v = r.value
+        if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+            sums.setdefault(r.metric, []).append(float(v))
+    return {m: sum(vs) / len(vs) for m, vs in sums.items()}
+
+
+def job_values(
+    spec: Mapping[str, Any], keys: Iterable[str], metrics: Callable[[], Mapping[str, float]]
+) -> dict[str, Any]:
+    """The value of each key for one job; ``metrics`` is called (once) only when a
+    ``metric.`` key is asked for."""
+    out: dict[str, Any] = {}
+    means: Mapping[str, float] | None = None
+    for key in keys:
+        if key.startswith("params."):
+            out[key] = param_value(spec, key)
+        else:
+            if means is None:
+                means = metrics()
+            out[key] = means.get(key.split(".", 1)[1])
+    return out
+
+
+def cell_text(doc: Mapping[str, Any], key: str) -> str:
+    """A job document's value for ``key`` (from its ``columns``, as ``GET /api/jobs``
+    gives them) as table text: numbers to 4 significant digits, nested values as JSON."""
+    value = (doc.get("columns") or {}).get(key)
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, dict | list):
+        return json.dumps(value, sort_keys=True)
+    return str(value)

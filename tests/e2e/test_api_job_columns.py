@@ -1,0 +1,79 @@
+"""``GET /api/jobs?columns=&filter=&tag=`` and ``PATCH /api/jobs/{id}`` (rename, tags), and
+``matforge ls --column --filter`` refusing a bad filter with exit 2 before any request."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.api import create_app
+from service.cli.main import main
+from service.settings import Settings
+
+
+def render(seed: int, typ: str, **extra: Any) -> dict[str, Any]:
+    material = {"mitsuba": {"type": typ, **extra}}
+    return {"kind": "render", "seed": seed, "params": {"scene": "sphere_env", "material": material}}
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    settings = Settings.from_env({}).with_(data_dir=tmp_path)
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+def test01_param_columns_and_filters(client: TestClient) -> None:
+    a = client.post("/api/jobs", json=render(1, "diffuse")).json()
+    b = client.post("/api/jobs", json=render(2, "roughconductor", alpha=0.2)).json()
+    c = client.post("/api/jobs", json=render(3, "roughconductor", alpha=0.4)).json()
+    key = "params.material.mitsuba.type"
+    got = client.get("/api/jobs", params={"columns": f"{key},params.material.mitsuba.alpha"})
+    assert got.status_code == 200
+    cols = {j["id"]: j["columns"] for j in got.json()}
+    assert cols[a["id"]] == {key: "diffuse", "params.material.mitsuba.alpha": None}
+    assert cols[b["id"]]["params.material.mitsuba.alpha"] == pytest.approx(0.2)
+    rough = client.get("/api/jobs", params={"filter": f"{key}=roughconductor"})
+    assert [j["id"] for j in rough.json()] == [c["id"], b["id"]]
+    assert rough.headers["x-total-count"] == "2"
+    low = client.get(
+        "/api/jobs",
+        params={"filter": [f"{key}=roughconductor", "params.material.mitsuba.alpha<0.3"]},
+    )
+    assert [j["id"] for j in low.json()] == [b["id"]]
+    # a queued job has no metrics: a metric filter keeps none of them
+    assert client.get("/api/jobs", params={"filter": "metric.psnr>0"}).json() == []
+    for bad, needle in (("params.x~1", "query.filter"), ("metric.psnr<high", "needs a number")):
+        res = client.get("/api/jobs", params={"filter": bad})
+        assert res.status_code == 422 and needle in res.text, res.text
+    res = client.get("/api/jobs", params={"columns": "spec.kind"})
+    assert res.status_code == 422 and "query.columns" in res.text
+
+
+def test02_rename_and_tags(client: TestClient) -> None:
+    job = client.post("/api/jobs", json=render(1, "diffuse")).json()
+    res = client.patch(f"/api/jobs/{job['id'][:8]}", json={"name": "gold", "add_tags": ["ref"]})
+    assert res.status_code == 200, res.text
+    doc = res.json()
+    assert doc["name"] == "gold" and doc["tags"] == ["ref"]
+    assert doc["spec_hash"] == job["spec_hash"]  # a label, not an input
+    assert [j["id"] for j in client.get("/api/jobs", params={"name": "gold"}).json()] == [job["id"]]
+    assert [j["id"] for j in client.get("/api/jobs", params={"tag": "ref"}).json()] == [job["id"]]
+    doc = client.patch(f"/api/jobs/{job['id']}", json={"remove_tags": ["ref"]}).json()
+    assert doc["tags"] == [] and doc["name"] == "gold"
+    assert client.get("/api/jobs", params={"tag": "ref"}).json() == []
+    bad = client.patch(f"/api/jobs/{job['id']}", json={"add_tags": ["two words"]})
+    assert bad.status_code == 422 and "add_tags.0" in bad.text
+    assert client.patch(f"/api/jobs/{'f' * 32}", json={"name": "x"}).status_code == 404
+
+
+def test03_ls_refuses_a_bad_filter_with_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    """Refused before any request: the server address is one nothing listens on."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--server", "http://127.0.0.1:9", "ls", "-f", "params.x~1"])
+    assert exit_info.value.code == 2
+    assert "--filter" in capsys.readouterr().err
