@@ -181,27 +181,7 @@ class JobContext:
         if not name or name.startswith("/") or ".." in name.split("/"):
             raise ValueError(f"bad artifact name {name!r}")
         info = self.store.put_bytes(data)
-        rec = ArtifactRecord(
-            name=name,
-            digest=info.digest,
-            size=info.size,
-            media_type=media_type or media_type_for(name),
-        )
-        self.artifacts[name] = rec
-        return rec
-
-    def put_file(
-        self, name: str, path: str | Path, media_type: str | None = None
-    ) -> ArtifactRecord:
-        info = self.store.put_file(path)
-        rec = ArtifactRecord(
-            name=name,
-            digest=info.digest,
-            size=info.size,
-            media_type=media_type or media_type_for(name),
-        )
-        self.artifacts[name] = rec
-        return rec
+        return self._record(name, info.digest, info.size, media_type)
 
     def put_json(self, name: str, obj: Any) -> ArtifactRecord:
         """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes). A chart document

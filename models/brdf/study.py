@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from evaluators.metrics.pareto import front_indices
+from evaluators.metrics.pareto import spread as seed_spread
 
 #: Families the paper singles out (Fig. 12, Sec. 6): thin-film iridescence and multi-lobe.
 HIGHLIGHT_FAMILIES: dict[str, str] = {
@@ -117,16 +118,9 @@ def _median(rows: Sequence[dict[str, Any]], key: str) -> float | None:
 
 
 def spread(values: Sequence[float]) -> dict[str, float | int]:
-    """``{"n", "smape_mean", "smape_std", "smape_min", "smape_max"}`` of per-seed values."""
-    if not values:
-        raise ValueError("no values")
-    return {
-        "n": len(values),
-        "smape_mean": statistics.fmean(values),
-        "smape_std": statistics.stdev(values) if len(values) > 1 else 0.0,
-        "smape_min": min(values),
-        "smape_max": max(values),
-    }
+    """``{"n", "smape_mean", "smape_std", "smape_min", "smape_max"}`` of per-seed values:
+    :func:`evaluators.metrics.pareto.spread` with the statistics named for SMAPE."""
+    return {k if k == "n" else f"smape_{k}": v for k, v in seed_spread(values).items()}
 
 
 def group(runs: Sequence[Run]) -> dict[str, Config]:
