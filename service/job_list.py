@@ -54,7 +54,8 @@ def _unknown(filter_name: str, value: str, known: list[str]) -> SpecError:
 def job_list_query(
     state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
     kind: Annotated[
-        str | None, Query(max_length=64, description="only this kind (422 if no such kind)")
+        str | None,
+        Query(min_length=1, max_length=64, description="only this kind (422 if no such kind)"),
     ] = None,
     name: Annotated[
         str | None,
@@ -94,7 +95,9 @@ def job_list_query(
             "`metric.smape_mean<0.1`",
         ),
     ] = None,
-    tag: Annotated[str | None, Query(max_length=64, description="only jobs with this tag")] = None,
+    tag: Annotated[
+        str | None, Query(min_length=1, max_length=64, description="only jobs with this tag")
+    ] = None,
 ) -> JobListQuery:
     """The validated options; raises :class:`SpecError` (422) naming an unknown kind or
     sort order."""

@@ -77,6 +77,11 @@ class JobPublic(PublicModel):
     tags: list[str] = Field(
         default_factory=list, description="labels added with `matforge tag` (sorted)"
     )
+
+
+class JobListItem(JobPublic):
+    """A job in ``GET /api/jobs``: the job document, plus ``columns`` when asked for."""
+
     columns: dict[str, Any] | None = Field(
         default=None,
         description="in `GET /api/jobs?columns=`: the job's value for each asked column "

@@ -114,7 +114,7 @@ def ray_local(ray_session: Any) -> Any:
 
 
 #: The per-test limit of a test marked ``slow`` that sets none itself (the default of
-#: pyproject.toml, 180 s, is for the rest).
+#: pyproject.toml, 300 s, is for the rest).
 SLOW_TIMEOUT_S = 600
 
 

@@ -19,7 +19,7 @@ from service.job_columns import job_values, metric_means
 from service.job_list import JobListDep
 from service.parse_threads import off_loop
 from service.results import job_rows
-from service.schemas import ArtifactPublic, ErrorPublic, JobPublic
+from service.schemas import ArtifactPublic, ErrorPublic, JobListItem, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
 from service.submission import prepare_submission, queue_spec
 from service.summaries import job_summary
@@ -176,7 +176,7 @@ async def create_job(
     return job.document()
 
 
-@router.get("", response_model=list[JobPublic], summary="List jobs, newest first")
+@router.get("", response_model=list[JobListItem], summary="List jobs, newest first")
 def list_jobs(jobs: JobsDep, store: StoreDep, query: JobListDep, response: Response) -> Any:
     """Jobs, newest first unless `sort` says otherwise (without their artifact lists; see
     `GET /api/jobs/{id}`). The `X-Total-Count` header holds how many jobs match the

@@ -69,7 +69,7 @@
     }
   });
 
-  /** One bar chart per metric that varies (none on a page with Pareto panels): nothing for constant columns (n, queries), a
+  /** One bar chart per metric that varies (none on a report page with Pareto panels): nothing for constant columns (n, queries), a
       metric's baseline ("baseline.<metric>") drawn beside it, the best row highlighted,
       the better direction in the title, and a y axis that fits the values (PSNR does not
       start at 0; values over decades get a log axis). */
@@ -77,11 +77,11 @@
     const node = document.getElementById("metrics-data");
     const box = document.getElementById("metrics-charts");
     if (!node || !box || typeof window.Chart === "undefined") return;
-    // A report's Pareto panels (plots.js) already chart every point against its own cost
-    // axis: per-column bars of its table would put ns and bytes on one axis, one chart per
-    // column however few the rows.
+    // A report's Pareto panels (plots.js) already chart every row of its table against its
+    // own cost axis: per-column bars would put ns and bytes on one axis, one chart per column
+    // however few the rows. Other kinds' tables (per-material errors) keep their bars.
     const plots = document.getElementById("plots");
-    if (plots && plots.dataset.pareto) return;
+    if (plots && plots.dataset.pareto && plots.dataset.family === "report") return;
     const metrics = JSON.parse(node.textContent);
     const better = metrics.better || {};
     const best = metrics.best || {};
