@@ -53,11 +53,22 @@ def is_batch_file(arg: str) -> bool:
 
 
 def check_job_arg(arg: str) -> str:
-    """A job id argument, lower-cased; :class:`BadInput` for anything else."""
+    """A job id argument or a prefix of one (git-style short id), lower-cased;
+    :class:`BadInput` for anything else. Resolve a prefix with :func:`full_job_id`."""
     job = arg.strip().lower().removeprefix("job:")
-    if len(job) != 32 or not set(job) <= JOB_ID_CHARS:
-        raise BadInput(f"{arg!r}: neither a job id (32 hex digits) nor a batch file (.yaml/.json)")
+    if not 1 <= len(job) <= 32 or not set(job) <= JOB_ID_CHARS:
+        raise BadInput(
+            f"{arg!r}: neither a job id (32 hex digits, or a unique prefix of one) "
+            "nor a batch file (.yaml/.json)"
+        )
     return job
+
+
+def full_job_id(arg: str, lookup: Any) -> str:
+    """The full id of job argument ``arg`` (a whole id or a unique prefix); ``lookup(prefix)``
+    returns the full id or raises (``NotFoundError``, ``AmbiguousIdError``: exit 2)."""
+    job = check_job_arg(arg)
+    return job if len(job) == 32 else str(lookup(job))
 
 
 def _filters(
@@ -98,6 +109,7 @@ def collect_local(data_dir: Path, args: list[str], filters: dict[str, Any]) -> l
     """The rows of ``args`` from the local store in ``data_dir``."""
     from service.cli.artifacts import open_local
     from service.results import RowFilter, batch_rows, select_rows
+    from storage.job_queries import resolve_job_id
 
     jobs, store = open_local(data_dir)
     where = RowFilter(
@@ -118,7 +130,12 @@ def collect_local(data_dir: Path, args: list[str], filters: dict[str, Any]) -> l
         else:
             rows += [
                 r.document()
-                for r in select_rows(jobs, store, job_ids=[check_job_arg(arg)], where=where)
+                for r in select_rows(
+                    jobs,
+                    store,
+                    job_ids=[full_job_id(arg, lambda p: resolve_job_id(jobs, p))],
+                    where=where,
+                )
             ]
     return rows
 
@@ -137,7 +154,8 @@ def collect_remote(
                 _warn_missing(arg, list(doc.get("steps") or []))
                 rows += list(doc.get("rows") or [])
             else:
-                rows += client.results({**filters, "job": [check_job_arg(arg)]})
+                job = full_job_id(arg, lambda p: client.get(p)["id"])
+                rows += client.results({**filters, "job": [job]})
     return rows
 
 

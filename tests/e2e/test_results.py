@@ -158,11 +158,17 @@ def test03_cli_results(server: Server, batch: tuple[Path, list[str]], tmp_path: 
     assert local.returncode == 0, local
     remote = run_cli("results", ids[3], "--json", env=server.env())
     assert local.json() == remote.json()
+    # a short id (a unique prefix, as `ls` prints them) names the same job, both ways
+    short = ids[3][:8]
+    for env, extra in ((server.env(), []), (base_env(), ["--data-dir", str(server.data_dir)])):
+        by_prefix = run_cli("results", short, "--json", *extra, env=env)
+        assert by_prefix.returncode == 0, by_prefix
+        assert by_prefix.json() == remote.json()
 
 
 @pytest.mark.parametrize(
     "args, needle",
-    [(["--out", "x.txt"], "must end in .csv or .json"), (["not-a-job"], "neither a job id")],
+    [(["--out", "x.txt"], "must end in .csv or .json"), (["not-a-job"], "neither a job id"), (["0" * 31 + "g"], "neither a job id")],
 )
 def test04_cli_bad_input_exits_2(server: Server, args: list[str], needle: str) -> None:
     res = run_cli("results", *args, env=server.env())
