@@ -168,7 +168,11 @@ def test03_cli_results(server: Server, batch: tuple[Path, list[str]], tmp_path: 
 
 @pytest.mark.parametrize(
     "args, needle",
-    [(["--out", "x.txt"], "must end in .csv or .json"), (["not-a-job"], "neither a job id"), (["0" * 31 + "g"], "neither a job id")],
+    [
+        (["--out", "x.txt"], "must end in .csv or .json"),
+        (["not-a-job"], "neither a job id"),
+        (["0" * 31 + "g"], "neither a job id"),
+    ],
 )
 def test04_cli_bad_input_exits_2(server: Server, args: list[str], needle: str) -> None:
     res = run_cli("results", *args, env=server.env())
