@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import pickle
+import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -97,6 +98,8 @@ class JobContext:
         self.executor: Executor = executor or InlineExecutor()
         self.limits = limits or JobLimits()
         self.artifacts: dict[str, ArtifactRecord] = {}
+        #: Timings the kind measured itself (:meth:`measure`), kept in the job's manifest.
+        self.measured: dict[str, float] = {}
         self._published: dict[str, float] = {}
 
     # -- randomness ----------------------------------------------------------------------
@@ -190,6 +193,18 @@ class JobContext:
         check_document(name, obj)
         text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
         return self.put_bytes(name, text.encode(), "application/json")
+
+    def measure(self, name: str, seconds: float) -> None:
+        """Record a timing the kind measured itself, e.g. ``render_seconds``: the render's
+        own passes without loading Mitsuba, the scene and JIT compilation. Timings are not
+        artifacts (same spec, same bytes): they go to the job's manifest under
+        ``timings.measured``, where result rows read them (:attr:`jobapi.rows.JobFacts.measured`).
+        ``name`` is a short identifier; ``seconds`` a finite number >= 0."""
+        if not re.fullmatch(r"[a-z][a-z0-9_]{0,63}", name):
+            raise ValueError(f"a measurement's name is a short identifier, got {name!r}")
+        if not math.isfinite(seconds) or seconds < 0:
+            raise ValueError(f"measurement {name}: {seconds!r} is not a finite time >= 0")
+        self.measured[name] = float(seconds)
 
     def publish(self, name: str, obj: Any, *, min_interval_s: float = 1.0) -> bool:
         """Publish ``obj`` (JSON) as the live state of ``name`` while the job runs, e.g. its

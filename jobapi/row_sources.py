@@ -29,8 +29,9 @@ def job_id_of_ref(ref: str) -> str | None:
     return m["job"] if m else None
 
 
-def job_facts(job: Job) -> JobFacts:
-    """The :class:`JobFacts` of a queue row (``run_seconds`` from its start and end)."""
+def job_facts(job: Job, measured: dict[str, float] | None = None) -> JobFacts:
+    """The :class:`JobFacts` of a queue row (``run_seconds`` from its start and end;
+    ``measured``: the timings of its manifest, see :func:`measured_timings`)."""
     run_s = None
     if job.started_at is not None and job.finished_at is not None:
         run_s = job.finished_at - job.started_at
@@ -42,7 +43,30 @@ def job_facts(job: Job) -> JobFacts:
         name=job.name,
         params=params if isinstance(params, dict) else {},
         run_seconds=run_s,
+        measured=measured or {},
     )
+
+
+def measured_timings(job: Job, store: ArtifactStore) -> dict[str, float]:
+    """The timings ``job``'s kind measured itself (``timings.measured`` of its manifest),
+    ``{}`` when it has no manifest or the manifest has none."""
+    digest = getattr(job, "manifest_digest", None)
+    if not digest:
+        return {}
+    try:
+        if store.size(digest) > MAX_JSON_BYTES:
+            return {}
+        doc = json.loads(store.read(digest))
+    except (StorageError, ValueError):
+        return {}
+    got = (doc.get("timings") or {}).get("measured") if isinstance(doc, dict) else None
+    if not isinstance(got, dict):
+        return {}
+    return {
+        str(k): float(v)
+        for k, v in got.items()
+        if isinstance(v, (int, float)) and not isinstance(v, bool)
+    }
 
 
 class StoreSource:
@@ -51,7 +75,7 @@ class StoreSource:
     def __init__(self, job: Job, jobs: JobStore, store: ArtifactStore) -> None:
         self._jobs, self._store = jobs, store
         self._artifacts = {Path(a.name).name: a for a in job.artifacts}
-        self.job = job_facts(job)
+        self.job = job_facts(job, measured_timings(job, store))
 
     def read(self, name: str) -> Any:
         """The JSON artifact ``name`` (matched on the file name), parsed; ``None`` if the job

@@ -182,6 +182,8 @@ class JobFacts:
         params: the spec's params as stored (defaults filled in).
         name: the spec's label, if any.
         run_seconds: wall seconds the job ran (``None`` if unknown).
+        measured: the timings the kind measured itself (``JobContext.measure``), from the
+            job's manifest, e.g. ``render_seconds``; empty for jobs made before they were.
     """
 
     id: str
@@ -190,6 +192,7 @@ class JobFacts:
     params: Mapping[str, Any]
     name: str | None = None
     run_seconds: float | None = None
+    measured: Mapping[str, float] = field(default_factory=dict)
 
 
 class RowSource(Protocol):

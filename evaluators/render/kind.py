@@ -17,12 +17,13 @@ Passes also make progress visible and let a cancellation stop a long render betw
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import math
 import time
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
@@ -180,6 +181,35 @@ def render_passes(
     return (total / done).astype(np.float32)
 
 
+class _Compiled:
+    """Seconds Dr.Jit spent compiling kernels (code generation and the LLVM/CUDA backend)
+    inside a :func:`kernel_compile_timer` block; set when the block ends."""
+
+    seconds: float = 0.0
+
+
+@contextlib.contextmanager
+def kernel_compile_timer() -> Iterator[_Compiled]:
+    """Time the kernel compilation of the block from Dr.Jit's kernel history (which it
+    keeps only while ``JitFlag.KernelHistory`` is set; the flag is restored after). A
+    kernel found in Dr.Jit's cache costs no compilation. Renders subtract this from their
+    wall time, so that ``render_seconds`` does not depend on whether a worker is warm."""
+    import drjit as dr
+
+    out = _Compiled()
+    before = dr.flag(dr.JitFlag.KernelHistory)
+    dr.kernel_history()  # drop what an earlier block left (reading the history clears it)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        yield out
+    finally:
+        history = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, before)
+        ms = sum(float(k.get("codegen_time", 0.0)) + float(k.get("backend_time", 0.0))
+                 for k in history)  # fmt: skip
+        out.seconds = ms / 1000.0
+
+
 def load_scene(
     params: RenderParams, bsdf: Any, mi: types.ModuleType, pass_spp: int
 ) -> tuple[Any, dict[str, Any], SceneSetup]:
@@ -229,9 +259,12 @@ def run_render(params: RenderParams, ctx: JobContext) -> None:
             0.02 + 0.93 * done / params.spp, f"pass {i + 1}/{len(passes)}: {done}/{params.spp} spp"
         )
 
-    started = time.perf_counter()
-    image = render_passes(mi, scene, passes, seeds, on_pass=report)
-    seconds = time.perf_counter() - started
+    with kernel_compile_timer() as compiled:
+        started = time.perf_counter()
+        image = render_passes(mi, scene, passes, seeds, on_pass=report)
+        seconds = time.perf_counter() - started
+    # The render's own cost (its result row): the passes without JIT compilation.
+    ctx.measure("render_seconds", max(seconds - compiled.seconds, 0.0))
     bad = int(np.count_nonzero(~np.isfinite(image)))
     if bad:
         raise JobFailed(

@@ -1,10 +1,12 @@
 """Result rows of ``render`` (:mod:`jobapi.rows`) and what a scored image's row takes from
 the render that made it.
 
-A render measures one thing: its own cost. Its row is ``render_seconds`` (the job's wall
-time: scene load, JIT compile, every pass), with the scene, the spp and the material's
-source (``config``). Timings stay out of the artifacts (same spec, same bytes), so they
-come from the job's record.
+A render measures one thing: its own cost. Its row is ``render_seconds``: the wall time of
+its passes less Dr.Jit's kernel compilation (no Mitsuba import, scene load, material
+resolution or output writing), as the render kind measures it
+(:func:`evaluators.render.kind.render_passes`) and records it in the job's manifest. For
+renders made before it was recorded, the job's wall time stands in. Timings stay out of the
+artifacts (same spec, same bytes), so they come from the job's record.
 
 A glint material (``{"glint": {...}}``) adds its evaluator (``config.method``), the
 example's side (``config.example``) and its memory, ``bytes_per_material``
@@ -105,16 +107,22 @@ def render_facts(src: RowSource) -> dict[str, Any]:
     return {
         "scene": p.get("scene"),
         "spp": spp if isinstance(spp, int) else None,
-        "render_seconds": src.job.run_seconds,
+        "render_seconds": render_seconds(src),
         "seed": src.job.seed,
         "config": config,
         **facts,
     }
 
 
+def render_seconds(src: RowSource) -> float | None:
+    """The render's own time (``measured["render_seconds"]``), else the job's wall time."""
+    own = src.job.measured.get("render_seconds")
+    return float(own) if own is not None else src.job.run_seconds
+
+
 def render_rows(src: RowSource) -> list[ResultRow]:
     """One row: ``render_seconds`` of this render (none while the time is unknown)."""
-    seconds = src.job.run_seconds
+    seconds = render_seconds(src)
     if seconds is None:
         return []
     facts = render_facts(src)

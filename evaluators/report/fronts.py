@@ -36,7 +36,7 @@ COST_LABELS = {
     "bytes_per_material": "bytes_per_material: float32 parameters per material",
     "bytes_per_network": "bytes_per_network: float32 network weights",
     "ms_per_frame": "ms_per_frame: kernel ms per displayed frame",
-    "render_seconds": "render_seconds: wall seconds of the render job",
+    "render_seconds": "render_seconds: seconds of the render's passes, without JIT compilation",
     "spp": "spp: samples per pixel",
     "train_seconds": "train_seconds: wall seconds of the training job",
 }

@@ -403,6 +403,8 @@ def _execute(
                 "started": started,
                 "finished": finished,
                 "run_seconds": finished - started,
+                # what the kind timed itself (JobContext.measure), e.g. render_seconds
+                "measured": dict(sorted(ctx.measured.items())),
             },
         }
         minfo = store.put_bytes((canonical_json(manifest) + "\n").encode())

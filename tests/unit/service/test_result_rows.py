@@ -3,6 +3,7 @@ one row per value, each with the facts of what it measured and its costs."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -242,6 +243,11 @@ def test06_render_and_missing_artifacts() -> None:
         "merl",
     )
     assert rows_of(FakeSource("render", {}, {}, seconds=None)) == []
+    # the render's own time (its manifest's timings.measured) wins over the job's wall time
+    own = FakeSource("render", {"scene": "sphere_env", "spp": 4}, {})
+    own.job = dataclasses.replace(own.job, measured={"render_seconds": 0.25})
+    (row,) = rows_of(own)
+    assert (row.value, row.render_seconds) == (0.25, 0.25)
     for kind in ("score", "train.brdf", "train.fabric", "train.btf", "evaluate.tss"):
         assert rows_of(FakeSource(kind, {}, {})) == [], kind
 
