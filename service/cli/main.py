@@ -363,11 +363,23 @@ def batch(
         "--continue-on-error",
         help="After a step fails, skip only the steps that need it and run the rest.",
     ),
+    tables: bool = typer.Option(
+        False,
+        "--verbose",
+        "-v",
+        help="Also print each step's whole result table (by default one summary line a step).",
+    ),
 ) -> None:
-    """Run a batch of steps on the server, in order; later steps may use step: refs."""
+    """Run a batch of steps on the server, in order; later steps may use step: refs.
+
+    Prints one line per step (its state, time and headline result); ``-v`` adds each step's
+    result table. ``--out`` writes the batch's result rows, one per measured value, as
+    ``matforge results FILE`` does; ``--json`` prints the steps (job ids, states, metrics).
+    """
     from service.cli.batch import load_batch
     from service.cli.batch_run import run_batch
-    from service.cli.results import metrics_tables, result_rows, results_table, write_rows
+    from service.cli.results import metrics_tables, result_rows, results_table
+    from service.cli.results_command import write_rows
 
     if out is not None and out.suffix.lower() not in (".csv", ".json"):
         error(f"--out {out}: must end in .csv or .json")
@@ -382,14 +394,16 @@ def batch(
             parallel=parallel,
             continue_on_error=continue_on_error,
         )
+        if out is not None:
+            steps = [{"name": s.name, "spec": s.spec} for s in plan.steps]
+            write_rows(out, list(client.batch_results(steps, {}).get("rows") or []))
     columns, rows = result_rows(outcome.results)
-    if out is not None:
-        write_rows(out, columns, rows)
-    table = results_table(columns, rows, title=f"batch {file}")
+    table = results_table(columns, rows, title=f"batch {file}", results=outcome.results)
     console = table_console(to_stderr=as_json)
     console.print(table)
-    for metrics_table in metrics_tables(outcome.results, console.width):
-        console.print(metrics_table)
+    if tables:
+        for metrics_table in metrics_tables(outcome.results, console.width):
+            console.print(metrics_table)
     if as_json:
         print_json(rows)
     for r in outcome.results:

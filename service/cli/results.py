@@ -1,18 +1,17 @@
-"""The results of a batch run: one flat row per step, written as CSV or JSON and shown as
-a Rich table.
+"""The steps of a batch run: one flat row per step, printed by ``batch --json`` and shown
+as a Rich table (``batch --out`` writes the tidy result rows of ``matforge results``
+instead, one per measured value: :func:`service.cli.results_command.write_rows`).
 
 A row has ``step``, ``kind``, ``job_id``, ``state``, ``seconds`` (the job's run time) and
 ``error``, then, for every step whose kind has a result table (its summary hook), the
 table's numeric cells as ``<label>.<column>`` columns. One row per step (skipped steps
-included) keeps a CSV's rows in step order and the same shape for every batch: a score step
-with several candidates widens its row instead of adding rows.
+included) keeps the rows in step order and the same shape for every batch: a score step
+with several candidates widens its row instead of adding rows. On the terminal each step
+shows one :func:`headline` of its result table; ``batch -v`` prints the whole tables.
 """
 
 from __future__ import annotations
 
-import csv
-import json
-from pathlib import Path
 from typing import Any
 
 from rich.table import Table
@@ -44,22 +43,6 @@ def result_rows(results: list[StepResult]) -> tuple[list[str], list[dict[str, An
         row.update({c: r.metrics.get(c) for c in metric_cols})
         rows.append(row)
     return columns, rows
-
-
-def write_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
-    """Write the rows as CSV (``.csv``) or as a JSON list of objects (``.json``)."""
-    suffix = path.suffix.lower()
-    if suffix not in (".csv", ".json"):
-        raise ValueError(f"{path}: --out must end in .csv or .json")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if suffix == ".json":
-        path.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
-        return
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=columns)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: "" if v is None else v for k, v in row.items()})
 
 
 def _cell(value: Any) -> str:
@@ -100,10 +83,28 @@ def result_table_views(doc: ResultTable, title: str, width: int) -> list[Table]:
     return fitted_tables(title, doc.label_header.lower(), list(doc.columns), rows, width)
 
 
-def results_table(columns: list[str], rows: list[dict[str, Any]], title: str) -> Table:
+def headline(doc: ResultTable | None, width: int = 60) -> str:
+    """One line of a step's result table: its first column's value for each label, e.g.
+    ``flip: rough 0.1234, same 0`` (cut at ``width`` characters, with an ellipsis)."""
+    if doc is None or not doc.rows or not doc.columns:
+        return ""
+    col = doc.columns[0]
+    parts = [f"{label} {_cell(values.get(col))}" for label, values in doc.rows.items()]
+    text = f"{col}: " + ", ".join(parts)
+    return text if len(text) <= width else text[: width - 1] + "\u2026"
+
+
+def results_table(
+    columns: list[str],
+    rows: list[dict[str, Any]],
+    title: str,
+    results: list[StepResult] | None = None,
+) -> Table:
     """A Rich table of the steps (job ids shortened to 12 characters; the ``error`` column
-    only when a step has an error; metrics are shown by :func:`metrics_tables`)."""
+    only when a step has an error; with ``results``, a ``result`` column: each step's
+    :func:`headline`; whole result tables are :func:`metrics_tables`)."""
     shown = [c for c in BASE_COLUMNS if c != "error" or any(r.get("error") for r in rows)]
+    lines = [headline(r.table) for r in results] if results is not None else []
     table = Table(title=title)
     for col in shown:
         table.add_column(
@@ -112,12 +113,16 @@ def results_table(columns: list[str], rows: list[dict[str, Any]], title: str) ->
             max_width=48 if col == "error" else None,
             justify="right" if col == "seconds" or "." in col else "left",
         )
-    for row in rows:
+    if any(lines):
+        table.add_column("result", overflow="ellipsis", no_wrap=True)
+    for i, row in enumerate(rows):
         cells = []
         for col in shown:
             value = row.get(col)
             text = _cell(value[:12] if col == "job_id" and value else value)
             style = STATE_STYLE.get(text, "") if col == "state" else ""
             cells.append(Text(text, style=style))
+        if any(lines):
+            cells.append(Text(lines[i]))
         table.add_row(*cells)
     return table
