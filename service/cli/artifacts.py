@@ -96,6 +96,101 @@ def parse_ref(ref: str) -> tuple[str | None, str | None, str | None]:
     )
 
 
+def parse_many(ref: str) -> tuple[str, str] | None:
+    """``(job id or prefix, glob)`` when ``ref`` names several artifacts of one job
+    (``job:ID``: all of them; ``job:ID/<glob>`` with ``*``, ``?`` or ``[``), else ``None``."""
+    import re
+
+    m = re.fullmatch(r"job:([0-9a-f]{1,32})(?:/(.*))?", ref)
+    if m is None:
+        return None
+    pattern = m[2]
+    if not pattern:
+        return m[1], "*"
+    return (m[1], pattern) if any(c in pattern for c in "*?[") else None
+
+
+def _directory(output_arg: str) -> Path:
+    """The directory several artifacts go to: an existing one, or one the path ends in
+    ``/`` asks for (created); :class:`BadInput` otherwise."""
+    output = Path(output_arg)
+    if output.is_dir():
+        return output
+    if output_arg.endswith(("/", os.sep)) and not output.exists():
+        output.mkdir(parents=True)
+        return output
+    raise BadInput(
+        f"-o {output_arg}: several artifacts go to a directory: give an existing one, or end "
+        "the path in / to create it"
+    )
+
+
+def fetch_many(
+    ctx: typer.Context,
+    many: tuple[str, str],
+    output: str,
+    data_dir: Path | None,
+    as_json: bool,
+) -> None:
+    """Fetch every artifact of job ``many[0]`` whose name matches the glob ``many[1]`` into
+    the directory ``output`` (names kept, sub-folders made; each verified, atomic)."""
+    import fnmatch
+
+    if output == "-":
+        raise BadInput("-o -: several artifacts cannot go to stdout; give a directory")
+    job_id, pattern = many
+    local = state_of(ctx).local_dir(data_dir)
+    written: list[dict[str, Any]] = []
+
+    def chosen(arts: list[dict[str, Any]], full_id: str) -> list[dict[str, Any]]:
+        got = [a for a in arts if fnmatch.fnmatchcase(str(a["name"]), pattern)]
+        if not got:
+            names = ", ".join(str(a["name"]) for a in arts) or "none"
+            raise NotFoundError(f"job {full_id}: no artifact matches {pattern!r} (it has: {names})")
+        return got
+
+    def dest_of(name: str) -> Path:
+        rel = Path(name)
+        if rel.is_absolute() or ".." in rel.parts:
+            raise FormatError(name, "an artifact name that leaves the directory")
+        dest = out_dir / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        return dest
+
+    if local is not None:
+        from storage.job_queries import resolve_job_id
+
+        jobs, store = open_local(local)
+        full = resolve_job_id(jobs, job_id)
+        arts = chosen([a.public() for a in jobs.artifacts(full)], full)
+        out_dir = _directory(output)
+        for a in arts:
+            src = store.path(a["digest"])
+            if not src.is_file():
+                raise NotFoundError(f"no object sha256:{a['digest']} in the store at {local}")
+            dest = dest_of(str(a["name"]))
+            size = write_verified(dest, local_fill(src, a["digest"]), mode=default_file_mode())
+            written.append(
+                {"name": a["name"], "digest": a["digest"], "size": size, "path": str(dest)}
+            )
+    else:
+        with state_of(ctx).client() as client:
+            full = str(client.get(job_id)["id"]) if len(job_id) < 32 else job_id
+            arts = chosen(client.artifacts(full), full)
+            out_dir = _directory(output)
+            for a in arts:
+                dest = dest_of(str(a["name"]))
+                size = client.fetch(str(a["digest"]), dest, mode=default_file_mode())
+                written.append(
+                    {"name": a["name"], "digest": a["digest"], "size": size, "path": str(dest)}
+                )
+    if as_json:
+        print_json(written)
+    else:
+        for w in written:
+            print_line(w["path"])
+
+
 def destination(out: Path, name: str) -> Path:
     """``out`` itself, or ``out/<basename of name>`` when ``out`` is a directory."""
     return out / Path(name).name if out.is_dir() else out
@@ -160,26 +255,37 @@ def fetch(
     ref: str = typer.Argument(
         ..., help="job:<job-id or unique prefix>/<artifact-name> or sha256:<hex>."
     ),
-    output: Path = typer.Option(
+    output_arg: str = typer.Option(
         ...,
         "--output",
         "-o",
         help="File to write (or an existing directory: the artifact's name is used), "
-        "or - for stdout.",
+        "or - for stdout; for a whole job (job:ID) or a glob (job:ID/*.png), a directory "
+        "(created if the path ends in /).",
     ),
     data_dir: Path | None = LocalOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Download an artifact's bytes (verified against its digest) to a file or stdout.
 
+    ``job:ID`` (a whole job) or ``'job:ID/*.png'`` (a glob over its artifact names, quoted
+    for the shell) fetch every matching artifact into the directory ``-o``, each under its
+    own name, each verified and written atomically; one path per line is printed.
+
     A file is written atomically once verified, with the mode your umask gives new files.
     A FIFO or a terminal is written in place (never replaced), and so is stdout (``-o -``),
     once the bytes were verified; a digest mismatch exits 1 with nothing written. Block
     devices and sockets are refused (exit 2).
     """
-    to_stdout = str(output) == "-"
+    # A str, not a Path: a trailing "/" (a directory to create) must survive.
+    output = Path(output_arg)
+    to_stdout = output_arg == "-"
     if to_stdout and as_json:
         raise BadInput("--json and -o - both write to stdout; use one of them")
+    many = parse_many(ref)
+    if many is not None:
+        fetch_many(ctx, many, output_arg, data_dir, as_json)
+        return
     job_id, name, digest = parse_ref(ref)
     local = state_of(ctx).local_dir(data_dir)
     if local is not None:

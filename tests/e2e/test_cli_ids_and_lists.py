@@ -204,6 +204,34 @@ def test06_fetch_to_stdout_and_umask(idle: Server, done: dict[str, Any], tmp_pat
         assert out.stat().st_mode & 0o777 == 0o640
 
 
+def test06b_fetch_a_whole_job_or_a_glob(idle: Server, done: dict[str, Any], tmp_path: Path) -> None:
+    """``fetch job:ID -o dir/`` fetches every artifact, ``'job:ID/*.png'`` the matching ones;
+    each file's bytes hash to its recorded digest (the reference: the job's artifact list)."""
+    render = done["render"]
+    digests = {a["name"]: a["digest"] for a in render["artifacts"]}
+    for extra in ([], ["--data-dir", str(idle.data_dir)]):
+        tag = "local" if extra else "server"
+        whole = tmp_path / f"{tag}-all/"
+        res = run_cli("fetch", f"job:{render['id'][:8]}", "-o", f"{whole}/", *extra, env=idle.env())
+        assert res.returncode == 0, res
+        got = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in whole.iterdir()}
+        assert got == digests
+        assert sorted(res.stdout.split()) == sorted(str(whole / n) for n in digests)
+        pngs = tmp_path / f"{tag}-png"
+        pngs.mkdir()
+        res = run_cli("fetch", f"job:{render['id']}/*.png", "-o", str(pngs), "--json", *extra,
+                      env=idle.env())  # fmt: skip
+        assert res.returncode == 0, res
+        assert {w["name"] for w in res.json()} == {n for n in digests if n.endswith(".png")}
+        # no match: exit 2 naming the pattern and what the job has; a file as -o: exit 2
+        res = run_cli("fetch", f"job:{render['id']}/*.txt", "-o", str(pngs), *extra,
+                      env=idle.env())  # fmt: skip
+        assert res.returncode == 2 and "*.txt" in res.stderr and "image.exr" in res.stderr, res
+        res = run_cli("fetch", f"job:{render['id']}", "-o", str(tmp_path / "x.exr"), *extra,
+                      env=idle.env())  # fmt: skip
+        assert res.returncode == 2 and "directory" in res.stderr, res
+
+
 def test07_status_of_a_score_job_shows_its_metrics(idle: Server, done: dict[str, Any]) -> None:
     res = run_cli("status", done["score"]["id"][:10], env=idle.env())
     assert res.returncode == 0, res
