@@ -23,7 +23,8 @@ column                      meaning
 ``bytes_per_network``       float32 bytes of the shared network weights
 ``train_seconds``           wall seconds of the training job (fit, evaluation and timing)
 ``spp``                     samples per pixel of the render that was scored
-``render_seconds``          wall seconds of that render job (scene load, JIT compile, passes)
+``render_seconds``          seconds of that render's passes, without JIT compilation (its own
+                            measurement; older renders: the job's wall time)
 ==========================  ==================================================================
 """
 

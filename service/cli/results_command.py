@@ -214,9 +214,24 @@ def register(app: typer.Typer) -> None:
             None, "--data-dir", show_default=False, help="Read a local store, not the server."
         ),
         as_json: bool = typer.Option(False, "--json", help="Print the rows as one JSON list."),
+        pivot: bool = typer.Option(
+            False,
+            "--pivot",
+            help="A method x metric table instead: per method the mean (and spread) of each "
+            "metric and its costs, the best per column marked (--by names the method).",
+        ),
+        by: str = typer.Option(
+            "candidate",
+            "--by",
+            help="With --pivot: the row column that names a method (candidate, material, "
+            "scene, step, kind, ...).",
+        ),
     ) -> None:
         """Every measured value as one row (job, kind, dataset, scene, candidate, config,
-        metric, value, lower-is-better, seed, costs); a batch's rows in step order."""
+        metric, value, lower-is-better, seed, costs); a batch's rows in step order.
+
+        ``--pivot``: one row per method instead, as nerfbaselines tables are (``--json``:
+        the ``matforge.pivot/1`` document; ``--out``: its CSV or JSON)."""
         if out is not None and out.suffix.lower() not in (".csv", ".json"):
             error(f"--out {out}: must end in .csv or .json")
             raise typer.Exit(EXIT_BAD_INPUT)
@@ -227,6 +242,9 @@ def register(app: typer.Typer) -> None:
             rows = collect_local(local, arg_list, filters)
         else:
             rows = collect_remote(ctx, arg_list, filters)
+        if pivot:
+            show_pivot(rows, by, out, as_json)
+            return
         if out is not None:
             write_rows(out, rows)
             err_console.print(f"{len(rows)} rows written to {out}", markup=False, highlight=False)
@@ -234,3 +252,61 @@ def register(app: typer.Typer) -> None:
             print_json(rows)
         else:
             table_console(to_stderr=out is not None).print(rows_table(rows))
+
+
+def show_pivot(rows: list[dict[str, Any]], by: str, out: Path | None, as_json: bool) -> None:
+    """Print (and with ``out``, write) the method x metric table of ``rows``."""
+    import csv
+
+    from jobapi.rows import KEY_COLUMNS
+    from service.results_pivot import pivot, pivot_csv_rows
+
+    if by not in KEY_COLUMNS:
+        raise BadInput(f"--by {by}: not a row column (one of: {', '.join(KEY_COLUMNS)})")
+    doc = pivot(rows, by)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        if out.suffix.lower() == ".json":
+            out.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        else:
+            header, flat = pivot_csv_rows(doc)
+            with open(out, "w", newline="", encoding="utf-8") as fh:
+                writer = csv.DictWriter(fh, fieldnames=header)
+                writer.writeheader()
+                for r in flat:
+                    writer.writerow({k: "" if v is None else v for k, v in r.items()})
+        err_console.print(
+            f"{len(doc['methods'])} methods written to {out}", markup=False, highlight=False
+        )
+    if as_json:
+        print_json(doc)
+    else:
+        table_console(to_stderr=out is not None).print(pivot_table(doc))
+
+
+def pivot_table(doc: dict[str, Any]) -> Table:
+    """The pivot document as a Rich table: ``mean ± std`` per metric, the median per cost,
+    the best of each column in bold with a ``*``; lower/higher-is-better arrows in the
+    header."""
+    table = Table(title=f"{len(doc['methods'])} methods by {doc['by']}")
+    table.add_column(doc["by"], overflow="fold")
+    for col in doc["columns"]:
+        arrow = {True: " \u2193", False: " \u2191"}.get(col["lower_is_better"], "")
+        table.add_column(col["name"] + arrow, justify="right", overflow="fold")
+    for meth in doc["methods"]:
+        cells = [Text(meth)]
+        for col in doc["columns"]:
+            got = doc["cells"][meth].get(col["name"])
+            if got is None:
+                cells.append(Text(""))
+                continue
+            if col["role"] == "metric":
+                text = f"{got['mean']:.4g}"
+                if got["std"] is not None:
+                    text += f" \u00b1 {got['std']:.2g}"
+            else:
+                text = f"{got['median']:.4g}"
+            best = doc["best"].get(col["name"]) == meth
+            cells.append(Text(text + (" *" if best else ""), style="bold" if best else ""))
+        table.add_row(*cells)
+    return table

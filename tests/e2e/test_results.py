@@ -182,3 +182,26 @@ def test03_cli_results(server: Server, batch: tuple[Path, list[str]], tmp_path: 
 def test04_cli_bad_input_exits_2(server: Server, args: list[str], needle: str) -> None:
     res = run_cli("results", *args, env=server.env())
     assert res.returncode == 2 and needle in res.stderr, res
+
+
+def test05_cli_pivot(server: Server, batch: tuple[Path, list[str]], tmp_path: Path) -> None:
+    """``results --pivot``: a row per candidate, the means of the tidy rows (the reference:
+    the same rows through ``--json``), the best per column marked."""
+    f, ids = batch
+    tidy = run_cli("results", ids[3], "--json", env=server.env()).json()
+    res = run_cli("results", ids[3], "--pivot", "--json", env=server.env())
+    assert res.returncode == 0, res
+    doc = res.json()
+    assert doc["format"] == "matforge.pivot/1" and sorted(doc["methods"]) == ["spp1", "spp2"]
+    for meth in doc["methods"]:
+        flips = [r["value"] for r in tidy if r["candidate"] == meth and r["metric"] == "flip"]
+        assert doc["cells"][meth]["flip"]["mean"] == pytest.approx(sum(flips) / len(flips))
+    lowest = min(doc["methods"], key=lambda m: doc["cells"][m]["flip"]["mean"])
+    assert doc["best"]["flip"] == lowest
+    out = tmp_path / "pivot.csv"
+    human = run_cli("results", str(f), "--pivot", "--out", str(out), env=server.env())
+    assert human.returncode == 0 and "*" in human.stdout + human.stderr, human
+    with open(out, newline="") as fh:
+        assert {r["method"] for r in csv.DictReader(fh)} >= {"spp1", "spp2", "gt"}
+    bad = run_cli("results", ids[3], "--pivot", "--by", "colour", env=server.env())
+    assert bad.returncode == 2 and "--by colour" in bad.stderr

@@ -1,0 +1,135 @@
+"""A method x metric table of result rows, as nerfbaselines prints one: a row per method,
+its mean metrics (with their spread and count) and its costs, the best per column marked.
+
+The rows are the tidy ones of :mod:`jobapi.rows` (``GET /api/results``, ``matforge
+results``). A *method* is the value of the ``by`` column (default ``candidate``); a row
+without one is named by its ``step`` (a batch's) or its kind and short job id, so a
+render's or a training job's own rows get a line too. For each method and metric:
+
+- ``mean``: the mean of the values (over seeds, materials, scenes: whatever the rows hold),
+  ``std``: their sample standard deviation (``None`` for one value), ``n``: how many;
+- each cost (:data:`jobapi.rows.COST_COLUMNS`): the median of the method's rows that have
+  it (a cost is repeated on every row it belongs to, so the median is that cost when it is
+  one, and a robust middle when timings of several jobs mix). A cost that is also a metric
+  of some row (a render's own ``render_seconds`` row) is the column ``cost.<name>``.
+
+``best[column]`` is the method with the lowest mean (or highest, for a metric where higher
+is better, from the rows' ``lower_is_better``; every cost is lower-is-better). A metric
+without a better direction (``lower_is_better`` null) has no best. Ties go to the method
+named first. Methods keep the order of their first row.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from jobapi.rows import COST_COLUMNS
+
+#: The schema name of the pivot document (``matforge results --pivot --json``).
+FORMAT = "matforge.pivot/1"
+
+
+def method_of(row: Mapping[str, Any], by: str = "candidate") -> str:
+    """The method a row belongs to: its ``by`` value, else its step, else ``kind job[:8]``."""
+    for key in (by, "step"):
+        value = row.get(key)
+        if value not in (None, ""):
+            return str(value)
+    return f"{row.get('kind')} {str(row.get('job') or '')[:8]}".strip()
+
+
+def _finite(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str, Any]:
+    """The pivot document of ``rows``: ``{"format", "by", "methods", "columns", "cells",
+    "best"}``; ``columns`` are ``{"name", "role": "metric" | "cost", "lower_is_better"}``,
+    ``cells[method][column]`` is ``{"mean", "std", "n"}`` for a metric and ``{"median",
+    "n"}`` for a cost (absent where the method has none)."""
+    methods: list[str] = []
+    values: dict[str, dict[str, list[float]]] = {}
+    costs: dict[str, dict[str, list[float]]] = {}
+    direction: dict[str, bool | None] = {}
+    for row in rows:
+        method = method_of(row, by)
+        if method not in values:
+            methods.append(method)
+            values[method], costs[method] = {}, {}
+        metric, value = row.get("metric"), _finite(row.get("value"))
+        if isinstance(metric, str) and value is not None:
+            values[method].setdefault(metric, []).append(value)
+            lib = row.get("lower_is_better")
+            direction.setdefault(metric, lib if isinstance(lib, bool) else None)
+        for cost in COST_COLUMNS:
+            c = _finite(row.get(cost))
+            if c is not None and cost != metric:  # a cost reported as the metric is a metric
+                costs[method].setdefault(cost, []).append(c)
+    metric_names = list(dict.fromkeys(m for meth in methods for m in values[meth]))
+    # A cost that is also some row's metric (a render's own row is its render_seconds)
+    # keeps both columns: the cost one is named "cost.<name>".
+    cost_key = {c: f"cost.{c}" if c in metric_names else c for c in COST_COLUMNS}
+    cost_names = [c for c in COST_COLUMNS if any(c in costs[m] for m in methods)]
+    columns = [
+        {"name": m, "role": "metric", "lower_is_better": direction.get(m)} for m in metric_names
+    ] + [{"name": cost_key[c], "role": "cost", "lower_is_better": True} for c in cost_names]
+    cells: dict[str, dict[str, dict[str, Any]]] = {}
+    for meth in methods:
+        cell: dict[str, dict[str, Any]] = {}
+        for m, vs in values[meth].items():
+            std = statistics.stdev(vs) if len(vs) > 1 else None
+            cell[m] = {"mean": statistics.fmean(vs), "std": std, "n": len(vs)}
+        for c, vs in costs[meth].items():
+            cell[cost_key[c]] = {"median": statistics.median(vs), "n": len(vs)}
+        cells[meth] = cell
+    best: dict[str, str] = {}
+    for col in columns:
+        name, lib = col["name"], col["lower_is_better"]
+        if lib is None:
+            continue
+        key = "mean" if col["role"] == "metric" else "median"
+        scored = [(cells[m][name][key], m) for m in methods if name in cells[m]]
+        if len(scored) < 2:
+            continue
+        pick = min if lib else max
+        target = pick(v for v, _ in scored)
+        best[name] = next(m for v, m in scored if v == target)
+    return {
+        "format": FORMAT,
+        "by": by,
+        "methods": methods,
+        "columns": columns,
+        "cells": cells,
+        "best": best,
+    }
+
+
+def pivot_csv_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[dict[str, Any]]]:
+    """The pivot as flat CSV rows: ``method``, then per metric ``<m>``, ``<m>.std``,
+    ``<m>.n``, per cost its median, and ``best``: the columns this method is best in."""
+    header = ["method"]
+    for col in doc["columns"]:
+        name = col["name"]
+        header += [name, f"{name}.std", f"{name}.n"] if col["role"] == "metric" else [name]
+    header.append("best")
+    out = []
+    for meth in doc["methods"]:
+        cell = doc["cells"][meth]
+        row: dict[str, Any] = {"method": meth}
+        for col in doc["columns"]:
+            name, got = col["name"], cell.get(col["name"])
+            if col["role"] == "metric":
+                row[name] = got["mean"] if got else None
+                row[f"{name}.std"] = got["std"] if got else None
+                row[f"{name}.n"] = got["n"] if got else None
+            else:
+                row[name] = got["median"] if got else None
+        row["best"] = " ".join(c for c, m in doc["best"].items() if m == meth)
+        out.append(row)
+    return header, out

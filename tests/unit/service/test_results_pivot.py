@@ -1,0 +1,68 @@
+"""The method x metric table (``matforge results --pivot``): means, spreads and best marks
+checked against numpy over the same hand-made rows (the reference), and the tie, direction
+and fallback rules of :mod:`service.results_pivot`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.results_pivot import method_of, pivot, pivot_csv_rows
+
+
+def _row(candidate: str | None, metric: str, value: float, lib: bool | None, **kw):
+    return {"job": "a" * 32, "kind": "score", "candidate": candidate, "metric": metric,
+            "value": value, "lower_is_better": lib, **kw}  # fmt: skip
+
+
+ROWS = [
+    _row("hybrid", "smape", 0.10, True, seed=0, ns_per_eval=30.0),
+    _row("hybrid", "smape", 0.14, True, seed=1, ns_per_eval=34.0),
+    _row("hybrid", "psnr", 31.0, False, seed=0, ns_per_eval=30.0),
+    _row("neural", "smape", 0.20, True, seed=0, ns_per_eval=12.0),
+    _row("neural", "psnr", 33.0, False, seed=0, ns_per_eval=12.0),
+    _row("neural", "mean", 0.5, None),
+    _row("lambert", "mean", 0.7, None),
+]
+
+
+def test01_means_spread_and_best_match_numpy() -> None:
+    doc = pivot(ROWS)
+    assert doc["methods"] == ["hybrid", "neural", "lambert"]
+    smape = doc["cells"]["hybrid"]["smape"]
+    assert smape["mean"] == pytest.approx(np.mean([0.10, 0.14]))
+    assert smape["std"] == pytest.approx(np.std([0.10, 0.14], ddof=1))
+    assert smape["n"] == 2 and doc["cells"]["neural"]["smape"]["std"] is None
+    assert doc["cells"]["hybrid"]["ns_per_eval"]["median"] == pytest.approx(np.median([30, 34, 30]))
+    # lower smape wins, higher psnr wins, every cost is lower-is-better, no best for "mean"
+    assert doc["best"] == {"smape": "hybrid", "psnr": "neural", "ns_per_eval": "neural"}
+    roles = {c["name"]: (c["role"], c["lower_is_better"]) for c in doc["columns"]}
+    assert roles["psnr"] == ("metric", False) and roles["ns_per_eval"] == ("cost", True)
+
+
+def test02_csv_rows_and_fallback_names() -> None:
+    header, flat = pivot_csv_rows(pivot(ROWS))
+    assert header[:4] == ["method", "smape", "smape.std", "smape.n"] and header[-1] == "best"
+    assert flat[0]["best"] == "smape" and flat[1]["best"] == "psnr ns_per_eval"
+    assert method_of({"kind": "render", "job": "b" * 32, "candidate": None}) == "render bbbbbbbb"
+    assert method_of({"step": "gt", "candidate": ""}) == "gt"
+    assert method_of({"material": "gold", "candidate": "x"}, by="material") == "gold"
+
+
+def test03_one_method_has_no_best_and_nonfinite_values_are_dropped() -> None:
+    doc = pivot([_row("a", "flip", 0.1, True), _row("a", "flip", float("nan"), True)])
+    assert doc["best"] == {} and doc["cells"]["a"]["flip"]["n"] == 1
+
+
+def test04_a_cost_that_is_also_a_metric_keeps_both_columns() -> None:
+    rows = [
+        {"step": "gt", "kind": "render", "metric": "render_seconds", "value": 2.0,
+         "lower_is_better": True, "render_seconds": 2.0},
+        _row("spp1", "flip", 0.2, True, render_seconds=0.5),
+        _row("spp2", "flip", 0.1, True, render_seconds=0.9),
+    ]  # fmt: skip
+    doc = pivot(rows)
+    names = [c["name"] for c in doc["columns"]]
+    assert names == ["render_seconds", "flip", "cost.render_seconds"]
+    assert doc["cells"]["spp1"]["cost.render_seconds"]["median"] == 0.5
+    assert doc["best"]["cost.render_seconds"] == "spp1" and doc["best"]["flip"] == "spp2"
