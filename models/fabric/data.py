@@ -62,6 +62,8 @@ class MaterialData:
     train: np.ndarray
     test: np.ndarray
     stderr: np.ndarray | None = None
+    #: Side of the dataset's own maps (before :func:`map_tensor` resampled them).
+    map_source_resolution: int | None = None
 
     def albedos(self) -> np.ndarray:
         """``(4, 3)`` albedos of Eq. 8: rows kd_warp, kd_weft, ks_warp, ks_weft."""
@@ -168,6 +170,7 @@ def load_dataset(
                 train=train,
                 test=test,
                 stderr=None if se is None else se[keep].astype(np.float32),
+                map_source_resolution=int(normal.shape[0]),
             )
         )
     return out

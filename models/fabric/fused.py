@@ -84,6 +84,10 @@ class FabricModel:
     encoder: Any = None
     """The torch :class:`~models.fabric.networks.Encoder` (eval mode), or ``None`` when loaded
     from ``model.json``."""
+    data_map_resolution: int | None = None
+    """Side of the training data's maps (``model.pt`` of models trained since it was
+    recorded; ``None`` otherwise): new materials' maps are rasterised at this side, as the
+    training maps were, before the encoder's resampling."""
 
 
 def load_fabric_model(data: bytes) -> FabricModel:
@@ -124,6 +128,7 @@ def load_fabric_model(data: bytes) -> FabricModel:
         {n: z[i].astype(np.float32) for i, n in enumerate(obj["names"])},
         dict(zip(obj["names"], obj["params"], strict=True)),
         net.encoder,
+        int(obj["data_map_resolution"]) if obj.get("data_map_resolution") else None,
     )
 
 

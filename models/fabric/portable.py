@@ -147,13 +147,22 @@ def to_portable(
 
 
 def checkpoint_bytes(
-    net: FabricNetwork, names: Sequence[str], records: Sequence[dict[str, Any]], latents: np.ndarray
+    net: FabricNetwork,
+    names: Sequence[str],
+    records: Sequence[dict[str, Any]],
+    latents: np.ndarray,
+    data_map_resolution: int | None = None,
 ) -> bytes:
     """``model.pt``: ``torch.save`` of ``{"format", "architecture", "names", "params",
-    "latents", "state_dict"}`` (deterministic bytes; :func:`load_checkpoint`)."""
+    "latents", "state_dict"}`` and, when given, ``data_map_resolution``: the side of the
+    training data's maps (``generate.fabric``'s ``map_resolution``), so that a renderer
+    rasterises a new material's maps as the training maps were made (deterministic bytes;
+    :func:`load_checkpoint`)."""
     buf = io.BytesIO()
+    extra = {} if data_map_resolution is None else {"data_map_resolution": int(data_map_resolution)}
     torch.save(
         {
+            **extra,
             "format": CHECKPOINT_FORMAT,
             "architecture": net.arch.as_dict(),
             "names": list(names),

@@ -160,7 +160,9 @@ def _write(
         "materials": len(materials),
     }
     doc = to_portable(net, names, [m.pattern for m in materials], records, latents, training)
-    ctx.put_bytes("model.pt", checkpoint_bytes(net, names, records, latents))
+    sides = {m.map_source_resolution for m in materials}
+    side = sides.pop() if len(sides) == 1 else None  # one generate.fabric job: one side
+    ctx.put_bytes("model.pt", checkpoint_bytes(net, names, records, latents, side))
     ctx.put_json("model.json", doc)
     ctx.put_json(
         "latents.json",

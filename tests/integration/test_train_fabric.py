@@ -12,6 +12,7 @@ What a tiny run must do, on any machine, is lower its own training loss.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -156,6 +157,32 @@ def test02_portable_model_agrees_with_the_checkpoint(
         # default options this used half of rtol 1e-5 + atol 1e-6 (AMD EPYC), too close for
         # another CPU's kernels; 5x that. A wrong latent or layer moves outputs by O(0.1).
         np.testing.assert_allclose(got, ref, rtol=5e-5, atol=5e-6)
+
+
+def test02b_render_encodes_a_training_material_as_training_did(
+    fabric_env: tuple[Settings, str], trained: Job
+) -> None:
+    """The renderer's latent of a training material (its maps rasterised afresh at the side
+    the model records, then encoded) equals the latent training stored for it: the maps are
+    made the same way on both sides (the reference: training's own latents, from the
+    dataset's map EXRs)."""
+    from evaluators.render.sources.fabric_model import latent_for
+    from materials.fabric.params import FabricParams
+
+    settings, gen = fabric_env
+    model = load_fabric_model(read(settings, trained, "model.pt"))
+    assert model.data_map_resolution == DATASET["map_resolution"]
+    gen_job = JobStore(settings.db_path).get(gen)
+    records = read_json(settings, gen_job, "materials.json")["materials"]
+    assert records
+    for rec in records:
+        params = FabricParams(**rec["params"])
+        z = latent_for(model, params, "job:x/model.pt")
+        # the float32 encoder on identical maps: only summation order may differ
+        np.testing.assert_allclose(z, model.latents[rec["name"]], rtol=1e-4, atol=1e-5)
+        # the maps of renders before: 256 px box-filtered to 32, a latent training never saw
+        old = latent_for(dataclasses.replace(model, data_map_resolution=None), params, "x")
+        assert np.abs(old - z).max() > 1e-3
 
 
 def test03_same_spec_same_bytes_and_init(fabric_env: tuple[Settings, str], trained: Job) -> None:

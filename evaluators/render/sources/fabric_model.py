@@ -67,7 +67,9 @@ if TYPE_CHECKING:
     from jobapi.context import JobContext
     from models.fabric.fused import FabricModel
 
-#: Map resolution handed to the encoder (it resamples to its own).
+#: Map side handed to the encoder for models that do not record their training data's
+#: (it resamples to its own); a model that does gets its maps rasterised at that side, as
+#: the training maps were (``FabricModel.data_map_resolution``).
 _MAP_RESOLUTION = 256
 #: Parameters that must match for a training latent to stand for the material.
 _GEOMETRY = ("psi_deg", "u_max_deg", "alpha", "beta", "w", "gap", "t_rho")
@@ -150,7 +152,8 @@ def latent_for(model: FabricModel, params: FabricParams, ref: str) -> np.ndarray
     from models.fabric.fused import encode_material, material_maps
 
     if model.encoder is not None:
-        normal, orientation = material_maps(params, _MAP_RESOLUTION)
+        side = model.data_map_resolution or _MAP_RESOLUTION
+        normal, orientation = material_maps(params, side)
         return encode_material(model, params, normal, orientation)
     for name, record in model.params.items():
         if _same_material(record, record.get("pattern"), params):
