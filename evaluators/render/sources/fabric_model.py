@@ -17,8 +17,9 @@ tiles. Secondary vertices get the one-tile fallback footprint, as in the Monte C
 The latent (in order):
 
 1. a ``model.pt`` reference carries the encoder: the material's normal and orientation maps
-   are rasterised from the ``fabric`` fields (``models.fabric.fused.material_maps``) and
-   encoded once;
+   are rasterised from the ``fabric`` fields (``models.fabric.fused.material_maps``) at the
+   side of the training data's maps (recorded in the ``model.pt``; 256 for older models), so
+   exactly as training made them, and encoded once;
 2. a ``model.json`` carries no encoder but the training materials' latents: the one whose
    parameters (pattern and yarn geometry, roughness, ``w``; the albedos only enter Eq. 8)
    equal the ``fabric`` fields is used;
