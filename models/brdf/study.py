@@ -225,3 +225,43 @@ def families(configs: dict[str, Config]) -> dict[str, Any]:
 
 def _count(c: Config, family: str) -> int:
     return sum(1 for r in c.runs[0].materials if r["family"] == family)
+
+
+#: SMAPE (Eq. 6, eps 0) lies in [0, 2]; 2 where one of the two values is 0.
+SMAPE_MAX = 2.0
+#: A material whose SMAPE is at least this fraction of the maximum is flagged: its score
+#: says nothing about which model is better (both miss everything, or the table is empty
+#: where the model is not), and a mean over materials hides it.
+NEAR_MAX_FRACTION = 0.9
+
+
+def near_maximum(configs: dict[str, Config]) -> list[dict[str, Any]]:
+    """The materials whose mean SMAPE over a configuration's seeds is within 10 % of the
+    metric's maximum 2, in any configuration: ``[{"material", "family", "smape": {config:
+    mean}, "maximum": 2, "warning"}]``, worst first. ``report.brdf`` adds each as a claim
+    that does not hold (``pareto.json``'s ``claims``, its result table and its last progress
+    line), so that a saturated material is never silent."""
+    per: dict[str, dict[str, list[float]]] = {}
+    family: dict[str, str] = {}
+    for c in configs.values():
+        for run in c.runs:
+            for m in run.materials:
+                name = str(m["name"])
+                family[name] = str(m.get("family", ""))
+                per.setdefault(name, {}).setdefault(c.label, []).append(float(m["smape"]))
+    out = []
+    for name, by_config in per.items():
+        means = {label: statistics.fmean(v) for label, v in by_config.items()}
+        if max(means.values()) >= NEAR_MAX_FRACTION * SMAPE_MAX:
+            worst = ", ".join(f"{k} {v:.3f}" for k, v in means.items())
+            out.append(
+                {
+                    "material": name,
+                    "family": family[name],
+                    "smape": means,
+                    "maximum": SMAPE_MAX,
+                    "warning": f"{name}: SMAPE near its maximum {SMAPE_MAX:g} ({worst}): the "
+                    "score cannot rank models on this material",
+                }
+            )
+    return sorted(out, key=lambda d: -max(d["smape"].values()))

@@ -90,3 +90,17 @@ def test05_one_cost_per_meaning() -> None:
     (point,) = [c.summary() for c in configs.values()]
     assert point["ns_per_eval"] == 5.0  # median of 4, 5, 6: the kernel times
     assert "fused_ns" not in point and point["torch_ns"] == 45.0
+
+
+def test_near_maximum_flags_saturated_materials() -> None:
+    """SMAPE is at most 2 (Eq. 6 with eps 0: one of the values 0). A material at 1.993 in
+    both models is flagged, with each configuration's mean; 1.0 is not (values by hand)."""
+    from models.brdf.study import near_maximum
+
+    runs = [run("hybrid", "16x3", s, [0.1, 1.993, 1.0]) for s in (0, 1)]
+    runs += [run("neural", "16x3", s, [0.2, 1.99, 1.5]) for s in (0, 1)]
+    flagged = near_maximum(group(runs))
+    assert [f["material"] for f in flagged] == ["m1"]
+    assert flagged[0]["smape"] == pytest.approx({"hybrid 16x3": 1.993, "neural 16x3": 1.99})
+    assert "maximum 2" in flagged[0]["warning"] and flagged[0]["family"] == "iridescent"
+    assert near_maximum(group([run("hybrid", "16x3", 0, [0.1, 1.7])])) == []
