@@ -1,5 +1,6 @@
 """``import.btf``: a folder of measured BTF slices (EXR or PNG images plus their angles),
-uploaded as a ``.btf.zip``, turned into the shard layout of ``generate.btf``.
+uploaded as a ``.btf.zip``, or a Bonn ``.btf`` file (UBO2014's own DFMF files, or FMF;
+:mod:`generators.btf.import_ubo`), turned into the shard layout of ``generate.btf``.
 
 The folder's layout and checks are :mod:`storage.formats.btf_folder`'s (the upload route
 runs the same checks, so a malformed archive is refused before it enters the store). The
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from pydantic import Field
 
+from generators.btf.import_ubo import UboTask, convert_ubo_shard, directions
 from generators.btf.kind import summarize
 from generators.btf.preview import PreviewCollector
 from jobapi.errors import FormatError, JobFailed, TooLargeError
@@ -29,6 +31,7 @@ from materials.btf.directions import check_pairs, pair_count_label, to_vector
 from storage.formats.btf import index_document, shard_name, write_shard
 from storage.formats.btf_folder import SliceEntry, SliceFolder
 from storage.formats.npz import MAX_NPZ_BYTES
+from storage.formats.ubo_btf import UboBtf, check_pixels, sniff
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -46,7 +49,8 @@ class ImportBtfParams(StrictModel):
     archive: Ref = Field(
         description="The slice folder as an uploaded '<name>.btf.zip' (`matforge import DIR` "
         "packs a directory): images plus angles.csv (file,theta_i,phi_i,theta_o,phi_o) or "
-        "angles.json, angles in degrees."
+        "angles.json, angles in degrees; or a Bonn '.btf' file (UBO2014's DFMF, or FMF), "
+        "recognised by its signature."
     )
     png: Literal["srgb", "linear"] = Field(
         default="srgb", description="How PNG slices are encoded: 'srgb' (decoded) or 'linear'."
@@ -133,6 +137,9 @@ def run_import_btf(params: ImportBtfParams, ctx: JobContext) -> None:
     must fit the shard readers' limit."""
     path = ctx.resolve(params.archive)
     label = ctx.ref_record(params.archive).name
+    if sniff(path):
+        run_import_ubo(params, ctx, path, label)
+        return
     try:
         with SliceFolder(path, label) as folder:
             resolution = folder.check_images(ctx.limits.archive_pixels)
@@ -181,13 +188,73 @@ def run_import_btf(params: ImportBtfParams, ctx: JobContext) -> None:
     ctx.progress(1.0, f"{len(entries)} slices in {len(tasks)} shards")
 
 
+def run_import_ubo(params: ImportBtfParams, ctx: JobContext, path: Path, label: str) -> None:
+    """:func:`run_import_btf` for a Bonn ``.btf``: header checked (and the decoded size
+    against ``ctx.limits.archive_pixels``) before any slice is reconstructed."""
+    try:
+        btf = UboBtf(path, label)
+        h = btf.header
+        check_pixels(h, label, ctx.limits.archive_pixels)
+    except (FormatError, TooLargeError) as exc:
+        raise JobFailed(f"archive: {exc}") from None
+    resolution = (h.height, h.width)
+    check_shard_size(min(params.shard_slices, h.count), resolution, params.dtype)
+    angles, wi, wo = directions(h)
+    try:
+        check_pairs(wi, wo, max_theta=89.0)
+    except ValueError as exc:
+        raise JobFailed(f"archive: {label}: {exc}") from None
+    per = params.shard_slices
+    tasks = [
+        UboTask(str(path), label, lo, min(lo + per, h.count), params.scale, params.dtype)
+        for lo in range(0, h.count, per)
+    ]
+    names = [shard_name(k) for k in range(len(tasks))]
+    preview = PreviewCollector([t.hi - t.lo for t in tasks], names, resolution)
+    ctx.progress(0.0, f"{label}: {h.variant}, {pair_count_label(h.count)} of "
+                 f"{h.width}x{h.height}")  # fmt: skip
+    try:
+        ctx.map_artifact_shards(
+            convert_ubo_shard, tasks, names, media_type="application/x-npz",
+            on_result=preview, label="shard", progress_range=(0.0, 0.95),
+        )  # fmt: skip
+    except FormatError as exc:
+        raise JobFailed(f"archive: {exc}") from None
+    doc = index_document(
+        resolution,
+        [(names[k], t.hi - t.lo) for k, t in enumerate(tasks)],
+        source="import.btf",
+        archive=params.archive,
+        archive_name=label,
+        ubo={
+            "variant": h.variant,
+            "signature": h.signature,
+            "color_model": h.color_model,
+            "cosine_flag": h.cosine_flag,
+            "lights": len(h.lights),
+            "views": len(h.views),
+            "rgb_scale": list(h.rgb_scale),
+            "channels": h.channels,
+        },  # fmt: skip
+        directions=np.round(angles, 6).tolist(),
+        scale=params.scale,
+        dtype=params.dtype,
+        stderr=None,
+    )
+    ctx.put_json("btf.json", doc)
+    title = f"import.btf: {label}, {pair_count_label(h.count)}"
+    ctx.put_bytes("preview.png", preview.png(wi, wo, title), "image/png")
+    ctx.progress(1.0, f"{h.count} slices in {len(tasks)} shards")
+
+
 register(
     Kind(
         name="import.btf",
         params=ImportBtfParams,
         runner=run_import_btf,
         description="Measured BTF slices (a folder of EXR/PNG images with their angles, as "
-        "a decompressed UBO2014 archive gives) into generate.btf's shard layout.",
+        "a decompressed UBO2014 archive gives, or a Bonn .btf file: UBO2014's DFMF, or FMF) "
+        "into generate.btf's shard layout.",
         artifacts=("slices-0000.npz", "btf.json", "preview.png"),
         summary=summarize,
     )

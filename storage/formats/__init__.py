@@ -22,6 +22,7 @@ from storage.formats.merl import validate_merl
 from storage.formats.normal_map import validate_normal_map
 from storage.formats.npz import validate_npz
 from storage.formats.png import validate_png
+from storage.formats.ubo_btf import validate_ubo_btf
 
 #: The largest JSON document accepted by :func:`validate_json`, in bytes.
 MAX_JSON_BYTES = 64 * 1024 * 1024
@@ -72,6 +73,7 @@ VALIDATORS: dict[str, FileFormat] = {
     ".json": FileFormat(MEDIA_TYPES[".json"], validate_json),
     ".binary": FileFormat(MEDIA_TYPES[".binary"], validate_merl),
     ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz),
+    ".btf": FileFormat(MEDIA_TYPES[".btf"], validate_ubo_btf, pixel_cap=True),
 }
 #: Compound endings checked before the extension: a normal map is an image with a meaning.
 COMPOUND_VALIDATORS: dict[str, FileFormat] = {
@@ -91,9 +93,9 @@ def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = Non
     name
         The user's file name: its extension picks the format, and error messages name it.
     max_archive_pixels
-        For archives of images (``.btf.zip``): the most pixels all its images may decode
-        to, summed from their headers before any is decoded (default: the format's own,
-        :data:`storage.formats.btf_folder.MAX_ARCHIVE_PIXELS`).
+        For archives of images (``.btf.zip``) and Bonn ``.btf`` files: the most pixels all
+        its slices may decode to, summed from the headers before any is decoded (default:
+        the format's own, :data:`storage.formats.btf_folder.MAX_ARCHIVE_PIXELS`).
 
     Raises
     ------

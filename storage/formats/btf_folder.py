@@ -14,8 +14,8 @@ sub-folder, and image paths are relative to it):
 
 Checks (each refusal names the archive and the file): exactly one angle list; every listed
 file present and an image of the common size; no image left unlisted; no pair of angles
-listed twice; angles in range. UBO2014's compressed ``.btf`` itself is not read: its only
-Python reader, ``btf-extractor``, does not build on Python 3.11 with numpy 2.
+listed twice; angles in range. UBO2014's compressed ``.btf`` files themselves are read by
+:mod:`storage.formats.ubo_btf`.
 """
 
 from __future__ import annotations
