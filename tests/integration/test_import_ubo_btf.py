@@ -72,3 +72,9 @@ def test01_dfmf_file_imports_into_shards(tmp_path: Path) -> None:
     wo = np.concatenate([s.wo for s in got])
     np.testing.assert_allclose(wi, to_vector(LIGHTS_DEG[li, 0], LIGHTS_DEG[li, 1]), atol=1e-6)
     np.testing.assert_allclose(wo, to_vector(VIEWS_DEG[vi, 0], VIEWS_DEG[vi, 1]), atol=1e-6)
+    # The job checks the decoded size itself, whatever way the file reached the store.
+    capped = settings.with_(archive_max_pixels=95)
+    spec = {"kind": "import.btf", "params": {"archive": ref, "shard_slices": 3}}
+    refused = run_in_process(spec, capped)
+    assert refused.state == "failed"
+    assert "plane.btf: 6 slices of 4x4 decode to 96 pixels" in refused.error, refused.error
