@@ -162,6 +162,14 @@ class _Reader:
                               f"the file has {self.size}")  # fmt: skip
         return self.fh.read(n)
 
+    def skip(self, n: int, what: str) -> None:
+        """Step over ``n`` bytes we do not use, after checking they are there."""
+        pos = self.fh.tell()
+        if pos + n > self.size:
+            raise FormatError(self.label, f"truncated: {what} needs {n} bytes at byte {pos}, "
+                              f"the file has {self.size}")  # fmt: skip
+        self.fh.seek(pos + n)
+
     def u8(self, what: str) -> int:
         return self.take(1, what)[0]
 
@@ -243,10 +251,13 @@ def read_header(path: Path, name: str | None = None) -> UboHeader:
         rgb_scale = tuple(float(v) for v in r.f32(3, "RGB scale"))
         cosine = bool(r.u32("cosine flag")) if version > 1 else False
         if version > 2:
-            r.take(r.bounded(r.u32("XML length"), MAX_XML_BYTES, "XML length"), "XML text")
+            r.skip(r.bounded(r.u32("XML length"), MAX_XML_BYTES, "XML length"), "XML text")
         channels = ["R", "G", "B"]
         if version > 3:
-            nc = r.bounded(r.u32("channel count"), 3, "channel count", 3)
+            nc = r.u32("channel count")
+            if nc != 3:
+                raise FormatError(label, f"{nc} colour channels; only 3-channel (RGB or "
+                                  "decorrelated RGB) files are decoded")  # fmt: skip
             channels = []
             for c in range(nc):
                 n = r.bounded(r.u32("channel name length"), MAX_NAME_BYTES, "name length")
@@ -269,7 +280,7 @@ def read_header(path: Path, name: str | None = None) -> UboHeader:
         height = r.bounded(r.u32("height"), MAX_SIDE, "height", 1)
         if rotations:
             n_rot = r.u32("rotation count")
-            r.take(36 * r.bounded(n_rot, size, "rotation count"), "rotations")
+            r.skip(36 * r.bounded(n_rot, size, "rotation count"), "rotations")
         h = UboHeader(variant, sig.decode(), version, cosine, channels, views, lights,
                       width, height, rgb_scale, file_size=size)  # type: ignore[arg-type]  # fmt: skip
         if variant == "DFMF":
@@ -314,7 +325,7 @@ def _read_fmf(r: _Reader, h: UboHeader, sig: bytes) -> None:
             if mw * mh:
                 r.bounded(mw, MAX_SIDE, "height-map width")
                 r.bounded(mh, MAX_SIDE, "height-map height")
-                r.take(2 * mw * mh, "height map")
+                r.skip(2 * mw * mh, "height map")
     r.bounded(r.u32("component count"), MAX_COMPONENTS, "component count")
     scalar = _scalar(r, "scalar size")
     k = r.bounded(r.u32("components"), MAX_COMPONENTS, "components", 1)

@@ -13,6 +13,7 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from materials.btf.directions import to_vector
+from matforge import datasets
 from service.api import create_app
 from service.settings import Settings
 from service.submission import run_in_process
@@ -72,6 +73,9 @@ def test01_dfmf_file_imports_into_shards(tmp_path: Path) -> None:
     wo = np.concatenate([s.wo for s in got])
     np.testing.assert_allclose(wi, to_vector(LIGHTS_DEG[li, 0], LIGHTS_DEG[li, 1]), atol=1e-6)
     np.testing.assert_allclose(wo, to_vector(VIEWS_DEG[vi, 0], VIEWS_DEG[vi, 1]), atol=1e-6)
+    opened = datasets.open(job.id, data_dir=settings.data_dir)  # the public reader
+    assert isinstance(opened, datasets.BtfSlices) and opened.kind == "import.btf"
+    np.testing.assert_array_equal(opened.numpy()["rgb"], out)
     # The job checks the decoded size itself, whatever way the file reached the store.
     capped = settings.with_(archive_max_pixels=95)
     spec = {"kind": "import.btf", "params": {"archive": ref, "shard_slices": 3}}

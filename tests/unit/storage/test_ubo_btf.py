@@ -123,6 +123,8 @@ def _refused(tmp_path: Path) -> list[tuple[bytes, str]]:
     struct.pack_into("<I", huge_xml, 10 + 4 + 4 + 240 + 4 + 12 + 4, 1 << 30)
     bad_size = bytearray(good)
     struct.pack_into("<I", bad_size, 10, meta_size + 4)
+    four = bytearray(good)
+    struct.pack_into("<I", four, 10 + 4 + 4 + 240 + 4 + 12 + 4 + 4, 4)  # after XML length 0
     many_views = bytearray(good)
     struct.pack_into("<I", many_views, 10 + meta_size, 1 << 30)
     return [
@@ -134,6 +136,7 @@ def _refused(tmp_path: Path) -> list[tuple[bytes, str]]:
         (bytes(huge_xml), r"XML length is 1073741824, outside"),
         (bytes(bad_size), r"meta block says"),
         (bytes(many_views), r"view count is 1073741824, outside"),
+        (bytes(four), r"4 colour channels; only 3-channel"),
     ]
 
 
