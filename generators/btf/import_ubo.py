@@ -30,6 +30,7 @@ class UboTask:
     hi: int
     scale: float
     dtype: str
+    cosine_in_data: bool | None = None
 
 
 def directions(header: UboHeader) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -47,7 +48,9 @@ def convert_ubo_shard(task: UboTask) -> bytes:
 
     def slices() -> Iterator[np.ndarray]:
         for g in range(task.lo, task.hi, GROUP):
-            group = btf.decode(range(g, min(g + GROUP, task.hi)))
+            group = btf.decode(
+                range(g, min(g + GROUP, task.hi)), cosine_in_data=task.cosine_in_data
+            )
             group *= scale
             yield from group
             del group

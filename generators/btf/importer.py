@@ -71,6 +71,12 @@ class ImportBtfParams(StrictModel):
     dtype: Literal["float32", "float16"] = Field(
         default="float32", description="Stored type of the slices."
     )
+    cosine: Literal["file", "in_data", "not_in_data"] = Field(
+        default="file",
+        description="Bonn .btf files only: whether the stored values already carry "
+        "cos(theta_i). 'file' trusts the file's cosine flag; 'in_data' / 'not_in_data' "
+        "override it (the slices are multiplied by cos(theta_i) when it is not in the data).",
+    )
 
 
 @dataclass(frozen=True)
@@ -205,8 +211,11 @@ def run_import_ubo(params: ImportBtfParams, ctx: JobContext, path: Path, label: 
     except ValueError as exc:
         raise JobFailed(f"archive: {label}: {exc}") from None
     per = params.shard_slices
+    cosine_in_data = {"file": None, "in_data": True, "not_in_data": False}[params.cosine]
     tasks = [
-        UboTask(str(path), label, lo, min(lo + per, h.count), params.scale, params.dtype)
+        UboTask(
+            str(path), label, lo, min(lo + per, h.count), params.scale, params.dtype, cosine_in_data
+        )  # fmt: skip
         for lo in range(0, h.count, per)
     ]
     names = [shard_name(k) for k in range(len(tasks))]
@@ -231,6 +240,7 @@ def run_import_ubo(params: ImportBtfParams, ctx: JobContext, path: Path, label: 
             "signature": h.signature,
             "color_model": h.color_model,
             "cosine_flag": h.cosine_flag,
+            "cosine": params.cosine,
             "lights": len(h.lights),
             "views": len(h.views),
             "rgb_scale": list(h.rgb_scale),

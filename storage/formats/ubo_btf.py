@@ -384,9 +384,12 @@ class UboBtf:
         u, sxv = (self._map(m) for m in h.factors[0])
         return (u[c::3], sxv) if u.shape[0] == 3 * h.count else (sxv, u[c::3])
 
-    def decode(self, indices: list[int] | range) -> np.ndarray:
+    def decode(
+        self, indices: list[int] | range, *, cosine_in_data: bool | None = None
+    ) -> np.ndarray:
         """Slices ``indices`` (file order, :meth:`UboHeader.pair`) as ``(n, H, W, 3)``
-        float32 in our convention (see the module docstring)."""
+        float32 in our convention (see the module docstring). ``cosine_in_data`` overrides
+        the file's cosine flag (``None``: trust the flag)."""
         h = self.header
         idx = np.asarray(list(indices), np.int64)
         if idx.size and (idx.min() < 0 or idx.max() >= h.count):
@@ -403,7 +406,8 @@ class UboBtf:
         rgb = self._to_rgb(np.moveaxis(raw, 0, -1))
         if not np.all(np.isfinite(rgb)):
             raise FormatError(self.label, "decodes to non-finite values (corrupt factors)")
-        if not h.cosine_flag:  # stored without the cosine: our convention includes it
+        in_data = h.cosine_flag if cosine_in_data is None else cosine_in_data
+        if not in_data:  # stored without the cosine: our convention includes it
             rgb *= np.cos(h.lights[idx % len(h.lights), 0])[:, None, None]
         neg = rgb < 0
         self.negatives += int(neg.sum())

@@ -156,3 +156,12 @@ def test08_unsupported_colour_model_is_named(tmp_path: Path) -> None:
                    factors=factors, color_model=2)  # fmt: skip
     with pytest.raises(FormatError, match=r"lab\.btf: DFMF colour model 2 \(Lab\)"):
         read_header(p)
+
+
+def test09_cosine_override(tmp_path: Path) -> None:
+    """A file whose flag says the cosine is in the data, read as if it were not: each
+    slice is multiplied by cos(theta_i) once more (closed form: lambert * cos)."""
+    p = dfmf(tmp_path / "c.btf", lambert(), cosine=True)
+    out = UboBtf(p).decode(range(COUNT), cosine_in_data=False)
+    ref = lambert() * np.cos(THETA_I)[:, None, None, None]
+    np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-7)
