@@ -110,6 +110,10 @@ def load_onnx_proto(path: Path, name: str) -> Any:
     try:
         model.ParseFromString(data)
     except (DecodeError, RuntimeError, ValueError) as exc:
+        if "alloc" in str(exc).lower():  # protobuf's arena under the checker's memory cap
+            raise TooLargeError(
+                f"{name}: decoding it needs more memory than file checks may use"
+            ) from None
         raise FormatError(
             name, f"not an ONNX model: the protobuf does not decode (truncated?): {exc}"
         ) from None
