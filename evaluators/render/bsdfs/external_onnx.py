@@ -217,7 +217,7 @@ def _define_class(mi: types.ModuleType) -> type:
     class ExternalOnnx:
         """Factory: the BRDF or BTF class by the ``kind`` property."""
 
-        def __new__(cls, props: Any) -> Any:  # type: ignore[misc]
+        def __new__(cls, props: Any) -> Any:
             model = _load(props)
             return (OnnxBtf if model.kind == "btf" else OnnxBrdf)(props, model)
 
