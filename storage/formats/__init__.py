@@ -21,6 +21,7 @@ from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
 from storage.formats.normal_map import validate_normal_map
 from storage.formats.npz import validate_npz
+from storage.formats.onnx import validate_onnx
 from storage.formats.png import validate_png
 
 #: The largest JSON document accepted by :func:`validate_json`, in bytes.
@@ -72,6 +73,7 @@ VALIDATORS: dict[str, FileFormat] = {
     ".json": FileFormat(MEDIA_TYPES[".json"], validate_json),
     ".binary": FileFormat(MEDIA_TYPES[".binary"], validate_merl),
     ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz),
+    ".onnx": FileFormat(MEDIA_TYPES[".onnx"], validate_onnx),
 }
 #: Compound endings checked before the extension: a normal map is an image with a meaning.
 COMPOUND_VALIDATORS: dict[str, FileFormat] = {

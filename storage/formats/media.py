@@ -20,6 +20,7 @@ MEDIA_TYPES: dict[str, str] = {
     ".csv": "text/csv",
     ".txt": "text/plain",
     ".zip": "application/zip",
+    ".onnx": "application/x-onnx",
 }
 
 
