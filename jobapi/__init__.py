@@ -9,6 +9,8 @@ Submodules (imported explicitly by their users):
   and the reference types ``Ref`` (an artifact) and ``JobRef`` (a whole job);
 - :mod:`jobapi.presets`: named presets with per-field overrides;
 - :mod:`jobapi.results`: :class:`~jobapi.results.ResultTable`, what a summary hook returns;
+- :mod:`jobapi.reports`: :class:`~jobapi.reports.ReportFacts`, what a training kind tells the
+  report kinds (headline metric, loss key, failure cases, model checks, claims);
 - :mod:`jobapi.errors`: ``SpecError``, ``JobFailed``, ``JobCancelled`` and the storage errors;
 - :mod:`jobapi.executor`: the executor interface behind ``ctx.map_shards``;
 - :mod:`jobapi.version`: ``__version__``, the one version of matforge.
@@ -22,6 +24,7 @@ SUBMODULES: tuple[str, ...] = (
     "params",
     "presets",
     "results",
+    "reports",
     "executor",
     "kinds",
     "context",

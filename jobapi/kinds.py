@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 
+from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.rows import RowsHook
 
@@ -91,6 +92,9 @@ class Kind:
             or message; every finished shard reports one) before it is failed as stuck,
             its shard processes killed and its worker freed. Set it above the kind's
             longest silent step.
+        report: what the report kinds read of its jobs
+            (:class:`jobapi.reports.ReportFacts`: headline metric, loss key, failure-case
+            metric, model checks, claims); ``None`` for a kind that trains nothing.
     """
 
     name: str
@@ -105,6 +109,7 @@ class Kind:
     figures: tuple[Figure, ...] = ()
     timeout_seconds: float = DEFAULT_TIMEOUT_SECONDS
     stall_seconds: float = DEFAULT_STALL_SECONDS
+    report: ReportFacts | None = None
 
     def figure(self, artifact: str) -> Figure | None:
         """The first of :attr:`figures` whose pattern matches an artifact name, if any."""
@@ -130,3 +135,10 @@ def restore(snapshot: Mapping[str, Kind]) -> None:
 def registered() -> dict[str, Kind]:
     """The kinds registered so far, by name (a copy)."""
     return dict(_KINDS)
+
+
+def report_facts(name: str) -> ReportFacts | None:
+    """What the report kinds read of kind ``name``'s jobs (``None``: not registered, or it
+    declares none)."""
+    kind = _KINDS.get(name)
+    return kind.report if kind is not None else None

@@ -68,15 +68,15 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
             lib = row.get("lower_is_better")
             direction.setdefault(metric, lib if isinstance(lib, bool) else None)
         for cost in COST_COLUMNS:
-            c = _finite(row.get(cost))
-            if c is not None and cost != metric:  # a cost reported as the metric is a metric
-                costs[method].setdefault(cost, []).append(c)
+            amount = _finite(row.get(cost))
+            if amount is not None and cost != metric:  # a cost reported as the metric is one
+                costs[method].setdefault(cost, []).append(amount)
     metric_names = list(dict.fromkeys(m for meth in methods for m in values[meth]))
     # A cost that is also some row's metric (a render's own row is its render_seconds)
     # keeps both columns: the cost one is named "cost.<name>".
     cost_key = {c: f"cost.{c}" if c in metric_names else c for c in COST_COLUMNS}
     cost_names = [c for c in COST_COLUMNS if any(c in costs[m] for m in methods)]
-    columns = [
+    columns: list[dict[str, Any]] = [
         {"name": m, "role": "metric", "lower_is_better": direction.get(m)} for m in metric_names
     ] + [{"name": cost_key[c], "role": "cost", "lower_is_better": True} for c in cost_names]
     cells: dict[str, dict[str, dict[str, Any]]] = {}
@@ -85,8 +85,8 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
         for m, vs in values[meth].items():
             std = statistics.stdev(vs) if len(vs) > 1 else None
             cell[m] = {"mean": statistics.fmean(vs), "std": std, "n": len(vs)}
-        for c, vs in costs[meth].items():
-            cell[cost_key[c]] = {"median": statistics.median(vs), "n": len(vs)}
+        for cost, vs in costs[meth].items():
+            cell[cost_key[cost]] = {"median": statistics.median(vs), "n": len(vs)}
         cells[meth] = cell
     best: dict[str, str] = {}
     for col in columns:

@@ -30,6 +30,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from evaluators.metrics.tonemap import tonemap
+from evaluators.render.bsdfs.external_onnx import wavefront_scope
 from evaluators.render.integrators import integrator_for
 from evaluators.render.rows import render_rows
 from evaluators.render.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
@@ -171,7 +172,10 @@ def render_passes(
     for i, (n, seed) in enumerate(zip(passes, seeds, strict=True)):
         # np.asarray reads the image back to the host: the pass has really run (Dr.Jit
         # evaluates lazily), so timings around this function are honest.
-        img = np.asarray(mi.render(scene, spp=n, seed=seed), dtype=np.float64)[..., :3]
+        # A model that runs outside Dr.Jit (an ONNX file) needs the evaluated (wavefront)
+        # path loop: the scope turns symbolic loops and calls off while one is alive.
+        with wavefront_scope():
+            img = np.asarray(mi.render(scene, spp=n, seed=seed), dtype=np.float64)[..., :3]
         total = img * n if total is None else total + img * n
         done += n
         if on_pass is not None:

@@ -101,6 +101,8 @@ def stability_png(families: list[dict[str, Any]], configs: list[dict[str, Any]])
     and that ratio. Row labels carry the seed count and how many runs had not converged."""
     import numpy as np
 
+    from evaluators.report.stability import SCORE_KIND
+
     kinds = list(dict.fromkeys(f["kind"] for f in families))
     conf = {(c["kind"], c["candidate"]): c for c in configs}
     if not kinds:
@@ -144,7 +146,7 @@ def stability_png(families: list[dict[str, Any]], configs: list[dict[str, Any]])
             metric = mine[0]["metric"]
             title = (
                 f"renders (score runs): {metric} per run / the method's mean over them"
-                if kind == "score"
+                if kind == SCORE_KIND
                 else f"{kind}: {metric} per family / whole-set {metric}"
             )
             a.set_title(title, fontsize=8)

@@ -1,7 +1,10 @@
 """The ``report.stability`` job kind: where trained models fail, run by run.
 
-``runs`` are finished training jobs (``train.brdf``, ``train.fabric``, ``train.btf``). For
-each run, from its own artifacts:
+``runs`` are finished training jobs (``train.brdf``, ``train.fabric``, ``train.btf``: every
+kind that declares :attr:`jobapi.kinds.Kind.report`, whose
+:class:`~jobapi.reports.ReportFacts` say which rows are its error, which metric compares its
+failure cases, where its loss is and what checks its model needs; this module names none of
+them). For each run, from its own artifacts:
 
 - its error (``train.brdf``: mean SMAPE; ``train.fabric``: the network's mean RGB relative
   error; ``train.btf``: L1), from its result rows (:mod:`jobapi.rows`);
@@ -44,24 +47,32 @@ from typing import TYPE_CHECKING, Annotated, Any
 from pydantic import Field, StringConstraints, model_validator
 
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register, registered
+from jobapi.kinds import Kind, register, registered, report_facts
 from jobapi.params import JobRef, StrictModel, job_id_of
+from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
-    from jobapi.row_sources import StoreSource
     from jobapi.rows import ResultRow
 
 FORMAT = "matforge.stability/1"
-#: Per kind, the metric of the per-family breakdown where it is not the headline one.
-FAMILY_METRICS: dict[str, str] = {"train.btf": "relative_l1"}
-#: Per kind: the error metric and candidate of its headline rows, and its loss curve.
-ERRORS: dict[str, tuple[str, str | None]] = {
-    "train.brdf": ("smape", None),
-    "train.fabric": ("rgb.rel", "network"),
-    "train.btf": ("l1", None),
-}
+#: The kind whose jobs add render-level families (renders scored against a reference):
+#: its rows are read as families of their own, not as a training run's.
+SCORE_KIND = "score"
+
+
+def trained_kinds() -> dict[str, ReportFacts]:
+    """The registered kinds that declare what a report reads of their runs
+    (:attr:`jobapi.kinds.Kind.report`), in the registry's order: the training kinds."""
+    return {n: k.report for n, k in registered().items() if k.report is not None}
+
+
+def _facts(kind: str) -> ReportFacts:
+    facts = report_facts(kind)
+    if facts is None:
+        raise KeyError(f"kind {kind!r} declares no report facts")
+    return facts
 
 
 class ReportStabilityParams(StrictModel):
@@ -114,50 +125,22 @@ class ReportStabilityParams(StrictModel):
 
 
 def loss_curve(kind: str, curves: Any) -> list[float | None]:
-    """The training loss of a ``curves.json`` (with ``phases``, as ``train.brdf`` writes:
-    the ``train`` phase; a ``train.brdf`` document of before the one schema kept it under
-    ``train``)."""
-    if not isinstance(curves, dict):
-        return []
-    if kind == "train.brdf" and isinstance(curves.get("train"), dict):
-        curves = curves["train"]
-    key = "train_loss" if kind == "train.btf" else "loss"
-    values = curves.get(key) if isinstance(curves, dict) else None
-    if not isinstance(values, list):
-        return []
-    span = next((p for p in curves.get("phases") or [] if p.get("name") == "train"), None)
-    steps = curves.get("step")
-    if span is not None and isinstance(steps, list) and len(steps) == len(values):
-        return [
-            v
-            for s, v in zip(steps, values, strict=True)
-            if span["first_step"] <= s <= span["last_step"]
-        ]
-    return list(values)
+    """The training loss of a ``curves.json``: as its kind reads it
+    (:meth:`~jobapi.reports.ReportFacts.training_loss`: its loss key, the ``train`` phase),
+    or the ``loss`` series of the one schema for a kind that declares nothing."""
+    facts = report_facts(kind)
+    return facts.training_loss(curves) if facts is not None else phase_loss(curves)
 
 
 def headline(kind: str, rows: Sequence[ResultRow]) -> tuple[str, float | None, str | None]:
-    """``(metric, the run's whole-set error, candidate)`` from its rows."""
-    metric, cand = ERRORS[kind]
+    """``(metric, the run's whole-set error, candidate)`` from its rows (the metric and
+    candidate its kind declares, :class:`~jobapi.reports.ReportFacts`)."""
+    facts = _facts(kind)
+    metric, cand = facts.metric, facts.candidate
     for r in rows:
         if r.metric == metric and r.material in (None, "mean") and cand in (None, r.candidate):
             return metric, r.value, r.candidate
     return metric, None, cand
-
-
-def _brdf_materials(src: StoreSource, ctx: JobContext, job_id: str) -> list[dict[str, Any]]:
-    from models.brdf.portable import load_checkpoint
-    from models.brdf.stability import material_checks
-
-    try:
-        model, names, families = load_checkpoint(ctx.read_ref(f"job:{job_id}/model.pt"))
-    except (ValueError, KeyError, RuntimeError) as exc:
-        raise JobFailed(f"runs: job {job_id}: model.pt does not load: {exc}") from None
-    model.eval()
-    return [
-        {"name": n, "family": f, **material_checks(model, i)}
-        for i, (n, f) in enumerate(zip(names, families, strict=True))
-    ]
 
 
 def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
@@ -173,15 +156,17 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
     for i, ref in enumerate(params.runs):
         job = ctx.input_job(job_id_of(ref), f"runs.{i}")
         kind = registered().get(job.kind)
-        if (job.kind not in ERRORS and job.kind != "score") or kind is None or kind.rows is None:
+        trained = trained_kinds()
+        known = job.kind in trained or job.kind == SCORE_KIND
+        if not known or kind is None or kind.rows is None:
             raise JobFailed(
                 f"runs.{i}: job {job.id} is a {job.kind} job; report.stability "
-                f"checks {', '.join(ERRORS)} and score"
+                f"checks {', '.join(trained)} and {SCORE_KIND}"
             )
         src = StoreSource(job, ctx.jobs, ctx.store)
         rows = kind.rows(src)
         label = params.labels[i] if params.labels else (job.name or job.id)
-        if job.kind == "score":
+        if job.kind == SCORE_KIND:
             scored = render_rows(rows, params.render_metric, label)
             if not scored:
                 raise JobFailed(
@@ -192,7 +177,7 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
             runs.append(
                 {
                     "run": ref,
-                    "kind": "score",
+                    "kind": SCORE_KIND,
                     "label": label,
                     "candidate": None,
                     "seed": job.seed,
@@ -217,18 +202,17 @@ def run_stability(params: ReportStabilityParams, ctx: JobContext) -> None:
                 loss_curve(job.kind, src.read("curves.json")), tolerance=params.tolerance
             ),
         }
-        if job.kind == "train.brdf" and params.model_checks:
-            run["materials"] = _brdf_materials(src, ctx, job.id)
-            mats = run["materials"]
-            run["nonfinite_total"] = sum(m["nonfinite_total"] for m in mats)
-            run["albedo_max"] = max(m["albedo_max"] for m in mats)
-            run["energy_gain"] = [m["name"] for m in mats if m["energy_gain"]]
-            run["reciprocity_error"] = statistics.fmean(m["reciprocity_error"] for m in mats)
+        checks = trained[job.kind].checks
+        if checks is not None and params.model_checks:
+            try:
+                run.update(checks(ctx, job.id))
+            except JobFailed as exc:
+                raise JobFailed(f"runs: {exc}") from None
         runs.append(run)
         ctx.progress(0.9 * (i + 1) / len(params.runs), f"checked {i + 1}/{len(params.runs)}")
     from evaluators.report.plots import stability_png
 
-    found = configs([r for r in runs if r["kind"] != "score"])
+    found = configs([r for r in runs if r["kind"] != SCORE_KIND])
     fams = families(all_rows) + render_families(score_rows)
     ctx.put_json(
         "stability.json",
@@ -282,9 +266,10 @@ def configs(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def family_metric(kind: str) -> str:
-    """The metric families are compared by: the headline one, except where a relative
-    figure is needed to compare cases whose scales differ (BTF highlights and shadows)."""
-    return FAMILY_METRICS.get(kind, ERRORS[kind][0])
+    """The metric families are compared by: the headline one, except where the kind
+    declares a relative figure to compare cases whose scales differ (BTF highlights and
+    shadows: :attr:`~jobapi.reports.ReportFacts.family_metric`)."""
+    return _facts(kind).families_by
 
 
 def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
@@ -295,10 +280,12 @@ def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
     average: the cells of ``stability.png``."""
     acc: dict[tuple[str, Any, str], list[float]] = {}
     whole: dict[tuple[str, Any], list[float]] = {}
+    trained = trained_kinds()
     for r in rows:
-        if r.kind not in ERRORS:
+        facts = trained.get(r.kind)
+        if facts is None:
             continue
-        metric, cand = family_metric(r.kind), ERRORS[r.kind][1]
+        metric, cand = facts.families_by, facts.candidate
         if r.metric != metric or cand not in (None, r.candidate):
             continue
         if r.family:
@@ -349,7 +336,7 @@ def render_families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
     acc: dict[tuple[Any, str], list[float]] = {}
     for r in rows:
         acc.setdefault((r.candidate, str(r.family)), []).append(r.value)
-    return [_cell("score", c, f, rows[0].metric, v, by_cand[c]) for (c, f), v in acc.items()]
+    return [_cell(SCORE_KIND, c, f, rows[0].metric, v, by_cand[c]) for (c, f), v in acc.items()]
 
 
 #: Columns of the result table, one row per run.
@@ -378,7 +365,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
             row.update(
                 flattened=conv.get("flattened"), second_half_drop=conv.get("second_half_drop")
             )
-            who = r.get("label") if r.get("kind") == "score" else r.get("candidate")
+            who = r.get("label") if r.get("kind") == SCORE_KIND else r.get("candidate")
             rows[f"{who} / seed {r.get('seed')} ({r.get('run')})"] = row
     return ResultTable(
         title="Stability",

@@ -5,4 +5,4 @@ Submodules: :mod:`~generators.fabric.kind` (runner and registration),
 (the stratified query design) and :mod:`~generators.fabric.preview` (maps and pictures).
 """
 
-SUBMODULES: tuple[str, ...] = ("queries", "params", "preview", "kind")
+SUBMODULES: tuple[str, ...] = ("queries", "params", "preview", "rows", "kind")

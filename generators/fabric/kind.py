@@ -75,8 +75,8 @@ from generators.fabric.preview import (
     preview_png,
 )
 from generators.fabric.queries import design_queries
+from generators.fabric.rows import fabric_stats_rows
 from generators.fabric.scene_queries import SceneDesign, scene_queries
-from generators.rows import fabric_stats_rows
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate

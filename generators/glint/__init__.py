@@ -5,4 +5,4 @@ Submodules: :mod:`~generators.glint.params` (params, presets, the surface spec),
 (runner and registration).
 """
 
-SUBMODULES: tuple[str, ...] = ("params", "preview", "kind")
+SUBMODULES: tuple[str, ...] = ("params", "preview", "rows", "kind")

@@ -34,7 +34,7 @@ import numpy as np
 
 from generators.glint.params import GlintGenParams, MapExample, ProceduralExample
 from generators.glint.preview import preview_png
-from generators.rows import glint_rows
+from generators.glint.rows import glint_rows
 from jobapi.errors import FormatError, JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable

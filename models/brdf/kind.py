@@ -56,7 +56,9 @@ from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import JobRef, Ref, StrictModel
 from jobapi.presets import preset_note, preset_value
+from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
+from models.brdf.claims import brdf_claims
 from models.brdf.rows import train_brdf_rows
 
 if TYPE_CHECKING:
@@ -333,6 +335,24 @@ MATERIAL_COLUMNS = ("family", "split", "smape", "smape_floor", "mae", "smape_ana
                     "smape_floor_analytic", "mae_analytic")  # fmt: skip
 
 
+def training_loss(curves: Any) -> list[float | None]:
+    """The training loss of a ``curves.json`` for ``report.stability``: its ``train``
+    phase (the held-out phase fits other materials); a document of before the one schema
+    kept the training curves under ``train``."""
+    if isinstance(curves, dict) and isinstance(curves.get("train"), dict):
+        curves = curves["train"]
+    return phase_loss(curves)
+
+
+def model_checks(ctx: JobContext, job_id: str) -> dict[str, Any]:
+    """NaN/Inf at extreme inputs, albedo and reciprocity of a finished job's model, for
+    ``report.stability`` (:func:`models.brdf.stability.trained_checks`; imported here
+    only when asked, as it loads torch)."""
+    from models.brdf.stability import trained_checks
+
+    return trained_checks(ctx, job_id)
+
+
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``metrics.json``, one row per material then the mean."""
     return per_material_table(read("metrics.json"), MATERIAL_COLUMNS)
@@ -365,5 +385,8 @@ register(
         },
         summary=summarize,
         rows=train_brdf_rows,
+        report=ReportFacts(
+            metric="smape", loss=training_loss, checks=model_checks, claims=brdf_claims
+        ),
     )
 )

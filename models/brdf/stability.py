@@ -18,12 +18,17 @@ reciprocity error. Directions in the local shading frame, z up, ``(N, 3)`` float
 from __future__ import annotations
 
 import math
-from typing import Any
+import statistics
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from jobapi.errors import JobFailed
 from models.brdf.networks import BrdfModel
 from models.brdf.report import model_values
+
+if TYPE_CHECKING:
+    from jobapi.context import JobContext
 
 #: Incident angles (degrees) of the albedo check, and ``wo`` samples per angle.
 ALBEDO_THETAS = (0.0, 30.0, 60.0, 75.0, 85.0, 89.0)
@@ -99,4 +104,30 @@ def material_checks(model: BrdfModel, index: int) -> dict[str, Any]:
         "albedo_max_theta": float(worst),
         "energy_gain": albedo[worst] > 1.0 + ENERGY_TOLERANCE,
         "reciprocity_error": recip,
+    }
+
+
+def trained_checks(ctx: JobContext, job_id: str) -> dict[str, Any]:
+    """The checks of a finished ``train.brdf`` job's model (its ``model.pt``), for
+    ``report.stability`` (:attr:`jobapi.reports.ReportFacts.checks`): ``materials`` (per
+    material: name, family and :func:`material_checks`), and over them ``nonfinite_total``,
+    ``albedo_max``, ``energy_gain`` (names) and the mean ``reciprocity_error``.
+    :class:`~jobapi.errors.JobFailed` when the model does not load."""
+    from models.brdf.portable import load_checkpoint
+
+    try:
+        model, names, families = load_checkpoint(ctx.read_ref(f"job:{job_id}/model.pt"))
+    except (ValueError, KeyError, RuntimeError) as exc:
+        raise JobFailed(f"job {job_id}: model.pt does not load: {exc}") from None
+    model.eval()
+    mats = [
+        {"name": n, "family": f, **material_checks(model, i)}
+        for i, (n, f) in enumerate(zip(names, families, strict=True))
+    ]
+    return {
+        "materials": mats,
+        "nonfinite_total": sum(m["nonfinite_total"] for m in mats),
+        "albedo_max": max(m["albedo_max"] for m in mats),
+        "energy_gain": [m["name"] for m in mats if m["energy_gain"]],
+        "reciprocity_error": statistics.fmean(m["reciprocity_error"] for m in mats),
     }

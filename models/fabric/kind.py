@@ -38,7 +38,9 @@ from pydantic import Field
 from jobapi.kinds import Kind, register
 from jobapi.params import JobRef, Ref, StrictModel
 from jobapi.presets import preset_note, preset_value
+from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
+from models.fabric.claims import fabric_claims
 from models.fabric.rows import train_fabric_rows
 
 if TYPE_CHECKING:
@@ -316,5 +318,7 @@ register(
         },
         summary=summarize,
         rows=train_fabric_rows,
+        # the headline: the network's rows (its Monte Carlo baselines have rows too)
+        report=ReportFacts(metric="rgb.rel", candidate="network", claims=fabric_claims),
     )
 )

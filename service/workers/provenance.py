@@ -22,6 +22,8 @@ PINNED_PACKAGES = (
     "colour-science",
     "pillow",
     "matplotlib",
+    "onnx",
+    "onnxruntime",
 )
 _REPO = Path(__file__).resolve().parent.parent
 

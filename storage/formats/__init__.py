@@ -21,6 +21,7 @@ from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
 from storage.formats.normal_map import validate_normal_map
 from storage.formats.npz import validate_npz
+from storage.formats.onnx import validate_onnx
 from storage.formats.png import validate_png
 from storage.formats.ubo_btf import validate_ubo_btf
 
@@ -74,6 +75,7 @@ VALIDATORS: dict[str, FileFormat] = {
     ".binary": FileFormat(MEDIA_TYPES[".binary"], validate_merl),
     ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz),
     ".btf": FileFormat(MEDIA_TYPES[".btf"], validate_ubo_btf, pixel_cap=True),
+    ".onnx": FileFormat(MEDIA_TYPES[".onnx"], validate_onnx),
 }
 #: Compound endings checked before the extension: a normal map is an image with a meaning.
 COMPOUND_VALIDATORS: dict[str, FileFormat] = {

@@ -21,6 +21,7 @@ MEDIA_TYPES: dict[str, str] = {
     ".txt": "text/plain",
     ".zip": "application/zip",
     ".btf": "application/x-ubo-btf",
+    ".onnx": "application/x-onnx",
 }
 
 

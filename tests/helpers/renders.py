@@ -37,3 +37,14 @@ def assert_same_render(
         f"{flipped:.2%} of pixels differ by more than rtol={rtol:g} (allowed "
         f"{max_flipped:.2%}); largest relative difference {rel.max():.3g}"
     )
+
+
+def own_render_seconds(store: object, job: object) -> float:
+    """A finished render job's own time, as its result rows report it: ``render_seconds``
+    of its manifest's ``timings.measured`` (its passes less JIT compilation)."""
+    import json
+
+    digest = getattr(job, "manifest_digest", None)
+    assert digest, f"job {getattr(job, 'id', '?')} has no manifest"
+    manifest = json.loads(store.read(digest))  # type: ignore[attr-defined]
+    return float(manifest["timings"]["measured"]["render_seconds"])

@@ -16,6 +16,8 @@ plugin                 module                  what it renders
 ``btf_model``          ``btf_model``           a trained BTF model (train.btf), fused
 ``btf_surface``        ``btf_surface``         a generate.btf surface's principled BSDF,
                                                carrying its relief for the floor scenes
+``external_onnx``      ``external_onnx``       a user's ONNX BRDF or BTF (onnxruntime, in
+                                               Dr.Jit's evaluated mode)
 =====================  ======================  =============================================
 
 Each registers itself per Mitsuba variant through :mod:`evaluators.render.plugins` when its
@@ -29,6 +31,7 @@ from evaluators.render.bsdfs import (
     btf_model,
     btf_surface,
     btf_table,
+    external_onnx,
     fabric_aggregate,
     fabric_model,
     glint,
@@ -45,4 +48,5 @@ PLUGINS = (
     btf_table,
     btf_model,
     btf_surface,
+    external_onnx,
 )

@@ -9,9 +9,10 @@ import itertools
 import numpy as np
 import pytest
 
-from evaluators.report.claims import brdf_claims, fabric_claims
 from evaluators.report.fronts import check_claim, cost_columns, error_metrics, families, panels
 from jobapi.rows import ResultRow
+from models.brdf.claims import brdf_claims
+from models.fabric.claims import fabric_claims
 
 D = "job:" + "d" * 32
 
@@ -101,7 +102,7 @@ def test02_defaults_and_families() -> None:
 
 def test03_claims_with_reasons() -> None:
     rows = study()
-    claims = {c["claim"]: c for c in brdf_claims(rows)}
+    claims = {c["claim"]: c for c in brdf_claims(rows, check_claim)}
     assert claims["hybrid 16x3 mean SMAPE < analytic"]["holds"] is True
     eq = claims["hybrid 16x3 mean SMAPE <= neural 16x3 at equal per-material parameters"]
     assert eq["holds"] is True and eq["b_n"] == 3 and "neural 16x3" in eq["why"]
@@ -116,7 +117,7 @@ def test03_claims_with_reasons() -> None:
         r.with_(config={"per_material_params": 12}) if r.candidate == "neural 16x3" else r
         for r in rows
     ]
-    (bad,) = [c for c in brdf_claims(other) if "neural" in c["claim"]]
+    (bad,) = [c for c in brdf_claims(other, check_claim) if "neural" in c["claim"]]
     assert bad["holds"] is None and "floats differ" in bad["why"]
 
 
@@ -139,7 +140,7 @@ def test04_fabric_claims_per_reference() -> None:
         score("net16", "unseen", 0.2),
         score("mc_eq", "unseen", 0.15),
     ]
-    got = {c["claim"]: c["holds"] for c in fabric_claims(rows)}
+    got = {c["claim"]: c["holds"] for c in fabric_claims(rows, check_claim)}
     assert got == {
         "network (16 spp) FLIP < Monte Carlo at equal time against seen": True,
         "network (16 spp) FLIP < Monte Carlo at 1 spp against seen": True,

@@ -26,7 +26,7 @@ Query sets: ``design`` (the training design: sizes over [0, 5] tiles) and ``rend
 (the same directions and centres, sizes uniform in [0.03, 0.1] tile: the pixel footprints of
 ``cloth_plane`` at 8-16 tiles per uv).
 
-Run: ``.venv/bin/python benchmarks/diag_fabric_network.py --config small --out d.json``
+Run: ``.venv/bin/python tools/diag_fabric_network.py --config small --out d.json``
 (configs: see :data:`CONFIGS`; ``--gen`` / ``--train`` add JSON params over them).
 """
 

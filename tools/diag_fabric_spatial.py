@@ -9,22 +9,24 @@ two RGB means (1: the network places bright and dark where the weave does), the 
 centre's axes swapped (a convention check: it should be lower), the ratio of the means, and
 the coefficient of variation (spatial contrast) of each.
 
-Run: ``.venv/bin/python benchmarks/diag_fabric_spatial.py --data-dir /tmp/bench_eval/data``
+Run: ``.venv/bin/python tools/diag_fabric_spatial.py --data-dir /tmp/bench_eval/data``
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sqlite3
+import sys
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from materials.fabric.aggregate import FootprintQueries, estimate
-from materials.fabric.params import FabricParams
-from models.fabric.fused import decoder_numpy, load_fabric_model
-from storage.artifacts import ArtifactStore
+import numpy as np  # noqa: E402
+
+from materials.fabric.aggregate import FootprintQueries, estimate  # noqa: E402
+from materials.fabric.params import FabricParams  # noqa: E402
+from models.fabric.fused import decoder_numpy, load_fabric_model  # noqa: E402
+from tools.store import latest_artifact, open_data_dir  # noqa: E402
 
 DIRECTIONS = (
     ([0.3, 0.1, 0.95], [-0.2, 0.3, 0.93]),
@@ -33,15 +35,12 @@ DIRECTIONS = (
 
 
 def _artifact(data: Path, kind: str, name: str) -> bytes:
-    db = sqlite3.connect(data / "jobs.sqlite3")
-    row = db.execute(
-        "SELECT a.digest FROM jobs j JOIN artifacts a ON a.job_id = j.id "
-        "WHERE j.kind = ? AND a.name = ? AND j.state = 'succeeded' ORDER BY j.finished_at DESC",
-        (kind, name),
-    ).fetchone()
-    if row is None:
-        raise SystemExit(f"{data}: no finished {kind} job with {name}")
-    return ArtifactStore(data / "store").read(row[0])
+    """Artifact ``name`` of the newest succeeded ``kind`` job of ``data`` that has one."""
+    jobs, store = open_data_dir(data)
+    try:
+        return latest_artifact(jobs, store, kind, name)
+    finally:
+        jobs.close()
 
 
 def main() -> None:

@@ -8,14 +8,12 @@ table's mean, the model's median value at those pairs (1/sr, mean over RGB), Eq.
 :func:`evaluators.metrics.brdf.smape_floor` at floors of 1 % (the default), 10 % and 100 %
 of the table's mean.
 
-    .venv/bin/python benchmarks/diag_brdf_zeros.py --data-dir D --materials TiC Ta
+    .venv/bin/python tools/diag_brdf_zeros.py --data-dir D --materials TiC Ta
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import sqlite3
 import sys
 from pathlib import Path
 
@@ -33,8 +31,8 @@ from evaluators.metrics.brdf import (  # noqa: E402
 )
 from models.brdf.portable import load_checkpoint  # noqa: E402
 from models.brdf.report import model_values  # noqa: E402
-from storage.artifacts import ArtifactStore  # noqa: E402
 from storage.formats.merl import merl_from_bytes  # noqa: E402
+from tools.store import open_data_dir, succeeded  # noqa: E402
 
 FRACTIONS = (0.01, 0.1, 1.0)
 
@@ -45,15 +43,12 @@ def main() -> None:
     ap.add_argument("--materials", nargs="+", required=True, help="substrings of table names")
     ap.add_argument("--pairs", type=int, default=1 << 18)
     args = ap.parse_args()
-    db = sqlite3.connect(f"file:{args.data_dir / 'jobs.sqlite3'}?mode=ro", uri=True)
-    store = ArtifactStore(args.data_dir / "store")
-    jobs = db.execute("select id, kind, spec from jobs where state = 'succeeded' order by seq")
+    queue, store = open_data_dir(args.data_dir)
     arts: dict[str, dict[str, str]] = {}
-    kinds: dict[str, tuple[str, str]] = {}
-    for jid, kind, spec in jobs.fetchall():
-        rows = db.execute("select name, digest from artifacts where job_id = ?", (jid,))
-        arts[jid] = dict(rows.fetchall())
-        kinds[jid] = (kind, spec)
+    kinds: dict[str, tuple[str, dict]] = {}
+    for job in succeeded(queue):
+        arts[job.id] = {a.name: a.digest for a in job.artifacts}
+        kinds[job.id] = (job.kind, job.spec)
     tables = {
         name.removesuffix(".binary"): digest
         for jid, (kind, _) in kinds.items()
@@ -71,7 +66,7 @@ def main() -> None:
         if kind != "train.brdf":
             continue
         model, names, _ = load_checkpoint(store.read(arts[jid]["model.pt"]))
-        label = json.loads(spec)["params"].get("model", "?")
+        label = spec["params"].get("model", "?")
         for i, name in enumerate(names):
             if not any(m in name for m in args.materials) or name not in tables:
                 continue

@@ -4,7 +4,7 @@ A dataset drawn for one scene (``generate.fabric`` with ``scene``: every query a
 render's pixel footprints, views and lights) spends nothing on other footprints. This script
 measures what that costs: for each ``--run DIR`` (the ``--data-dir`` of a
 ``benchmarks/bench_fabric_eval.py`` run) it loads the trained ``model.pt`` and compares it
-with fresh Monte Carlo (:func:`benchmarks.diag_fabric_network.reference`: drjit backend,
+with fresh Monte Carlo (:func:`tools.diag_fabric_network.reference`: drjit backend,
 ``--samples`` Sobol samples per query) on two query sets:
 
 - ``design``: the Sec. 5.1 design (sizes over [0, 5] tiles, cosine-distributed directions on
@@ -16,7 +16,7 @@ Materials: the recipe's seen ``twill_3x3-t00-s00`` (from the run's ``materials.j
 the unseen twill 4x4. Per run, material, set and size bucket: the RGB ratio (``sum net /
 sum MC``, Eq. 8 albedos; 1 is unbiased) and the relative L1 error of the RGB value.
 
-Run: ``.venv/bin/python benchmarks/diag_fabric_sizes.py --run NAME=DIR ... [--queries 4096]
+Run: ``.venv/bin/python tools/diag_fabric_sizes.py --run NAME=DIR ... [--queries 4096]
 [--samples 1024] [--out sizes.json]``
 """
 
@@ -25,13 +25,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sqlite3
 import sys
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
 
@@ -40,20 +38,16 @@ SCENE_SEED = 0x5CE7E
 
 
 def _job_artifact(data: Path, kind: str, name: str) -> bytes:
-    from storage.artifacts import ArtifactStore
-    from storage.jobs import JobStore
+    """Artifact ``name`` of the one succeeded ``kind`` job of the data directory ``data``."""
+    from tools.store import open_data_dir, succeeded
 
-    with sqlite3.connect(f"file:{data / 'jobs.sqlite3'}?mode=ro", uri=True) as c:
-        rows = c.execute(
-            "select id from jobs where kind = ? and state = 'succeeded'", (kind,)
-        ).fetchall()
-    (job_id,) = [r[0] for r in rows]
-    jobs = JobStore(data / "jobs.sqlite3")
+    jobs, store = open_data_dir(data)
     try:
-        digest = jobs.artifact(job_id, name).digest
+        (job,) = succeeded(jobs, kind)
+        (digest,) = [a.digest for a in job.artifacts if a.name == name]
     finally:
         jobs.close()
-    return ArtifactStore(data / "store").read(digest)
+    return store.read(digest)
 
 
 def scene_set(n: int) -> np.ndarray:
@@ -74,13 +68,12 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
 
-    from diag_fabric_network import UNSEEN, query_sets, reference, stats
-
     from evaluators.render.sources.fabric import FabricSpec
     from models.fabric.fused import encode_material, load_fabric_model, material_maps
     from models.fabric.networks import components_numpy
     from models.fabric.portable import load_checkpoint
     from models.fabric.report import decode_raw
+    from tools.diag_fabric_network import UNSEEN, query_sets, reference, stats
 
     runs = dict(item.split("=", 1) for item in args.run)
     first = Path(next(iter(runs.values())))
@@ -115,7 +108,7 @@ def main() -> None:
                 for bucket, r in row.items():
                     print(f"| {run} | {mname} | {sname} | {bucket} | {r['n']} | "
                           f"{r['rgb']:.3f} | {r['rel_l1_rgb']:.3f} |")  # fmt: skip
-    print(f"\nload {result['load']:.1f}; `.venv/bin/python benchmarks/diag_fabric_sizes.py "
+    print(f"\nload {result['load']:.1f}; `.venv/bin/python tools/diag_fabric_sizes.py "
           + " ".join(f"--run {k}={v}" for k, v in runs.items()) + "`")  # fmt: skip
     if args.out is not None:
         args.out.write_text(json.dumps(result, indent=1))

@@ -1,0 +1,143 @@
+"""ONNX uploads are data, not code: :mod:`storage.formats.onnx` refuses every file that
+strays from the documented signature or the operator allowlist, naming the file and the
+problem.
+
+Reference: the signature and limits as ``docs/onnx-models.md`` states them; each bad file
+is a valid model (built with ``onnx.helper``, independent of the validator) with one thing
+changed, so the refusal can only come from that one thing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from storage.errors import FormatError, TooLargeError
+from storage.formats import validate_file
+from storage.formats.onnx import MAX_ONNX_BYTES, check_onnx_file, onnx_kind
+from tests.helpers.onnx_models import lambert_model, save
+
+
+def _refusal(tmp_path: Path, model: onnx.ModelProto | bytes, err: type = FormatError) -> str:
+    path = tmp_path / "m.onnx"
+    path.write_bytes(model if isinstance(model, bytes) else model.SerializeToString())
+    with pytest.raises(err) as info:
+        validate_file(path, "m.onnx")
+    msg = str(info.value)
+    assert msg.startswith("m.onnx: "), msg
+    return msg
+
+
+@pytest.mark.parametrize("kind", ["brdf", "btf"])
+def test01_valid_models_pass_and_name_their_kind(tmp_path: Path, kind: str) -> None:
+    model = lambert_model(kind)
+    path = save(model, tmp_path / "ok.onnx")
+    assert validate_file(path, "ok.onnx") == "application/x-onnx"
+    assert onnx_kind(model, "ok.onnx") == kind
+    check_onnx_file(path, "ok.onnx", kind)
+    other = "btf" if kind == "brdf" else "brdf"
+    with pytest.raises(FormatError, match=f"declared kind '{other}' needs inputs"):
+        check_onnx_file(path, "ok.onnx", other)
+
+
+def test02_truncated_and_garbage_bytes(tmp_path: Path) -> None:
+    data = lambert_model("btf").SerializeToString()
+    for cut in (1, 7, len(data) // 3, len(data) // 2, len(data) - 3):
+        _refusal(tmp_path, data[:cut])
+    assert "empty file" in _refusal(tmp_path, b"")
+    assert "does not decode" in _refusal(tmp_path, b"\xff" * 100)
+
+
+def test03_wrong_signatures(tmp_path: Path) -> None:
+    m = lambert_model("btf")
+    m.graph.input[0].name = "xy"
+    assert "inputs (xy, wi, wo) match no signature" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf")
+    m.graph.input[1].type.tensor_type.elem_type = TensorProto.DOUBLE
+    assert "input 'wi' must be float32, not DOUBLE" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf")
+    m.graph.input[1].type.tensor_type.shape.dim[0].dim_value = 64
+    assert "input 'wi' has a fixed batch dimension 64" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf")
+    m.graph.input[0].type.tensor_type.shape.dim[1].dim_value = 3
+    assert "input 'uv' must have shape [N, 2]" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf")
+    m.graph.output[0].name = "color"
+    assert "outputs (color) must be exactly one named 'rgb'" in _refusal(tmp_path, m)
+
+
+def test04_operators_domains_and_opsets(tmp_path: Path) -> None:
+    m = lambert_model("btf")
+    m.graph.node.append(helper.make_node("RandomNormal", [], ["noise"], shape=[1]))
+    assert "operator RandomNormal is not allowed" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf")
+    m.graph.node[1].domain = "com.evil"
+    m.opset_import.append(helper.make_opsetid("com.evil", 1))
+    assert "custom operator domain 'com.evil'" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf", opset=7)
+    assert "opset 7 is outside the supported" in _refusal(tmp_path, m)
+
+    m = lambert_model("btf")
+    m.functions.append(helper.make_function("evil", "f", ["a"], ["b"], [], []))
+    assert "model-local functions are not allowed" in _refusal(tmp_path, m)
+
+
+def test05_initialiser_sizes_and_external_data(tmp_path: Path) -> None:
+    m = lambert_model("btf")
+    huge = TensorProto(name="huge", data_type=TensorProto.FLOAT, dims=[2**31], raw_data=b"\0" * 4)
+    m.graph.initializer.append(huge)
+    msg = _refusal(tmp_path, m, TooLargeError)
+    assert "initialiser 'huge' declares 8192.0 MiB" in msg
+
+    m = lambert_model("btf")
+    m.graph.initializer[3].raw_data = m.graph.initializer[3].raw_data[:8]
+    assert "initialiser 'k' declares shape [1, 3] (12 bytes) but stores 8 bytes" in _refusal(
+        tmp_path, m
+    )
+
+    m = lambert_model("btf")
+    t = m.graph.initializer[3]
+    t.data_location = TensorProto.EXTERNAL
+    t.ClearField("raw_data")
+    t.external_data.add(key="location", value="/etc/passwd")
+    assert "initialiser 'k' stores its data in an external file" in _refusal(tmp_path, m)
+
+
+def test06_over_the_file_size_limit_is_413_before_reading(tmp_path: Path) -> None:
+    path = tmp_path / "big.onnx"
+    with path.open("wb") as f:
+        f.truncate(MAX_ONNX_BYTES + 1)  # sparse: nothing is read
+    with pytest.raises(TooLargeError, match=r"^big.onnx: ONNX file of 64.0 MiB exceeds"):
+        validate_file(path, "big.onnx")
+
+
+def test07_checker_errors_are_format_errors(tmp_path: Path) -> None:
+    # A node reading a tensor nobody defines: onnx.checker's complaint, as a FormatError.
+    m = lambert_model("btf")
+    m.graph.node[1].input[1] = "nowhere"
+    assert "invalid ONNX graph" in _refusal(tmp_path, m)
+    # A Constant node's value counts toward the initialiser bytes too.
+    m = lambert_model("btf")
+    big = numpy_helper.from_array(np.zeros(1, np.float32), "c")
+    big.ClearField("raw_data")
+    big.dims[:] = [2**30]
+    m.graph.node.append(helper.make_node("Constant", [], ["c"], value=big))
+    assert "declares 4096.0 MiB" in _refusal(tmp_path, m, TooLargeError)
+
+
+def test08_expand_only_to_another_tensors_shape(tmp_path: Path) -> None:
+    # Expand to a constant shape could ask for any amount of memory at evaluation time.
+    m = lambert_model("btf")
+    m.graph.initializer.append(numpy_helper.from_array(np.array([2**40, 3], np.int64), "shape"))
+    m.graph.node.append(helper.make_node("Expand", ["rgb", "shape"], ["big"]))
+    assert "Expand's shape must come straight from a Shape node" in _refusal(tmp_path, m)
