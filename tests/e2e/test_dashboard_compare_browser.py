@@ -418,4 +418,8 @@ def test10_the_view_is_in_the_address(
     pg.goto(f"{server}/compare?jobs={gold}&picture=errors")
     assert pg.locator("#c-picture").input_value() == "errors"
     assert _roles(pg) == ["FLIP error of gold24", "FLIP error of gold8"]
+    # a link of before the roles (artifact=NAME) still opens its picture
+    pg.goto(f"{server}/compare?jobs={gold}&artifact=flip_gold8.png")
+    assert pg.locator("#c-picture").input_value() == "errors"
+    url_has(pg, "picture=errors")
     assert pg.problems == [], pg.problems

@@ -27,7 +27,9 @@
 
   // -- the address: the view state, read once here and written on every change ----------
   const initial = new URLSearchParams(window.location.search);
-  const wanted = initial.get("picture") || initial.get("artifact");  // artifact=: older links
+  // artifact=NAME: links of before the roles (a FLIP map's name: the error maps' view)
+  const legacy = initial.get("artifact");
+  const wanted = initial.get("picture") || (legacy && /^flip_/.test(legacy) ? "errors" : legacy);
   if (wanted && [...pictureSelect.options].some((o) => o.value === wanted)) pictureSelect.value = wanted;
   if (initial.get("mode") === "ab") mode = "ab";
   for (const radio of document.querySelectorAll('input[name="c-mode"]')) radio.checked = radio.value === mode;
