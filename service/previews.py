@@ -35,6 +35,11 @@ PREVIEW_MAX_SIDE = 1024
 #: Rows tone-mapped at once (bounds the float64 temporaries: 64 x 1024 x 3 x 8 B = 1.5 MB).
 BAND_ROWS = 64
 EXR_MAGIC = b"\x76\x2f\x31\x01"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+#: What :meth:`PreviewMaker.pixels` reads from an object: an EXR's linear RGB, a PNG's
+#: sRGB-encoded values in [0, 1], or the value in [0, 1] a magma-coloured PNG (a FLIP map)
+#: encodes (:func:`evaluators.metrics.tonemap.magma_values`).
+PIXEL_MAPS = ("linear", "srgb", "magma")
 
 K = TypeVar("K")
 V = TypeVar("V")
@@ -93,6 +98,21 @@ def decode_preview(path: Path, name: str, max_side: int, max_pixels: int) -> np.
             f"is {max_pixels} pixels, MATFORGE_PREVIEW_MAX_PIXELS); download it instead",
         )
     rgb = read_exr(path, name)  # (H, W, 3) float32, linear
+    return stride(rgb, max_side)
+
+
+def decode_png_pixels(path: Path, name: str, max_side: int) -> np.ndarray:
+    """Runs in a checker child: the PNG at ``path`` as ``(h, w, 3)`` float32 sRGB-encoded
+    values in ``[0, 1]``, strided as :func:`decode_preview` strides EXRs (``FormatError``
+    naming ``name`` when it is not a readable PNG)."""
+    from storage.formats.png import read_png
+
+    return stride(read_png(path, name), max_side)
+
+
+def stride(rgb: np.ndarray, max_side: int) -> np.ndarray:
+    """Every ``k``-th pixel of ``rgb`` in both directions, the smallest ``k`` that leaves at
+    most ``max_side`` pixels on the long side (no filtering: values stay pixel values)."""
     step = max(1, -(-max(rgb.shape[:2]) // max_side))
     return np.ascontiguousarray(rgb[::step, ::step])
 
@@ -135,6 +155,26 @@ class PreviewMaker:
         #: Images decoded so far (one per object while it stays cached).
         self.decodes = 0
 
+    def pixels(
+        self, digest: str, values: str, source: Callable[[], tuple[Path, str]]
+    ) -> np.ndarray:
+        """The ``(h, w, 3)`` float32 pixel values of object ``digest`` that the compare
+        view reads under the cursor and subtracts for its difference image, on the grid of
+        its preview (an EXR's thumbnail is the one :meth:`png` tone-maps). ``values`` is one
+        of :data:`PIXEL_MAPS`: ``"linear"`` for an EXR, ``"srgb"`` or ``"magma"`` for a PNG
+        (``magma`` gives the mapped value in all three channels). ``FormatError`` when the
+        object is not of that form."""
+        if values not in PIXEL_MAPS:
+            raise ValueError(f"values must be one of {PIXEL_MAPS}, got {values!r}")
+        if values == "linear":
+            return self._thumbnail(digest, source)
+        return self._thumbnail(digest, source, values)
+
+    def _thumbnail(
+        self, digest: str, source: Callable[[], tuple[Path, str]], png: str = ""
+    ) -> np.ndarray:
+        return self._cached(f"{png}:{digest}" if png else digest, source, png)
+
     def png(self, digest: str, exposure: float, source: Callable[[], tuple[Path, str]]) -> bytes:
         """The PNG preview of object ``digest`` at ``exposure`` stops. ``source()`` gives the
         object's verified path and the name to show in errors; it is called only when the
@@ -146,7 +186,7 @@ class PreviewMaker:
             self._png.put(key, png)
         return png
 
-    def _thumbnail(self, digest: str, source: Callable[[], tuple[Path, str]]) -> np.ndarray:
+    def _cached(self, digest: str, source: Callable[[], tuple[Path, str]], png: str) -> np.ndarray:
         linear = self._linear.get(digest)
         if linear is not None:
             return linear
@@ -159,7 +199,7 @@ class PreviewMaker:
             linear = self._linear.get(digest)
             if linear is None:
                 try:
-                    linear = self._decode(*source())
+                    linear = self._decode(*source(), png)
                     self._linear.put(digest, linear)
                 except CheckFailed:  # a crash or a time-out may not happen again
                     raise
@@ -171,20 +211,28 @@ class PreviewMaker:
                         self._decoding.pop(digest, None)
         return linear
 
-    def _decode(self, path: Path, name: str) -> np.ndarray:
+    def _decode(self, path: Path, name: str, png: str = "") -> np.ndarray:
         with open(path, "rb") as fh:
-            if fh.read(4) != EXR_MAGIC:
-                raise FormatError(
-                    name, "not an OpenEXR file; previews exist for .exr artifacts only"
-                )
+            head = fh.read(8)
+        if png and not head.startswith(PNG_MAGIC):
+            raise FormatError(name, "not a PNG file; its pixel values are read as an image's")
+        if not png and not head.startswith(EXR_MAGIC):
+            raise FormatError(name, "not an OpenEXR file; previews exist for .exr artifacts only")
         try:
-            linear = self.checker.run(
-                decode_preview, path, name, self.max_side, self.max_pixels, label=name
-            )
+            if png:
+                linear = self.checker.run(decode_png_pixels, path, name, self.max_side, label=name)
+            else:
+                linear = self.checker.run(
+                    decode_preview, path, name, self.max_side, self.max_pixels, label=name
+                )
         except TooLargeError:
             raise FormatError(
                 name, "decoding it needs more memory than previews may use; download it instead"
             ) from None
         with self._lock:
             self.decodes += 1
+        if png == "magma":
+            from evaluators.metrics.tonemap import magma_values
+
+            linear = np.repeat(magma_values(linear)[..., None], 3, axis=2)
         return linear

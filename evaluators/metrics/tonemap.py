@@ -95,13 +95,38 @@ def magma(values: np.ndarray) -> np.ndarray:
     NVIDIA's FLIP uses for its error maps (its own table agrees to within 2/255). NaN maps
     to index 0; values are clipped to ``[0, 1]``. Returns ``(H, W, 3)`` uint8 sRGB.
     """
-    from matplotlib import colormaps  # imported here: only error-map writers need it
-
     v = np.asarray(values, dtype=np.float64)
     if v.ndim == 3 and v.shape[2] == 1:
         v = v[..., 0]
     if v.ndim != 2:
         raise ValueError(f"magma needs an (H, W) map, got shape {v.shape}")
     idx = np.rint(np.clip(np.nan_to_num(v, nan=0.0), 0.0, 1.0) * 255.0).astype(np.intp)
-    table = quantize8(np.asarray(colormaps["magma"](np.linspace(0.0, 1.0, 256)))[:, :3])
-    return table[idx]
+    return magma_table()[idx]
+
+
+def magma_table() -> np.ndarray:
+    """The ``(256, 3)`` uint8 sRGB table :func:`magma` colours with (matplotlib's magma)."""
+    from matplotlib import colormaps  # imported here: only error-map users need it
+
+    return quantize8(np.asarray(colormaps["magma"](np.linspace(0.0, 1.0, 256)))[:, :3])
+
+
+def magma_values(rgb: np.ndarray) -> np.ndarray:
+    """The values in ``[0, 1]`` that :func:`magma` coloured: the inverse of ``magma`` on its
+    own output, exact to the table step (``1/255``), for the compare view's readout of a FLIP
+    map. ``rgb`` is ``(H, W, 3)``: uint8 levels, or floats in ``[0, 1]`` (as ``read_png``
+    gives). A colour not in the table maps to its nearest entry (squared sRGB distance).
+    Returns ``(H, W)`` float32."""
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"magma_values needs an (H, W, 3) image, got shape {a.shape}")
+    levels = a if a.dtype == np.uint8 else np.rint(np.clip(a, 0.0, 1.0) * 255.0).astype(np.uint8)
+    keys = levels.astype(np.int32) @ np.array([65536, 256, 1], np.int32)
+    unique, inverse = np.unique(keys.ravel(), return_inverse=True)
+    colours = np.stack([unique >> 16, (unique >> 8) & 255, unique & 255], axis=1).astype(np.int32)
+    table = magma_table().astype(np.int32)
+    nearest = np.empty(len(unique), np.intp)
+    for i in range(0, len(unique), 4096):  # bounds the (n, 256) distances
+        d = ((colours[i : i + 4096, None, :] - table[None]) ** 2).sum(axis=2)
+        nearest[i : i + 4096] = d.argmin(axis=1)
+    return (nearest[inverse].reshape(keys.shape) / 255.0).astype(np.float32)

@@ -1,4 +1,4 @@
-"""``/api/artifacts``: download verified objects, upload files, EXR previews.
+"""``/api/artifacts``: download verified objects, upload files, EXR previews, pixel values.
 
 Only a string matching ``^(sha256:)?[0-9a-f]{64}$`` ever becomes a path in the store (the
 path parameter is pattern-checked, and :func:`storage.artifacts.check_digest` again), and the
@@ -10,8 +10,9 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
+import numpy as np
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
@@ -126,6 +127,59 @@ def get_preview(
         return path, record.name if record else f"sha256:{d}"
 
     return Response(previews.png(d, exposure, source), media_type="image/png", headers=headers)
+
+
+@router.get(
+    "/{digest}/pixels",
+    response_class=Response,
+    responses={
+        **_ERRORS,
+        **_BUSY,
+        200: {
+            "content": {"application/octet-stream": {}},
+            "description": "float32 little-endian RGB rows, top row first; the size is in "
+            "the `X-Image-Width` and `X-Image-Height` headers",
+        },
+        422: {
+            "model": ErrorPublic,
+            "description": "not a sha256 digest, not an image of that form, or too large",
+        },
+    },
+    summary="Pixel values of an image object",
+)
+def get_pixels(
+    digest: Digest,
+    request: Request,
+    jobs: JobsDep,
+    store: StoreDep,
+    settings: SettingsDep,
+    values: Annotated[
+        Literal["linear", "srgb", "magma"],
+        Query(
+            description="`linear`: an EXR's linear RGB; `srgb`: a PNG's sRGB-encoded values "
+            "in [0, 1]; `magma`: the value in [0, 1] a magma-coloured PNG (a FLIP error map) "
+            "encodes, in all three channels"
+        ),
+    ] = "linear",
+) -> Response:
+    """The pixel values the compare view reads under the cursor and subtracts for its
+    difference image: `(h, w, 3)` float32, on the grid of the object's preview (at most 1024
+    pixels on the long side, every k-th pixel, unfiltered). Decoded once, in a memory-capped
+    child process, and cached, as previews are."""
+    d = check_digest(digest)
+    headers = _cache_headers(f"{d}-pixels-{values}", private=bool(settings.token))
+    previews: PreviewMaker = request.app.state.previews
+
+    def source() -> tuple[Path, str]:
+        path = store.open_verified(d)
+        record = jobs.find_digest(d)
+        return path, record.name if record else f"sha256:{d}"
+
+    rgb = previews.pixels(d, values, source)
+    h, w = rgb.shape[:2]
+    headers.update({"X-Image-Width": str(w), "X-Image-Height": str(h), "X-Image-Values": values})
+    body = np.ascontiguousarray(rgb, dtype="<f4").tobytes()
+    return Response(body, media_type="application/octet-stream", headers=headers)
 
 
 def _check_name(name: str) -> str:

@@ -1,27 +1,33 @@
 """The compare view: ``/compare?jobs=<id>,<id>,...`` (ids or unique prefixes) or
 ``/compare?batch=<label>`` puts the pictures of several jobs side by side.
 
-The page shows one artifact name at a time (``image.exr``, ``preview.png``, ...) for every
-job that has it: side by side with linked zoom and pan, or two of them under an A/B
-slider; pixels stay square when zoomed, and HDR images (EXR, through the preview route)
-get an exposure slider. Jobs with ``curves.json`` (training runs) get their curves overlaid
-in one chart, a series at a time; jobs with ``pareto.json`` (reports) their panels, a panel
-(error against cost) at a time. The server only gathers the jobs, their pictures and
-curves; ``static/js/compare.js`` does the rest.
+Pictures are paired by *role* (:mod:`service.compare_pictures`), not by file name: the
+page shows one view at a time — every job's main pictures (its lead picture, or a score
+job's reference and candidates, each a panel), the error maps, the signed difference of
+each candidate to its reference (with its colour bar), or one artifact name — side by side
+with linked zoom and pan, or two panels under an A/B slider; pixels stay square when
+zoomed, and HDR images (EXR, through the preview route) get an exposure slider. Under the
+cursor the page reads every panel's pixel value (``/api/artifacts/{digest}/pixels``: linear
+values of EXRs, a FLIP map's error). The view, mode, zoom, exposure and A/B choice are
+kept in the address, so a view can be shared. Jobs with ``curves.json`` (training runs)
+get their curves overlaid in one chart, a series at a time; jobs with ``pareto.json``
+(reports) their panels, a panel (error against cost) at a time. The server gathers the
+jobs, their pictures with roles and their charts; ``static/js/compare_pictures.js`` and
+``static/js/compare.js`` do the rest.
 """
 
 from __future__ import annotations
 
 import re
-from collections import Counter
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import HTMLResponse
 
 from jobapi.errors import SpecError
+from service import compare_pictures  # a module: it imports routes.dashboard
 from service.deps import JOB_ID_PATTERN, JobsDep, PageAuth, set_token_cookie
-from service.routes.dashboard import EXR_TYPE, picture_views, templates
+from service.routes.dashboard import templates
 from storage.job_queries import resolve_job_id
 from storage.jobs import Job, JobStore
 
@@ -30,8 +36,6 @@ router = APIRouter(include_in_schema=False)
 JOB_ID = re.compile(JOB_ID_PATTERN)
 #: At most this many jobs side by side.
 MAX_JOBS = 12
-#: Artifact names shown first when several are common, most telling first.
-PREFERRED = ("image.exr", "preview.png")
 
 
 def _jobs(store: JobStore, ids: str | None, batch: str | None) -> list[Job]:
@@ -53,12 +57,9 @@ def _jobs(store: JobStore, ids: str | None, batch: str | None) -> list[Job]:
     return []
 
 
-def panel(job: Job) -> dict[str, Any]:
-    """What the page shows of one job: its title, link and pictures (EXRs flagged HDR)."""
-    pictures = []
-    exr = {a.name for a in job.artifacts if a.media_type == EXR_TYPE or a.name.endswith(".exr")}
-    for image in picture_views(job.artifacts, job.kind):
-        pictures.append({"name": image["name"], "src": image["src"], "hdr": image["name"] in exr})
+def panel(job: Job, jobs: JobStore) -> dict[str, Any]:
+    """What the page shows of one job: its title, link, pictures by role
+    (:func:`service.compare_pictures.job_pictures`) and chart documents."""
     curves = next((a for a in job.artifacts if a.name == "curves.json"), None)
     pareto = next((a for a in job.artifacts if a.name == "pareto.json"), None)
     return {
@@ -69,19 +70,8 @@ def panel(job: Job) -> dict[str, Any]:
         "title": job.name or job.kind,
         "kind": job.kind,
         "state": job.state,
-        "images": pictures,
+        **compare_pictures.job_pictures(job, jobs),
     }
-
-
-def artifact_choices(panels: list[dict[str, Any]]) -> list[str]:
-    """Picture names, those most jobs have first (the preferred ones first among equals)."""
-    counts = Counter(i["name"] for p in panels for i in p["images"])
-
-    def key(name: str) -> tuple[int, int, str]:
-        rank = PREFERRED.index(name) if name in PREFERRED else len(PREFERRED)
-        return (-counts[name], rank, name)
-
-    return sorted(counts, key=key)
 
 
 @router.get("/compare", response_class=HTMLResponse)
@@ -93,8 +83,8 @@ def compare_page(
     batch: Annotated[str | None, Query(max_length=200)] = None,
 ) -> Response:
     """Several jobs' pictures side by side (see the module docstring)."""
-    panels = [panel(j) for j in _jobs(jobs, ids, batch)]
-    context = {"panels": panels, "choices": artifact_choices(panels), "batch": batch}
+    panels = [panel(j, jobs) for j in _jobs(jobs, ids, batch)]
+    context = {"panels": panels, "views": compare_pictures.compare_views(panels), "batch": batch}
     response = templates.TemplateResponse(request, "compare.html", context)
     set_token_cookie(response, cookie_token, request)
     return response

@@ -1,0 +1,111 @@
+"""Issue 26 §1 and §2: the lead picture of every kind, in headless Chromium. For every kind
+with smoke params that writes pictures, its smoke job's page shows first the picture the
+dashboard ranks first (:func:`service.routes.dashboard.picture_views`: the kind's declared
+lead, at full size, or else its first picture), loaded; and the compare view of that job
+shows its main pictures (its lead, or a score's reference and candidates) with no
+placeholder. The kinds come from the registry, so a new one is tested too. Screenshots:
+``/tmp/matforge-lead-<kind>.png``.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service import kinds
+from service.compare_pictures import job_pictures
+from service.routes.dashboard import picture_views
+from service.settings import Settings
+from storage.jobs import JobStore
+
+from .harness import dashboard_server
+from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .test_dashboard_charts_browser import Runs
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
+]
+
+PICTURES = ("*.png", "*.exr")
+#: The kinds with smoke params whose artifacts include a picture.
+KINDS = sorted(
+    k.name
+    for k in kinds.all_kinds().values()
+    if k.smoke and any(fnmatch.fnmatch(a, p) for a in k.artifacts for p in PICTURES)
+)
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """The smoke job of every kind in :data:`KINDS` (inputs first)."""
+    kinds.load_builtin()
+    data = Path(tmp_path_factory.mktemp("dashboard-lead")) / "data"
+    (data / "scratch").mkdir(parents=True)
+    runs = Runs(Settings.from_env({}).with_(data_dir=data, pool_processes=1))
+    done = {name: runs.job(name) for name in KINDS}
+    failed = {n: j.error for n, j in done.items() if j.state != "succeeded"}
+    assert not failed, failed
+    jobs = JobStore(runs.settings.db_path)
+    try:
+        yield {"data": data, "jobs": {n: jobs.get(j.id) for n, j in done.items()}, "db": jobs}
+    finally:
+        jobs.close()
+
+
+@pytest.fixture(scope="module")
+def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    log_dir = tmp_path_factory.mktemp("server-log")
+    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
+    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
+        yield url
+
+
+def test_the_picture_kinds_are_all_here() -> None:
+    assert {"render", "score", "generate.fabric", "generate.glint", "generate.btf"} <= set(KINDS)
+
+
+def _loaded(pg: Any, selector: str) -> None:
+    pg.wait_for_function(
+        "s => { const imgs = [...document.querySelectorAll(s)];"
+        " return imgs.length > 0 && imgs.every(i => i.complete && i.naturalWidth > 0); }",
+        arg=selector,
+    )
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_lead_picture_first_on_the_job_page_and_in_compare(
+    page: Any,  # noqa: F811
+    server: str,
+    prepared: dict[str, Any],
+    kind: str,
+) -> None:
+    pg = page
+    job = prepared["jobs"][kind]
+    views = [v for v in picture_views(job.artifacts, kind) if v["group"] != "flip"]
+    pg.goto(f"{server}/jobs/{job.id}?token={TOKEN}")
+    if views:
+        first = views[0]
+        shown = pg.locator("section:has(> h2:text-is('Images')) figure img").first
+        shown.scroll_into_view_if_needed()
+        assert shown.get_attribute("alt") == first["name"], (kind, first["name"])
+        pg.wait_for_function("i => i.complete && i.naturalWidth > 0", arg=shown.element_handle())
+        if first["group"] == "lead":  # a declared lead: full size, above the gallery
+            assert pg.locator(".lead figure img").first.get_attribute("alt") == first["name"]
+            lead = pg.locator(".lead").first.bounding_box()
+            section = pg.locator("section:has(> h2:text-is('Images'))").bounding_box()
+            assert lead["width"] >= 0.9 * section["width"], (lead, section)
+    pg.screenshot(path=str(SHOTS / f"matforge-lead-{kind.replace('.', '-')}.png"), full_page=True)
+    # the compare view's main pictures: the lead (or a score's inputs), none missing
+    main = job_pictures(job, prepared["db"])["main"]
+    pg.goto(f"{server}/compare?jobs={job.id}&token={TOKEN}")
+    assert pg.locator(".compare-panel").count() == len(main) >= 1, (kind, main)
+    _loaded(pg, ".viewport img")
+    assert pg.locator(".missing").count() == 0
+    if views and kind != "score":
+        assert pg.locator(".pic-role").first.inner_text() == views[0]["name"]
+    assert pg.problems == [], pg.problems
