@@ -63,6 +63,7 @@ def _input(value: Any, jobs: JobStore) -> ArtifactRecord | None:
         return None
     if not isinstance(value, str):
         return None
+    record: ArtifactRecord | None
     try:
         if (m := JOB_REF.match(value)) is not None:
             record = jobs.artifact(m["job"], m["name"])
