@@ -24,8 +24,9 @@ _TYPES = {
 }
 
 
-def errors(schema: dict[str, Any], value: Any, root: dict[str, Any] | None = None,
-           path: str = "$") -> list[str]:  # fmt: skip
+def errors(
+    schema: dict[str, Any], value: Any, root: dict[str, Any] | None = None, path: str = "$"
+) -> list[str]:
     """Every violation of ``schema`` by ``value``, as ``"<json path>: <what>"``."""
     root = root if root is not None else schema
     out: list[str] = []

@@ -48,14 +48,21 @@ def test02_btf_model_documents_follow_their_schema(model: str) -> None:
     from models.btf.portable import model_document, network_layers, network_textures
 
     if model == "lafortune":
-        arch = {"model": "lafortune", "width": 0, "resolution": [4, 4], "lobes": 4,
-                "params_per_texel": 55, "fit_slices": 10}  # fmt: skip
+        arch = {
+            "model": "lafortune",
+            "width": 0,
+            "resolution": [4, 4],
+            "lobes": 4,
+            "params_per_texel": 55,
+            "fit_slices": 10,
+        }
         doc = model_document("lafortune", arch, {}, {"params": np.zeros((4, 4, 55))}, {})
     else:
         a = Architecture(model, 8, (4, 4))
         net = build_network(a, 0)
-        doc = model_document(model, a.as_dict(), network_layers(net), network_textures(net),
-                             {"seed": 0})  # fmt: skip
+        doc = model_document(
+            model, a.as_dict(), network_layers(net), network_textures(net), {"seed": 0}
+        )
     doc = roundtrip(doc)
     assert errors(schema("matforge.btf-model-1"), doc) == []
     doc["storage"].pop("total_bytes")
@@ -68,15 +75,26 @@ def test03_exported_mlp_documents_follow_their_schemas(tmp_path: Path) -> None:
     import matforge.export as export
 
     net = torch.nn.Sequential(torch.nn.Linear(9, 8), torch.nn.ReLU(), torch.nn.Linear(8, 6))
-    p = export.brdf_mlp(net, tmp_path / "a.json", inputs=["wi", "wo", "h"],
-                        output_activation=["exp"] * 3 + ["sigmoid"] * 3,
-                        analytic={"kd": [0.1] * 3, "alpha": 0.2, "eta": 1.5})  # fmt: skip
+    p = export.brdf_mlp(
+        net,
+        tmp_path / "a.json",
+        inputs=["wi", "wo", "h"],
+        output_activation=["exp"] * 3 + ["sigmoid"] * 3,
+        analytic={"kd": [0.1] * 3, "alpha": 0.2, "eta": 1.5},
+    )
     brdf = json.loads(p.read_text())
     assert errors(schema("matforge.mlp-brdf-1"), brdf) == []
     btf_net = torch.nn.Sequential(torch.nn.Linear(3 + 2 + 2, 3))
-    p = export.btf_mlp(btf_net, tmp_path / "b.json", textures=[np.ones((3, 2, 2))],
-                       inputs=[{"type": "texture", "index": 0}, "uv",
-                               {"type": "fourier", "input": "cos_i", "frequencies": [1.0]}])  # fmt: skip
+    p = export.btf_mlp(
+        btf_net,
+        tmp_path / "b.json",
+        textures=[np.ones((3, 2, 2))],
+        inputs=[
+            {"type": "texture", "index": 0},
+            "uv",
+            {"type": "fourier", "input": "cos_i", "frequencies": [1.0]},
+        ],
+    )
     btf = json.loads(p.read_text())
     assert errors(schema("matforge.mlp-btf-1"), btf) == []
     # What the schema rejects, the parser rejects too.
@@ -94,8 +112,10 @@ def test03_exported_mlp_documents_follow_their_schemas(tmp_path: Path) -> None:
 def test04_schemas_are_listed_and_shipped() -> None:
     names = sorted(p.name for p in SCHEMAS.glob("*.schema.json"))
     assert names == [
-        "matforge.brdf-model-1.schema.json", "matforge.btf-model-1.schema.json",
-        "matforge.mlp-brdf-1.schema.json", "matforge.mlp-btf-1.schema.json",
-    ]  # fmt: skip
+        "matforge.brdf-model-1.schema.json",
+        "matforge.btf-model-1.schema.json",
+        "matforge.mlp-brdf-1.schema.json",
+        "matforge.mlp-btf-1.schema.json",
+    ]
     pyproject = (Path(__file__).resolve().parents[3] / "pyproject.toml").read_text()
     assert 'storage = ["formats/schemas/*.schema.json"]' in pyproject
