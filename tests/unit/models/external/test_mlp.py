@@ -268,6 +268,8 @@ def _good() -> dict[str, Any]:
         (lambda d: d["layers"][0].update(weight=[[1e39] * 6] * 4), "float32"),
         (lambda d: d.update(extra=1), "unknown key 'extra'"),
         (lambda d: d.update(inputs=["uv", "wi", "wo"]), "unknown input 'uv'"),  # BRDF: no uv
+        (lambda d: d["layers"][0].update(weight=[[0.1] * 6] * 600), "1 to 512 rows"),
+        (lambda d: d.update(layers=[d["layers"][0]] * 33), "at most 32"),
     ],
 )
 def test06_bad_documents_name_the_file_and_the_problem(
@@ -329,3 +331,15 @@ def test08_export_refuses_what_it_cannot_write(tmp_path: Path) -> None:
             )
         ).eval(np.array([[0, 0, 1.0]]), np.array([[0, 0, 1.0]]))[0, 0]
     )
+
+
+def test09_protocol_and_lazy_torch(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from models.external import ExternalModel
+
+    assert isinstance(read_mlp(_doc(tmp_path, _good(), "m.json")), ExternalModel)
+    code = "import sys, matforge, matforge.export; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
