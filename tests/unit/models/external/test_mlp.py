@@ -343,3 +343,21 @@ def test09_protocol_and_lazy_torch(tmp_path: Path) -> None:
     code = "import sys, matforge, matforge.export; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("kind", ["hybrid", "neural", "analytic"])
+def test10_a_train_brdf_material_is_an_mlp_document(kind: str) -> None:
+    """The identity of :mod:`models.external.convert`, against ``eval_portable`` (the
+    reference of ``matforge.brdf-model/1``)."""
+    from models.brdf.portable import eval_portable
+    from models.external.convert import brdf_material_as_mlp
+    from models.external.mlp import mlp_from_document
+    from tests.helpers.brdf_models import make_model
+
+    doc = make_model(kind, 16, 2, 4)
+    name = doc["materials"][1]["name"]
+    mlp = mlp_from_document(json.loads(json.dumps(brdf_material_as_mlp(doc, name))))
+    wi, wo = (t.numpy() for t in pairs(2000, 11))
+    np.testing.assert_allclose(
+        mlp.eval(wi, wo), eval_portable(doc, name, wi, wo), rtol=1e-6, atol=1e-9
+    )
