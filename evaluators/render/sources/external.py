@@ -83,16 +83,12 @@ def resolve_external(raw: dict[str, Any], ctx: JobContext, mi: types.ModuleType)
     except ValueError as exc:
         raise JobFailed(f"{FIELD}.model: {value.model}: {exc}") from None
     if fmt == "onnx":
+        from evaluators.render.bsdfs.external_onnx import external_onnx_plugin
+
         try:
-            from evaluators.render.bsdfs.external_onnx import (  # type: ignore[import-not-found]
-                external_onnx_plugin,
-            )
-        except ImportError:
-            raise JobFailed(
-                f"{FIELD}.model: {value.model} is an ONNX model, but this build of matforge "
-                f"renders only the MLP formats (matforge.mlp-brdf/1, matforge.mlp-btf/1)"
-            ) from None
-        return external_onnx_plugin(path, dict(raw), ctx, mi)
+            return external_onnx_plugin(path, dict(raw), ctx, mi)
+        except ValueError as exc:  # a wrong signature or kind, named by the plugin
+            raise JobFailed(f"{FIELD}.model: {exc}") from None
     try:
         material = read_mlp(path)
     except ValueError as exc:

@@ -147,3 +147,37 @@ def test05_bad_kind_and_file(mi: types.ModuleType, files: dict[str, Path], tmp_p
     gone.write_bytes(b"")
     with pytest.raises(Exception, match="gone.onnx: empty file"):
         mi.load_dict(spec)
+
+
+class _Ctx:
+    """The one ``JobContext`` method the ``external`` source uses: ``resolve(ref)``."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def resolve(self, ref: str) -> Path:
+        return self.path
+
+
+def test06_external_source_renders_an_onnx_model(
+    mi: types.ModuleType, files: dict[str, Path]
+) -> None:
+    """``{"external": {"model": REF, "kind": "brdf"}}`` of an ONNX file resolves, through
+    the material-source registry, to the plugin that renders as Mitsuba's ``diffuse`` (the
+    reference); the other kind is a JobFailed naming the field."""
+    from pydantic import TypeAdapter
+
+    from evaluators.render.sources import MaterialParam, resolve_material
+    from jobapi.errors import JobFailed
+
+    ref = "sha256:" + "0" * 64
+    material = TypeAdapter(MaterialParam).validate_python(
+        {"external": {"model": ref, "kind": "brdf"}}
+    )
+    bsdf = resolve_material(material, _Ctx(files["brdf"]), mi)  # type: ignore[arg-type]
+    np.testing.assert_allclose(
+        _render(mi, "sphere_env", bsdf), _render(mi, "sphere_env", DIFFUSE), rtol=1e-4, atol=1e-5
+    )
+    wrong = {"external": {"model": ref, "kind": "btf"}}
+    with pytest.raises(JobFailed, match="material.external.model"):
+        resolve_material(wrong, _Ctx(files["brdf"]), mi)  # type: ignore[arg-type]
