@@ -91,6 +91,12 @@ class Kind:
             or message; every finished shard reports one) before it is failed as stuck,
             its shard processes killed and its worker freed. Set it above the kind's
             longest silent step.
+        variant_bytes: whether the artifacts' bytes depend on the Mitsuba variant
+            (``MATFORGE_VARIANT``): ``True`` for a kind whose outputs come from Dr.Jit
+            kernels (a render, a Mitsuba tabulation), ``False`` for numpy, torch and file
+            work, or ``params -> bool`` when it depends on the spec (a MERL table of an
+            analytic source is numpy, of a Mitsuba BSDF is a kernel). Where true, a spec's
+            identity includes the variant (:mod:`service.specs`).
     """
 
     name: str
@@ -105,6 +111,12 @@ class Kind:
     figures: tuple[Figure, ...] = ()
     timeout_seconds: float = DEFAULT_TIMEOUT_SECONDS
     stall_seconds: float = DEFAULT_STALL_SECONDS
+    variant_bytes: bool | Callable[[Any], bool] = False
+
+    def bytes_depend_on_variant(self, params: BaseModel) -> bool:
+        """:attr:`variant_bytes` for these (validated) params."""
+        rule = self.variant_bytes
+        return bool(rule(params) if callable(rule) else rule)
 
     def figure(self, artifact: str) -> Figure | None:
         """The first of :attr:`figures` whose pattern matches an artifact name, if any."""
