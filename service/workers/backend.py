@@ -87,8 +87,9 @@ def _inherited() -> dict[str, str]:
 
 
 @functools.lru_cache(maxsize=8)
-def _resolved(settings_env: tuple[tuple[str, str], ...]) -> str:
-    return probe_variant(Settings.from_env(dict(settings_env)))
+def _resolved(choice: str, libllvm_path: str) -> str:
+    # Only what decides the variant is the key: a test's app per data directory probes once.
+    return probe_variant(Settings(variant=choice, libllvm_path=libllvm_path))
 
 
 def identity_variant(settings: Settings) -> str:
@@ -96,7 +97,7 @@ def identity_variant(settings: Settings) -> str:
     one the workers of this machine will resolve (probed once per process and cached)."""
     if settings.variant != "auto":
         return settings.variant
-    return _resolved(tuple(sorted(settings.to_env().items())))
+    return _resolved(settings.variant, settings.libllvm_path)
 
 
 def main() -> int:

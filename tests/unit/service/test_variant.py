@@ -151,3 +151,24 @@ def test07_every_kind_states_its_rule() -> None:
         assert callable(table[name]), name
     for name in ("score", "import.btf", "train.btf", "train.brdf", "train.fabric"):
         assert table[name] is False, name
+
+
+def test08_the_api_hashes_with_the_servers_variant(tmp_path: Path) -> None:
+    """A server whose workers run CUDA queues a render as a new job; one on LLVM (or with
+    ``auto`` resolved to LLVM here) finds the spec's old identity."""
+    from fastapi.testclient import TestClient
+
+    from service.api import create_app
+
+    render = {"kind": "render", "seed": 3, "params": {"resolution": [8, 8], "spp": 1}}
+    kinds.load_builtin()
+    hashes = {}
+    for variant in ("cuda_ad_rgb", "llvm_ad_rgb"):
+        settings = Settings.from_env({}).with_(data_dir=tmp_path / variant, variant=variant)
+        with TestClient(create_app(settings)) as client:
+            r = client.post("/api/jobs", json=render)
+            assert r.status_code == 201, r.text
+            hashes[variant] = client.get(f"/api/jobs/{r.json()['id']}").json()["spec_hash"]
+    assert hashes["llvm_ad_rgb"] == validate_spec(render).spec_hash
+    assert hashes["cuda_ad_rgb"] == validate_spec(render, variant="cuda_ad_rgb").spec_hash
+    assert hashes["cuda_ad_rgb"] != hashes["llvm_ad_rgb"]
