@@ -172,3 +172,18 @@ def test08_the_api_hashes_with_the_servers_variant(tmp_path: Path) -> None:
     assert hashes["llvm_ad_rgb"] == validate_spec(render).spec_hash
     assert hashes["cuda_ad_rgb"] == validate_spec(render, variant="cuda_ad_rgb").spec_hash
     assert hashes["cuda_ad_rgb"] != hashes["llvm_ad_rgb"]
+
+
+def test09_serve_refuses_to_start(tmp_path: Path) -> None:
+    """``matforge serve`` probes the variant before it starts anything (no web process, no
+    worker), and exits 2 naming the setting."""
+    if _cuda_here():
+        pytest.skip("this machine has CUDA")
+    env = {**os.environ, "MATFORGE_VARIANT": "cuda_ad_rgb"}
+    proc = subprocess.run(
+        [str(REPO / ".venv/bin/matforge"), "serve", "--port", "0", "--data-dir", str(tmp_path)],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    assert "MATFORGE_VARIANT=cuda_ad_rgb: " in proc.stderr and "dashboard" not in proc.stderr
+    assert not (tmp_path / "scratch").exists()  # nothing was started
