@@ -73,6 +73,11 @@ class JobContext:
       directory, removed after the job.
     - ``store``: the artifact store (use :meth:`resolve` / :meth:`put_bytes` instead).
     - ``limits``: the operator's :class:`JobLimits`.
+    - ``variant``: the Mitsuba variant this process resolved at start-up
+      (``MATFORGE_VARIANT``; ``None`` when the caller resolved none); Mitsuba itself is
+      loaded with it by :func:`materials.backend.load_mitsuba`.
+    - ``device``: the torch device a training kind ran on, once it said so
+      (:meth:`use_device`); both go into the job's manifest.
     """
 
     def __init__(
@@ -87,6 +92,7 @@ class JobContext:
         monitor: Monitor | None = None,
         executor: Executor | None = None,
         limits: JobLimits | None = None,
+        variant: str | None = None,
     ) -> None:
         self.job_id = job_id
         self.seed = seed
@@ -97,10 +103,17 @@ class JobContext:
         self.monitor: Monitor = monitor or NullMonitor()
         self.executor: Executor = executor or InlineExecutor()
         self.limits = limits or JobLimits()
+        self.variant = variant
+        self.device: str | None = None
         self.artifacts: dict[str, ArtifactRecord] = {}
         #: Timings the kind measured itself (:meth:`measure`), kept in the job's manifest.
         self.measured: dict[str, float] = {}
         self._published: dict[str, float] = {}
+
+    def use_device(self, device: str) -> None:
+        """Record the torch device (``"cpu"`` or ``"cuda"``) the job trains on, as resolved
+        from its ``device`` param; the manifest shows it."""
+        self.device = device
 
     # -- randomness ----------------------------------------------------------------------
     def rng(self, stream: int | str = 0) -> np.random.Generator:

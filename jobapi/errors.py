@@ -9,6 +9,7 @@ from __future__ import annotations
 from storage.errors import FormatError, IntegrityError, NotFoundError, StorageError, TooLargeError
 
 __all__ = [
+    "BackendUnavailable",
     "ExecutorUnavailable",
     "FormatError",
     "IntegrityError",
@@ -68,3 +69,10 @@ class ShardLost(JobFailed):
 class ExecutorUnavailable(RuntimeError):
     """An executor's backend cannot be started or reached (no Ray cluster at the address).
     Raised before a job is claimed, so the job stays queued."""
+
+
+class BackendUnavailable(RuntimeError):
+    """The Mitsuba variant the settings ask for (``MATFORGE_VARIANT``) cannot run on this
+    machine (``cuda_ad_rgb`` without a CUDA driver and device, ``llvm_ad_rgb`` without a
+    working libLLVM). Raised at start-up, before a job is claimed; the message names the
+    setting."""

@@ -95,6 +95,12 @@ class Kind:
         report: what the report kinds read of its jobs
             (:class:`jobapi.reports.ReportFacts`: headline metric, loss key, failure-case
             metric, model checks, claims); ``None`` for a kind that trains nothing.
+        variant_bytes: whether the artifacts' bytes depend on the Mitsuba variant
+            (``MATFORGE_VARIANT``): ``True`` for a kind whose outputs come from Dr.Jit
+            kernels (a render, a Mitsuba tabulation), ``False`` for numpy, torch and file
+            work, or ``params -> bool`` when it depends on the spec (a MERL table of an
+            analytic source is numpy, of a Mitsuba BSDF is a kernel). Where true, a spec's
+            identity includes the variant (:mod:`service.specs`).
     """
 
     name: str
@@ -110,6 +116,12 @@ class Kind:
     timeout_seconds: float = DEFAULT_TIMEOUT_SECONDS
     stall_seconds: float = DEFAULT_STALL_SECONDS
     report: ReportFacts | None = None
+    variant_bytes: bool | Callable[[Any], bool] = False
+
+    def bytes_depend_on_variant(self, params: BaseModel) -> bool:
+        """:attr:`variant_bytes` for these (validated) params."""
+        rule = self.variant_bytes
+        return bool(rule(params) if callable(rule) else rule)
 
     def figure(self, artifact: str) -> Figure | None:
         """The first of :attr:`figures` whose pattern matches an artifact name, if any."""

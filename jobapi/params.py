@@ -13,9 +13,9 @@ whole job); a kind never writes its own pattern for either.
 from __future__ import annotations
 
 import re
-from typing import Annotated
+from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 JOB_REF = re.compile(
     r"^job:(?P<job>[0-9a-f]{32})/(?P<name>(?!.*\.\.)[A-Za-z0-9_-][A-Za-z0-9._/-]*)\Z"
@@ -63,3 +63,22 @@ def _check_job_ref(value: str) -> str:
 Ref = Annotated[str, AfterValidator(_check_ref)]
 #: A whole-job reference field: ``job:<id>`` (a dataset, a set of tables, a run).
 JobRef = Annotated[str, AfterValidator(_check_job_ref)]
+
+
+#: Where a training kind runs torch: ``auto`` (cuda when torch sees a CUDA device, else
+#: cpu), ``cpu`` or ``cuda``. Every ``train.*`` kind has a ``device`` field of this type
+#: (:func:`device_field`); the runner resolves it at job start
+#: (:func:`models.device.pick_device`), fails the job naming the field when ``cuda`` is
+#: asked for on a worker without one, and the manifest records the device used.
+Device = Literal["auto", "cpu", "cuda"]
+
+
+def device_field(default: Device = "auto") -> Any:
+    """The ``device`` field of a training kind's params (:data:`Device`), with its
+    documentation; ``default`` is the kind's."""
+    return Field(
+        default=default,
+        description="Training device: 'auto' takes cuda when torch sees a CUDA device, else "
+        "cpu; 'cuda' fails the job on a worker without one. The manifest records the device "
+        "used; only cpu is byte-deterministic.",
+    )

@@ -13,7 +13,8 @@ Conventions
 - A layer is ``y = act(W x + b)`` with ``W`` of shape ``(out, in)`` and ``b`` of shape
   ``(out,)``, float32: torch's ``nn.Linear`` layout, so ``x @ W.T + b`` in numpy.
 - Inputs and outputs of :func:`fused_mlp` are lists of Dr.Jit ``Float`` arrays (one array
-  per feature, all the same length), e.g. ``mi.Float`` of the ``llvm_ad_rgb`` variant.
+  per feature, all the same length), e.g. ``mi.Float`` of the active variant
+  (``llvm_ad_rgb`` or ``cuda_ad_rgb``).
   An input may also be a Python ``float``: a per-material constant such as a latent code.
   Constant inputs are folded into the first layer's bias (in float64, then rounded once),
   so a baked latent costs nothing per evaluation.

@@ -347,7 +347,8 @@ def speed_report(
     Parameters
     ----------
     mi
-        Mitsuba from :func:`materials.backend.load_mitsuba` (an LLVM variant).
+        Mitsuba from :func:`materials.backend.load_mitsuba` (a vectorised variant; the
+        CPU-time columns mean CPU cores under LLVM only).
     doc, material
         A trained ``model.json`` document and one of its materials (default: its first):
         adds ``trained`` rows at the model's own size, with its real weights.

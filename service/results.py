@@ -114,12 +114,14 @@ def batch_rows(
     jobs: JobStore,
     store: ArtifactStore,
     where: RowFilter | None = None,
+    variant: str | None = None,
 ) -> BatchResults:
     """The results of a batch's steps (``[{"name", "spec"}]``, specs with ``step:`` refs,
     as :func:`service.cli.batch.load_batch` reads them), in step order, a step's candidates
-    in the order its spec gives them. A step's job is the succeeded job of its spec once its
-    refs name the earlier steps' jobs. Raises ``SpecError`` for a spec that does not
-    validate."""
+    in the order its spec gives them (``variant``: the workers' Mitsuba variant, part of
+    some specs' identity: :func:`service.specs.validate_spec`). A step's job is the
+    succeeded job of its spec once its refs name the earlier steps' jobs. Raises
+    ``SpecError`` for a spec that does not validate."""
     where = where or RowFilter()
     out = BatchResults()
     found: dict[str, str] = {}
@@ -134,7 +136,7 @@ def batch_rows(
     for i, step in enumerate(steps):
         name = str(step.get("name"))
         try:
-            spec = validate_spec(_substitute(step.get("spec"), resolve))
+            spec = validate_spec(_substitute(step.get("spec"), resolve), variant=variant)
         except _Missing:
             out.steps.append({"step": name, "kind": None, "job": None, "state": "missing"})
             continue

@@ -30,6 +30,7 @@ import uvicorn
 from service.api import create_app
 from service.settings import Settings
 from service.web_guard import RedactTokens, bind_refusal, is_loopback
+from service.workers.backend import probe_variant
 from service.workers.liveness import watch_parent
 from service.workers.worker import Supervisor
 
@@ -137,6 +138,11 @@ def serve(
             "submit jobs and read every artifact",
             host or "every interface",
         )
+    # MATFORGE_VARIANT, resolved as the workers will (in a child: the web process never
+    # imports Mitsuba); BackendUnavailable, naming the setting, before anything starts. The
+    # workers and the submissions' identity then use the resolved name.
+    settings = settings.with_(variant=probe_variant(settings))
+    log.info("Mitsuba variant: %s", settings.variant)
     (settings.data_dir / "scratch").mkdir(parents=True, exist_ok=True)  # workers' job dirs
     config = _config(settings, host, port)
     sockets: list[socket.socket] | None = None

@@ -14,6 +14,9 @@ DEFAULT_SERVER = "http://127.0.0.1:8000"
 DEFAULT_LIBLLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 #: The shard backends ``MATFORGE_EXECUTOR`` may name; the first is the default.
 EXECUTORS: tuple[str, ...] = ("process", "ray")
+#: The Mitsuba variants ``MATFORGE_VARIANT`` may name; the first is the default. The same
+#: tuple as :data:`materials.backend.VARIANT_CHOICES` (a test keeps them equal).
+VARIANTS: tuple[str, ...] = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
 
 
 def _int(env: dict[str, str], name: str, default: int) -> int:
@@ -72,7 +75,16 @@ class Settings:
     ``MATFORGE_RAY_MAX_RETRIES``  ``ray_max_retries``          3 (per shard)
     ``RAY_AUTH_MODE``             ``ray_auth_mode``            unset (Ray's own default)
     ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
+    ``MATFORGE_VARIANT``          ``variant``                  ``auto`` (cuda, else llvm)
     ============================  ===========================  ==============================
+
+    ``variant`` is the Mitsuba variant every job renders and evaluates with
+    (:data:`VARIANTS`): ``auto`` takes ``cuda_ad_rgb`` where Dr.Jit finds a CUDA device and
+    ``llvm_ad_rgb`` otherwise (``scalar_rgb``, loudly, where no libLLVM works); a name
+    takes exactly that variant, and a worker, ``matforge run`` or ``matforge serve`` refuses
+    to start when it cannot run (:mod:`service.workers.backend`). The variant in use is in
+    every job's manifest, and part of a spec's identity for the kinds whose bytes depend on
+    it (:attr:`jobapi.kinds.Kind.variant_bytes`).
 
     Uploads are checked, and EXR previews made, in a pool of bounded child processes
     (:mod:`service.upload_check`):
@@ -122,6 +134,7 @@ class Settings:
     ray_address: str | None = None
     ray_max_retries: int = 3
     ray_auth_mode: str | None = None
+    variant: str = "auto"
     extra: dict[str, str] = field(default_factory=dict)
 
     @classmethod
@@ -158,6 +171,7 @@ class Settings:
             ray_address=e.get("RAY_ADDRESS") or None,
             ray_max_retries=max(0, _int(e, "MATFORGE_RAY_MAX_RETRIES", 3)),
             ray_auth_mode=e.get("RAY_AUTH_MODE") or None,
+            variant=_choice(e, "MATFORGE_VARIANT", VARIANTS),
         )
 
     def to_env(self) -> dict[str, str]:
@@ -183,6 +197,7 @@ class Settings:
             "DRJIT_LIBLLVM_PATH": self.libllvm_path,
             "MATFORGE_EXECUTOR": self.executor,
             "MATFORGE_RAY_MAX_RETRIES": str(self.ray_max_retries),
+            "MATFORGE_VARIANT": self.variant,
         }
         if self.stall_seconds:
             env["MATFORGE_STALL_SECONDS"] = repr(self.stall_seconds)

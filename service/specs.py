@@ -10,6 +10,14 @@ keys sorted and no whitespace. ``name`` is a label, ``force`` an instruction and
 ``timeout_seconds`` a limit on how long a run may take, none of which changes the output
 bytes, so none is part of the identity: a spec that succeeded is reused whatever its time
 limit was. ``timeout_seconds`` is kept in the stored spec (the worker reads it there).
+
+The Mitsuba variant (``MATFORGE_VARIANT``) joins the identity only where it changes the
+bytes: for a kind whose :attr:`~jobapi.kinds.Kind.variant_bytes` says its artifacts are
+computed by Dr.Jit kernels (renders, Mitsuba tabulation, fused inference), a spec run under
+any variant but :data:`REFERENCE_VARIANT` hashes ``{"kind", "seed", "params", "variant"}``.
+Under ``llvm_ad_rgb``, and for every kind whose bytes do not depend on it (numpy, torch,
+file import), the hash is the one above, as it always was; the stored spec never carries
+the variant (the manifest records it).
 """
 
 from __future__ import annotations
@@ -36,6 +44,8 @@ STEP_REF = re.compile(r"^step:(?P<step>[A-Za-z0-9_.-]+)(?:/(?P<name>[A-Za-z0-9._
 #: (:func:`service.submission.expand_short_refs`).
 SHORT_JOB_REF = re.compile(r"^job:(?P<job>[0-9a-f]{1,31})(?P<rest>/.*)?\Z")
 MAX_SEED = 2**63 - 1
+#: The variant whose specs hash without it (every spec's identity before the setting).
+REFERENCE_VARIANT = "llvm_ad_rgb"
 #: The longest time limit a spec may ask for (30 days).
 MAX_TIMEOUT_SECONDS = 30 * 24 * 3600.0
 
@@ -210,8 +220,10 @@ def canonical_json(obj: Any) -> str:
     )
 
 
-def validate_spec(raw: Any) -> ValidSpec:
-    """Validate a spec document (a dict, as parsed from JSON or YAML)."""
+def validate_spec(raw: Any, *, variant: str | None = None) -> ValidSpec:
+    """Validate a spec document (a dict, as parsed from JSON or YAML). ``variant``: the
+    Mitsuba variant the job will run under (``None``: identity without it, as under
+    :data:`REFERENCE_VARIANT`); see the module docstring for when it joins the hash."""
     if not isinstance(raw, dict):
         raise SpecError([("", f"a job spec must be an object, got {type(raw).__name__}")])
     try:
@@ -235,7 +247,10 @@ def validate_spec(raw: Any) -> ValidSpec:
         raise SpecError([("params", f"not valid JSON: {exc}")]) from None
     body = {"kind": env.kind, "seed": env.seed, "params": params.model_dump(mode="json")}
     canonical = canonical_json(body)
-    digest = hashlib.sha256(canonical.encode()).hexdigest()
+    identity = canonical
+    if variant not in (None, REFERENCE_VARIANT) and kind.bytes_depend_on_variant(params):
+        identity = canonical_json({**body, "variant": variant})
+    digest = hashlib.sha256(identity.encode()).hexdigest()
     return ValidSpec(
         kind=env.kind,
         name=env.name,

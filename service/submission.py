@@ -14,6 +14,7 @@ from jobapi.errors import SpecError
 from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
 from service.specs import SHORT_JOB_REF, ValidSpec, validate_spec
+from service.workers.backend import start_backend
 from service.workers.execution import execute, worker_id
 from service.workers.executors import executor_for
 from storage.artifacts import ArtifactStore
@@ -103,10 +104,14 @@ def expand_short_refs(raw: Any, jobs: JobStore) -> Any:
     return {**raw, "params": params}
 
 
-def prepare_submission(raw: Any, jobs: JobStore, store: ArtifactStore) -> ValidSpec:
+def prepare_submission(
+    raw: Any, jobs: JobStore, store: ArtifactStore, variant: str | None = None
+) -> ValidSpec:
     """What :func:`submit` checks before it queues: ``raw`` validated (short job refs
-    written out in full) with every ref existing now. Raises ``SpecError``."""
-    spec = validate_spec(expand_short_refs(raw, jobs))
+    written out in full) with every ref existing now. Raises ``SpecError``. ``variant``:
+    the Mitsuba variant the workers run (:func:`service.workers.backend.identity_variant`),
+    part of the identity of the kinds whose bytes depend on it."""
+    spec = validate_spec(expand_short_refs(raw, jobs), variant=variant)
     check_refs(spec, jobs, store)
     return spec
 
@@ -150,11 +155,14 @@ def _present(store: ArtifactStore, digest: str, size: int | None) -> bool:
     return size is None or actual == size
 
 
-def submit(raw: Any, jobs: JobStore, store: ArtifactStore) -> tuple[Job, bool]:
+def submit(
+    raw: Any, jobs: JobStore, store: ArtifactStore, variant: str | None = None
+) -> tuple[Job, bool]:
     """Validate ``raw`` and queue it; returns ``(job, created)``. Raises ``SpecError``.
 
-    Job refs in the params may use a unique prefix of the job id."""
-    return queue_spec(prepare_submission(raw, jobs, store), jobs, store)
+    Job refs in the params may use a unique prefix of the job id; ``variant`` as in
+    :func:`prepare_submission`."""
+    return queue_spec(prepare_submission(raw, jobs, store, variant), jobs, store)
 
 
 def run_in_process(raw: Any, settings: Settings) -> Job:
@@ -164,10 +172,12 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
     job left ``running`` by a process that died (its lease expired) is re-queued first, as
     a server's reaper would, so that it resumes here from its finished shards.
     """
+    # BackendUnavailable (MATFORGE_VARIANT cannot run here) before anything is queued.
+    settings = settings.with_(variant=start_backend(settings))
     jobs = JobStore(settings.db_path)
     store = ArtifactStore(settings.store_dir)
     jobs.reap(settings.max_attempts)
-    job, created = submit(raw, jobs, store)
+    job, created = submit(raw, jobs, store, variant=settings.variant)
     if not created and job.state == "succeeded":
         return job
     if job.state == "queued":
@@ -186,6 +196,7 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
                     limits=JobLimits(archive_pixels=settings.archive_max_pixels),
                     stall_seconds=settings.stall_seconds,
                     log_dir=log_dir(settings.data_dir),
+                    variant=settings.variant,
                 )
         finally:
             executor.close()

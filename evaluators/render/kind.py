@@ -376,10 +376,11 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
 register(
     Kind(
         name="render",
+        variant_bytes=True,
         params=RenderParams,
         runner=run_render,
         description="Path-traced reference image of a material in a built-in scene (Mitsuba 3, "
-        "LLVM).",
+        "MATFORGE_VARIANT: LLVM or CUDA).",
         artifacts=("image.exr", "preview.png", "render.json"),
         smoke={"resolution": [32, 32], "spp": 4, "max_depth": 4},
         summary=summarize,

@@ -222,9 +222,16 @@ def select_rows(src: RowSource) -> list[ResultRow]:
     return out
 
 
+def _renders(params: SelectParams) -> bool:
+    """Whether the job renders its ladder (scene mode), so that its bytes depend on the
+    Mitsuba variant; choosing among finished runs renders nothing."""
+    return bool(params.scene_mode)
+
+
 register(
     Kind(
         name="select",
+        variant_bytes=_renders,
         params=SelectParams,
         runner=run_select,
         description="The cheapest candidate that meets a quality target (e.g. FLIP <= 0.05), "

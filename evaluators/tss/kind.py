@@ -189,8 +189,11 @@ def run_evaluate_tss(params: TssParams, ctx: JobContext) -> None:
     ctx.progress(0.0, "loading the model")
     model = load_model(params, ctx)
     mi = load_mitsuba()
-    if not mi.variant().startswith("llvm_"):
-        raise JobFailed(f"evaluate.tss needs Mitsuba's LLVM variant; got {mi.variant()}")
+    if not mi.variant().startswith(("llvm_", "cuda_")):
+        raise JobFailed(
+            "evaluate.tss needs a vectorised Mitsuba variant (llvm_ad_rgb or cuda_ad_rgb; "
+            f"MATFORGE_VARIANT); got {mi.variant()}"
+        )
     h, w = model.resolution
     resolutions = params.texture_resolutions(max(h, w))
     frames, size = int(params.value("frames")), tuple(params.value("image"))
@@ -256,6 +259,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
 register(
     Kind(
         name="evaluate.tss",
+        variant_bytes=True,
         params=TssParams,
         runner=run_evaluate_tss,
         description="Texture-space shading of a train.btf model with the radiance texture "

@@ -225,6 +225,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
 register(
     Kind(
         name="generate.btf",
+        variant_bytes=True,
         params=BtfGenParams,
         runner=run_generate_btf,
         description="BTF slices (Xu et al. 2025, Sec. 3.1) path-traced with Mitsuba 3 in "

@@ -380,9 +380,16 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     )
 
 
+def _estimated_by_drjit(params: FabricGenParams) -> bool:
+    """Whether the estimator is the fused Dr.Jit kernel (its bytes depend on the variant),
+    not the numpy reference."""
+    return params.backend == "drjit"
+
+
 register(
     Kind(
         name="generate.fabric",
+        variant_bytes=_estimated_by_drjit,
         params=FabricGenParams,
         runner=run_generate_fabric,
         description="Woven-fabric training set (Chen et al. 2024, Sec. 5.1): aggregated BSDF "

@@ -286,7 +286,8 @@ class FabricGenParams(StrictModel):
     )
     backend: Literal["drjit", "numpy"] = Field(
         default="drjit",
-        description="Estimator backend: 'drjit' (fused LLVM kernel) or 'numpy' (reference).",
+        description="Estimator backend: 'drjit' (one fused Dr.Jit kernel, LLVM or CUDA as "
+        "MATFORGE_VARIANT says) or 'numpy' (reference).",
     )
     btdf_fraction: float = Field(
         default=BTDF_FRACTION,

@@ -125,7 +125,8 @@ class MerlSource(StrictModel):
     mitsuba: Annotated[dict[str, Any], AfterValidator(_check_mitsuba)] | None = Field(
         default=None,
         description='A Mitsuba 3 BSDF plugin dict, e.g. {"type": "roughconductor", '
-        '"alpha": 0.2, "material": "Au"}; no \'filename\' keys. Evaluated in llvm_ad_rgb.',
+        '"alpha": 0.2, "material": "Au"}; no \'filename\' keys. Evaluated in the Mitsuba '
+        "variant that MATFORGE_VARIANT sets.",
     )
     analytic: Annotated[dict[str, Any], AfterValidator(_check_analytic)] | None = Field(
         default=None,
@@ -480,9 +481,17 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     )
 
 
+def _tabulated_by_mitsuba(params: MerlParams) -> bool:
+    """Whether the tables come from Dr.Jit kernels (a Mitsuba source, or a collection,
+    whose families are Mitsuba BSDFs), so that their bytes depend on the variant; an
+    analytic source is numpy."""
+    return params.source is None or params.source.mitsuba is not None
+
+
 register(
     Kind(
         name="generate.merl",
+        variant_bytes=_tabulated_by_mitsuba,
         params=MerlParams,
         runner=run_generate_merl,
         description="MERL-format isotropic BRDF tables of known ground truth from Mitsuba 3 "

@@ -1,14 +1,14 @@
-"""Dr.Jit LLVM backend of the footprint estimator: the ``integrand`` code in one fused kernel.
+"""Dr.Jit backend of the footprint estimator: the ``integrand`` code in one fused kernel.
 
 There is no second copy of the physics here: :class:`DrJitOps` implements
 :class:`~materials.fabric.array_ops.ArrayOps` over Dr.Jit arrays, and the very functions the
 numpy estimator calls (``yarn.surface``, ``integrand.visibility``, ``shading.*``) are traced
-once per chunk into a single LLVM kernel: the visibility march is a symbolic loop (compiled
-once, each SIMD packet leaving it when its lanes are done) and the per-replicate moments are
-symbolic ``block_sum`` reductions (float64 atomic adds) fused into the same kernel, so the
-per-sample terms never touch memory. The sample points are those of
-``samplers.py`` (Sobol points are rebuilt inside the kernel from the same nets and shifts),
-so both backends integrate the same points and agree up to float32 round-off
+once per chunk into a single kernel (LLVM or CUDA, the variant's backend): the visibility
+march is a symbolic loop (compiled once, each SIMD packet leaving it when its lanes are
+done) and the per-replicate moments are symbolic ``block_sum`` reductions (float64 atomic
+adds) fused into the same kernel, so the per-sample terms never touch memory. The sample
+points are those of ``samplers.py`` (Sobol points are rebuilt inside the kernel from the
+same nets and shifts), so both backends integrate the same points and agree up to float32 round-off
 (``tests/unit/materials/fabric/test_aggregate_drjit.py``).
 
 Material scalars are baked into the kernel as literals, so each material compiles once
@@ -17,7 +17,9 @@ do not. The sums are float64 atomic adds; reruns gave bit-identical results here
 additions' order is not guaranteed by Dr.Jit.
 
 Dr.Jit starts through :func:`materials.backend.load_mitsuba`, which points it at a
-working libLLVM (NOTES.md); if only the scalar fallback is available this module raises.
+working libLLVM (NOTES.md) or picks CUDA (``MATFORGE_VARIANT``); the array types are those of
+the active variant's backend (:func:`materials.backend.jit_backend`). If only the scalar
+fallback is available this module raises.
 Timing note (NOTES.md): results are read back with ``.numpy()``, which waits for the kernel.
 """
 
@@ -42,27 +44,30 @@ if TYPE_CHECKING:
 
 @lru_cache(maxsize=1)
 def _drjit() -> types.SimpleNamespace:
-    """Start Dr.Jit's LLVM backend (once) and return its module and array types."""
-    from materials.backend import active_variant, load_mitsuba
+    """Start Dr.Jit's backend of the active variant (once) and return its module and plain
+    (non-AD) array types: ``drjit.llvm`` or ``drjit.cuda``."""
+    from materials.backend import active_variant, jit_backend, load_mitsuba
 
-    load_mitsuba()
+    mi = load_mitsuba()
     import drjit as dr
 
     variant = active_variant() or ""
-    if not variant.startswith("llvm") or not dr.has_backend(dr.JitBackend.LLVM):
+    if not variant.startswith(("llvm", "cuda")):
         raise RuntimeError(
-            f"the Dr.Jit LLVM backend is unavailable (Mitsuba variant {variant!r}); "
+            f"the Dr.Jit JIT backend is unavailable (Mitsuba variant {variant!r}); "
             f"use backend='numpy' or install libLLVM 19 (`make setup`)"
         )
-    from drjit.llvm import Bool, Float, Float64, UInt32
-
-    return types.SimpleNamespace(dr=dr, Bool=Bool, Float=Float, Float64=Float64, UInt32=UInt32)
+    jit = jit_backend(mi)
+    return types.SimpleNamespace(
+        dr=dr, Bool=jit.Bool, Float=jit.Float, Float64=jit.Float64, UInt32=jit.UInt32
+    )
 
 
 class DrJitOps:
     """:class:`~materials.fabric.array_ops.ArrayOps` over Dr.Jit arrays.
 
-    ``float_type`` and ``uint_type`` default to ``drjit.llvm.Float`` / ``UInt32``; a Mitsuba
+    ``float_type`` and ``uint_type`` default to the active backend's ``Float`` / ``UInt32``
+    (``drjit.llvm`` or ``drjit.cuda``); a Mitsuba
     plugin can pass its variant's types (e.g. ``mi.Float``, ``mi.UInt32``).
     """
 

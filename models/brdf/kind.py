@@ -35,7 +35,8 @@ comes from the job's seed (``ctx.sub_seed``), training runs with
 :func:`models.brdf.train.deterministic_torch`, and no other artifact holds a timing (the last
 progress message and the log line of :mod:`models.brdf.runner` do; the job's manifest has
 its run time). Byte identity holds on CPU; ``device: cuda`` is not guaranteed deterministic
-(and is untested here: no GPU).
+(``scripts/gpu_check.sh`` trains it on CUDA on a GPU machine; the manifest records the
+device).
 
 Held-out families (Table 3 of the paper): materials of ``holdout_families`` are left out
 of the first phase (network and training materials' ``(z, p)``); a second phase then fits
@@ -54,7 +55,7 @@ from pydantic import Field, model_validator
 
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
-from jobapi.params import JobRef, Ref, StrictModel
+from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, preset_value
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
@@ -149,7 +150,7 @@ class TrainBrdfParams(StrictModel):
     ``holdout_steps``       int                  steps      steps of phase 2
     ``init``                ref                  none       model.json / model.pt to start
     ``freeze_network``      bool                 false      fit only ``(z, p)`` (needs init)
-    ``device``              cpu | cuda           cpu        where to train
+    ``device``              auto | cpu | cuda    cpu        where to train
     ``speed``               full | trained |     trained    what ``speed.json`` times
                             off
     ``speed_batch``         int                  2^18       pairs per speed measurement
@@ -244,9 +245,9 @@ class TrainBrdfParams(StrictModel):
     freeze_network: bool = Field(
         default=False, description="With init: keep the network fixed, fit only (z, p)."
     )
-    device: Literal["cpu", "cuda"] = Field(
-        default="cpu", description="Training device; only 'cpu' gives byte-identical results."
-    )
+    # cpu by default (as before the shared type): the identity and the bytes of every
+    # train.brdf spec written without a device stay what they were.
+    device: Device = device_field("cpu")
     speed: Literal["full", "trained", "off"] = Field(
         default="trained",
         description="speed.json, ns per evaluation (fused Dr.Jit kernel and torch eager): "

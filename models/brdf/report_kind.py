@@ -117,13 +117,14 @@ def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
 
 
 def _time_config(doc: dict[str, Any], batch: int) -> dict[str, Any] | None:
-    """The trained-size speed row of ``doc``'s first material, or ``None`` without LLVM."""
+    """The trained-size speed row of ``doc``'s first material, or ``None`` without a
+    vectorised variant (LLVM or CUDA)."""
     from materials.backend import load_mitsuba
     from models.brdf.kind import SPEED_REPEATS
     from models.speed import speed_report
 
     mi = load_mitsuba()
-    if not mi.variant().startswith("llvm_"):
+    if not mi.variant().startswith(("llvm_", "cuda_")):
         return None
     rows = speed_report(mi, doc, sizes=(), batch=batch, repeats=SPEED_REPEATS)["rows"]
     return next(r for r in rows if r.get("trained"))

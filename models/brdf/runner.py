@@ -14,13 +14,13 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from jobapi.errors import JobFailed
 from models.brdf.data import load_dataset, split_by_family, stack_tables
 from models.brdf.kind import SPEED_REPEATS, TrainBrdfParams, architecture, load_init
 from models.brdf.networks import BrdfModel, build_model, copy_materials, copy_network
 from models.brdf.portable import checkpoint_bytes, to_portable
 from models.brdf.report import curves_png, evaluate
 from models.brdf.train import Curves, FitConfig, curves_document, deterministic_torch, fit
+from models.device import pick_device
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -39,9 +39,7 @@ def _resolved(params: TrainBrdfParams) -> dict[str, Any]:
 def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
     """Run a ``train.brdf`` job end to end."""
     started = time.perf_counter()
-    device = params.device
-    if device == "cuda" and not torch.cuda.is_available():
-        raise JobFailed("device: 'cuda' was asked for but torch sees no CUDA device")
+    device = pick_device(params.device, ctx)
     ctx.progress(0.0, "loading tables")
     materials = load_dataset(params.dataset, ctx)
     train_set, held = split_by_family(materials, params.holdout_families)
@@ -211,17 +209,19 @@ def measure_speed(params: TrainBrdfParams, doc: dict[str, Any]) -> dict[str, Any
     """The ``speed.json`` document of a trained model (see :mod:`models.brdf.kind`).
 
     ``speed: trained`` times the model at its own size and the analytic baseline; ``full``
-    adds the paper's Table 4 sizes. Without Mitsuba's LLVM variant nothing is timed and the
-    document says why (``skipped``), so that the job still succeeds.
+    adds the paper's Table 4 sizes. Without a vectorised Mitsuba variant (LLVM or CUDA)
+    nothing is timed and the document says why (``skipped``), so that the job still
+    succeeds.
     """
     from materials.backend import load_mitsuba
     from models.speed import SIZES, SPEED_FORMAT, speed_report
 
     mi = load_mitsuba()
-    if not mi.variant().startswith("llvm_"):
+    if not mi.variant().startswith(("llvm_", "cuda_")):
         return {
             "format": SPEED_FORMAT,
-            "skipped": f"needs Mitsuba's LLVM variant for the fused kernel; got {mi.variant()}",
+            "skipped": "needs a vectorised Mitsuba variant (llvm_ad_rgb or cuda_ad_rgb) for "
+            f"the fused kernel; got {mi.variant()}",
             "rows": [],
         }
     latent = int(params.value("latent_dim")) if params.model != "analytic" else 4

@@ -49,11 +49,8 @@ class _Texture:
 
 
 def _float16_type(mi: types.ModuleType) -> Any:
-    """Dr.Jit's half-precision array of Mitsuba's backend."""
-    import drjit
-
-    backend = drjit.cuda if mi.variant().startswith("cuda") else drjit.llvm
-    return backend.Float16
+    """Dr.Jit's half-precision array of Mitsuba's variant (``mi.Float16``: LLVM or CUDA)."""
+    return mi.Float16
 
 
 class FusedBtf:

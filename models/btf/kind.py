@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import Field, model_validator
 
 from jobapi.kinds import Kind, register
-from jobapi.params import JobRef, StrictModel
+from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, preset_value
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
@@ -90,6 +90,7 @@ class TrainBtfParams(StrictModel):
     ``lafortune_iterations``    preset        Levenberg-Marquardt iterations
     ``lafortune_slices``        preset        slices the fit uses (all when unset)
     ``preset``                  small         small | paper
+    ``device``                  auto          auto | cpu | cuda (lafortune: always cpu)
     ==========================  ============  ===========================================
 
     Example::
@@ -131,6 +132,7 @@ class TrainBtfParams(StrictModel):
         description="Steps between points of the curves (held-out L1); unset: at the "
         "scheduler's steps",
     )  # fmt: skip
+    device: Device = device_field("auto")
 
     def value(self, name: str) -> Any:
         """The field ``name``, or the preset's value when it is unset."""

@@ -83,16 +83,21 @@ def sample_texture(tex: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     return (a * (1 - fx) + b * fx) * (1 - fy) + (cc * (1 - fx) + d * fx) * fy
 
 
-def texel_grid(h: int, w: int, generator: torch.Generator | None = None) -> torch.Tensor:
+def texel_grid(
+    h: int, w: int, generator: torch.Generator | None = None, device: torch.device | None = None
+) -> torch.Tensor:
     """``(H * W, 2)`` points, one per texel in row-major order: the centres, or (with a
-    ``generator``) uniform points within each texel (stratified sampling)."""
+    ``generator``) uniform points within each texel (stratified sampling). The points are
+    drawn on the CPU (a CPU ``generator``: the same stream whatever the device) and moved
+    to ``device``."""
     jj, ii = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
     if generator is None:
         ox = oy = torch.full((h * w,), 0.5)
     else:
         ox = torch.rand(h * w, generator=generator)
         oy = torch.rand(h * w, generator=generator)
-    return torch.stack([(ii.reshape(-1) + ox) / w, (jj.reshape(-1) + oy) / h], dim=1)
+    grid = torch.stack([(ii.reshape(-1) + ox) / w, (jj.reshape(-1) + oy) / h], dim=1)
+    return grid if device is None else grid.to(device)
 
 
 def _texture(c: int, h: int, w: int, generator: torch.Generator) -> nn.Parameter:
@@ -196,11 +201,12 @@ class CoarseToFine(nn.Module):
         the textures are sampled at jittered points (training). Returns the RGB and the
         distillation taps ``[z_c per texel, fine hidden]``."""
         h, w = self.arch.resolution
-        uc = texel_grid(h // 2, w // 2, generator)
+        dev = self.fine_texture.device
+        uc = texel_grid(h // 2, w // 2, generator, dev)
         zc, _ = self.coarse(uc, wi, wo)
-        u = texel_grid(h, w, generator)
+        u = texel_grid(h, w, generator, dev)
         jj, ii = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
-        block = ((jj // 2) * (w // 2) + ii // 2).reshape(-1)
+        block = ((jj // 2) * (w // 2) + ii // 2).reshape(-1).to(dev)
         z = zc[block]
         rgb, hidden = self.fine(z, u)
         return rgb, [z, hidden]
@@ -222,7 +228,7 @@ def slice_forward(
         return net.forward_slice(wi, wo, generator)
     assert isinstance(net, NeuMIP)
     h, w = net.arch.resolution
-    return net(texel_grid(h, w, generator), wi, wo)
+    return net(texel_grid(h, w, generator, net.texture.device), wi, wo)
 
 
 def build_network(arch: Architecture, seed: int) -> nn.Module:

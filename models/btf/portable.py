@@ -84,11 +84,11 @@ def network_textures(net: nn.Module) -> dict[str, np.ndarray]:
     """The neural textures of a trained network, float32."""
     if isinstance(net, CoarseToFine):
         return {
-            "coarse_texture": net.coarse_texture.detach().numpy().astype(np.float32),
-            "fine_texture": net.fine_texture.detach().numpy().astype(np.float32),
+            "coarse_texture": net.coarse_texture.detach().cpu().numpy().astype(np.float32),
+            "fine_texture": net.fine_texture.detach().cpu().numpy().astype(np.float32),
         }
     assert isinstance(net, NeuMIP)
-    return {"texture": net.texture.detach().numpy().astype(np.float32)}
+    return {"texture": net.texture.detach().cpu().numpy().astype(np.float32)}
 
 
 def model_document(

@@ -37,6 +37,7 @@ from models.btf.portable import (
     torch_network,
 )
 from models.btf.train import Curves, Distillation, FitConfig, fit, slice_l1
+from models.device import pick_device
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -87,11 +88,13 @@ def _fit_network(
     if kind == "c2f" and (h % 2 or w % 2):
         raise JobFailed(f"model: c2f needs an even slice resolution, the data is {w}x{h}")
     arch = Architecture(model=kind, width=params.network_width(), resolution=(h, w))
-    net = build_network(arch, ctx.sub_seed("train.btf/init"))
+    # Weights are drawn on the CPU (the same initial network on any device), then moved.
+    device = pick_device(params.device, ctx)
+    net = build_network(arch, ctx.sub_seed("train.btf/init")).to(device)
     distill = None
     if params.distill is not None:
         d = params.distill
-        teacher = load_teacher(d.teacher, ctx, (h, w))
+        teacher = load_teacher(d.teacher, ctx, (h, w)).to(device)
         distill = Distillation(teacher, sigma=d.sigma, lambda1=d.lambda1, lambda2=d.lambda2)
     epochs = int(params.value("epochs"))
 
@@ -185,6 +188,8 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
     curves: Curves | None = None
     with deterministic_torch():
         if params.model == "lafortune":
+            pick_device(params.device)  # 'cuda' on a worker without one still fails here
+            ctx.use_device("cpu")  # Levenberg-Marquardt runs in float64 on the CPU
             model = _fit_lafortune(params, ctx, data, train)
             model.doc["training"] = training
         else:

@@ -108,8 +108,13 @@ class Curves:
         }
 
 
-def _dirs(data: BtfDataset, i: int) -> tuple[torch.Tensor, torch.Tensor]:
-    return torch.from_numpy(data.wi[i]), torch.from_numpy(data.wo[i])
+def _device(net: nn.Module) -> torch.device:
+    """Where ``net``'s parameters live: every tensor it meets goes there."""
+    return next(net.parameters()).device
+
+
+def _dirs(data: BtfDataset, i: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    return torch.from_numpy(data.wi[i]).to(device), torch.from_numpy(data.wo[i]).to(device)
 
 
 @torch.no_grad()
@@ -127,10 +132,11 @@ def slice_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> np.ndarra
     float64, in the order of ``indices``)."""
     out = np.full(len(indices), np.nan)
     where = {int(i): k for k, i in enumerate(indices)}
+    dev = _device(net)
     for i, rgb in data.iter_slices(indices):
-        wi, wo = _dirs(data, i)
+        wi, wo = _dirs(data, i, dev)
         pred, _ = slice_forward(net, wi, wo)
-        err = float(torch.abs(pred - torch.from_numpy(rgb).reshape(-1, 3)).sum())
+        err = float(torch.abs(pred - torch.from_numpy(rgb).to(dev).reshape(-1, 3)).sum())
         out[where[i]] = err / rgb.size
     return out
 
@@ -163,11 +169,12 @@ def fit(
     docstring); returns the curves. ``on_curves(curves)`` is called at each check (the
     live chart)."""
     started = time.perf_counter()
+    dev = _device(net)  # the data follow the network (models.device.pick_device)
     params = list(net.parameters())
     maps: _Maps | None = None
     if distill is not None:
         t_width = _width(distill.teacher)
-        maps = _Maps(t_width, _width(net), gen)
+        maps = _Maps(t_width, _width(net), gen).to(_device(net))
         params += list(maps.parameters())
         distill.teacher.eval()
     opt = torch.optim.Adam(params, lr=cfg.lr, betas=BETAS, eps=EPS)
@@ -185,8 +192,8 @@ def fit(
     for epoch in range(1, cfg.epochs + 1):
         net.train()
         for i, rgb in data.iter_slices(train, order_rng):
-            wi, wo = _dirs(data, i)
-            target = torch.from_numpy(rgb).reshape(-1, 3)
+            wi, wo = _dirs(data, i, dev)
+            target = torch.from_numpy(rgb).to(dev).reshape(-1, 3)
             # one jitter draw shared by student and teacher: same texture points
             state = gen.get_state()
             pred, taps = slice_forward(net, wi, wo, gen)

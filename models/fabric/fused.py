@@ -26,7 +26,7 @@ Interface::
     decoder_drjit(model, latent, float_type=None, *, raw=False, bake_latent=False) -> f
         f(cx, cy, size, wix, wiy, wiz, wox, woy) -> (C_warp, C_weft, S_warp, S_weft), lazy
         Dr.Jit Float arrays; inputs Dr.Jit Floats of one type (or numpy arrays, converted to
-        float_type, default drjit.llvm.Float).
+        float_type, default the active Mitsuba variant's ``mi.Float``).
 
 Outputs are the components of Eq. 7 in the units of the training data (unit albedos, incident
 cosine included, 1/sr); Eq. 8 gives the RGB value: ``kd_warp C_warp + kd_weft C_weft +
@@ -241,9 +241,9 @@ def decoder_drjit(
     import drjit as dr
 
     if float_type is None:
-        import drjit.llvm as llvm
+        from materials.backend import load_mitsuba
 
-        float_type = llvm.Float
+        float_type = load_mitsuba().Float  # the variant's backend: LLVM or CUDA
     code = _latent(model, latent)
     a = model.arch
     z = [float(v) for v in code[: a.z_dim]]

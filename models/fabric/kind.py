@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import Field
 
 from jobapi.kinds import Kind, register
-from jobapi.params import JobRef, Ref, StrictModel
+from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, preset_value
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
@@ -251,11 +251,7 @@ class TrainFabricParams(StrictModel):
         description="model.pt of a previous train.fabric job with the same architecture: "
         "its weights start this fit (fine-tuning).",
     )
-    device: Literal["auto", "cpu", "cuda"] = Field(
-        default="auto",
-        description="Training device: 'auto' takes cuda when torch sees one, else cpu; only "
-        "cpu is byte-deterministic.",
-    )
+    device: Device = device_field("auto")
 
     def value(self, name: str) -> Any:
         """The field ``name``, or the preset's value when it is unset."""

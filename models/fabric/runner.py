@@ -16,6 +16,7 @@ import torch
 
 from jobapi.errors import JobFailed
 from models.brdf.train import deterministic_torch
+from models.device import pick_device
 from models.fabric.data import load_dataset
 from models.fabric.networks import Architecture, FabricNetwork, build_network
 from models.fabric.portable import checkpoint_bytes, load_checkpoint, to_portable
@@ -39,15 +40,6 @@ _TUNABLE = ("encoder_width", "decoder_width", "map_resolution", "steps", "batch"
 def resolved(params: TrainFabricParams) -> dict[str, Any]:
     """Every tunable field's effective value."""
     return {n: params.value(n) for n in _TUNABLE}
-
-
-def pick_device(choice: str) -> str:
-    """``auto``: cuda when torch sees a CUDA device, else cpu."""
-    if choice == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if choice == "cuda" and not torch.cuda.is_available():
-        raise JobFailed("device: 'cuda' was asked for but torch sees no CUDA device")
-    return choice
 
 
 def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
@@ -82,7 +74,7 @@ def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
 def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
     """Run a ``train.fabric`` job end to end."""
     started = time.perf_counter()
-    device = pick_device(params.device)
+    device = pick_device(params.device, ctx)
     cfg = resolved(params)
     ctx.progress(0.0, "loading dataset")
     materials = load_dataset(

@@ -148,7 +148,7 @@ def setup_logging(verbose: bool, *, server: bool = False) -> None:
 
 def exit_code_for(exc: BaseException) -> tuple[int, str]:
     """The exit code and the message for an exception that reached the top of a command."""
-    from jobapi.errors import ExecutorUnavailable, SpecError
+    from jobapi.errors import BackendUnavailable, ExecutorUnavailable, SpecError
     from service.cli.batch import BatchError
     from storage.errors import IntegrityError, StorageError
 
@@ -156,6 +156,8 @@ def exit_code_for(exc: BaseException) -> tuple[int, str]:
         return exc.exit_code, str(exc)
     if isinstance(exc, ExecutorUnavailable):  # MATFORGE_EXECUTOR=ray, no cluster there
         return EXIT_UNREACHABLE, str(exc)
+    if isinstance(exc, BackendUnavailable):  # MATFORGE_VARIANT=cuda_ad_rgb, no CUDA here
+        return EXIT_BAD_INPUT, str(exc)
     if isinstance(exc, BatchError | SpecError):
         return EXIT_BAD_INPUT, str(exc)
     if isinstance(exc, IntegrityError):

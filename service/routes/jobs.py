@@ -23,6 +23,7 @@ from service.schemas import ArtifactPublic, ErrorPublic, JobListItem, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
 from service.submission import prepare_submission, queue_spec
 from service.summaries import job_summary
+from service.workers.backend import identity_variant
 from storage.artifacts import ArtifactStore
 from storage.errors import TooLargeError
 from storage.job_logs import JobLog, log_dir
@@ -160,7 +161,12 @@ _SPEC_422: dict[str, Any] = {
     },
 )
 async def create_job(
-    raw: SpecBody, request: Request, response: Response, jobs: JobsDep, store: StoreDep
+    raw: SpecBody,
+    request: Request,
+    response: Response,
+    jobs: JobsDep,
+    store: StoreDep,
+    settings: SettingsDep,
 ) -> Any:
     """Validate a spec and queue it (201). Every `job:`/`sha256:` reference in the params
     must exist. Resubmitting an identical spec returns the existing job (200) unless
@@ -169,7 +175,12 @@ async def create_job(
     # so that one at most competes with the event loop. Queueing waits on SQLite more than
     # it computes: in the (larger) thread pool, where submissions overlap their waits.
     size = len(await request.body())  # read already (spec_body), kept by the request
-    spec = await off_loop(prepare_submission, raw, jobs, store, size=size)
+    # The workers' Mitsuba variant, part of the identity of the kinds whose bytes depend on
+    # it (resolved by `matforge serve` at start-up; else probed once per process).
+    variant = settings.variant
+    if variant == "auto":
+        variant = await run_in_threadpool(identity_variant, settings)
+    spec = await off_loop(prepare_submission, raw, jobs, store, variant, size=size)
     job, created = await run_in_threadpool(queue_spec, spec, jobs, store)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/api/jobs/{job.id}"

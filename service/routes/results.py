@@ -17,11 +17,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from jobapi.errors import SpecError
 from jobapi.rows import ResultRow
-from service.deps import JOB_ID_PATTERN, AuthDep, JobsDep, StoreDep
+from service.deps import JOB_ID_PATTERN, AuthDep, JobsDep, SettingsDep, StoreDep
 from service.parse_threads import off_loop
 from service.results import MAX_JOBS, RowFilter, batch_rows, rows_csv, select_rows
 from service.schemas import ErrorPublic
 from service.spec_text import parse_json_text
+from service.workers.backend import identity_variant
 
 router = APIRouter(prefix="/api/results", tags=["results"], dependencies=[AuthDep])
 CSV = "text/csv"
@@ -191,6 +192,7 @@ def post_batch_results(
     request: Request,
     jobs: JobsDep,
     store: StoreDep,
+    settings: SettingsDep,
     kind: KindQ = None,
     dataset: DatasetQ = None,
     metric: MetricQ = [],  # noqa: B006
@@ -203,7 +205,8 @@ def post_batch_results(
     steps' jobs (`missing` if there is none). A spec that does not validate is a 422."""
     where = RowFilter(kind=kind, dataset=dataset, metric=tuple(metric), candidate=candidate,
                       scene=scene)  # fmt: skip
-    result = batch_rows([s.model_dump() for s in body.steps], jobs, store, where)
+    variant = identity_variant(settings)  # a sync route: in the thread pool already
+    result = batch_rows([s.model_dump() for s in body.steps], jobs, store, where, variant)
     if _wants_csv(request, format):
         return _csv(result.rows)
     return result.document()

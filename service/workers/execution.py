@@ -287,6 +287,7 @@ def execute(
     stall_seconds: float | None = None,
     on_wedged: Callable[[], None] | None = None,
     log_dir: Path | None = None,
+    variant: str | None = None,
 ) -> str:
     """Run a job this process has claimed; returns its final state as this worker saw it
     (``"succeeded"``, ``"failed"``, ``"cancelled"`` or ``"lost"``).
@@ -297,10 +298,12 @@ def execute(
     executor's ``abort()`` kills its shard processes, and ``on_wedged`` is called if the
     runner still does not return. With ``log_dir`` the run is written to the job's log
     (:class:`storage.job_logs.JobLog`): its start and end, its progress lines and this
-    process's log records while it runs."""
+    process's log records while it runs. ``variant`` is the Mitsuba variant this process
+    resolved (:func:`service.workers.backend.start_backend`), recorded in the manifest."""
     run = functools.partial(
         _execute, job, jobs=jobs, store=store, lease_seconds=lease_seconds, executor=executor,
         scratch=scratch, limits=limits, stall_seconds=stall_seconds, on_wedged=on_wedged,
+        variant=variant,
     )  # fmt: skip
     if log_dir is None:
         return run(job_log=None)
@@ -333,6 +336,7 @@ def _execute(
     stall_seconds: float | None,
     on_wedged: Callable[[], None] | None,
     job_log: JobLog | None,
+    variant: str | None,
 ) -> str:
     assert job.lease_token is not None
     started = time.time()
@@ -363,6 +367,7 @@ def _execute(
                     monitor=hb,
                     executor=executor,
                     limits=limits,
+                    variant=variant,
                 )
                 kind.runner(spec.params, ctx)
                 ctx.check_cancelled()
@@ -398,6 +403,10 @@ def _execute(
             # Where the shards ran: "process" (the local pool) or "ray", and how many
             # machines (Ray: the live nodes when the job finished).
             **(executor.describe() if executor is not None else InlineExecutor().describe()),
+            # The Mitsuba variant the job's processes used (MATFORGE_VARIANT, resolved), and
+            # the torch device a training kind ran on (null for the other kinds).
+            "variant": variant,
+            "device": ctx.device,
             "attempt": job.attempts,
             "timings": {
                 "started": started,

@@ -19,24 +19,34 @@ from jobapi.errors import ExecutorUnavailable
 from jobapi.executor import Executor, InlineExecutor
 from service.settings import Settings
 
+#: A shard process's initialiser and its arguments.
+Setup = tuple[Callable[..., None], tuple[Any, ...]]
+
 
 class LocalPoolExecutor:
     """A pool of ``processes`` spawned worker processes, created lazily and reused.
 
     ``spawn`` (not ``fork``) because Dr.Jit and torch start threads that do not survive a
-    fork. At most ``2 * processes`` shards are in flight, so a cancelled job stops quickly.
+    fork. ``setup`` (``(initializer, args)``) runs once in each new process: the Mitsuba
+    variant of the job's process (:func:`service.workers.backend.setup_shard_process`).
+    At most ``2 * processes`` shards are in flight, so a cancelled job stops quickly.
     """
 
     name = "process"
 
-    def __init__(self, processes: int = 2) -> None:
+    def __init__(self, processes: int = 2, setup: Setup | None = None) -> None:
         self.processes = max(1, processes)
+        self.setup = setup
         self._pool: ProcessPoolExecutor | None = None
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
+            init, args = self.setup if self.setup is not None else (None, ())
             self._pool = ProcessPoolExecutor(
-                max_workers=self.processes, mp_context=mp.get_context("spawn")
+                max_workers=self.processes,
+                mp_context=mp.get_context("spawn"),
+                initializer=init,
+                initargs=args,
             )
         return self._pool
 
@@ -100,12 +110,13 @@ def make_executor(
     ray_address: str | None = None,
     ray_max_retries: int = 3,
     ray_auth_mode: str | None = None,
+    setup: Setup | None = None,
 ) -> Executor:
     """The executor backend called ``name``: ``"process"`` (alias ``"local"``), ``"ray"``
     or ``"inline"``. ``processes`` is the pool's size, or the CPUs of a private local Ray
-    when ``ray_address`` is unset."""
+    when ``ray_address`` is unset; ``setup`` initialises each shard process."""
     if name in ("process", "local"):
-        return LocalPoolExecutor(processes)
+        return LocalPoolExecutor(processes, setup)
     if name == "ray":
         try:
             from service.workers.ray_executor import RayExecutor
@@ -114,7 +125,11 @@ def make_executor(
                 f"MATFORGE_EXECUTOR=ray but Ray is not installed: {exc}"
             ) from None
         return RayExecutor(
-            ray_address, num_cpus=processes, max_retries=ray_max_retries, auth_mode=ray_auth_mode
+            ray_address,
+            num_cpus=processes,
+            max_retries=ray_max_retries,
+            auth_mode=ray_auth_mode,
+            setup=setup,
         )
     if name == "inline":
         return InlineExecutor()
@@ -122,11 +137,16 @@ def make_executor(
 
 
 def executor_for(settings: Settings) -> Executor:
-    """The backend that ``settings`` name (``MATFORGE_EXECUTOR``, ``RAY_ADDRESS``)."""
+    """The backend that ``settings`` name (``MATFORGE_EXECUTOR``, ``RAY_ADDRESS``); its
+    shard processes take ``settings.variant`` (resolve it first: :func:`~service.workers.
+    backend.start_backend`)."""
+    from service.workers.backend import setup_shard_process
+
     return make_executor(
         settings.executor,
         settings.pool_processes,
         ray_address=settings.ray_address,
         ray_max_retries=settings.ray_max_retries,
         ray_auth_mode=settings.ray_auth_mode,
+        setup=(setup_shard_process, (settings.variant, settings.libllvm_path)),
     )

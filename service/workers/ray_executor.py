@@ -36,20 +36,26 @@ from ray.exceptions import RayError, RayTaskError
 from jobapi.errors import TRANSIENT_ERRORS, ExecutorUnavailable, ShardLost
 
 log = logging.getLogger("matforge.ray")
+#: A shard process's initialiser and its arguments.
+Setup = tuple[Callable[..., None], tuple[Any, ...]]
 
 #: Object store of a private local Ray (bytes): shards' results are fetched as they finish,
 #: so a few hundred megabytes suffice, and /dev/shm is shared with the rest of the machine.
 LOCAL_OBJECT_STORE_BYTES = 512 * 1024 * 1024
 
 
-def run_shard(fn: Callable[[Any], Any], item: bytes) -> bytes:
+def run_shard(fn: Callable[[Any], Any], item: bytes, setup: Setup | None = None) -> bytes:
     """The body of every Ray task: the kind's own shard function on one pickled item, its
-    result pickled.
+    result pickled. ``setup`` is ``(initializer, args)``, run first (the Mitsuba variant the
+    job's process resolved, :func:`service.workers.backend.setup_shard_process`; cheap and
+    idempotent, as a Ray worker process runs many tasks).
 
     Item and result travel as pickles, as through the local pool, rather than through Ray's
     own serialiser: that one hands numpy arrays over zero-copy and read-only, which code
     written for the pool (Mitsuba's ``Bitmap(array)``, in-place arithmetic) refuses.
     """
+    if setup is not None:
+        setup[0](*setup[1])
     return pickle.dumps(fn(pickle.loads(item)), protocol=5)
 
 
@@ -60,7 +66,8 @@ class RayExecutor:
     ``num_cpus`` CPUs, owned and shut down by this executor); ``max_retries`` bounds the
     re-runs of one shard after a node or worker failure or a transient error;
     ``auth_mode`` is ``RAY_AUTH_MODE`` as configured (only to warn when it is not
-    ``token``). Ray is joined by :meth:`start` (else on the first map) and reused
+    ``token``); ``setup`` runs in the Ray worker before each shard (:func:`run_shard`). Ray
+    is joined by :meth:`start` (else on the first map) and reused
     afterwards; a Ray already initialised in this process (a test's fixture) is used as it
     is, and left running by :meth:`close`.
     """
@@ -74,8 +81,10 @@ class RayExecutor:
         num_cpus: int = 2,
         max_retries: int = 3,
         auth_mode: str | None = None,
+        setup: Setup | None = None,
     ) -> None:
         self.address = address
+        self.setup = setup
         self.num_cpus = max(1, num_cpus)
         self.max_retries = max(0, max_retries)
         self.auth_mode = auth_mode
@@ -150,7 +159,7 @@ class RayExecutor:
             while next_i < len(items) or pending:
                 while next_i < len(items) and len(pending) < limit:
                     item = pickle.dumps(items[next_i], protocol=5)
-                    pending[task.remote(fn_ref, item)] = next_i
+                    pending[task.remote(fn_ref, item, self.setup)] = next_i
                     next_i += 1
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:

@@ -22,8 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from jobapi.context import JobLimits
-from jobapi.errors import ExecutorUnavailable
+from jobapi.errors import BackendUnavailable, ExecutorUnavailable
 from service.settings import Settings
+from service.workers.backend import start_backend
 from service.workers.execution import execute, worker_id
 from service.workers.executors import executor_for
 from service.workers.liveness import Beat, beat_path, end_worker, stalled_for, watch_parent
@@ -47,6 +48,9 @@ def run_worker(
     for ``idle_exit_seconds``. Returns the number of jobs run. ``on_wedged`` is called when
     a stopped job's runner does not return (:func:`~service.workers.execution.execute`);
     the worker process passes :func:`~service.workers.liveness.end_worker`."""
+    # BackendUnavailable (MATFORGE_VARIANT cannot run here): exit before claiming. The
+    # shards take the variant resolved here, so they never disagree with the job.
+    settings = settings.with_(variant=start_backend(settings))
     jobs = JobStore(settings.db_path)
     store = ArtifactStore(settings.store_dir)
     executor = executor_for(settings)
@@ -54,7 +58,9 @@ def run_worker(
     me = worker_id()
     limit = settings.recycle_after_jobs if max_jobs is None else max_jobs
     ran, idle_since = 0, time.monotonic()
-    log.info("worker %s started (recycle after %d jobs)", me, limit)
+    log.info(
+        "worker %s started (Mitsuba variant %s, recycle after %d jobs)", me, settings.variant, limit
+    )
     try:
         while (limit <= 0 or ran < limit) and not (stop and stop.is_set()):
             jobs.reap(settings.max_attempts)
@@ -79,6 +85,7 @@ def run_worker(
                 stall_seconds=settings.stall_seconds,
                 log_dir=log_dir(settings.data_dir),
                 on_wedged=on_wedged,
+                variant=settings.variant,
             )
             log.info("job %s: %s", job.id, state)
             ran += 1
@@ -239,6 +246,9 @@ def main(argv: list[str] | None = None) -> int:
     except ExecutorUnavailable as exc:
         log.error("worker cannot start its executor: %s", exc)
         return 3
+    except BackendUnavailable as exc:
+        log.error("worker cannot start its renderer: %s", exc)
+        return 2
     finally:
         beat.stop()
     return 0

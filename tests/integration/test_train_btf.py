@@ -156,3 +156,21 @@ def test05_bad_inputs(flat, tmp_path) -> None:
         {"kind": "train.btf", "params": {"data": f"job:{odd.id}", "model": "c2f"}}, settings
     )
     assert c2f_odd.state == "failed" and "even" in c2f_odd.error
+
+
+def test06_device_is_resolved_recorded_and_cuda_refused_without_one(flat) -> None:
+    import torch
+
+    settings, data = flat
+    job = train(settings, data, model="neumip", epochs=1)  # device: auto
+    manifest = json.loads(ArtifactStore(settings.store_dir).read(job.manifest_digest))
+    want = "cuda" if torch.cuda.is_available() else "cpu"
+    assert manifest["device"] == want and job.spec["params"]["device"] == "auto"
+    assert manifest["variant"] in ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+    if torch.cuda.is_available():
+        return
+    spec = {"kind": "train.btf", "params": {"data": f"job:{data.id}", "model": "neumip",
+                                            "epochs": 1, "device": "cuda"}}  # fmt: skip
+    failed = run_in_process(spec, settings)
+    assert failed.state == "failed"
+    assert failed.error.startswith("params.device: 'cuda' was asked for"), failed.error

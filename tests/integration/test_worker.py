@@ -40,6 +40,10 @@ def test01_worker_runs_job_and_writes_manifest(toy_kind, settings, jobs, store) 
     assert {"mitsuba", "drjit", "torch", "numpy"} <= set(manifest["packages"])
     assert manifest["code_version"]
     assert (manifest["executor"], manifest["executor_nodes"]) == ("process", 1)
+    # MATFORGE_VARIANT as the worker resolved it at start-up (auto: no CUDA here, so LLVM
+    # where libLLVM-19 is installed); no device: the toy kind trains nothing.
+    assert manifest["variant"] in ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+    assert manifest["device"] is None
 
 
 def test02_same_seed_same_bytes_other_seed_differs(toy_kind, settings, jobs, store) -> None:

@@ -2,7 +2,9 @@
 
 De Oliveira et al., "A Hybrid Neural-Microfacet BRDF Model for Real-Time Rendering" (the
 paper). The plugin (``"brdf_model"``, registered by :func:`register_model_bsdf`) is a Python
-``mi.BSDF``; in Mitsuba's LLVM variants it is traced into the render kernel, and the
+``mi.BSDF``; in Mitsuba's vectorised variants (``llvm_ad_rgb``, ``cuda_ad_rgb``: only the
+variant's own types, guarded by ``tests/unit/evaluators/render/test_variant_generic.py``;
+``scripts/gpu_check.sh`` renders it on CUDA) it is traced into the render kernel, and the
 network with it: the weights and the material's ``z``, ``kd``, ``eta``, ``alpha`` are
 baked in as literals (:mod:`models.fused_mlp`), so each SIMD lane evaluates its own MLP.
 

@@ -2,7 +2,10 @@
 
 The plugin (registered as ``"merl_table"`` by :func:`register_merl_bsdf`) is a Python
 ``mi.BSDF``; in Mitsuba's vectorised RGB variants it is traced into the render kernel. It
-needs one (``llvm_ad_rgb``; ``cuda_ad_rgb`` should work but is untested): under the
+needs one (``llvm_ad_rgb`` or ``cuda_ad_rgb``, as ``MATFORGE_VARIANT`` says): it uses only
+the variant's own types (``mi.Float``, ``mi.TensorXf``, ``dr.gather``), no backend module
+(``tests/unit/evaluators/render/test_variant_generic.py`` guards both), and
+``scripts/gpu_check.sh`` renders it on ``cuda_ad_rgb`` on a GPU machine. Under the
 ``scalar_rgb`` fallback, registration raises ``RuntimeError``. On 2 cores it renders at
 about 0.7x the speed of the native BSDF it tabulates (``benchmarks/bench_merl_bsdf.py``;
 BENCHMARKS.md): the gap is the table's random reads (17.5 MB, larger than a core's L2),

@@ -62,7 +62,8 @@ def integrator_dict(mi: types.ModuleType, bsdf: Any, integrator: dict[str, Any])
 def register_neural_depth_integrator(mi: types.ModuleType) -> type:
     """Define and register the ``"neural_depth"`` integrator for Mitsuba's current variant.
 
-    Idempotent per variant; returns the class. Needs a vectorised RGB variant (``llvm_ad_rgb``).
+    Idempotent per variant; returns the class. Needs a vectorised RGB variant
+    (``llvm_ad_rgb`` or ``cuda_ad_rgb``).
     """
     return register_vectorised_integrator(
         mi, NEURAL_DEPTH_INTEGRATOR, _define_class, "neural_depth integrator"
