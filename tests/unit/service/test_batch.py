@@ -23,7 +23,7 @@ from service.cli.batch import (
 )
 from service.cli.batch_run import run_batch
 from service.cli.client import BadInput
-from service.cli.results import result_rows, write_rows
+from service.cli.results import headline, result_rows
 from service.specs import JobSpec
 
 KINDS = {"render", "score"}
@@ -350,15 +350,10 @@ def test20_run_resolves_refs_and_flattens_metrics(tmp_path: Path) -> None:
     assert rows[2]["a.psnr"] == 30.0 and rows[0]["a.psnr"] is None
     assert rows[1]["seconds"] == 0.25
 
-    write_rows(tmp_path / "r.csv", columns, rows)
-    with open(tmp_path / "r.csv", newline="") as fh:
-        read = list(csv.DictReader(fh))
-    assert [r["step"] for r in read] == ["gold", "alu", "score"]
-    assert read[2]["b.flip"] == "0.2" and read[0]["b.flip"] == ""
-    write_rows(tmp_path / "r.json", columns, rows)
-    assert json.loads((tmp_path / "r.json").read_text()) == rows
-    with pytest.raises(ValueError, match="csv or .json"):
-        write_rows(tmp_path / "r.txt", columns, rows)
+    # the terminal's one line per step: the score step's headline (its first column)
+    (score,) = [r for r in outcome.results if r.step == "score"]
+    assert headline(score.table).startswith("flip: a 0.1") and headline(None) == ""
+    assert len(headline(score.table, width=12)) == 12
 
 
 def test21_failed_step_stops_the_batch() -> None:
