@@ -3,7 +3,6 @@ and the result rows."""
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 from pathlib import Path
