@@ -60,6 +60,7 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[di
                 "min": p["min"],
                 "max": p["max"],
                 "cost": p["cost"],
+                "runtime": p.get("runtime"),
                 "meets": p["mean"] <= target if lower else p["mean"] >= target,
             }
             for p in rungs

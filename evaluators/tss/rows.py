@@ -37,6 +37,7 @@ def tss_rows(src: RowSource) -> list[ResultRow]:
             "dataset": dataset,
             "config": {k: r.get(k) for k in ("resolution", "interval", "pass", "shading_passes")},
             "ms_per_frame": None if spf is None else 1000.0 * spf,
+            "runtime": doc.get("runtime") or "drjit-fused",
         }
         rows += [
             base_row(src, k, v, **fields) for k in METRICS if (v := number(r.get(k))) is not None

@@ -1,0 +1,105 @@
+"""The cost of a user's model, measured by matforge the same way as the built-in models'.
+
+An external model (:class:`ExternalModel`: an exported MLP evaluated by a fused Dr.Jit
+kernel, or an ONNX file evaluated by onnxruntime) is timed on the same fixed batch as a
+``train.brdf`` model's ``speed.json``: :data:`COST_BATCH` cosine-weighted direction pairs
+from :func:`models.speed.cosine_pairs` (seed 0; a BTF also gets uniform ``uv`` in the unit
+square from the same seed), the median of :data:`COST_REPEATS` runs after one warm-up run.
+
+- ``drjit-fused`` models (with a ``drjit_eval(mi, wi, wo, uv)`` that traces the model into
+  Dr.Jit arrays): :func:`models.speed.time_fused`, the kernel's own execution time from
+  Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is a ``train.brdf`` row's
+  ``ns_per_eval``;
+- any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
+  is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
+
+``ns_per_eval`` = that time / batch; ``bytes_per_network`` = the model's ``param_bytes``.
+The document (``cost.json`` of a ``score`` job, :data:`COST_FORMAT`) names the ``runtime``
+and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
+run to run.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+
+#: Pairs per measurement: ``train.brdf``'s default ``speed_batch`` (2^18).
+COST_BATCH = 1 << 18
+#: Runs per median (``train.brdf``'s ``SPEED_REPEATS``).
+COST_REPEATS = 5
+#: The seed of the batch (:func:`models.speed.cosine_pairs`).
+COST_SEED = 0
+#: The version tag of a cost document.
+COST_FORMAT = "matforge.cost/1"
+#: The runtime whose time is the fused kernel's.
+FUSED = "drjit-fused"
+
+
+class ExternalModel(Protocol):
+    """What matforge needs of a user's model (``models.external.load_external``)."""
+
+    kind: str  # "brdf" | "btf"
+    runtime: str  # "drjit-fused" | "onnxruntime"
+    param_bytes: int
+
+    def eval(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
+        """``(N, 3)`` RGB at ``(N, 3)`` local directions (and ``(N, 2)`` uv for a BTF)."""
+        ...
+
+
+def cost_batch(
+    kind: str, batch: int = COST_BATCH
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The fixed batch ``(wi, wo, uv)``: float32, ``uv`` ``None`` for a BRDF."""
+    from models.speed import cosine_pairs
+
+    wi, wo = cosine_pairs(batch, COST_SEED)
+    uv = None
+    if kind == "btf":
+        uv = np.random.default_rng(COST_SEED).random((batch, 2)).astype(np.float32)
+    return wi, wo, uv
+
+
+def measure_cost(
+    model: ExternalModel, *, batch: int = COST_BATCH, repeats: int = COST_REPEATS
+) -> dict[str, Any]:
+    """``{"ns_per_eval", "runtime", "bytes_per_network", "method", "batch", "repeats"}`` of
+    ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
+    has no ``drjit_eval``, or for no Mitsuba LLVM variant to run it in."""
+    from models.speed import time_call, time_fused
+
+    wi, wo, uv = cost_batch(model.kind, batch)
+    runtime = str(model.runtime)
+    if runtime == FUSED:
+        trace = getattr(model, "drjit_eval", None)
+        if trace is None:
+            raise ValueError(f"a {FUSED} model needs drjit_eval(mi, wi, wo, uv) to be timed")
+        from materials.backend import load_mitsuba
+
+        mi = load_mitsuba()
+        if not mi.variant().startswith("llvm_"):
+            raise ValueError(
+                f"timing the fused kernel needs Mitsuba's LLVM variant, not {mi.variant()}"
+            )
+        import drjit as dr
+
+        wi_d, wo_d = mi.Vector3f(*wi.T), mi.Vector3f(*wo.T)
+        uv_d = None if uv is None else mi.Point2f(*uv.T)
+        dr.eval(wi_d, wo_d, uv_d)
+        timed = time_fused(lambda: [trace(mi, wi_d, wo_d, uv_d)], repeats)
+        seconds = timed["kernel_s"]
+        method = "fused Dr.Jit kernel execution (kernel history), median"
+    else:
+        seconds = time_call(lambda: model.eval(wi, wo, uv), repeats)
+        method = f"wall time of one {runtime} evaluation of the batch, median"
+    return {
+        "format": COST_FORMAT,
+        "ns_per_eval": round(seconds / batch * 1e9, 3),
+        "runtime": runtime,
+        "bytes_per_network": int(model.param_bytes),
+        "method": method,
+        "batch": batch,
+        "repeats": repeats,
+    }
