@@ -29,15 +29,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from evaluators.render.sources.btf import uv_scale_pair
 from evaluators.score.artifacts import ArtifactKind, Loaded, register_artifact_kind
 from evaluators.score.brdf import score_brdfs
-from evaluators.score.params import ExternalCandidate, ExternalValue, ScoreParams
+from evaluators.score.params import ExternalCandidate, ScoreParams
 from jobapi.errors import JobFailed
 from storage.errors import FormatError
 
 if TYPE_CHECKING:
+    from evaluators.render.sources.external import ExternalSpec
     from jobapi.context import JobContext
-    from models.external.cost import ExternalModel
+    from models.external import ExternalModel
 
 #: Metrics of a BTF score, in the order listed.
 BTF_METRICS: tuple[str, ...] = ("l1", "relative_l1")
@@ -46,33 +48,20 @@ EXTERNAL_BRDF = "external-brdf"
 
 
 def open_external(path: Path, name: str, kind: str) -> ExternalModel:
-    """The model in ``path``: a JSON weight file through :func:`models.external.load_external`
-    (the MLP format), anything else as an ONNX file (:func:`models.external.onnx_model.
-    load_onnx`); ``FormatError`` naming ``name`` and what is wrong."""
-    with open(path, "rb") as fh:
-        head = fh.read(64).lstrip()
+    """The model in ``path`` (:func:`models.external.load_external`: an MLP weight file or
+    an ONNX file, by content); ``FormatError`` naming ``name`` and what is wrong."""
+    from models.external import load_external
+
     try:
-        if head[:1] == b"{":
-            import models.external as external
-
-            loader = getattr(external, "load_external", None)
-            if loader is None:
-                raise FormatError(name, "MLP weight files are not supported by this build")
-            model: ExternalModel = loader(path, kind)
-        else:
-            from models.external.onnx_model import load_onnx
-
-            model = load_onnx(path, kind)
-    except FormatError as exc:
+        model = load_external(path, kind)
+    except ValueError as exc:  # FormatError is a ValueError too
         raise FormatError(name, str(exc).removeprefix(f"{path.name}: ")) from None
-    except ValueError as exc:
-        raise FormatError(name, str(exc)) from None
     if model.kind != kind:
         raise FormatError(name, f"the file holds a {model.kind} model, not a {kind}")
     return model
 
 
-def load_candidate(label: str, value: ExternalValue, ctx: JobContext) -> ExternalModel:
+def load_candidate(label: str, value: ExternalSpec, ctx: JobContext) -> ExternalModel:
     """Open candidate ``label``'s model; ``JobFailed`` naming the candidate."""
     try:
         return open_external(ctx.resolve(value.model), value.model, value.kind)
@@ -136,11 +125,11 @@ def external_settings(params: ScoreParams) -> dict[str, Any]:
 # -- BTF slices --------------------------------------------------------------------------
 
 
-def texel_uv(h: int, w: int, scale: float) -> np.ndarray:
-    """``(H W, 2)`` float32 texel centres ``((i + 1/2) / W, (j + 1/2) / H) * scale``, row
+def texel_uv(h: int, w: int, scale: tuple[float, float]) -> np.ndarray:
+    """``(H W, 2)`` float32 texel centres ``((i + 1/2) / W s_u, (j + 1/2) / H s_v)``, row
     ``j`` major (the slices' ``[row, column]`` layout)."""
     jj, ii = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
-    uv = np.stack([(ii.ravel() + 0.5) / w, (jj.ravel() + 0.5) / h], axis=1) * scale
+    uv = np.stack([(ii.ravel() + 0.5) / w * scale[0], (jj.ravel() + 0.5) / h * scale[1]], axis=1)
     return uv.astype(np.float32)
 
 
@@ -172,7 +161,7 @@ def score_btf_slices(params: ScoreParams, ctx: JobContext) -> None:
         assert isinstance(cand, ExternalCandidate)
         model = load_candidate(label, cand.external, ctx)
         models[label] = model
-        uv = texel_uv(h, w, cand.external.uv_scale or 1.0)
+        uv = texel_uv(h, w, uv_scale_pair(cand.external.model_dump()))
 
         def predict(
             wi: np.ndarray, wo: np.ndarray, model: Any = model, uv: np.ndarray = uv

@@ -6,6 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, StringConstraints, field_validator, model_validator
 
+from evaluators.render.sources.external import ExternalSpec
 from jobapi.params import JOB_ID_REF, JobRef, Ref, StrictModel
 
 MetricName = Literal["flip", "psnr", "ssim", "mae", "mse", "smape", "l1", "relative_l1"]
@@ -64,38 +65,13 @@ class ModelCandidate(StrictModel):
     )
 
 
-class ExternalValue(StrictModel):
-    """A user's model: ``{"model": REF, "kind": "brdf" | "btf", "uv_scale"?}``, the value of
-    the ``external`` material source (the same object renders, scores and goes into
-    ``select`` ladders)."""
-
-    model: Ref = Field(
-        description="The uploaded model: an exported MLP (matforge.export) or an ONNX file "
-        "(sha256: ref, or job:<id>/<name>)."
-    )
-    kind: Literal["brdf", "btf"] = Field(
-        description="'brdf': (wi, wo) -> RGB, scored against a MERL table; 'btf': (uv, wi, "
-        "wo) -> RGB, scored against the slices of a BTF job."
-    )
-    uv_scale: float | None = Field(
-        default=None,
-        gt=0.0,
-        le=1024.0,
-        allow_inf_nan=False,
-        description="BTF only: the model's uv = patch uv x uv_scale (default 1).",
-    )
-
-    @model_validator(mode="after")
-    def _uv_for_btf(self) -> ExternalValue:
-        if self.uv_scale is not None and self.kind != "btf":
-            raise ValueError("uv_scale: applies to kind 'btf' only")
-        return self
-
-
 class ExternalCandidate(StrictModel):
     """A user's model as a candidate: ``{"external": {"model": REF, "kind": ...}}``."""
 
-    external: ExternalValue = Field(description="The model, as the 'external' material.")
+    external: ExternalSpec = Field(
+        description="The model, exactly as the 'external' material: {model: REF, kind: brdf "
+        "| btf, uv_scale?}."
+    )
 
 
 #: ``job:<id>``: every table of a ``generate.merl`` job, by material name.

@@ -6,9 +6,9 @@ kernel, or an ONNX file evaluated by onnxruntime) is timed on the same fixed bat
 from :func:`models.speed.cosine_pairs` (seed 0; a BTF also gets uniform ``uv`` in the unit
 square from the same seed), the median of :data:`COST_REPEATS` runs after one warm-up run.
 
-- ``drjit-fused`` models (with a ``drjit_eval(mi, wi, wo, uv)`` that traces the model into
-  Dr.Jit arrays): :func:`models.speed.time_fused`, the kernel's own execution time from
-  Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is a ``train.brdf`` row's
+- ``drjit-fused`` models (MLP materials, traced by :class:`models.external.fused.FusedMlp`,
+  the kernel the renderer runs): :func:`models.speed.time_fused`, the kernel's own
+  execution time from Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is a ``train.brdf`` row's
   ``ns_per_eval``;
 - any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
   is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
@@ -21,7 +21,7 @@ run to run.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,22 +31,13 @@ COST_BATCH = 1 << 18
 COST_REPEATS = 5
 #: The seed of the batch (:func:`models.speed.cosine_pairs`).
 COST_SEED = 0
+if TYPE_CHECKING:
+    from models.external import ExternalModel
+
 #: The version tag of a cost document.
 COST_FORMAT = "matforge.cost/1"
 #: The runtime whose time is the fused kernel's.
 FUSED = "drjit-fused"
-
-
-class ExternalModel(Protocol):
-    """What matforge needs of a user's model (``models.external.load_external``)."""
-
-    kind: str  # "brdf" | "btf"
-    runtime: str  # "drjit-fused" | "onnxruntime"
-    param_bytes: int
-
-    def eval(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
-        """``(N, 3)`` RGB at ``(N, 3)`` local directions (and ``(N, 2)`` uv for a BTF)."""
-        ...
 
 
 def cost_batch(
@@ -67,16 +58,18 @@ def measure_cost(
 ) -> dict[str, Any]:
     """``{"ns_per_eval", "runtime", "bytes_per_network", "method", "batch", "repeats"}`` of
     ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
-    has no ``drjit_eval``, or for no Mitsuba LLVM variant to run it in."""
+    is not an MLP material, or for no Mitsuba LLVM variant to run it in."""
     from models.speed import time_call, time_fused
 
     wi, wo, uv = cost_batch(model.kind, batch)
     runtime = str(model.runtime)
     if runtime == FUSED:
-        trace = getattr(model, "drjit_eval", None)
-        if trace is None:
-            raise ValueError(f"a {FUSED} model needs drjit_eval(mi, wi, wo, uv) to be timed")
         from materials.backend import load_mitsuba
+        from models.external.fused import FusedMlp
+        from models.external.mlp import MlpMaterial
+
+        if not isinstance(model, MlpMaterial):
+            raise ValueError(f"a {FUSED} model is an MLP material (models.external.mlp)")
 
         mi = load_mitsuba()
         if not mi.variant().startswith("llvm_"):
@@ -88,7 +81,8 @@ def measure_cost(
         wi_d, wo_d = mi.Vector3f(*wi.T), mi.Vector3f(*wo.T)
         uv_d = None if uv is None else mi.Point2f(*uv.T)
         dr.eval(wi_d, wo_d, uv_d)
-        timed = time_fused(lambda: [trace(mi, wi_d, wo_d, uv_d)], repeats)
+        fused = FusedMlp(model, mi)
+        timed = time_fused(lambda: [fused.eval(wi_d, wo_d, uv_d)], repeats)
         seconds = timed["kernel_s"]
         method = "fused Dr.Jit kernel execution (kernel history), median"
     else:

@@ -19,6 +19,7 @@ from storage.formats.btf_folder import validate_btf_archive
 from storage.formats.exr import validate_exr
 from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
+from storage.formats.mlp_model import is_mlp_document, parse_mlp_document
 from storage.formats.normal_map import validate_normal_map
 from storage.formats.npz import validate_npz
 from storage.formats.onnx import validate_onnx
@@ -29,7 +30,11 @@ MAX_JSON_BYTES = 64 * 1024 * 1024
 
 
 def validate_json(path: Path, name: str) -> None:
-    """Check that ``path`` holds one UTF-8 JSON document (RFC 8259: no NaN or Infinity)."""
+    """Check that ``path`` holds one UTF-8 JSON document (RFC 8259: no NaN or Infinity).
+
+    A document that claims a user MLP material format (``matforge.mlp-brdf/1``,
+    ``matforge.mlp-btf/1``) is also checked against it (:mod:`storage.formats.mlp_model`).
+    """
     try:
         size = path.stat().st_size
         if size > MAX_JSON_BYTES:
@@ -46,13 +51,15 @@ def validate_json(path: Path, name: str) -> None:
         raise ValueError(f"{token} is not valid JSON")
 
     try:
-        json.loads(text, parse_constant=_no_constants)
+        doc = json.loads(text, parse_constant=_no_constants)
     except json.JSONDecodeError as exc:
         raise FormatError(
             name, f"invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
         ) from None
     except (ValueError, RecursionError) as exc:
         raise FormatError(name, f"invalid JSON: {exc}") from None
+    if is_mlp_document(doc):
+        parse_mlp_document(doc, name)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,8 @@ plugin                 module                  what it renders
 ``btf_model``          ``btf_model``           a trained BTF model (train.btf), fused
 ``btf_surface``        ``btf_surface``         a generate.btf surface's principled BSDF,
                                                carrying its relief for the floor scenes
+``external_mlp``       ``external_mlp``        a user's BRDF network (matforge.mlp-brdf/1)
+``external_mlp_btf``   ``external_mlp_btf``    a user's neural BTF (matforge.mlp-btf/1)
 ``external_onnx``      ``external_onnx``       a user's ONNX BRDF or BTF (onnxruntime, in
                                                Dr.Jit's evaluated mode)
 =====================  ======================  =============================================
@@ -31,6 +33,8 @@ from evaluators.render.bsdfs import (
     btf_model,
     btf_surface,
     btf_table,
+    external_mlp,
+    external_mlp_btf,
     external_onnx,
     fabric_aggregate,
     fabric_model,
@@ -48,5 +52,7 @@ PLUGINS = (
     btf_table,
     btf_model,
     btf_surface,
+    external_mlp,
+    external_mlp_btf,
     external_onnx,
 )

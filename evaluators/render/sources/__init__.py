@@ -18,6 +18,8 @@ key               value                                                         
                   (``{"model": "job:<train.btf id>"}``)
 ``btf_surface``   the surface a ``generate.btf`` job path-traced (relief mesh     ``btf_surface``
                   on the floor scenes, or its flat BSDF)
+``external``      a user's own BRDF or BTF model file: the MLP formats            ``external``
+                  (fused Dr.Jit) or ONNX (onnxruntime)
 ================  =============================================================  ============
 """
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 from evaluators.render.sources import (
     btf,
     btf_surface,
+    external,
     fabric,
     fabric_model,
     glint,
@@ -42,7 +45,7 @@ from evaluators.render.sources.common import (
 )
 
 #: The modules that register the built-in sources, in table order.
-BUILTIN = (mitsuba, merl, model, fabric, fabric_model, glint, btf, btf_surface)
+BUILTIN = (mitsuba, merl, model, fabric, fabric_model, glint, btf, btf_surface, external)
 
 __all__ = [
     "BUILTIN",
