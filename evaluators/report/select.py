@@ -146,7 +146,7 @@ def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
     ctx.progress(1.0, f"{len(result)} ladders; chosen: {picks}")
 
 
-COLUMNS = ("value", "cost", "meets", "chosen")
+COLUMNS = ("value", "cost", "runtime", "meets", "chosen")
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
@@ -162,6 +162,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
             rows[label] = {
                 "value": r.get("value"),
                 "cost": r.get("cost"),
+                "runtime": r.get("runtime"),
                 "meets": r.get("meets"),
                 "chosen": r["candidate"] == lad.get("chosen"),
             }
@@ -212,6 +213,7 @@ def select_rows(src: RowSource) -> list[ResultRow]:
                     dataset=str(lad.get("dataset")),
                     scene=lad.get("scene"),
                     candidate=str(r.get("candidate")),
+                    runtime=r.get("runtime") if isinstance(r.get("runtime"), str) else None,
                     config={
                         "material": r.get("material"),
                         "integrator": r.get("integrator"),

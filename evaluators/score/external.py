@@ -7,7 +7,9 @@
   (:mod:`evaluators.score.brdf`: 10^6 fixed-seed cosine-weighted pairs, pairs without table
   data excluded, ``smape`` Eq. 6 with eps 0, ``mae``), beside built-in models and tables in
   the same job.
-- **BTF** (``kind: btf``) against the slices of a BTF job (reference ``job:<generate.btf
+- **BTF** (``kind: btf``), and built-in ``train.btf`` models beside it
+  (``{"model": "job:<train.btf id>/model.json"}``, evaluated by their portable evaluator),
+  against the slices of a BTF job (reference ``job:<generate.btf
   id>``): every slice evaluated at the texel centres ``uv = ((i + 1/2) / W, (j + 1/2) / H)``
   (times ``uv_scale``) with the slice's light ``wi`` and view ``wo``, and the L1 that
   ``train.btf`` reports (:func:`models.btf.cases.predicted_slice_l1`, one implementation):
@@ -15,7 +17,9 @@
   both per failure case (:func:`models.btf.cases.case_errors`) under ``cases``.
 
 Cost: every external candidate is timed by :func:`models.external.cost.measure_cost` (the
-fixed batch of ``train.brdf``'s ``speed.json``, in the model's own runtime) and written to
+fixed batch of ``train.brdf``'s ``speed.json``, in the model's own runtime), a built-in
+BTF by :func:`models.external.cost.measure_builtin_btf` (its fused kernel on the same
+batch), and written to
 ``cost.json`` ``{"format", "candidates": {label: {ns_per_eval, runtime,
 bytes_per_network, method, batch, repeats}}}``: timings vary between runs, so it is the one
 non-deterministic artifact of such a job (``metrics.json`` stays byte-identical).
@@ -23,6 +27,7 @@ non-deterministic artifact of such a job (``metrics.json`` stays byte-identical)
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,7 +37,7 @@ import numpy as np
 from evaluators.render.sources.btf import uv_scale_pair
 from evaluators.score.artifacts import ArtifactKind, Loaded, register_artifact_kind
 from evaluators.score.brdf import score_brdfs
-from evaluators.score.params import ExternalCandidate, ScoreParams
+from evaluators.score.params import ExternalCandidate, ModelCandidate, ScoreParams
 from jobapi.errors import JobFailed
 from storage.errors import FormatError
 
@@ -157,18 +162,24 @@ def score_btf_slices(params: ScoreParams, ctx: JobContext) -> None:
     metrics: dict[str, dict[str, float | None]] = {}
     cases: dict[str, list[dict[str, Any]]] = {}
     candidates = sorted(params.candidates.items())
+    builtins: dict[str, Any] = {}
     for k, (label, cand) in enumerate(candidates):
-        assert isinstance(cand, ExternalCandidate)
-        model = load_candidate(label, cand.external, ctx)
-        models[label] = model
-        uv = texel_uv(h, w, uv_scale_pair(cand.external.model_dump()))
+        if isinstance(cand, ModelCandidate):
+            builtin = load_builtin_btf(label, cand.model, ctx)
+            builtins[label] = builtin
+            predict: Any = builtin.slice
+        else:
+            assert isinstance(cand, ExternalCandidate)
+            model = load_candidate(label, cand.external, ctx)
+            models[label] = model
+            uv = texel_uv(h, w, uv_scale_pair(cand.external.model_dump()))
 
-        def predict(
-            wi: np.ndarray, wo: np.ndarray, model: Any = model, uv: np.ndarray = uv
-        ) -> np.ndarray:
-            n = len(uv)
-            out = model.eval(np.tile(wi, (n, 1)), np.tile(wo, (n, 1)), uv)
-            return np.asarray(out).reshape(h, w, 3)
+            def predict(
+                wi: np.ndarray, wo: np.ndarray, model: Any = model, uv: np.ndarray = uv
+            ) -> np.ndarray:
+                n = len(uv)
+                out = model.eval(np.tile(wi, (n, 1)), np.tile(wo, (n, 1)), uv)
+                return np.asarray(out).reshape(h, w, 3)
 
         try:
             per_slice = predicted_slice_l1(predict, data, np.arange(len(data)))
@@ -196,8 +207,41 @@ def score_btf_slices(params: ScoreParams, ctx: JobContext) -> None:
         {"reference": params.reference, "metrics": metrics, "cases": cases, "settings": settings},
     )
     ctx.progress(0.85, "timing the models")
-    ctx.put_json("cost.json", external_costs(models, ctx))
+    cost = external_costs(models, ctx)
+    cost["candidates"].update(builtin_btf_costs(builtins, ctx))
+    ctx.put_json("cost.json", cost)
     ctx.progress(1.0, f"scored {len(models)} BTF model(s) on {len(data)} slices")
+
+
+def load_builtin_btf(label: str, ref: str, ctx: JobContext) -> Any:
+    """The :class:`models.btf.portable.PortableBtf` of a ``train.btf`` job's
+    ``job:<id>/model.json`` (its ``textures.npz`` beside it)."""
+    from jobapi.params import JOB_REF
+    from models.btf.portable import read_model, read_textures
+
+    m = JOB_REF.match(ref)
+    if m is None or not ref.endswith("/model.json"):
+        raise JobFailed(f"candidate {label!r}: a train.btf model is 'job:<id>/model.json'")
+    job = ctx.input_job(m["job"], f"candidates.{label}.model", "train.btf")
+    try:
+        doc = json.loads(ctx.read_ref(f"job:{job.id}/model.json"))
+        return read_model(doc, read_textures(ctx.read_ref(f"job:{job.id}/textures.npz")))
+    except (ValueError, OSError) as exc:
+        raise JobFailed(f"candidate {label!r}: {ref}: {exc}") from None
+
+
+def builtin_btf_costs(builtins: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
+    """``cost.json`` entries of the ``train.btf`` candidates, timed as the external ones."""
+    from models.external.cost import measure_builtin_btf
+
+    out = {}
+    for label, model in sorted(builtins.items()):
+        ctx.check_cancelled()
+        try:
+            out[label] = measure_builtin_btf(model)
+        except ValueError as exc:
+            raise JobFailed(f"candidate {label!r}: cost: {exc}") from None
+    return out
 
 
 def _never_loaded(path: Path, name: str) -> Any:

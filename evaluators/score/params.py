@@ -151,12 +151,16 @@ class ScoreParams(StrictModel):
             if isinstance(c, ExternalCandidate) and c.external.kind == "btf"
         ]
         if btfs:
-            others = sorted(set(self.candidates) - set(btfs))
+            others = sorted(
+                label
+                for label, c in self.candidates.items()
+                if label not in btfs and not (isinstance(c, ModelCandidate) and c.material is None)
+            )
             if others:
                 raise ValueError(
                     f"candidates.{others[0]}: against a BTF's slices every candidate is an "
-                    '{"external": {"model": REF, "kind": "btf"}} (train.btf models report '
-                    "their own L1 on the same slices)"
+                    '{"external": {"model": REF, "kind": "btf"}} or a train.btf model '
+                    '{"model": "job:<train.btf id>/model.json"}'
                 )
             if not isinstance(self.reference, str) or not JOB_ID_REF.match(self.reference):
                 raise ValueError(

@@ -4,7 +4,8 @@ material, for a whole model scored against a set of tables).
 A candidate that is a render's image (``job:<render>/image.exr``) carries that render's
 scene, spp, time, seed and settings (:func:`evaluators.render.rows.render_facts`), so a
 score's rows chart error against samples and seconds directly. A model candidate
-(``{"model": REF, "material": NAME}``) names its material and the model it came from. The
+(``{"model": REF, "material": NAME}``) names its material and the model it came from in
+``config`` (its row is about the whole reference, one table, like a table candidate's). The
 row's ``dataset`` is the reference ref (a ``generate.merl`` job for a whole model, or the
 reference image).
 
@@ -55,6 +56,7 @@ def _external_costs(cost: Any, label: str) -> dict[str, Any]:
     runtime = found.get("runtime")
     return {
         "ns_per_eval": number(found.get("ns_per_eval")),
+        "bytes_per_material": number(found.get("bytes_per_material")),
         "bytes_per_network": number(found.get("bytes_per_network")),
         "runtime": str(runtime) if isinstance(runtime, str) else None,
     }
@@ -69,10 +71,14 @@ def _candidate_facts(src: RowSource, spec: Any, label: str, cost: Any) -> dict[s
             **_external_costs(cost, label),
         }
     if isinstance(spec, Mapping):  # a model candidate
+        # One material against one table is the whole of what was scored (a row beside
+        # the table's and a user's model's in report.pareto): the material goes in config.
         facts: dict[str, Any] = {"config": {"model": spec.get("model")}}
         if isinstance(spec.get("material"), str):
-            facts["material"] = spec["material"]
+            facts["config"]["material"] = spec["material"]
         facts.update(_model_costs(src, spec.get("model"), spec.get("material")))
+        # measured in this job (a BTF score times its built-in models too): that wins
+        facts.update({k: v for k, v in _external_costs(cost, label).items() if v is not None})
         return facts
     if isinstance(spec, str):
         made_by = src.source(spec)

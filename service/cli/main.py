@@ -363,6 +363,12 @@ def batch(
         "--continue-on-error",
         help="After a step fails, skip only the steps that need it and run the rest.",
     ),
+    var: list[str] = typer.Option(
+        [],
+        "--var",
+        help="NAME=VALUE for a variable of the batch's vars (its specs' 'var:NAME' strings), "
+        "e.g. --var model=sha256:...; repeatable.",
+    ),
 ) -> None:
     """Run a batch of steps on the server, in order; later steps may use step: refs."""
     from service.cli.batch import load_batch
@@ -372,7 +378,14 @@ def batch(
     if out is not None and out.suffix.lower() not in (".csv", ".json"):
         error(f"--out {out}: must end in .csv or .json")
         raise typer.Exit(EXIT_BAD_INPUT)
-    plan = load_batch(file)
+    variables = {}
+    for item in var:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            error(f"--var {item}: expected NAME=VALUE")
+            raise typer.Exit(EXIT_BAD_INPUT)
+        variables[name] = value
+    plan = load_batch(file, variables=variables)
     with state_of(ctx).client() as client:
         outcome = run_batch(
             plan,
