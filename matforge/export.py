@@ -167,13 +167,12 @@ def brdf_mlp(
     layers = _layers_of(module_or_layers, activations)
     ana = None
     if analytic is not None:
+        eta = [float(v) for v in _numpy(analytic["eta"]).reshape(-1)]
         ana = {
             "kd": [float(v) for v in _numpy(analytic["kd"]).reshape(-1)],
             "alpha": float(_numpy(analytic["alpha"]).reshape(-1)[0]),
-            "eta": [float(v) for v in _numpy(analytic["eta"]).reshape(-1)],
+            "eta": eta * 3 if len(eta) == 1 else eta,
         }
-        if len(ana["eta"]) == 1:
-            ana["eta"] = ana["eta"] * 3
     if combine is None:
         combine = "network" if ana is None else ("hybrid" if layers else "analytic")
     doc: dict[str, Any] = {

@@ -81,12 +81,12 @@ def load_external(path: Path, kind: str) -> ExternalModel:
         model: Any = read_mlp(path)
         if model.kind != kind:
             raise ValueError(f"{name}: is a {model.kind} model, not a {kind} one")
-        return model  # type: ignore[no-any-return]
+        return model  # type: ignore[no-any-return,unused-ignore]
     try:
         onnx_model = importlib.import_module("models.external.onnx_model")
     except ImportError as exc:
         raise ValueError(f"{name}: ONNX models are not supported by this build ({exc})") from None
-    return onnx_model.load_onnx(Path(path), kind)  # type: ignore[no-any-return]
+    return onnx_model.load_onnx(Path(path), kind)  # type: ignore[no-any-return,unused-ignore]
 
 
 __all__ = ["KINDS", "ExternalModel", "MlpMaterial", "load_external", "model_format", "read_mlp"]

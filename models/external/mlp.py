@@ -38,6 +38,7 @@ BRDF-like part alone).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -94,8 +95,9 @@ def bilinear_periodic(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def _activation(name: str, x: np.ndarray) -> np.ndarray:
+    table: dict[str, Callable[[np.ndarray], np.ndarray]]
     with np.errstate(over="ignore"):
-        return {
+        table = {
             "identity": lambda v: v,
             "relu": lambda v: np.maximum(v, 0.0),
             "leaky_relu": lambda v: np.where(v >= 0.0, v, 0.01 * v),
@@ -103,7 +105,8 @@ def _activation(name: str, x: np.ndarray) -> np.ndarray:
             "exp": np.exp,
             "softplus": lambda v: np.maximum(v, 0.0) + np.log1p(np.exp(-np.abs(v))),
             "tanh": np.tanh,
-        }[name](x)
+        }
+        return table[name](x)
 
 
 @dataclass(frozen=True)

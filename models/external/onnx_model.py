@@ -47,15 +47,14 @@ class EvalStats:
 
 
 def _param_bytes(model: Any) -> int:
-    """Bytes of the initialisers and ``Constant`` tensors (their declared shapes)."""
+    """Bytes of the floating-point initialisers and ``Constant`` tensors: the parameters
+    (integer tensors, the indices and shapes of slicing and reshaping, are not counted)."""
     from onnx import numpy_helper
 
-    total = sum(numpy_helper.to_array(t).nbytes for t in model.graph.initializer)
-    for node in model.graph.node:
-        for attr in node.attribute:
-            if attr.HasField("t"):
-                total += numpy_helper.to_array(attr.t).nbytes
-    return int(total)
+    tensors = list(model.graph.initializer)
+    tensors += [a.t for n in model.graph.node for a in n.attribute if a.HasField("t")]
+    arrays = (numpy_helper.to_array(t) for t in tensors)
+    return int(sum(a.nbytes for a in arrays if np.issubdtype(a.dtype, np.floating)))
 
 
 @dataclass
@@ -63,7 +62,7 @@ class OnnxMaterial:
     """An ONNX BRDF or BTF (see the module docstring), ready to evaluate.
 
     Attributes: ``kind`` (``"brdf"`` or ``"btf"``), ``runtime`` (``"onnxruntime"``),
-    ``param_bytes`` (bytes of the initialisers), ``threads`` (intra-op threads),
+    ``param_bytes`` (bytes of the floating-point initialisers), ``threads`` (intra-op threads),
     ``stats`` (:class:`EvalStats`), ``name`` (the file's name, for messages).
     """
 

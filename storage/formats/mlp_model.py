@@ -153,12 +153,14 @@ def _need(cond: bool, message: str) -> None:
 def _finite_numbers(value: Any, where: str, ndim: int) -> np.ndarray:
     if ndim == 2:
         _need(
-            isinstance(value, list) and all(isinstance(r, list) for r in value) and value,
+            isinstance(value, list) and all(isinstance(r, list) for r in value) and bool(value),
             f"{where}: must be a non-empty list of lists of numbers",
         )
         _need(len({len(r) for r in value}) == 1, f"{where}: rows have different lengths")
     else:
-        _need(isinstance(value, list) and value, f"{where}: must be a non-empty list of numbers")
+        _need(
+            isinstance(value, list) and bool(value), f"{where}: must be a non-empty list of numbers"
+        )
     flat = value if ndim == 1 else [x for r in value for x in r]
     _need(
         all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in flat),
@@ -265,7 +267,7 @@ def _analytic(value: Any) -> Analytic:
 def _layers(value: Any) -> tuple[Layer, ...]:
     _need(isinstance(value, list), "layers: must be a list")
     _need(len(value) <= MAX_LAYERS, f"layers: at most {MAX_LAYERS}")
-    out = []
+    out: list[Layer] = []
     total = 0
     for k, ly in enumerate(value):
         where = f"layers[{k}]"
@@ -307,7 +309,7 @@ _KEYS = {
 
 def _parse(doc: Any) -> MlpDocument:
     _need(isinstance(doc, dict), "must be a JSON object")
-    kind = FORMATS.get(doc.get("format"))  # type: ignore[arg-type]
+    kind = FORMATS.get(str(doc.get("format")))
     _need(kind is not None, f"format must be one of {', '.join(FORMATS)}")
     assert kind is not None
     extra = sorted(set(doc) - _KEYS[kind])

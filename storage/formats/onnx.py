@@ -27,7 +27,8 @@ each as a :class:`FormatError` naming the file and the problem (422), or a
   whose stored bytes do not match their declared shape;
 - more than :data:`MAX_NODES` nodes;
 - inputs and outputs that are not exactly one of the two signatures above: names, ranks,
-  a fixed last dimension, a dynamic first one, float32.
+  a fixed last dimension (the output's may be symbolic: each evaluation checks it), a
+  dynamic first one, float32.
 
 This module imports nothing of ours but :mod:`storage.errors`; ``onnx`` is imported lazily
 so that reading other formats never pays for it.
@@ -52,7 +53,9 @@ OPSET_RANGE = (13, 23)
 #: Operators a small MLP or texture graph needs: arithmetic, activations, shape plumbing
 #: with constant shapes, indexing and reductions. No control flow (``If``, ``Loop``,
 #: ``Scan``), no random operators, nothing that makes a tensor of a data-dependent size
-#: (``Expand``, ``Tile``, ``ConstantOfShape``, ``Range``, ``Resize``, ``NonZero``).
+#: (``Tile``, ``ConstantOfShape``, ``Range``, ``Resize``, ``NonZero``). ``Expand`` (torch's
+#: ``normalize`` exports one) only to the shape of another tensor: its shape input must be
+#: the output of a ``Shape`` node (:data:`SHAPED_OPS`).
 ALLOWED_OPS = frozenset(
     {
         # linear algebra and arithmetic
@@ -67,7 +70,7 @@ ALLOWED_OPS = frozenset(
         "Where", "IsNaN", "IsInf",
         # shape plumbing
         "Concat", "Split", "Slice", "Reshape", "Flatten", "Squeeze", "Unsqueeze",
-        "Transpose", "Identity", "Cast", "CastLike", "Shape", "Constant",
+        "Transpose", "Identity", "Cast", "CastLike", "Shape", "Constant", "Expand",
         # indexing and textures
         "Gather", "GatherElements", "GatherND", "GridSample",
         # reductions and normalisation
@@ -75,6 +78,9 @@ ALLOWED_OPS = frozenset(
         "ReduceSumSquare", "LayerNormalization", "BatchNormalization",
     }
 )  # fmt: skip
+#: Operators whose output size is their input ``shape`` (index 1): allowed only where that
+#: input is a ``Shape`` node's output, so no graph can ask for more memory than its inputs'.
+SHAPED_OPS = frozenset({"Expand"})
 #: The two signatures: kind -> (input name -> last dimension), in order.
 SIGNATURES: dict[str, dict[str, int]] = {
     "brdf": {"wi": 3, "wo": 3},
@@ -195,7 +201,9 @@ def _check_tensor_io(vi: Any, last: int, what: str, name: str) -> None:
             f"{what} '{vi.name}' has a fixed batch dimension {dims[0]}; the first dimension "
             "must be dynamic (a symbolic name such as 'N': dynamic_axes in torch.onnx.export)",
         )
-    if dims[1] != last:
+    # An output's last dimension may be symbolic (torch's exporter often leaves a broadcast
+    # symbolic): the evaluator checks every call's result is [rows, 3]. A fixed one must fit.
+    if dims[1] != last and not (what == "output" and not isinstance(dims[1], int)):
         raise FormatError(
             name, f"{what} '{vi.name}' must have shape [N, {last}], got [{dims[0]}, {dims[1]}]"
         )
@@ -252,6 +260,7 @@ def _check_structure(model: Any, name: str) -> None:
     total = 0
     for t in graph.initializer:
         total += _tensor_bytes(t, f"initialiser '{t.name}'", name)
+    shape_outputs = {o for n in graph.node if n.op_type == "Shape" for o in n.output}
     for node in graph.node:
         label = f"node '{node.name or node.op_type}'"
         if node.domain not in _DEFAULT_DOMAINS:
@@ -263,6 +272,14 @@ def _check_structure(model: Any, name: str) -> None:
                 name,
                 f"{label}: operator {node.op_type} is not allowed "
                 "(see the allowlist in docs/onnx-models.md)",
+            )
+        if node.op_type in SHAPED_OPS and (
+            len(node.input) < 2 or shape_outputs.isdisjoint({node.input[1]})
+        ):
+            raise FormatError(
+                name,
+                f"{label}: {node.op_type}'s shape must come straight from a Shape node "
+                "(a constant or computed shape could ask for any amount of memory)",
             )
         for attr in node.attribute:
             if attr.type in (onnx.AttributeProto.GRAPH, onnx.AttributeProto.GRAPHS):

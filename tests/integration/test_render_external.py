@@ -79,8 +79,13 @@ def _import(settings: Settings, path: Path) -> str:
 
 
 def render(settings: Settings, material: dict[str, Any], seed: int) -> np.ndarray:
-    params = {"scene": "sphere_env", "material": material, "resolution": [SIZE, SIZE],
-              "spp": SPP, "max_depth": MAX_DEPTH}  # fmt: skip
+    params = {
+        "scene": "sphere_env",
+        "material": material,
+        "resolution": [SIZE, SIZE],
+        "spp": SPP,
+        "max_depth": MAX_DEPTH,
+    }
     job = run_in_process({"kind": "render", "seed": seed, "params": params}, settings)
     assert job.state == "succeeded", job.error
     (image,) = [a for a in job.artifacts if a.name == "image.exr"]
@@ -94,35 +99,47 @@ def test01_torch_ggx_lambert_renders_like_mitsuba(
     user = TorchGgxLambert(KD, ALPHA, ETA)
     # The exported file reproduces the torch module (numpy reference vs torch, float64).
     gen = torch.Generator().manual_seed(0)
-    v = torch.nn.functional.normalize(torch.rand(2, 500, 3, generator=gen, dtype=torch.float64)
-                                      * torch.tensor([2.0, 2.0, 1.0]) - torch.tensor([1.0, 1.0, -0.05]), dim=-1)  # fmt: skip
+    v = torch.nn.functional.normalize(
+        torch.rand(2, 500, 3, generator=gen, dtype=torch.float64) * torch.tensor([2.0, 2.0, 1.0])
+        - torch.tensor([1.0, 1.0, -0.05]),
+        dim=-1,
+    )
     path = export.brdf_mlp(
-        None, tmp_path / "ggx-lambert.json",
-        analytic={"kd": user.kd, "alpha": user.alpha, "eta": user.eta}, name="torch GGX",
-    )  # fmt: skip
+        None,
+        tmp_path / "ggx-lambert.json",
+        analytic={"kd": user.kd, "alpha": user.alpha, "eta": user.eta},
+        name="torch GGX",
+    )
     from models.external.mlp import read_mlp
 
     with torch.no_grad():
         expected = user(v[0], v[1]).numpy()
-    np.testing.assert_allclose(read_mlp(path).eval(v[0].numpy(), v[1].numpy()), expected,
-                               rtol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(read_mlp(path).eval(v[0].numpy(), v[1].numpy()), expected, rtol=1e-9)
     ref = _import(settings, path)
     ours = render(settings, {"external": {"model": ref, "kind": "brdf"}}, 1)
     mitsuba = {
         "type": "blendbsdf",
         "weight": 0.5,
         "bsdf_0": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [2 * k for k in KD]}},
-        "bsdf_1": {"type": "roughconductor", "distribution": "ggx", "alpha": ALPHA,
-                   "eta": ETA, "k": 0.0, "specular_reflectance": 2.0},
-    }  # fmt: skip
+        "bsdf_1": {
+            "type": "roughconductor",
+            "distribution": "ggx",
+            "alpha": ALPHA,
+            "eta": ETA,
+            "k": 0.0,
+            "specular_reflectance": 2.0,
+        },
+    }
     native = render(settings, {"mitsuba": mitsuba}, 2)
     native2 = render(settings, {"mitsuba": mitsuba}, 3)
     exposure = hdr_exposure_range(native)
     err, _ = flip(native, ours, exposure_range=exposure)
     noise, _ = flip(native, native2, exposure_range=exposure)
     ratio = ours.reshape(-1, 3).mean(0) / native.reshape(-1, 3).mean(0)
-    print(f"\nHDR-FLIP external vs Mitsuba {err:.4f} (Mitsuba vs itself {noise:.4f}); "
-          f"mean ratio {ratio}")  # fmt: skip
+    print(
+        f"\nHDR-FLIP external vs Mitsuba {err:.4f} (Mitsuba vs itself {noise:.4f}); "
+        f"mean ratio {ratio}"
+    )
     assert err < 0.02
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)
 
@@ -131,8 +148,16 @@ def test02_bad_files_are_refused_at_import_and_in_the_job(
     settings: Settings, tmp_path: Path
 ) -> None:
     bad = tmp_path / "mine.json"
-    bad.write_text(json.dumps({"format": "matforge.mlp-brdf/1", "inputs": ["wi", "wo"],
-                               "layers": [], "output": {"combine": "network"}}))  # fmt: skip
+    bad.write_text(
+        json.dumps(
+            {
+                "format": "matforge.mlp-brdf/1",
+                "inputs": ["wi", "wo"],
+                "layers": [],
+                "output": {"combine": "network"},
+            }
+        )
+    )
     with pytest.raises(FormatError, match="mine.json: not a valid MLP model: .*needs at least"):
         _import(settings, bad)
     # A file that reached the store without the check (any bytes): the job names the ref.
@@ -143,8 +168,11 @@ def test02_bad_files_are_refused_at_import_and_in_the_job(
     finally:
         jobs.close()
     ref = f"sha256:{info.digest}"
-    params = {"material": {"external": {"model": ref, "kind": "brdf"}}, "resolution": [8, 8],
-              "spp": 1}  # fmt: skip
+    params = {
+        "material": {"external": {"model": ref, "kind": "brdf"}},
+        "resolution": [8, 8],
+        "spp": 1,
+    }
     job = run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
     assert job.state == "failed"
     assert job.error is not None and job.error.startswith(f"material.external.model: {ref}: ")

@@ -55,6 +55,8 @@ from evaluators.render.bsdfs.btf_common import btf_reflector_base, uv_scale_of
 from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
 from evaluators.render.plugins import register_vectorised_bsdf
 from models.external.onnx_model import DEFAULT_THREADS, OnnxMaterial, load_onnx
+from storage.errors import FormatError, TooLargeError
+from storage.formats.onnx import check_onnx_file
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -78,13 +80,19 @@ def external_onnx_plugin(
     """The Mitsuba BSDF dict of an ONNX model at ``path`` (``value``: the material's keys,
     ``kind`` required, ``uv_scale`` (a float or ``[u, v]``) and ``threads`` optional).
 
-    Loading the dict validates the file against ``kind``'s signature; a wrong one raises
-    ``ValueError`` naming the file and the problem (the source makes it a ``JobFailed``).
+    The file is checked here against ``kind``'s signature (and all the upload checks): a
+    wrong one raises ``ValueError`` naming the model (``value["model"]``, else the file)
+    and the problem, which the material source turns into a ``JobFailed`` at job start.
     """
     register_external_onnx_bsdf(mi)
     kind = str(value.get("kind", ""))
     if kind not in ("brdf", "btf"):
         raise ValueError(f"kind must be 'brdf' or 'btf', not {kind!r}")
+    label = str(value.get("model") or Path(path).name)
+    try:
+        check_onnx_file(Path(path), label, kind)
+    except (FormatError, TooLargeError) as exc:
+        raise ValueError(str(exc)) from None
     out: dict[str, Any] = {"type": EXTERNAL_ONNX_NAME, "filename": str(path), "kind": kind}
     if "threads" in value:
         out["threads"] = int(value["threads"])
@@ -209,7 +217,7 @@ def _define_class(mi: types.ModuleType) -> type:
     class ExternalOnnx:
         """Factory: the BRDF or BTF class by the ``kind`` property."""
 
-        def __new__(cls, props: Any) -> Any:  # type: ignore[misc]
+        def __new__(cls, props: Any) -> Any:
             model = _load(props)
             return (OnnxBtf if model.kind == "btf" else OnnxBrdf)(props, model)
 

@@ -133,3 +133,11 @@ def test07_checker_errors_are_format_errors(tmp_path: Path) -> None:
     big.dims[:] = [2**30]
     m.graph.node.append(helper.make_node("Constant", [], ["c"], value=big))
     assert "declares 4096.0 MiB" in _refusal(tmp_path, m, TooLargeError)
+
+
+def test08_expand_only_to_another_tensors_shape(tmp_path: Path) -> None:
+    # Expand to a constant shape could ask for any amount of memory at evaluation time.
+    m = lambert_model("btf")
+    m.graph.initializer.append(numpy_helper.from_array(np.array([2**40, 3], np.int64), "shape"))
+    m.graph.node.append(helper.make_node("Expand", ["rgb", "shape"], ["big"]))
+    assert "Expand's shape must come straight from a Shape node" in _refusal(tmp_path, m)

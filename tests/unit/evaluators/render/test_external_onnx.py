@@ -50,7 +50,7 @@ def _render(mi: types.ModuleType, scene: str, bsdf: object, spp: int = 16) -> np
 def test01_model_eval_and_cost_fields(files: dict[str, Path]) -> None:
     m = load_onnx(files["btf"], "btf")
     assert (m.kind, m.runtime) == ("btf", "onnxruntime")
-    assert m.param_bytes == 3 * 8 + 3 * 4  # three int64 slice bounds and the 1x3 albedo
+    assert m.param_bytes == 3 * 4  # the 1x3 albedo (the int64 slice bounds are no parameters)
     rng = np.random.default_rng(0)
     wi = rng.normal(size=(1000, 3)).astype(np.float32)
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
@@ -133,5 +133,17 @@ def test05_bad_kind_and_file(mi: types.ModuleType, files: dict[str, Path], tmp_p
         external_onnx_plugin(files["btf"], {"kind": "fabric"}, None, mi)
     bad = tmp_path / "cut.onnx"
     bad.write_bytes(files["btf"].read_bytes()[:20])
-    with pytest.raises(Exception, match="cut.onnx: "):
-        mi.load_dict(external_onnx_plugin(bad, {"kind": "btf"}, None, mi))
+    with pytest.raises(ValueError, match="^cut.onnx: "):
+        external_onnx_plugin(bad, {"kind": "btf"}, None, mi)
+    # The declared kind is checked against the file, naming the model's reference.
+    with pytest.raises(
+        ValueError, match=r"^sha256:ab: declared kind 'brdf' needs inputs \(wi, wo\)"
+    ):
+        external_onnx_plugin(files["btf"], {"kind": "brdf", "model": "sha256:ab"}, None, mi)
+    # A file that goes bad after the dict was made fails at load, naming it.
+    gone = tmp_path / "gone.onnx"
+    gone.write_bytes(files["btf"].read_bytes())
+    spec = external_onnx_plugin(gone, {"kind": "btf"}, None, mi)
+    gone.write_bytes(b"")
+    with pytest.raises(Exception, match="gone.onnx: empty file"):
+        mi.load_dict(spec)

@@ -40,10 +40,14 @@ FREQS = [1.0, 2.5]
 def _net(n_in: int, n_out: int, seed: int) -> torch.nn.Sequential:
     torch.manual_seed(seed)
     net = torch.nn.Sequential(
-        torch.nn.Linear(n_in, 32), torch.nn.ReLU(), torch.nn.Linear(32, 32),
-        torch.nn.Tanh(), torch.nn.Linear(32, 16), torch.nn.Softplus(),
+        torch.nn.Linear(n_in, 32),
+        torch.nn.ReLU(),
+        torch.nn.Linear(32, 32),
+        torch.nn.Tanh(),
+        torch.nn.Linear(32, 16),
+        torch.nn.Softplus(),
         torch.nn.Linear(16, n_out),
-    )  # fmt: skip
+    )
     with torch.no_grad():
         net[-1].weight.mul_(0.3)
     return net.eval()
@@ -66,10 +70,13 @@ N_IN = 12 + 2 * len(FREQS) * 3
 def hybrid(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, torch.nn.Module]:
     net = _net(N_IN, 6, 0)
     path = export.brdf_mlp(
-        net, tmp_path_factory.mktemp("ext") / "hybrid.json", inputs=INPUTS,
+        net,
+        tmp_path_factory.mktemp("ext") / "hybrid.json",
+        inputs=INPUTS,
         output_activation=["exp"] * 3 + ["sigmoid"] * 3,
-        analytic={"kd": KD, "alpha": ALPHA, "eta": ETA}, name="test hybrid",
-    )  # fmt: skip
+        analytic={"kd": KD, "alpha": ALPHA, "eta": ETA},
+        name="test hybrid",
+    )
     return path, net
 
 
@@ -102,17 +109,24 @@ def test02_numpy_reference_matches_the_users_torch_module(hybrid: Any) -> None:
 def test03_numpy_reference_of_a_plain_network_and_a_sum(tmp_path: Path) -> None:
     net = _net(6, 3, 4)
     wi, wo = pairs(500, 2)
-    p1 = export.brdf_mlp(list(net.children())[::2], tmp_path / "a.json", activations=[
-        "relu", "tanh", "softplus", "identity"], output_activation="softplus")  # fmt: skip
-    p2 = export.brdf_mlp(net, tmp_path / "b.json", combine="sum",
-                         analytic={"kd": KD, "alpha": 0.5, "eta": 1.5})  # fmt: skip
+    p1 = export.brdf_mlp(
+        list(net.children())[::2],
+        tmp_path / "a.json",
+        activations=["relu", "tanh", "softplus", "identity"],
+        output_activation="softplus",
+    )
+    p2 = export.brdf_mlp(
+        net, tmp_path / "b.json", combine="sum", analytic={"kd": KD, "alpha": 0.5, "eta": 1.5}
+    )
     with torch.no_grad():
         y = net(torch.cat([wi, wo], 1).float()).double()
         f_a = ggx_lambert(wi, wo, torch.tensor(KD, dtype=torch.float64), 0.5, torch.tensor(1.5))
     np.testing.assert_allclose(
         read_mlp(p1).eval(wi.numpy(), wo.numpy()),
-        torch.nn.functional.softplus(y).numpy(), rtol=2e-5, atol=1e-7,
-    )  # fmt: skip
+        torch.nn.functional.softplus(y).numpy(),
+        rtol=2e-5,
+        atol=1e-7,
+    )
     expected = np.maximum((y + f_a).numpy(), 0.0)  # the format clamps at 0
     np.testing.assert_allclose(
         read_mlp(p2).eval(wi.numpy(), wo.numpy()), expected, rtol=2e-5, atol=1e-6
@@ -129,25 +143,41 @@ def test04_btf_texture_lookup_and_network(tmp_path: Path) -> None:
     gen = torch.Generator().manual_seed(3)
     tex = torch.rand(4, 5, 6, generator=gen)
     net = _net(4 + 4, 3, 5)
-    path = export.btf_mlp(net, tmp_path / "btf.json", textures=[tex],
-                          inputs=[{"type": "texture", "index": 0}, "wi.xy", "wo.xy"],
-                          output_activation="exp")  # fmt: skip
+    path = export.btf_mlp(
+        net,
+        tmp_path / "btf.json",
+        textures=[tex],
+        inputs=[{"type": "texture", "index": 0}, "wi.xy", "wo.xy"],
+        output_activation="exp",
+    )
     model = load_external(path, "btf")
-    assert model.kind == "btf" and model.param_bytes == 4 * (tex.numel() + sum(
-        p.numel() for p in net.parameters()))  # fmt: skip
+    assert model.kind == "btf" and model.param_bytes == 4 * (
+        tex.numel() + sum(p.numel() for p in net.parameters())
+    )
     j, i = np.meshgrid(np.arange(5), np.arange(6), indexing="ij")
     uv = np.stack([(i.ravel() + 0.5) / 6 + 3.0, (j.ravel() + 0.5) / 5 - 1.0], 1)  # periodic
     wi, wo = (t.numpy() for t in pairs(30, 4))
     with torch.no_grad():
         feats = tex.reshape(4, -1).T
-        expected = torch.exp(net(torch.cat([feats, torch.from_numpy(wi[:, :2]).float(),
-                                            torch.from_numpy(wo[:, :2]).float()], 1)))  # fmt: skip
+        expected = torch.exp(
+            net(
+                torch.cat(
+                    [
+                        feats,
+                        torch.from_numpy(wi[:, :2]).float(),
+                        torch.from_numpy(wo[:, :2]).float(),
+                    ],
+                    1,
+                )
+            )
+        )
     np.testing.assert_allclose(model.eval(wi, wo, uv), expected.numpy(), rtol=2e-5, atol=1e-7)
     # Midpoint between texel columns W-1 and 0 (u = 0 wraps), row 2.
     feats_mid = 0.5 * (tex[:, 2, 5] + tex[:, 2, 0])
     with torch.no_grad():
-        x = torch.cat([feats_mid, torch.from_numpy(wi[0, :2]).float(),
-                       torch.from_numpy(wo[0, :2]).float()])[None]  # fmt: skip
+        x = torch.cat(
+            [feats_mid, torch.from_numpy(wi[0, :2]).float(), torch.from_numpy(wo[0, :2]).float()]
+        )[None]
         mid = torch.exp(net(x)).numpy()
     got = model.eval(wi[:1], wo[:1], np.array([[0.0, 2.5 / 5]]))
     np.testing.assert_allclose(got, mid, rtol=2e-5)
@@ -159,8 +189,9 @@ def _dr_dirs(mi: types.ModuleType, v: np.ndarray) -> Any:
     return mi.Vector3f(*(mi.Float(np.ascontiguousarray(c, np.float32)) for c in v.T))
 
 
-def test05_fused_kernel_matches_the_numpy_reference(mi: types.ModuleType, hybrid: Any,
-                                                     tmp_path: Path) -> None:  # fmt: skip
+def test05_fused_kernel_matches_the_numpy_reference(
+    mi: types.ModuleType, hybrid: Any, tmp_path: Path
+) -> None:
     path, _ = hybrid
     wi, wo = (t.float().double().numpy() for t in pairs(3000, 6))
     model = read_mlp(path)
@@ -169,12 +200,26 @@ def test05_fused_kernel_matches_the_numpy_reference(mi: types.ModuleType, hybrid
     # A BTF with two textures, uv, cos terms, fourier of h, and foreshortening applied.
     gen = torch.Generator().manual_seed(7)
     texs = [torch.rand(3, 8, 4, generator=gen), torch.rand(2, 3, 5, generator=gen)]
-    inputs = [{"type": "texture", "index": 1}, "uv", "cos_i", "cos_o", "cos_h", "cos_d",
-              {"type": "texture", "index": 0},
-              {"type": "fourier", "input": "h", "frequencies": [3.0]}, "d"]  # fmt: skip
+    inputs = [
+        {"type": "texture", "index": 1},
+        "uv",
+        "cos_i",
+        "cos_o",
+        "cos_h",
+        "cos_d",
+        {"type": "texture", "index": 0},
+        {"type": "fourier", "input": "h", "frequencies": [3.0]},
+        "d",
+    ]
     net = _net(2 + 2 + 4 + 3 + 6 + 3, 3, 8)
-    p = export.btf_mlp(net, tmp_path / "b.json", textures=texs, inputs=inputs,
-                       output_activation="sigmoid", foreshortening="apply")  # fmt: skip
+    p = export.btf_mlp(
+        net,
+        tmp_path / "b.json",
+        textures=texs,
+        inputs=inputs,
+        output_activation="sigmoid",
+        foreshortening="apply",
+    )
     btf = read_mlp(p)
     uv = np.random.default_rng(9).uniform(-2, 3, (3000, 2)).astype(np.float32)
     uv_dr = mi.Point2f(*(mi.Float(np.ascontiguousarray(c)) for c in uv.T))
@@ -190,11 +235,14 @@ def _doc(tmp_path: Path, doc: dict[str, Any], name: str = "bad.json") -> Path:
 
 def _good() -> dict[str, Any]:
     return {
-        "format": "matforge.mlp-brdf/1", "inputs": ["wi", "wo"],
-        "layers": [{"weight": [[0.1] * 6] * 4, "bias": [0.0] * 4, "activation": "relu"},
-                   {"weight": [[0.1] * 4] * 3, "bias": [0.0] * 3, "activation": "identity"}],
+        "format": "matforge.mlp-brdf/1",
+        "inputs": ["wi", "wo"],
+        "layers": [
+            {"weight": [[0.1] * 6] * 4, "bias": [0.0] * 4, "activation": "relu"},
+            {"weight": [[0.1] * 4] * 3, "bias": [0.0] * 3, "activation": "identity"},
+        ],
         "output": {"activation": "exp", "combine": "network"},
-    }  # fmt: skip
+    }
 
 
 @pytest.mark.parametrize(
@@ -202,20 +250,29 @@ def _good() -> dict[str, Any]:
     [
         (lambda d: d.update(format="matforge.mlp-brdf/9"), "format"),
         (lambda d: d.update(inputs=["wi", "wx"]), r"inputs\[1\]: unknown input 'wx'"),
-        (lambda d: d.update(inputs=["wi"]), r"layers\[0\].weight: takes 6 inputs but the inputs give 3"),
+        (
+            lambda d: d.update(inputs=["wi"]),
+            r"layers\[0\].weight: takes 6 inputs but the inputs give 3",
+        ),
         (lambda d: d["layers"][1].update(bias=[0.0]), r"layers\[1\].bias: 1 values for 3 rows"),
         (lambda d: d["layers"][0].update(activation="gelu"), r"layers\[0\].activation"),
         (lambda d: d["layers"][1].update(weight=[[0.1] * 5] * 3), r"layers\[1\].weight: takes 5"),
         (lambda d: d["output"].update(combine="hybrid"), "needs an analytic part"),
-        (lambda d: d.update(analytic={"kd": [0.1] * 3, "alpha": 0.2, "eta": [0.5] * 3},
-                            output={"combine": "sum"}), "analytic.eta"),
+        (
+            lambda d: d.update(
+                analytic={"kd": [0.1] * 3, "alpha": 0.2, "eta": [0.5] * 3},
+                output={"combine": "sum"},
+            ),
+            "analytic.eta",
+        ),
         (lambda d: d["layers"][0].update(weight=[[1e39] * 6] * 4), "float32"),
         (lambda d: d.update(extra=1), "unknown key 'extra'"),
         (lambda d: d.update(inputs=["uv", "wi", "wo"]), "unknown input 'uv'"),  # BRDF: no uv
     ],
-)  # fmt: skip
-def test06_bad_documents_name_the_file_and_the_problem(tmp_path: Path, change: Any,
-                                                       message: str) -> None:  # fmt: skip
+)
+def test06_bad_documents_name_the_file_and_the_problem(
+    tmp_path: Path, change: Any, message: str
+) -> None:
     doc = _good()
     read_mlp(_doc(tmp_path, doc, "good.json"))
     change(doc)
@@ -240,10 +297,13 @@ def test07_bad_files_and_dispatch(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="kind must be"):
         load_external(good, "bssrdf")
     # A texture whose base64 payload is cut short.
-    doc = {"format": "matforge.mlp-btf/1", "inputs": [{"type": "texture"}, "wi", "wo"],
-           "layers": [{"weight": [[0.1] * 8] * 3, "bias": [0.0] * 3, "activation": "identity"}],
-           "output": {"combine": "network"},
-           "textures": [mlp_model.texture_entry(np.ones((2, 4, 4), np.float32))]}  # fmt: skip
+    doc = {
+        "format": "matforge.mlp-btf/1",
+        "inputs": [{"type": "texture"}, "wi", "wo"],
+        "layers": [{"weight": [[0.1] * 8] * 3, "bias": [0.0] * 3, "activation": "identity"}],
+        "output": {"combine": "network"},
+        "textures": [mlp_model.texture_entry(np.ones((2, 4, 4), np.float32))],
+    }
     read_mlp(_doc(tmp_path, doc, "t.json"))
     doc["textures"][0]["data"] = doc["textures"][0]["data"][:-8]
     with pytest.raises(ValueError, match=r"t.json: .*textures\[0\].data: wrong length"):
@@ -256,8 +316,16 @@ def test08_export_refuses_what_it_cannot_write(tmp_path: Path) -> None:
             torch.nn.Sequential(torch.nn.Linear(6, 3), torch.nn.GELU()), tmp_path / "g.json"
         )
     with pytest.raises(ValueError, match="layers.0..weight: takes 6 inputs but the inputs give 9"):
-        export.brdf_mlp(torch.nn.Sequential(torch.nn.Linear(6, 3)), tmp_path / "g.json",
-                        inputs=["wi", "wo", "h"])  # fmt: skip
+        export.brdf_mlp(
+            torch.nn.Sequential(torch.nn.Linear(6, 3)),
+            tmp_path / "g.json",
+            inputs=["wi", "wo", "h"],
+        )
     assert not (tmp_path / "g.json").exists()
-    assert math.isfinite(read_mlp(export.brdf_mlp(None, tmp_path / "a.json", analytic={
-        "kd": KD, "alpha": ALPHA, "eta": ETA})).eval(np.array([[0, 0, 1.0]]), np.array([[0, 0, 1.0]]))[0, 0])  # fmt: skip
+    assert math.isfinite(
+        read_mlp(
+            export.brdf_mlp(
+                None, tmp_path / "a.json", analytic={"kd": KD, "alpha": ALPHA, "eta": ETA}
+            )
+        ).eval(np.array([[0, 0, 1.0]]), np.array([[0, 0, 1.0]]))[0, 0]
+    )
