@@ -257,7 +257,7 @@ def rung_runtime(rung: Rung, ctx: JobContext) -> str:
 
         try:
             return str(load_external(ctx.resolve(value["model"]), value["kind"]).runtime)
-        except ValueError:
+        except (ValueError, FormatError):
             return "external"
     return "drjit-fused" if "model" in rung.material else "mitsuba"
 
@@ -272,7 +272,7 @@ def external_cost(rung: Rung, cost: str, index: int, ctx: JobContext) -> float:
     where = f"ladder.{index}.material.external"
     try:
         measured = measure_cost(load_external(ctx.resolve(value["model"]), value["kind"]))
-    except ValueError as exc:
+    except (ValueError, FormatError) as exc:
         raise JobFailed(f"{where}: {value['model']}: {exc}") from None
     if measured.get(cost) is None:
         raise JobFailed(f"{where}: an external model has no {cost}")

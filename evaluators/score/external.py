@@ -59,7 +59,9 @@ def open_external(path: Path, name: str, kind: str) -> ExternalModel:
 
     try:
         model = load_external(path, kind)
-    except ValueError as exc:  # FormatError is a ValueError too
+    except FormatError as exc:  # named after the store's object file: name the ref
+        raise FormatError(name, exc.problem) from None
+    except ValueError as exc:
         raise FormatError(name, str(exc).removeprefix(f"{path.name}: ")) from None
     if model.kind != kind:
         raise FormatError(name, f"the file holds a {model.kind} model, not a {kind}")

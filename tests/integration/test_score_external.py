@@ -4,7 +4,7 @@ L1 against a ``generate.btf`` job's slices, cost rows with their runtime.
 
 The models: a plain-numpy class implementing the ExternalModel protocol (``kind``,
 ``runtime``, ``param_bytes``, ``eval``), loaded through ``models.external.load_external``
-replaced in the test (the MLP weight format is another branch's), and Lambertian ONNX
+wrapped in the test (a JSON ``{"test_model": NAME}`` names one), and Lambertian ONNX
 graphs written with ``onnx.helper`` (:mod:`tests.helpers.onnx_models`), loaded by
 onnxruntime as an upload would be. Oracles: the test's own SMAPE (Eq. 6 written out below)
 and L1 at the documented pairs and texel centres; a Lambertian BTF of the plane's albedo
@@ -77,14 +77,24 @@ MODELS: dict[str, Any] = {
 }
 
 
+REAL_LOAD = models.external.load_external
+
+
 def fake_load_external(path: Path, kind: str) -> Any:
-    """The test's loader: the JSON file names one of :data:`MODELS`."""
-    return MODELS[json.loads(Path(path).read_text())["test_model"]]
+    """The test's loader: a JSON file ``{"test_model": NAME}`` is one of :data:`MODELS`;
+    anything else goes to the real loader."""
+    try:
+        doc = json.loads(Path(path).read_bytes())
+    except ValueError:
+        doc = None
+    if isinstance(doc, dict) and "test_model" in doc:
+        return MODELS[doc["test_model"]]
+    return REAL_LOAD(path, kind)
 
 
 @pytest.fixture
 def settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Settings:
-    monkeypatch.setattr(models.external, "load_external", fake_load_external, raising=False)
+    monkeypatch.setattr(models.external, "load_external", fake_load_external)
     return Settings.from_env({}).with_(data_dir=tmp_path / "data", pool_processes=1)
 
 
