@@ -27,7 +27,8 @@ def tss_rows(src: RowSource) -> list[ResultRow]:
     given = src.job.params.get("model")
     if dataset is None and isinstance(given, Mapping):  # a user's model: its file
         dataset = (given.get("external") or {}).get("model")
-    info = doc.get("model") if isinstance(doc.get("model"), Mapping) else {}
+    found_info = doc.get("model")
+    info: Mapping[str, Any] = found_info if isinstance(found_info, Mapping) else {}
     rows: list[ResultRow] = []
     for r in doc.get("rows") or []:
         if not isinstance(r, Mapping):

@@ -84,7 +84,7 @@ def resolve_external(raw: dict[str, Any], ctx: JobContext, mi: types.ModuleType)
         raise JobFailed(f"{FIELD}.model: {value.model}: {exc}") from None
     if fmt == "onnx":
         try:
-            from evaluators.render.bsdfs.external_onnx import (  # type: ignore[import-not-found]
+            from evaluators.render.bsdfs.external_onnx import (
                 external_onnx_plugin,
             )
         except ImportError:
