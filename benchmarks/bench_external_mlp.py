@@ -4,11 +4,11 @@ Issue 23, "Speed, fused path": a ``matforge.mlp-brdf/1`` file evaluates within 1
 built-in hybrid. The built-in side is one material of a fresh ``train.brdf`` hybrid model
 (``--size``, default 32x3, latent 8) baked by :func:`models.brdf.fused.bake_material` and
 evaluated by :func:`models.brdf.fused.model_brdf`. The external side is the *same* network
-written with :func:`matforge.export.brdf_mlp` (inputs ``wi, wo``; the material's latent
-folded into the first bias in float64, as a user exporting one material would; heads
-``exp`` / ``sigmoid``; ``combine: hybrid`` with the material's ``kd``, ``alpha``, ``eta``),
-read back and evaluated by :class:`models.external.fused.FusedMlp`. Both outputs are first
-checked to agree (rtol 1e-4).
+as a ``matforge.mlp-brdf/1`` file (:func:`models.external.convert.brdf_material_as_mlp`:
+inputs ``wi, wo``; the material's latent folded into the first bias in float64, as a user
+exporting one material would; heads ``exp`` / ``sigmoid``; ``combine: hybrid`` with the
+material's ``kd``, ``alpha``, ``eta``), read back and evaluated by
+:class:`models.external.fused.FusedMlp`. Both outputs are first checked to agree (rtol 1e-4).
 
 Timing: :func:`models.speed.time_cpu` (frozen kernels replayed; process CPU time per
 evaluation on ``--threads`` dedicated cores, which a loaded machine does not inflate) and
@@ -21,6 +21,7 @@ Run: ``.venv/bin/python benchmarks/bench_external_mlp.py [--size 32x3] [--batch 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -46,10 +47,9 @@ def main() -> None:
     if not mi.variant().startswith("llvm_"):
         sys.exit(f"needs Mitsuba's LLVM variant, got {mi.variant()}")
     import drjit as dr
-    import torch
 
-    import matforge.export as export
     from models.brdf.fused import bake_material, model_brdf
+    from models.external.convert import brdf_material_as_mlp
     from models.external.fused import FusedMlp
     from models.external.mlp import read_mlp
     from models.speed import _fresh_model
@@ -57,25 +57,9 @@ def main() -> None:
     width, depth = (int(v) for v in args.size.split("x"))
     _, doc = _fresh_model("hybrid", width, depth, args.latent, 0)
     baked = bake_material(doc, "bench")
-    layers = list(baked.layers)
-    first = layers[0]
-    z = np.asarray(baked.z, np.float64)
-    bias = first.bias.astype(np.float64) + first.weight[:, 6:].astype(np.float64) @ z
-    linears = []
-    for k, ly in enumerate(layers):
-        w = ly.weight[:, :6] if k == 0 else ly.weight
-        lin = torch.nn.Linear(w.shape[1], w.shape[0])
-        with torch.no_grad():
-            lin.weight.copy_(torch.from_numpy(np.ascontiguousarray(w)))
-            lin.bias.copy_(torch.from_numpy(bias if k == 0 else ly.bias.astype(np.float64)))
-        linears.append(lin)
-    assert baked.kd is not None and baked.eta is not None and baked.alpha is not None
     with tempfile.TemporaryDirectory() as tmp:
-        path = export.brdf_mlp(
-            linears, Path(tmp) / "hybrid-like.json", inputs=["wi", "wo"], activations="relu",
-            output_activation=["exp"] * 3 + ["sigmoid"] * 3,
-            analytic={"kd": baked.kd, "alpha": baked.alpha, "eta": baked.eta},
-        )  # fmt: skip
+        path = Path(tmp) / "hybrid-like.json"
+        path.write_text(json.dumps(brdf_material_as_mlp(doc, "bench")), encoding="utf-8")
         size = path.stat().st_size
         ext = FusedMlp(read_mlp(path), mi)
     wi_np, wo_np = cosine_pairs(args.batch)

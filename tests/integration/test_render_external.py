@@ -38,6 +38,7 @@ from storage.artifacts import ArtifactStore
 from storage.errors import FormatError
 from storage.formats.exr import read_exr
 from storage.jobs import JobStore
+from tests.helpers.renders import assert_same_render
 
 SIZE, SPP, MAX_DEPTH = 64, 1024, 3
 KD, ALPHA, ETA = [0.3, 0.15, 0.05], 0.25, 1.5
@@ -197,3 +198,60 @@ def test03_spec_time_errors(settings: Settings) -> None:
             run_in_process(
                 {"kind": "render", "params": {"material": {"external": value}}}, settings
             )
+
+
+def test04_lambertian_mlp_btf_renders_like_mitsubas_diffuse(
+    settings: Settings, tmp_path: Path, mitsuba_llvm: None
+) -> None:
+    """A BTF whose network is the constant ``albedo / pi`` with ``foreshortening: "apply"``
+    is Lambertian (the UBO2014 convention, ``generate.btf``'s): on ``plane_points`` it
+    renders as Mitsuba's ``diffuse`` of that albedo. Both sample the light direction by
+    cosine and draw the same random numbers at the same seed, so the images agree to
+    float32 rounding (:func:`tests.helpers.renders.assert_same_render`)."""
+    albedo = np.array([0.2, 0.5, 0.8])
+    lin = torch.nn.Linear(2, 3)
+    with torch.no_grad():
+        lin.weight.zero_()
+        lin.bias.copy_(torch.from_numpy(albedo / np.pi))
+    path = export.btf_mlp(
+        lin, tmp_path / "lambert.json", textures=[], inputs=["uv"], foreshortening="apply"
+    )
+    ref = _import(settings, path)
+
+    def plane(material: dict[str, Any], seed: int) -> np.ndarray:
+        params = {
+            "scene": "plane_points",
+            "material": material,
+            "resolution": [48, 48],
+            "spp": 64,
+            "max_depth": 2,
+        }
+        job = run_in_process({"kind": "render", "seed": seed, "params": params}, settings)
+        assert job.state == "succeeded", job.error
+        (image,) = [a for a in job.artifacts if a.name == "image.exr"]
+        return read_exr(ArtifactStore(settings.store_dir).path(image.digest)).astype(np.float64)
+
+    ours = plane({"external": {"model": ref, "kind": "btf", "uv_scale": 2}}, 1)
+    diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo.tolist()}}
+    native = plane({"mitsuba": diffuse}, 1)
+    assert float(native.mean()) > 0.01
+    assert_same_render(ours, native, rtol=1e-5)
+
+
+def test05_onnx_without_the_onnx_path_is_a_clear_failure(settings: Settings) -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("evaluators.render.bsdfs.external_onnx") is not None:
+        pytest.skip("this build renders ONNX models (tests/integration for the ONNX path)")
+    store, jobs = ArtifactStore(settings.store_dir), JobStore(settings.db_path)
+    try:
+        info = store.put_bytes(b"\x08\x08\x12\x07pytorch")  # a ModelProto's first fields
+        jobs.record_upload(info.digest, "m.onnx", "application/octet-stream", info.size)
+    finally:
+        jobs.close()
+    ref = f"sha256:{info.digest}"
+    material = {"external": {"model": ref, "kind": "brdf"}}
+    params = {"material": material, "resolution": [8, 8], "spp": 1}
+    job = run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
+    assert job.state == "failed" and job.error is not None
+    assert job.error.startswith(f"material.external.model: {ref} is an ONNX model, but this ")

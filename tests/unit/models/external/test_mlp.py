@@ -268,6 +268,8 @@ def _good() -> dict[str, Any]:
         (lambda d: d["layers"][0].update(weight=[[1e39] * 6] * 4), "float32"),
         (lambda d: d.update(extra=1), "unknown key 'extra'"),
         (lambda d: d.update(inputs=["uv", "wi", "wo"]), "unknown input 'uv'"),  # BRDF: no uv
+        (lambda d: d["layers"][0].update(weight=[[0.1] * 6] * 600), "1 to 512 rows"),
+        (lambda d: d.update(layers=[d["layers"][0]] * 33), "at most 32"),
     ],
 )
 def test06_bad_documents_name_the_file_and_the_problem(
@@ -328,4 +330,34 @@ def test08_export_refuses_what_it_cannot_write(tmp_path: Path) -> None:
                 None, tmp_path / "a.json", analytic={"kd": KD, "alpha": ALPHA, "eta": ETA}
             )
         ).eval(np.array([[0, 0, 1.0]]), np.array([[0, 0, 1.0]]))[0, 0]
+    )
+
+
+def test09_protocol_and_lazy_torch(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from models.external import ExternalModel
+
+    assert isinstance(read_mlp(_doc(tmp_path, _good(), "m.json")), ExternalModel)
+    code = "import sys, matforge, matforge.export; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("kind", ["hybrid", "neural", "analytic"])
+def test10_a_train_brdf_material_is_an_mlp_document(kind: str) -> None:
+    """The identity of :mod:`models.external.convert`, against ``eval_portable`` (the
+    reference of ``matforge.brdf-model/1``)."""
+    from models.brdf.portable import eval_portable
+    from models.external.convert import brdf_material_as_mlp
+    from models.external.mlp import mlp_from_document
+    from tests.helpers.brdf_models import make_model
+
+    doc = make_model(kind, 16, 2, 4)
+    name = doc["materials"][1]["name"]
+    mlp = mlp_from_document(json.loads(json.dumps(brdf_material_as_mlp(doc, name))))
+    wi, wo = (t.numpy() for t in pairs(2000, 11))
+    np.testing.assert_allclose(
+        mlp.eval(wi, wo), eval_portable(doc, name, wi, wo), rtol=1e-6, atol=1e-9
     )
