@@ -147,6 +147,7 @@ def own_smape(f: np.ndarray, g: np.ndarray) -> float:
     return float(np.mean(np.where(den > 0, 2.0 * num / np.where(den > 0, den, 1.0), 0.0)))
 
 
+@pytest.mark.slow  # 10^6 pairs through the table lookup (about 25 s on 2 cores)
 def test01_external_brdf_against_a_table(tmp_path: Path, settings: Settings) -> None:
     table_ref = lambert_table(tmp_path, settings)
     close = upload_test_model("brdf-close", tmp_path, settings)
