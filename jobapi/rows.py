@@ -11,10 +11,17 @@ Costs: one name per meaning, the same name wherever it is shown or drawn.
 ==========================  ==================================================================
 column                      meaning
 ==========================  ==================================================================
-``ns_per_eval``             fused Dr.Jit kernel execution, ns per evaluation (``speed.json``'s
-                            ``fused_kernel_ns``: what a renderer pays once the kernel is
-                            traced); tracing and launch overhead is the separate metric
-                            ``fused_ns``, eager torch ``torch_ns``
+``ns_per_eval``             ns per evaluation of the model on a fixed batch, in its runtime:
+                            fused Dr.Jit kernel execution for built-in and exported MLP
+                            models (``speed.json``'s ``fused_kernel_ns``: what a renderer
+                            pays once the kernel is traced; tracing and launch overhead is
+                            the separate metric ``fused_ns``, eager torch ``torch_ns``),
+                            onnxruntime's session run for ONNX models
+                            (:mod:`models.external_cost`)
+``runtime``                 what evaluates the model, so that costs from two runtimes are
+                            never compared unawares: ``drjit-fused`` (a fused Dr.Jit kernel:
+                            train.brdf, train.btf, exported MLPs), ``onnxruntime`` (an
+                            uploaded ONNX model), ``mitsuba`` (a table or a Mitsuba plugin)
 ``ms_per_frame``            milliseconds per displayed frame (``evaluate.tss``: shading
                             kernel / (N + 1) + lookup kernel)
 ``bytes_per_material``      float32 bytes of one material's own parameters or textures
@@ -55,6 +62,7 @@ KEY_COLUMNS = (
 #: The cost columns (see the module docstring), in order.
 COST_COLUMNS = (
     "ns_per_eval",
+    "runtime",
     "ms_per_frame",
     "bytes_per_material",
     "bytes_per_network",
@@ -62,6 +70,8 @@ COST_COLUMNS = (
     "spp",
     "render_seconds",
 )
+#: The ``runtime`` names (see the module docstring).
+RUNTIMES = ("drjit-fused", "onnxruntime", "mitsuba")
 #: Every column of a row, in the order of a CSV file.
 COLUMNS = KEY_COLUMNS + COST_COLUMNS
 
@@ -133,6 +143,7 @@ class ResultRow:
     config: Mapping[str, Any] = field(default_factory=dict)
     seed: int | None = None
     ns_per_eval: float | None = None
+    runtime: str | None = None
     ms_per_frame: float | None = None
     bytes_per_material: float | None = None
     bytes_per_network: float | None = None

@@ -123,6 +123,18 @@ def time_torch(run: Callable[[], Any], repeats: int = REPEATS) -> float:
     return statistics.median(times)
 
 
+def time_call(run: Callable[[], Any], repeats: int = REPEATS) -> float:
+    """Median wall seconds of ``run()`` after one warm-up (a runtime that is not Dr.Jit's:
+    onnxruntime, numpy)."""
+    times = []
+    for rep in range(repeats + 1):
+        start = time.perf_counter()
+        run()
+        if rep:
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
 def mlp_flops(layers: Sequence[DenseLayer], live_inputs: int | None = None) -> int:
     """Floating-point operations of one evaluation of the network's dense layers: 2 per
     nonzero weight (one fused multiply-add), biases and activations not counted.

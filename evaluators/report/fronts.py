@@ -8,6 +8,10 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
   the min and max over seeds (the error bars), and its cost the median of the rows' costs.
 - The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
   error); every point records which points dominate it.
+- Every point names its ``runtime`` (:data:`jobapi.rows.RUNTIMES`: what evaluated it, the
+  rows' ``runtime`` joined with ``+`` when they differ, ``null`` when none says), and a panel
+  lists its ``runtimes``: a chart of ``ns_per_eval`` whose points come from two runtimes
+  says so on the axis (:func:`cost_label`), so it never hides it.
 - *Families*: per dataset, metric and candidate, the per-material rows grouped by
   ``family`` (MERL family, fabric pattern): mean over the family's materials per job,
   then the spread over jobs.
@@ -32,7 +36,7 @@ DEFAULT_ERRORS = ("smape", "flip", "flip_mean", "l1", "rgb.rel", "mae")
 DEFAULT_COSTS = ("ns_per_eval", "bytes_per_material", "ms_per_frame", "render_seconds", "spp")
 #: Axis labels of the cost columns: the column's name, then what it measures.
 COST_LABELS = {
-    "ns_per_eval": "ns_per_eval: fused Dr.Jit kernel execution, ns per evaluation",
+    "ns_per_eval": "ns_per_eval: ns per evaluation on a fixed batch, in each point's runtime",
     "bytes_per_material": "bytes_per_material: float32 parameters per material",
     "bytes_per_network": "bytes_per_network: float32 network weights",
     "ms_per_frame": "ms_per_frame: kernel ms per displayed frame",
@@ -64,6 +68,20 @@ def cost_columns(rows: Iterable[ResultRow], asked: Sequence[str] | None) -> list
     return [c for c in DEFAULT_COSTS if any(getattr(r, c) is not None for r in rows)]
 
 
+def runtime_of(rows: Iterable[ResultRow]) -> str | None:
+    """The runtimes of ``rows``, sorted and joined with ``+``; ``None`` when none names one."""
+    names = sorted({r.runtime for r in rows if r.runtime})
+    return "+".join(names) if names else None
+
+
+def cost_label(cost: str, runtimes: Sequence[str]) -> str:
+    """The axis label of ``cost``; with points from more than one runtime, it names them."""
+    label = COST_LABELS.get(cost, cost)
+    if len(runtimes) > 1:
+        label += f" [runtimes differ: {', '.join(runtimes)}]"
+    return label
+
+
 def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] | None:
     by_job: dict[str, list[float]] = defaultdict(list)
     costs = [float(getattr(r, cost)) for r in rows if getattr(r, cost) is not None]
@@ -83,6 +101,7 @@ def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] |
         "seeds": [seeds[j] for j in by_job],
         "per_seed": per_job,
         "kind": rows[0].kind,
+        "runtime": runtime_of(rows),
     }
 
 
@@ -108,13 +127,15 @@ def panels(
         for i, p in enumerate(points):
             p["front"] = i in on
             p["dominated_by"] = [points[j]["candidate"] for j in beaten[i]]
+        runtimes = sorted({p["runtime"] for p in points if p["runtime"]})
         out.append(
             {
                 "dataset": dataset,
                 "scene": scene,
                 "metric": metric,
                 "cost": cost,
-                "cost_label": COST_LABELS.get(cost, cost),
+                "cost_label": cost_label(cost, runtimes),
+                "runtimes": runtimes,
                 "points": points,
                 "front": [points[i]["candidate"] for i in front_indices(xs, ys)],
             }

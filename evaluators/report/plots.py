@@ -3,7 +3,8 @@
 
 ``pareto.png``: one panel per dataset, scene, metric and cost.
 
-Each panel: every candidate at its median cost and mean error over seeds, error bars from
+Each panel: every candidate at its median cost and mean error over seeds, labelled with its
+runtime (``drjit-fused``, ``onnxruntime``, ``mitsuba``) where its rows name one, error bars from
 the minimum to the maximum over seeds; points on the front filled and joined by a dashed
 line, dominated points hollow and grey. The x axis is logarithmic and labelled with the
 cost column's name and meaning (:data:`evaluators.report.fronts.COST_LABELS`).
@@ -39,7 +40,8 @@ def _panel(ax: Any, panel: dict[str, Any]) -> None:
         ax.errorbar([x], [y], yerr=err, fmt="o", ms=6, capsize=3,
                     color=FRONT if on else DOMINATED,
                     markerfacecolor=FRONT if on else "white")  # fmt: skip
-        ax.annotate(f"{p['candidate']} (n={p['n']})", (x, y), textcoords="offset points",
+        runtime = f", {p['runtime']}" if p.get("runtime") else ""
+        ax.annotate(f"{p['candidate']} (n={p['n']}{runtime})", (x, y), textcoords="offset points",
                     xytext=(5, 5), fontsize=7)  # fmt: skip
     front = sorted((p for p in panel["points"] if p["front"]), key=lambda p: p["cost"])
     if len(front) > 1:
@@ -84,7 +86,11 @@ def select_png(ladders: list[dict[str, Any]], target: float) -> bytes:
             colours = [FRONT if r["candidate"] == lad["chosen"] else DOMINATED for r in rungs]
             a.bar(xs, [r["value"] for r in rungs], color=colours)
             a.axhline(target, ls="--", color=LINE, label=f"target {target:g}")
-            names = [f"{r['candidate']}\n{r['cost']:.3g}" for r in rungs]
+            names = [
+                f"{r['candidate']}\n{r['cost']:.3g}"
+                + (f"\n{r['runtime']}" if r.get("runtime") else "")
+                for r in rungs
+            ]
             a.set_xticks(list(xs), names, fontsize=7)
             a.set_xlabel(f"rungs by {lad['cost_label']}", fontsize=8)
             a.set_ylabel(lad["metric"], fontsize=8)

@@ -60,6 +60,7 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[di
                 "min": p["min"],
                 "max": p["max"],
                 "cost": p["cost"],
+                "runtime": p.get("runtime"),
                 "meets": p["mean"] <= target if lower else p["mean"] >= target,
             }
             for p in rungs
@@ -145,7 +146,7 @@ def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
     ctx.progress(1.0, f"{len(result)} ladders; chosen: {picks}")
 
 
-COLUMNS = ("value", "cost", "meets", "chosen")
+COLUMNS = ("value", "cost", "runtime", "meets", "chosen")
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
@@ -161,6 +162,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
             rows[label] = {
                 "value": r.get("value"),
                 "cost": r.get("cost"),
+                "runtime": r.get("runtime"),
                 "meets": r.get("meets"),
                 "chosen": r["candidate"] == lad.get("chosen"),
             }
@@ -211,6 +213,7 @@ def select_rows(src: RowSource) -> list[ResultRow]:
                     dataset=str(lad.get("dataset")),
                     scene=lad.get("scene"),
                     candidate=str(r.get("candidate")),
+                    runtime=r.get("runtime") if isinstance(r.get("runtime"), str) else None,
                     config={
                         "material": r.get("material"),
                         "integrator": r.get("integrator"),

@@ -193,10 +193,18 @@ class SelectParams(StrictModel):
             raise ValueError(f"cost: {self.cost} is not measured here; one of {SCENE_COSTS}")
         base = self.scene.model_dump(mode="json", exclude={"material"})
         for i, rung in enumerate(self.ladder):
-            if self.cost not in MEASURED_COSTS and "model" not in rung.material:
+            if self.cost not in MEASURED_COSTS and not (
+                "model" in rung.material or "external" in rung.material
+            ):
                 raise ValueError(
-                    f"ladder.{i}.material: cost {self.cost} is read from a model's job; "
-                    f'this rung is not a {{"model": "job:<id>/..."}} material'
+                    f"ladder.{i}.material: cost {self.cost} is a model's cost (read from its "
+                    f'job, or measured for an {{"external": ...}} model); this rung is not a '
+                    f'{{"model": "job:<id>/..."}} or {{"external": {{...}}}} material'
+                )
+            if self.cost == "bytes_per_material" and "external" in rung.material:
+                raise ValueError(
+                    f"ladder.{i}.material: an external model's parameters are counted as "
+                    "bytes_per_network (its param_bytes); choose by that or ns_per_eval"
                 )
             spp = rung.spp if rung.spp is not None else self.scene.spp
             _check_render(f"ladder.{i}", {**base, "material": rung.material, "spp": spp})

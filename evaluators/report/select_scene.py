@@ -20,7 +20,10 @@ compilation, passes; measured in the shard, so it varies with the machine's load
 per frame: the passes after the first, per sample, times the rung's samples (the first pass
 compiles; a rung of one pass, below 2^22 paths, has only that pass, compile included);
 ``spp`` the rung's samples; ``ns_per_eval``, ``bytes_per_material`` and ``bytes_per_network`` come
-from the result rows of the ``train.*`` job a ``{"model": "job:<id>/..."}`` rung names.
+from the result rows of the ``train.*`` job a ``{"model": "job:<id>/..."}`` rung names, and
+for an ``{"external": ...}`` rung (a user's model) ``ns_per_eval`` and ``bytes_per_network``
+are measured here as ``score`` measures them (:mod:`models.external.cost`). Each rung names
+its ``runtime``.
 """
 
 from __future__ import annotations
@@ -245,8 +248,42 @@ def image_metric(metric: str, reference: np.ndarray, image: np.ndarray) -> tuple
     raise JobFailed(f"metric: {metric!r} is not an image metric")
 
 
+def rung_runtime(rung: Rung, ctx: JobContext) -> str:
+    """What evaluates the rung's material: an external model's runtime, ``drjit-fused`` for
+    a trained model, ``mitsuba`` for every other material (tables, Mitsuba plugins)."""
+    value = rung.material.get("external")
+    if isinstance(value, dict):
+        from models.external import load_external
+
+        try:
+            return str(load_external(ctx.resolve(value["model"]), value["kind"]).runtime)
+        except (ValueError, FormatError):
+            return "external"
+    return "drjit-fused" if "model" in rung.material else "mitsuba"
+
+
+def external_cost(rung: Rung, cost: str, index: int, ctx: JobContext) -> float:
+    """``cost`` (``ns_per_eval`` or ``bytes_per_network``) of an ``{"external": ...}`` rung,
+    measured here as ``score`` measures it (:func:`models.external.cost.measure_cost`)."""
+    from models.external import load_external
+    from models.external.cost import measure_cost
+
+    value = rung.material["external"]
+    where = f"ladder.{index}.material.external"
+    try:
+        measured = measure_cost(load_external(ctx.resolve(value["model"]), value["kind"]))
+    except (ValueError, FormatError) as exc:
+        raise JobFailed(f"{where}: {value['model']}: {exc}") from None
+    if measured.get(cost) is None:
+        raise JobFailed(f"{where}: an external model has no {cost}")
+    return float(measured[cost])
+
+
 def model_cost(rung: Rung, cost: str, index: int, ctx: JobContext) -> float:
-    """``cost`` of a ``{"model": "job:<id>/..."}`` rung, from that job's result rows."""
+    """``cost`` of a ``{"model": "job:<id>/..."}`` rung, from that job's result rows (of an
+    ``{"external": ...}`` rung, measured: :func:`external_cost`)."""
+    if "external" in rung.material:
+        return external_cost(rung, cost, index, ctx)
     from jobapi.kinds import registered
     from jobapi.row_sources import StoreSource
 
@@ -368,6 +405,7 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
                 "frame_seconds": frame,
                 "integrator": got["integrator"],
                 "material": rung.material,
+                "runtime": rung_runtime(rung, ctx),
             }
         )
         ctx.progress(0.9 + 0.08 * (i + 1) / len(params.ladder), f"scored {rung.name}")

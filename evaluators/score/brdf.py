@@ -206,6 +206,12 @@ def score_brdfs(
     if models:
         settings["candidate_models"] = models
         settings["model_evaluation"] = MODEL_EVALUATION
+    external = {
+        label: c.ref for label, c in sorted(candidates.items()) if c.kind == "external-brdf"
+    }
+    if external:
+        settings["candidate_external"] = external
+        settings["external_evaluation"] = EXTERNAL_EVALUATION
     return ScoreResult(metrics=results, settings=settings)
 
 
@@ -213,6 +219,13 @@ def score_brdfs(
 MODEL_EVALUATION = (
     "models.brdf.portable.eval_portable of the named material, float64, at the same pairs "
     "as the reference"
+)
+
+
+#: How a user's model is evaluated (``settings.external_evaluation``).
+EXTERNAL_EVALUATION = (
+    "the model's own runtime (ExternalModel.eval, float32 inputs), compared in float64 at the "
+    "same pairs as the reference"
 )
 
 
@@ -287,7 +300,7 @@ register_artifact_kind(
         load=read_merl,
         scorer=score_brdfs,
         metrics=BRDF_METRICS,
-        candidate_kinds=("brdf-model",),
+        candidate_kinds=("brdf-model", "external-brdf"),
     )
 )
 register_artifact_kind(

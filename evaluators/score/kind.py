@@ -30,6 +30,14 @@ evaluator at the same pairs as tables; a model cannot be the reference. A whole 
 table of the same name (:mod:`evaluators.score.sets`); the two forms are checked against
 the reference's form at spec time.
 
+A user's model, ``{"external": {"model": REF, "kind": "brdf" | "btf"}}``
+(:mod:`evaluators.score.external`): an external BRDF is a candidate of ``merl`` references,
+scored as a ``brdf-model`` is; external BTFs are scored against the slices of a BTF job
+(reference ``job:<generate.btf id>``) with ``train.btf``'s L1, per failure case too. Each
+external candidate's cost, measured as the built-in models' (``ns_per_eval`` on a fixed
+batch in its runtime, parameter bytes), goes to ``cost.json``: the one artifact whose bytes
+vary between runs.
+
 Choices for images, recorded in ``metrics.json`` under ``settings``:
 
 - ``data_range`` of PSNR and SSIM: 1 for PNG; for EXR the reference's largest pixel value
@@ -43,9 +51,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from evaluators.score import brdf, images
+from evaluators.score import brdf, external, images
 from evaluators.score.artifacts import ARTIFACT_KINDS, Loaded, load_input
-from evaluators.score.params import ModelCandidate, ScoreParams
+from evaluators.score.params import ExternalCandidate, ModelCandidate, ScoreParams
 from evaluators.score.rows import score_rows
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
@@ -55,7 +63,7 @@ if TYPE_CHECKING:
     from jobapi.context import JobContext
 
 #: The modules that register the artifact kinds ``score`` knows (explicit, in order).
-ARTIFACT_KIND_MODULES = (images, brdf)
+ARTIFACT_KIND_MODULES = (images, brdf, external)
 
 
 # -- the runner ------------------------------------------------------------------------------
@@ -64,6 +72,9 @@ ARTIFACT_KIND_MODULES = (images, brdf)
 def run_score(params: ScoreParams, ctx: JobContext) -> None:
     """Load the reference and candidates, score them, and store ``metrics.json``."""
     ctx.progress(0.0, "loading inputs")
+    if params.btf_set:
+        external.score_btf_slices(params, ctx)
+        return
     if params.table_set:
         from evaluators.score.sets import score_table_set
 
@@ -84,7 +95,9 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
     candidates: dict[str, Loaded] = {}
     for label, spec in params.candidates.items():
         role = f"candidate {label!r}"
-        if isinstance(spec, ModelCandidate):
+        if isinstance(spec, ExternalCandidate):
+            cand = external.external_brdf_input(label, spec, ctx)
+        elif isinstance(spec, ModelCandidate):
             assert spec.material is not None  # whole models only with table sets
             cand = load_input(spec.model, role, ctx, material=spec.material)
         else:
@@ -102,6 +115,10 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
         "metrics.json",
         {"reference": params.reference, "metrics": result.metrics, "settings": result.settings},
     )
+    users = {k: c.data.model for k, c in candidates.items() if c.kind == external.EXTERNAL_BRDF}
+    if users:
+        ctx.progress(0.95, f"timing {len(users)} external model(s)")
+        ctx.put_json("cost.json", external.external_costs(users, ctx))
     ctx.progress(1.0, f"scored {len(candidates)} candidates with {', '.join(metrics)}")
 
 
@@ -142,7 +159,7 @@ register(
         description="Scores candidate artifacts against a reference (images: FLIP, PSNR, "
         "SSIM, MAE, MSE; MERL BRDF tables, and trained models' materials against them: "
         "SMAPE, MAE in BRDF space).",
-        artifacts=("metrics.json", "flip_<label>.png"),
+        artifacts=("metrics.json", "flip_<label>.png", "cost.json"),
         smoke={
             "reference": "step:render/image.exr",
             "candidates": {"same": "step:render/image.exr"},

@@ -6,9 +6,10 @@ from typing import Annotated, Literal
 
 from pydantic import Field, StringConstraints, field_validator, model_validator
 
+from evaluators.render.sources.external import ExternalSpec
 from jobapi.params import JOB_ID_REF, JobRef, Ref, StrictModel
 
-MetricName = Literal["flip", "psnr", "ssim", "mae", "mse", "smape"]
+MetricName = Literal["flip", "psnr", "ssim", "mae", "mse", "smape", "l1", "relative_l1"]
 IMAGE_METRICS: tuple[MetricName, ...] = ("flip", "psnr", "ssim", "mae", "mse")
 Label = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
 
@@ -64,6 +65,15 @@ class ModelCandidate(StrictModel):
     )
 
 
+class ExternalCandidate(StrictModel):
+    """A user's model as a candidate: ``{"external": {"model": REF, "kind": ...}}``."""
+
+    external: ExternalSpec = Field(
+        description="The model, exactly as the 'external' material: {model: REF, kind: brdf "
+        "| btf, uv_scale?}."
+    )
+
+
 #: ``job:<id>``: every table of a ``generate.merl`` job, by material name.
 TableSetJob = JobRef
 #: ``{material name: MERL table ref}``.
@@ -96,19 +106,21 @@ class ScoreParams(StrictModel):
         "whole models ({model} candidates), a set of MERL tables: 'job:<id>' of a "
         "generate.merl job (its materials by name) or a mapping {material name: table ref}."
     )
-    candidates: dict[Label, Ref | ModelCandidate] = Field(
+    candidates: dict[Label, Ref | ModelCandidate | ExternalCandidate] = Field(
         min_length=1,
         max_length=64,
         description="Candidates to score, by label (1-64 characters of A-Z a-z 0-9 _ . -): "
         "a ref, {model, material} for one material of a trained model (model.json; against "
-        "a MERL table reference), or {model} for all of a model's materials against a set "
-        "of tables.",
+        "a MERL table reference), {model} for all of a model's materials against a set "
+        "of tables, or {external: {model, kind}} for a user's model (kind brdf against a "
+        "MERL table; kind btf against a BTF job 'job:<generate.btf id>').",
     )
     metrics: list[MetricName] | None = Field(
         default=None,
         min_length=1,
         description="Metrics to compute (default: all that apply to the reference's kind). "
-        "Images: flip, psnr, ssim, mae, mse; BRDF tables: smape, mae.",
+        "Images: flip, psnr, ssim, mae, mse; BRDF tables: smape, mae; BTF slices: l1, "
+        "relative_l1.",
     )
     exposure: ExposureSettings | None = Field(
         default=None,
@@ -117,13 +129,51 @@ class ScoreParams(StrictModel):
     )
 
     @property
+    def btf_set(self) -> bool:
+        """Whether the reference is a BTF job's slices (every candidate an external BTF)."""
+        return isinstance(self.reference, str) and any(
+            isinstance(c, ExternalCandidate) and c.external.kind == "btf"
+            for c in self.candidates.values()
+        )
+
+    @property
     def table_set(self) -> bool:
         """Whether the reference is a set of tables (``job:<id>`` or a mapping)."""
+        if self.btf_set:
+            return False
         return not isinstance(self.reference, str) or bool(JOB_ID_REF.match(self.reference))
 
     @model_validator(mode="after")
     def _check_forms(self) -> ScoreParams:
+        btfs = [
+            label
+            for label, c in self.candidates.items()
+            if isinstance(c, ExternalCandidate) and c.external.kind == "btf"
+        ]
+        if btfs:
+            others = sorted(
+                label
+                for label, c in self.candidates.items()
+                if label not in btfs and not (isinstance(c, ModelCandidate) and c.material is None)
+            )
+            if others:
+                raise ValueError(
+                    f"candidates.{others[0]}: against a BTF's slices every candidate is an "
+                    '{"external": {"model": REF, "kind": "btf"}} or a train.btf model '
+                    '{"model": "job:<train.btf id>/model.json"}'
+                )
+            if not isinstance(self.reference, str) or not JOB_ID_REF.match(self.reference):
+                raise ValueError(
+                    f"reference: an external BTF (candidates.{btfs[0]}) is scored against the "
+                    "slices of a BTF job: give 'job:<generate.btf or import.btf job id>'"
+                )
+            return self
         for label, cand in self.candidates.items():
+            if isinstance(cand, ExternalCandidate) and self.table_set:
+                raise ValueError(
+                    f"candidates.{label}: an external BRDF is one material, scored against one "
+                    "MERL table: give that table as the reference (job:<id>/<name>.binary)"
+                )
             whole = isinstance(cand, ModelCandidate) and cand.material is None
             if self.table_set and not whole:
                 raise ValueError(

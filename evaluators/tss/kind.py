@@ -38,7 +38,7 @@ import json
 import math
 from typing import TYPE_CHECKING, Any
 
-from evaluators.tss.params import PLANE_SIDE, TssParams
+from evaluators.tss.params import PLANE_SIDE, ExternalBtfRef, TssParams
 from evaluators.tss.rows import tss_rows
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
@@ -76,6 +76,7 @@ def load_model(params: TssParams, ctx: JobContext) -> PortableBtf:
     ``model`` otherwise."""
     from models.btf.portable import read_model, read_textures
 
+    assert isinstance(params.model, str)
     job_id = job_id_of(params.model)
     ctx.input_job(job_id, "model", "train.btf")
     try:
@@ -91,7 +92,7 @@ def _rounded(x: float, digits: int) -> float | None:
     return round(float(x), digits) if math.isfinite(x) else None
 
 
-def metrics_document(params: TssParams, model: PortableBtf, sim: Simulation,
+def metrics_document(params: TssParams, model: PortableBtf | Any, sim: Simulation,
                      motion: dict[str, float]) -> dict[str, Any]:  # fmt: skip
     """``metrics.json``: everything deterministic."""
     rows, per_frame = [], {}
@@ -119,7 +120,11 @@ def metrics_document(params: TssParams, model: PortableBtf, sim: Simulation,
     return {
         "format": FORMAT,
         "model": {
-            "job": params.model,
+            "job": params.model if isinstance(params.model, str) else None,
+            "external": None
+            if isinstance(params.model, str)
+            else params.model.external.model_dump(mode="json", exclude_none=True),
+            "runtime": "drjit-fused",
             "model": model.model,
             "kind": model.kind,
             "resolution": [h, w],
@@ -187,20 +192,27 @@ def run_evaluate_tss(params: TssParams, ctx: JobContext) -> None:
     from models.btf.fused import FusedBtf
 
     ctx.progress(0.0, "loading the model")
-    model = load_model(params, ctx)
     mi = load_mitsuba()
     if not mi.variant().startswith(("llvm_", "cuda_")):
         raise JobFailed(
             "evaluate.tss needs a vectorised Mitsuba variant (llvm_ad_rgb or cuda_ad_rgb; "
             f"MATFORGE_VARIANT); got {mi.variant()}"
         )
+    if isinstance(params.model, ExternalBtfRef):
+        from evaluators.tss.external import load_external_btf
+
+        model: Any = load_external_btf(params.model.external.model_dump(), ctx, mi)
+        fused: Any = model
+    else:
+        model = load_model(params, ctx)
+        fused = FusedBtf(model, mi)
     h, w = model.resolution
     resolutions = params.texture_resolutions(max(h, w))
     frames, size = int(params.value("frames")), tuple(params.value("image"))
     path = camera_path(params.path, frames, ctx.rng("evaluate.tss/path"))
     if float(path.eye[:, 2].min()) <= 0.0:
         raise JobFailed("path: the eye goes below the plane; lower the motion amplitudes")
-    plane = Plane(FusedBtf(model, mi), params.lights, params.uv_scale)
+    plane = Plane(fused, params.lights, params.uv_scale)
     ctx.progress(0.05, f"{frames} frames, R = {resolutions}, N = {params.intervals}")
 
     def progress(fraction: float, message: str) -> None:

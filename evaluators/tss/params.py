@@ -9,9 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
-from pydantic import BeforeValidator, Field, field_validator
+from pydantic import BeforeValidator, Field, field_validator, model_validator
 
 from evaluators.metrics.images import DEFAULT_PPD
+from evaluators.render.sources.external import ExternalSpec
 from jobapi.params import JobRef, StrictModel
 from jobapi.presets import preset_note, preset_value
 
@@ -137,13 +138,27 @@ class PathSpec(StrictModel):
         return v
 
 
+class ExternalBtfRef(StrictModel):
+    """A user's BTF: ``{"external": {"model": REF, "kind": "btf"}}``
+    (:mod:`evaluators.tss.external`)."""
+
+    external: ExternalSpec = Field(description="The model, as the 'external' material.")
+
+    @model_validator(mode="after")
+    def _btf(self) -> ExternalBtfRef:
+        if self.external.kind != "btf":
+            raise ValueError("external.kind: evaluate.tss shades a BTF: kind must be 'btf'")
+        return self
+
+
 class TssParams(StrictModel):
     """Parameters of ``evaluate.tss``; a field left out takes the ``preset``'s value.
 
     ================  =================  ===========  ===========================================
     name              type               default      meaning
     ================  =================  ===========  ===========================================
-    ``model``         job ref            required     a succeeded train.btf job
+    ``model``         job ref or         required     a succeeded train.btf job, or
+                      ``{external}``                  a user's MLP BTF
     ``frames``        int                preset       frames of the camera path
     ``resolutions``   list of int        preset       radiance-texture sides over the plane
     ``intervals``     list of int        0 1 2 4 6    N: reuse the texture N frames more
@@ -162,9 +177,10 @@ class TssParams(StrictModel):
          "intervals": [0, 1, 2, 4, 6], "resolutions": [32, 64]}}
     """
 
-    model: JobRef = Field(
+    model: JobRef | ExternalBtfRef = Field(
         description="'job:<id>' of a succeeded train.btf job (its model.json and "
-        "textures.npz; in a batch file 'step:<name>')."
+        "textures.npz; in a batch file 'step:<name>'), or a user's MLP BTF "
+        "{'external': {'model': REF, 'kind': 'btf'}} (the 'external' material's value)."
     )
     preset: Literal["small", "paper"] = Field(
         default="small", description="Defaults of the unset fields: 'small' or 'paper'."

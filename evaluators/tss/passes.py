@@ -52,7 +52,7 @@ class Camera:
 class Plane:
     """The textured plane of ``fused`` under ``lights``, ``uv_scale`` repeats per side."""
 
-    def __init__(self, fused: FusedBtf, lights: Sequence[PointLight], uv_scale: int) -> None:
+    def __init__(self, fused: FusedBtf | Any, lights: Sequence[PointLight], uv_scale: int) -> None:
         self.fused = fused
         self.mi, self.dr = fused.mi, fused.dr
         self.lights = [(tuple(float(c) for c in li.position), li.rgb()) for li in lights]
@@ -74,6 +74,8 @@ class Plane:
     def texel_matched(self, resolution: int) -> bool:
         """Whether an ``R x R`` radiance texture puts one texel on each neural texel."""
         f = self.fused
+        if not getattr(f, "amortisable", True):  # a user's model: no 2 x 2 pass
+            return False
         return f.h == f.w and resolution == f.h * self.uv_scale
 
     # -- geometry ------------------------------------------------------------------------

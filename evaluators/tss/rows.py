@@ -24,6 +24,11 @@ def tss_rows(src: RowSource) -> list[ResultRow]:
         (timing or {}).get("rows") or {} if isinstance(timing, Mapping) else {}
     )
     dataset = dataset_of(src.job.params, "model")
+    given = src.job.params.get("model")
+    if dataset is None and isinstance(given, Mapping):  # a user's model: its file
+        dataset = (given.get("external") or {}).get("model")
+    found_info = doc.get("model")
+    info: Mapping[str, Any] = found_info if isinstance(found_info, Mapping) else {}
     rows: list[ResultRow] = []
     for r in doc.get("rows") or []:
         if not isinstance(r, Mapping):
@@ -37,6 +42,7 @@ def tss_rows(src: RowSource) -> list[ResultRow]:
             "dataset": dataset,
             "config": {k: r.get(k) for k in ("resolution", "interval", "pass", "shading_passes")},
             "ms_per_frame": None if spf is None else 1000.0 * spf,
+            "runtime": str(info.get("runtime") or "drjit-fused"),
         }
         rows += [
             base_row(src, k, v, **fields) for k in METRICS if (v := number(r.get(k))) is not None

@@ -8,7 +8,8 @@ mean over materials (``material`` ``"mean"``), and the trained size's speed
 configuration (``candidate`` ``"hybrid 32x3"`` as :class:`models.brdf.study.Run` names it),
 the dataset (the ``generate.merl`` job) and the costs: ``ns_per_eval`` is the trained
 size's ``fused_kernel_ns``, bytes per material 4 x the per-material floats, bytes per
-network from ``speed.json``, ``train_seconds`` the job's wall time.
+network from ``speed.json``, ``train_seconds`` the job's wall time, ``runtime``
+``drjit-fused``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 METRICS = (
     "smape", "smape_floor", "mae", "smape_analytic", "smape_floor_analytic", "mae_analytic"
 )  # fmt: skip
+#: What evaluates a train.brdf model (its ``ns_per_eval`` is the fused kernel's).
+RUNTIME = "drjit-fused"
 #: The speed metrics of ``speed.json``'s trained-size row.
 SPEED_METRICS = ("fused_kernel_ns", "fused_ns", "torch_ns")
 
@@ -66,6 +69,7 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
         "bytes_per_material": 4.0 * floats if isinstance(floats, int) else None,
         "bytes_per_network": number(speed.get("bytes_per_network")) if speed else None,
         "train_seconds": src.job.run_seconds,
+        "runtime": RUNTIME,
     }
     rows: list[ResultRow] = []
     materials = [m for m in metrics.get("materials") or [] if isinstance(m, Mapping)]

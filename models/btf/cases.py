@@ -25,6 +25,7 @@ magnitude (a highlight against a shadow).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -69,4 +70,32 @@ def case_errors(
         rel = err / max(scale, 1e-12) if err is not None and scale is not None else None
         out.append({"case": name, "slices": n, "l1": err, "relative_l1": rel,
                     "definition": definitions[name]})  # fmt: skip
+    return out
+
+
+#: ``predict(wi, wo)``: a model's ``(H, W, 3)`` slice at texel centres for one light ``wi``
+#: and view ``wo`` (``(3,)`` float32 each).
+SlicePredictor = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def predicted_slice_l1(predict: SlicePredictor, data: Any, indices: np.ndarray) -> np.ndarray:
+    """Mean absolute error of ``predict`` on each slice of ``data`` (a
+    :class:`models.btf.data.BtfDataset`) in ``indices``: ``(len(indices),)`` float64, in the
+    order of ``indices``, over texels and channels, in float64 -- the L1 that ``train.btf``
+    reports for its portable models and ``score`` for external ones."""
+    out = np.full(len(indices), np.nan)
+    where = {int(i): k for k, i in enumerate(indices)}
+    for i, rgb in data.iter_slices(indices):
+        pred = np.asarray(predict(data.wi[i], data.wo[i]), np.float64)
+        if pred.shape != rgb.shape:
+            raise ValueError(f"the model's slice is {pred.shape}, the BTF's {rgb.shape}")
+        out[where[i]] = float(np.abs(pred - rgb).sum()) / rgb.size
+    return out
+
+
+def slice_mean_abs(data: Any) -> np.ndarray:
+    """Mean ``|BTF|`` of each slice of ``data``, ``(len(data),)`` float64."""
+    out = np.empty(len(data))
+    for i, rgb in data.iter_slices(np.arange(len(data))):
+        out[i] = float(np.abs(rgb).sum(dtype=np.float64)) / rgb.size
     return out

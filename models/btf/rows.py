@@ -16,6 +16,8 @@ METRICS = ("l1", "l1_train", "l1_heldout", "relative_l1")
 #: :mod:`models.btf.cases`): rows whose ``material`` and ``family`` are the case's name, so
 #: that ``report.pareto`` and ``report.stability`` break the errors down by case.
 CASE_METRICS = ("l1", "relative_l1")
+#: What renders a train.btf model (the fused ``btf_model`` BSDF and ``evaluate.tss``).
+RUNTIME = "drjit-fused"
 #: Params of the spec that describe the model, in ``config``.
 CONFIG_KEYS = ("model", "preset", "width", "epochs", "distill")
 
@@ -35,6 +37,7 @@ def train_btf_rows(src: RowSource) -> list[ResultRow]:
         "bytes_per_material": number(storage.get("texture_bytes")),
         "bytes_per_network": number(storage.get("network_bytes")),
         "train_seconds": src.job.run_seconds,
+        "runtime": RUNTIME,
     }
     rows = [base_row(src, k, v, **fields) for k in METRICS if (v := number(doc.get(k))) is not None]
     cases = doc.get("cases")

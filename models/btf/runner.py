@@ -22,7 +22,7 @@ from jobapi.errors import JobFailed
 from jobapi.params import job_id_of
 from materials.btf.lafortune import PARAMS_PER_TEXEL, initial_params
 from models.brdf.train import deterministic_torch
-from models.btf.cases import case_errors
+from models.btf.cases import case_errors, predicted_slice_l1, slice_mean_abs
 from models.btf.data import BtfDataset
 from models.btf.lafortune import fit_lafortune
 from models.btf.networks import Architecture, build_network
@@ -143,23 +143,9 @@ def _fit_lafortune(
     return read_model(doc, tex)
 
 
-@torch.no_grad()
 def _portable_slice_l1(model: PortableBtf, data: BtfDataset, indices: np.ndarray) -> np.ndarray:
     """Per-slice mean absolute error of the portable model (as :func:`slice_l1`)."""
-    out = np.full(len(indices), np.nan)
-    where = {int(i): k for k, i in enumerate(indices)}
-    for i, rgb in data.iter_slices(indices):
-        pred = model.slice(data.wi[i], data.wo[i])
-        out[where[i]] = float(np.abs(pred.astype(np.float64) - rgb).sum()) / rgb.size
-    return out
-
-
-def _slice_mean_abs(data: BtfDataset) -> np.ndarray:
-    """Mean ``|BTF|`` of each slice, ``(len(data),)``."""
-    out = np.empty(len(data))
-    for i, rgb in data.iter_slices(np.arange(len(data))):
-        out[i] = float(np.abs(rgb).sum(dtype=np.float64)) / rgb.size
-    return out
+    return predicted_slice_l1(model.slice, data, indices)
 
 
 def _mean_of(values: np.ndarray, indices: np.ndarray) -> float:
@@ -208,7 +194,7 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
     l1_train, l1_test = _mean_of(per_slice, train), _mean_of(per_slice, test)
     n_all = len(train) + len(test)
     l1 = float(np.mean(per_slice))
-    slice_scale = _slice_mean_abs(data)
+    slice_scale = slice_mean_abs(data)
     scale = float(np.mean(slice_scale))
     storage = model.doc["storage"]
     metrics = {

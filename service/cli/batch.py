@@ -11,6 +11,13 @@ A batch file is JSON or YAML::
     defaults: {seed: 3}      # optional: top-level fields a step's spec lacks
                              # (seed, force, timeout_seconds)
 
+Variables: a top-level ``vars: {name: default}`` (string or ``null`` defaults) declares
+parameters of the recipe; anywhere in a spec the whole string ``var:<name>`` becomes its
+value, given on the command line (``matforge batch FILE --var model=sha256:...``) or the
+default. A variable without a value, an unknown ``var:`` name or an undeclared ``--var`` is
+an error naming it. (The recipes ``scripts/external_brdf.yaml`` and
+``scripts/external_btf.yaml`` take the user's model this way.)
+
 A top-level list of steps is accepted as well. ``spec`` is a spec mapping, or the path of a
 spec file relative to the batch file. Anywhere in a spec, the string
 ``step:<step-name>/<artifact-name>`` names an artifact of an EARLIER step; it becomes
@@ -185,25 +192,70 @@ def _step_spec(
     return spec
 
 
+VAR_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}\Z")
+
+
+def _variables(doc: Any, given: dict[str, str], source: str) -> dict[str, str]:
+    """The values of the batch's ``vars`` (see the module docstring)."""
+    declared = doc.get("vars") if isinstance(doc, dict) else None
+    declared = {} if declared is None else declared
+    if not isinstance(declared, dict) or not all(
+        isinstance(k, str) and VAR_NAME.match(k) and (v is None or isinstance(v, str))
+        for k, v in declared.items()
+    ):
+        raise BatchError([f"{source}: vars: must map names to string defaults (or null)"])
+    unknown = sorted(set(given) - set(declared))
+    if unknown:
+        known = ", ".join(sorted(declared)) or "none"
+        raise BatchError([f"{source}: --var {unknown[0]}: not a variable of this batch "
+                          f"(its vars: {known})"])  # fmt: skip
+    values = {k: given.get(k, v) for k, v in declared.items()}
+    missing = sorted(k for k, v in values.items() if v is None)
+    if missing:
+        raise BatchError([f"{source}: vars.{missing[0]}: no value; give --var {missing[0]}=VALUE"])
+    return {k: str(v) for k, v in values.items()}
+
+
+def substitute_vars(obj: Any, values: dict[str, str], where: str, problems: list[str]) -> Any:
+    """A copy of ``obj`` with every string ``var:<name>`` replaced by its value (an unknown
+    name is a problem, named with ``where``)."""
+    if isinstance(obj, str):
+        if not obj.startswith("var:"):
+            return obj
+        name = obj.removeprefix("var:")
+        if name not in values:
+            problems.append(f"{where}: {obj}: no variable {name!r} in the batch's vars")
+            return obj
+        return values[name]
+    if isinstance(obj, dict):
+        return {k: substitute_vars(v, values, where, problems) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [substitute_vars(v, values, where, problems) for v in obj]
+    return obj
+
+
 def parse_batch(
     doc: Any,
     source: str = "<batch>",
     *,
     base_dir: Path | None = None,
     validate: Callable[[Any], Any] = validate_spec,
+    variables: dict[str, str] | None = None,
 ) -> Batch:
     """Validate a parsed batch document; raises :class:`BatchError` listing every problem.
 
-    ``validate`` checks one spec (default :func:`validate_spec`; tests may pass their own).
+    ``validate`` checks one spec (default :func:`validate_spec`; tests may pass their own);
+    ``variables`` are the values of the batch's ``vars`` (``--var name=value``).
     """
     defaults: dict[str, Any] = {}
+    values = _variables(doc, dict(variables or {}), source)
     if isinstance(doc, dict):
-        unknown = sorted(set(doc) - {"steps", "defaults"})
+        unknown = sorted(set(doc) - {"steps", "defaults", "vars"})
         if unknown:
             raise BatchError(
                 [
                     f"{source}: unknown top-level field(s) {', '.join(unknown)}; "
-                    "a batch file has 'steps' and optional 'defaults'"
+                    "a batch file has 'steps' and optional 'defaults' and 'vars'"
                 ]
             )
         raw_defaults = doc.get("defaults") or {}
@@ -248,6 +300,7 @@ def parse_batch(
         spec = _step_spec(entry, where, base_dir, problems)
         if spec is None:
             continue
+        spec = substitute_vars(spec, values, where, problems)
         spec = {**{k: v for k, v in defaults.items() if k not in spec}, **spec}
         refs, ok = [], True
         for loc, value in _strings(spec, ""):
@@ -289,8 +342,14 @@ def parse_batch(
     return Batch(source=source, steps=tuple(steps))
 
 
-def load_batch(path: str | Path, *, validate: Callable[[Any], Any] = validate_spec) -> Batch:
-    """Read and validate a batch file; raises :class:`BatchError` naming the file."""
+def load_batch(
+    path: str | Path,
+    *,
+    validate: Callable[[Any], Any] = validate_spec,
+    variables: dict[str, str] | None = None,
+) -> Batch:
+    """Read and validate a batch file (``variables``: its ``vars``' values); raises
+    :class:`BatchError` naming the file."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
@@ -302,4 +361,4 @@ def load_batch(path: str | Path, *, validate: Callable[[Any], Any] = validate_sp
         doc = parse_spec_text(text, str(p))
     except SpecError as exc:
         raise BatchError([str(exc)]) from None
-    return parse_batch(doc, str(p), base_dir=p.parent, validate=validate)
+    return parse_batch(doc, str(p), base_dir=p.parent, validate=validate, variables=variables)

@@ -369,6 +369,12 @@ def batch(
         "-v",
         help="Also print each step's whole result table (by default one summary line a step).",
     ),
+    var: list[str] = typer.Option(
+        [],
+        "--var",
+        help="NAME=VALUE for a variable of the batch's vars (its specs' 'var:NAME' strings), "
+        "e.g. --var model=sha256:...; repeatable.",
+    ),
 ) -> None:
     """Run a batch of steps on the server, in order; later steps may use step: refs.
 
@@ -384,7 +390,14 @@ def batch(
     if out is not None and out.suffix.lower() not in (".csv", ".json"):
         error(f"--out {out}: must end in .csv or .json")
         raise typer.Exit(EXIT_BAD_INPUT)
-    plan = load_batch(file)
+    variables = {}
+    for item in var:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            error(f"--var {item}: expected NAME=VALUE")
+            raise typer.Exit(EXIT_BAD_INPUT)
+        variables[name] = value
+    plan = load_batch(file, variables=variables)
     with state_of(ctx).client() as client:
         outcome = run_batch(
             plan,

@@ -44,7 +44,14 @@ class ResultRowPublic(BaseModel):
     value: float
     lower_is_better: bool | None = None
     seed: int | None = None
-    ns_per_eval: float | None = Field(None, description="fused Dr.Jit kernel ns per evaluation")
+    ns_per_eval: float | None = Field(
+        None, description="ns per evaluation on a fixed batch, in the row's runtime"
+    )
+    runtime: str | None = Field(
+        None,
+        description="what evaluated the model: drjit-fused, onnxruntime or mitsuba (costs of "
+        "two runtimes are not alike)",
+    )
     ms_per_frame: float | None = None
     bytes_per_material: float | None = None
     bytes_per_network: float | None = None

@@ -34,6 +34,7 @@ COLUMNS = [
     "lower_is_better",
     "seed",
     "ns_per_eval",
+    "runtime",
     "ms_per_frame",
     "bytes_per_material",
     "bytes_per_network",

@@ -23,14 +23,17 @@ def run_recipe(
     recipe: str,
     shrink: Callable[[dict[str, Any]], dict[str, Any]],
     keep: Callable[[Iterable[Step]], list[Step]] | None = None,
+    variables: dict[str, str] | None = None,
+    data_dir: Path | None = None,
     **settings: Any,
 ) -> tuple[Settings, dict[str, Job]]:
     """The steps of ``scripts/<recipe>`` (those ``keep`` returns, default all), each spec
-    passed through ``shrink``, run in order in a fresh data folder (one pool process, plus
-    ``settings`` overrides); returns the settings and each step's job by name."""
-    folder = tmp_path_factory.mktemp(Path(recipe).stem) / "data"
+    passed through ``shrink``, run in order in a fresh data folder (or ``data_dir``; one
+    pool process, plus ``settings`` overrides), the batch's ``vars`` set from
+    ``variables``; returns the settings and each step's job by name."""
+    folder = data_dir or tmp_path_factory.mktemp(Path(recipe).stem) / "data"
     conf = Settings.from_env({}).with_(data_dir=folder, pool_processes=1, **settings)
-    steps = load_batch(SCRIPTS / recipe).steps
+    steps = load_batch(SCRIPTS / recipe, variables=variables).steps
     chosen = list(steps) if keep is None else keep(steps)
     return conf, run_steps_in_process(chosen, conf, transform=shrink)
 

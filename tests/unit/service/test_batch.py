@@ -496,3 +496,30 @@ def test30_a_step_without_a_spec_name_takes_the_step_name() -> None:
     client = FakeClient()
     run_batch(batch, client, quiet(), poll_seconds=0.01)  # type: ignore[arg-type]
     assert [s["name"] for s in client.submitted] == ["gold", "aluminium sphere", "score"]
+
+
+def test31_vars_are_filled_from_the_command_line_or_their_defaults() -> None:
+    """``vars`` declare a recipe's parameters; ``var:<name>`` strings take the given value
+    (``--var``) or the default; a missing value, an unknown ``var:`` and an undeclared
+    ``--var`` are errors naming it."""
+    doc = {
+        "vars": {"model": None, "spp": "step:a/image.exr"},
+        "steps": [
+            {"name": "a", "spec": {"kind": "render", "params": {"scene": "x"}}},
+            {"name": "b", "spec": {"kind": "score", "params": {
+                "reference": "var:spp",
+                "candidates": {"m": {"external": {"model": "var:model"}}}}}},
+        ],
+    }  # fmt: skip
+    batch = parse_batch(doc, validate=fake_validate, variables={"model": "sha256:" + "a" * 64})
+    params = batch.steps[1].spec["params"]
+    assert params["candidates"]["m"]["external"]["model"] == "sha256:" + "a" * 64
+    assert params["reference"] == "step:a/image.exr"  # a default may be a step ref
+    assert [r.step for r in batch.steps[1].refs] == ["a"]
+    with pytest.raises(BatchError, match=r"vars.model: no value; give --var model=VALUE"):
+        parse_batch(doc, validate=fake_validate)
+    with pytest.raises(BatchError, match=r"--var nope: not a variable of this batch"):
+        parse_batch(doc, validate=fake_validate, variables={"model": "x", "nope": "y"})
+    bad = {**doc, "vars": {"model": "x"}}
+    with pytest.raises(BatchError, match=r"var:spp: no variable 'spp'"):
+        parse_batch(bad, validate=fake_validate)

@@ -64,7 +64,7 @@ def test01_points_are_seed_spreads_and_the_front_is_the_brute_force_one() -> Non
     rows = study()
     (panel, bytes_panel) = panels(rows, ["smape"], ["ns_per_eval", "bytes_per_material"])
     assert (panel["dataset"], panel["metric"], panel["cost"]) == (D, "smape", "ns_per_eval")
-    assert panel["cost_label"].startswith("ns_per_eval: fused Dr.Jit kernel")
+    assert panel["cost_label"].startswith("ns_per_eval: ns per evaluation")
     pts = {p["candidate"]: p for p in panel["points"]}
     neural = pts["neural 16x3"]
     assert neural["n"] == 3 and neural["max"] == 0.61 and neural["min"] == 0.28
@@ -146,3 +146,31 @@ def test04_fabric_claims_per_reference() -> None:
         "network (16 spp) FLIP < Monte Carlo at 1 spp against seen": True,
         "network (16 spp) FLIP < Monte Carlo at equal time against unseen": False,
     }
+
+
+def test05_points_name_their_runtime_and_mixed_panels_say_so() -> None:
+    """A point's runtime comes from its rows; a panel whose points come from two runtimes
+    names both on its cost axis, one runtime leaves the label as it is; select's rungs carry
+    the runtime too."""
+    from evaluators.report.select import ladders
+
+    rows = [
+        brdf_row("a1", "hybrid 32x3", 0.10, 4.0).with_(runtime="drjit-fused"),
+        brdf_row("a2", "mine", 0.08, 40.0).with_(kind="score", runtime="onnxruntime"),
+        brdf_row("a3", "old", 0.3, 1.0),
+    ]
+    (panel,) = panels(rows, ["smape"], ["ns_per_eval"])
+    by = {p["candidate"]: p for p in panel["points"]}
+    assert by["hybrid 32x3"]["runtime"] == "drjit-fused"
+    assert by["mine"]["runtime"] == "onnxruntime" and by["old"]["runtime"] is None
+    assert panel["runtimes"] == ["drjit-fused", "onnxruntime"]
+    assert panel["cost_label"].endswith("[runtimes differ: drjit-fused, onnxruntime]")
+    (single,) = panels(rows[:1], ["smape"], ["ns_per_eval"])
+    assert "differ" not in single["cost_label"]
+    (lad,) = ladders([panel], 0.2, True)
+    assert {r["candidate"]: r["runtime"] for r in lad["rungs"]} == {
+        "old": None,
+        "hybrid 32x3": "drjit-fused",
+        "mine": "onnxruntime",
+    }
+    assert lad["chosen"] == "hybrid 32x3"

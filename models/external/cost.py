@@ -1,0 +1,140 @@
+"""The cost of a user's model, measured by matforge the same way as the built-in models'.
+
+An external model (:class:`ExternalModel`: an exported MLP evaluated by a fused Dr.Jit
+kernel, or an ONNX file evaluated by onnxruntime) is timed on the same fixed batch as a
+``train.brdf`` model's ``speed.json``: :data:`COST_BATCH` cosine-weighted direction pairs
+from :func:`models.speed.cosine_pairs` (seed 0; a BTF also gets uniform ``uv`` in the unit
+square from the same seed), the median of :data:`COST_REPEATS` runs after one warm-up run.
+
+- ``drjit-fused`` models (MLP materials, traced by :class:`models.external.fused.FusedMlp`,
+  the kernel the renderer runs): :func:`models.speed.time_fused`, the kernel's own
+  execution time from Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is
+  a ``train.brdf`` row's ``ns_per_eval``;
+- any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
+  is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
+
+``ns_per_eval`` = that time / batch; ``bytes_per_network`` = the model's ``param_bytes``.
+The document (``cost.json`` of a ``score`` job, :data:`COST_FORMAT`) names the ``runtime``
+and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
+run to run.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+#: Pairs per measurement: ``train.brdf``'s default ``speed_batch`` (2^18).
+COST_BATCH = 1 << 18
+#: Runs per median (``train.brdf``'s ``SPEED_REPEATS``).
+COST_REPEATS = 5
+#: The seed of the batch (:func:`models.speed.cosine_pairs`).
+COST_SEED = 0
+if TYPE_CHECKING:
+    from models.external import ExternalModel
+
+#: The version tag of a cost document.
+COST_FORMAT = "matforge.cost/1"
+#: The runtime whose time is the fused kernel's.
+FUSED = "drjit-fused"
+
+
+def cost_batch(
+    kind: str, batch: int = COST_BATCH
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The fixed batch ``(wi, wo, uv)``: float32, ``uv`` ``None`` for a BRDF."""
+    from models.speed import cosine_pairs
+
+    wi, wo = cosine_pairs(batch, COST_SEED)
+    uv = None
+    if kind == "btf":
+        uv = np.random.default_rng(COST_SEED).random((batch, 2)).astype(np.float32)
+    return wi, wo, uv
+
+
+def measure_cost(
+    model: ExternalModel, *, batch: int = COST_BATCH, repeats: int = COST_REPEATS
+) -> dict[str, Any]:
+    """``{"ns_per_eval", "runtime", "bytes_per_network", "method", "batch", "repeats"}`` of
+    ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
+    is not an MLP material, or for no Mitsuba LLVM variant to run it in."""
+    from models.speed import time_call
+
+    wi, wo, uv = cost_batch(model.kind, batch)
+    runtime = str(model.runtime)
+    if runtime == FUSED:
+        from models.external.fused import FusedMlp
+        from models.external.mlp import MlpMaterial
+
+        if not isinstance(model, MlpMaterial):
+            raise ValueError(f"a {FUSED} model is an MLP material (models.external.mlp)")
+        seconds = fused_seconds(
+            lambda mi: FusedMlp(model, mi).eval, model.kind, batch, repeats, uv_first=False
+        )
+        method = FUSED_METHOD
+    else:
+        seconds = time_call(lambda: model.eval(wi, wo, uv), repeats)
+        method = f"wall time of one {runtime} evaluation of the batch, median"
+    return {
+        "format": COST_FORMAT,
+        "ns_per_eval": round(seconds / batch * 1e9, 3),
+        "runtime": runtime,
+        "bytes_per_network": int(model.param_bytes),
+        "method": method,
+        "batch": batch,
+        "repeats": repeats,
+    }
+
+
+#: How a fused kernel is timed.
+FUSED_METHOD = "fused Dr.Jit kernel execution (kernel history), median"
+
+
+def fused_seconds(make: Any, kind: str, batch: int, repeats: int, *, uv_first: bool) -> float:
+    """Median kernel seconds of ``make(mi)(...)`` on the fixed batch: ``(wi, wo[, uv])``, or
+    ``(uv, wi, wo)`` with ``uv_first`` (the built-in BTF's :meth:`FusedBtf.eval`)."""
+    from materials.backend import load_mitsuba
+    from models.speed import time_fused
+
+    mi = load_mitsuba()
+    if not mi.variant().startswith("llvm_"):
+        raise ValueError(
+            f"timing the fused kernel needs Mitsuba's LLVM variant, not {mi.variant()}"
+        )
+    import drjit as dr
+
+    wi, wo, uv = cost_batch(kind, batch)
+    wi_d, wo_d = mi.Vector3f(*wi.T), mi.Vector3f(*wo.T)
+    uv_d = None if uv is None else mi.Point2f(*uv.T)
+    dr.eval(wi_d, wo_d, uv_d)
+    fn = make(mi)
+    if uv_first:
+        timed = time_fused(lambda: [fn(uv_d, wi_d, wo_d)], repeats)
+    else:
+        timed = time_fused(lambda: [fn(wi_d, wo_d, uv_d)], repeats)
+    return float(timed["kernel_s"])
+
+
+def measure_builtin_btf(
+    model: Any, *, batch: int = COST_BATCH, repeats: int = COST_REPEATS
+) -> dict[str, Any]:
+    """The cost document of a ``train.btf`` model (:class:`models.btf.portable.PortableBtf`)
+    on the same batch as :func:`measure_cost`: its fused kernel
+    (:meth:`models.btf.fused.FusedBtf.eval`, what ``btf_model`` renders with), bytes per
+    material its textures', per network its decoder's (``storage`` of its model.json)."""
+    from models.btf.fused import FusedBtf
+
+    seconds = fused_seconds(lambda mi: FusedBtf(model, mi).eval, "btf", batch, repeats,
+                            uv_first=True)  # fmt: skip
+    storage = model.doc.get("storage") or {}
+    return {
+        "format": COST_FORMAT,
+        "ns_per_eval": round(seconds / batch * 1e9, 3),
+        "runtime": FUSED,
+        "bytes_per_material": storage.get("texture_bytes"),
+        "bytes_per_network": storage.get("network_bytes"),
+        "method": FUSED_METHOD,
+        "batch": batch,
+        "repeats": repeats,
+    }
