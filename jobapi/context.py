@@ -107,7 +107,7 @@ class JobContext:
         self.device: str | None = None
         self.artifacts: dict[str, ArtifactRecord] = {}
         #: Timings the kind measured itself (:meth:`measure`), kept in the job's manifest.
-        self.measured: dict[str, float] = {}
+        self.measured: dict[str, Any] = {}
         self._published: dict[str, float] = {}
 
     def use_device(self, device: str) -> None:
@@ -207,17 +207,25 @@ class JobContext:
         text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
         return self.put_bytes(name, text.encode(), "application/json")
 
-    def measure(self, name: str, seconds: float) -> None:
-        """Record a timing the kind measured itself, e.g. ``render_seconds``: the render's
-        own passes without loading Mitsuba, the scene and JIT compilation. Timings are not
-        artifacts (same spec, same bytes): they go to the job's manifest under
-        ``timings.measured``, where result rows read them (:attr:`jobapi.rows.JobFacts.measured`).
-        ``name`` is a short identifier; ``seconds`` a finite number >= 0."""
+    def measure(self, name: str, value: float | dict[str, Any]) -> None:
+        """Record what the kind measured itself: a time in seconds (``render_seconds``: the
+        render's own passes, without loading Mitsuba, the scene and JIT compilation), or a
+        JSON document of timings (``cost``: a score's per-candidate ``ns_per_eval``).
+        Timings are not artifacts (same spec, same bytes): they go to the job's manifest
+        under ``timings.measured``, where result rows read them
+        (:attr:`jobapi.rows.JobFacts.measured`). ``name`` is a short identifier; a time is
+        a finite number >= 0; a document must be JSON without NaN."""
         if not re.fullmatch(r"[a-z][a-z0-9_]{0,63}", name):
             raise ValueError(f"a measurement's name is a short identifier, got {name!r}")
-        if not math.isfinite(seconds) or seconds < 0:
-            raise ValueError(f"measurement {name}: {seconds!r} is not a finite time >= 0")
-        self.measured[name] = float(seconds)
+        if isinstance(value, dict):
+            try:
+                self.measured[name] = json.loads(json.dumps(value, allow_nan=False))
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"measurement {name}: not a JSON document: {exc}") from None
+            return
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"measurement {name}: {value!r} is not a finite time >= 0")
+        self.measured[name] = float(value)
 
     def publish(self, name: str, obj: Any, *, min_interval_s: float = 1.0) -> bool:
         """Publish ``obj`` (JSON) as the live state of ``name`` while the job runs, e.g. its

@@ -29,7 +29,7 @@ def job_id_of_ref(ref: str) -> str | None:
     return m["job"] if m else None
 
 
-def job_facts(job: Job, measured: dict[str, float] | None = None) -> JobFacts:
+def job_facts(job: Job, measured: dict[str, Any] | None = None) -> JobFacts:
     """The :class:`JobFacts` of a queue row (``run_seconds`` from its start and end;
     ``measured``: the timings of its manifest, see :func:`measured_timings`)."""
     run_s = None
@@ -47,7 +47,7 @@ def job_facts(job: Job, measured: dict[str, float] | None = None) -> JobFacts:
     )
 
 
-def measured_timings(job: Job, store: ArtifactStore) -> dict[str, float]:
+def measured_timings(job: Job, store: ArtifactStore) -> dict[str, Any]:
     """The timings ``job``'s kind measured itself (``timings.measured`` of its manifest),
     ``{}`` when it has no manifest or the manifest has none."""
     digest = getattr(job, "manifest_digest", None)
@@ -62,11 +62,13 @@ def measured_timings(job: Job, store: ArtifactStore) -> dict[str, float]:
     got = (doc.get("timings") or {}).get("measured") if isinstance(doc, dict) else None
     if not isinstance(got, dict):
         return {}
-    return {
-        str(k): float(v)
-        for k, v in got.items()
-        if isinstance(v, (int, float)) and not isinstance(v, bool)
-    }
+    out: dict[str, Any] = {}
+    for k, v in got.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[str(k)] = float(v)
+        elif isinstance(v, dict):
+            out[str(k)] = v
+    return out
 
 
 class StoreSource:

@@ -195,7 +195,8 @@ class JobFacts:
         name: the spec's label, if any.
         run_seconds: wall seconds the job ran (``None`` if unknown).
         measured: the timings the kind measured itself (``JobContext.measure``), from the
-            job's manifest, e.g. ``render_seconds``; empty for jobs made before they were.
+            job's manifest: seconds (``render_seconds``) or documents (a score's ``cost``);
+            empty for jobs made before they were recorded.
     """
 
     id: str
@@ -204,7 +205,7 @@ class JobFacts:
     params: Mapping[str, Any]
     name: str | None = None
     run_seconds: float | None = None
-    measured: Mapping[str, float] = field(default_factory=dict)
+    measured: Mapping[str, Any] = field(default_factory=dict)
 
 
 class RowSource(Protocol):

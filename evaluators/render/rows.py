@@ -117,7 +117,7 @@ def render_facts(src: RowSource) -> dict[str, Any]:
 def render_seconds(src: RowSource) -> float | None:
     """The render's own time (``measured["render_seconds"]``), else the job's wall time."""
     own = src.job.measured.get("render_seconds")
-    return float(own) if own is not None else src.job.run_seconds
+    return float(own) if isinstance(own, (int, float)) else src.job.run_seconds
 
 
 def render_rows(src: RowSource) -> list[ResultRow]:

@@ -19,10 +19,10 @@
 Cost: every external candidate is timed by :func:`models.external.cost.measure_cost` (the
 fixed batch of ``train.brdf``'s ``speed.json``, in the model's own runtime), a built-in
 BTF by :func:`models.external.cost.measure_builtin_btf` (its fused kernel on the same
-batch), and written to
-``cost.json`` ``{"format", "candidates": {label: {ns_per_eval, runtime,
-bytes_per_network, method, batch, repeats}}}``: timings vary between runs, so it is the one
-non-deterministic artifact of such a job (``metrics.json`` stays byte-identical).
+batch), and recorded in the job's manifest as the measurement ``cost`` (``timings.measured.cost``:
+``{"format", "candidates": {label: {ns_per_eval, runtime, bytes_per_network, method,
+batch, repeats}}}``): timings vary between runs, so they are no artifact (the artifacts
+stay byte-identical for the same spec); the result rows read them from there.
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ def external_brdf_input(label: str, spec: ExternalCandidate, ctx: JobContext) ->
 
 
 def external_costs(models: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
-    """``cost.json`` of the external candidates ``{label: model}`` (see the module)."""
+    """The ``cost`` document of the external candidates ``{label: model}`` (see the module)."""
     from models.external.cost import COST_FORMAT, measure_cost
 
     out: dict[str, Any] = {}
@@ -142,7 +142,7 @@ def texel_uv(h: int, w: int, scale: tuple[float, float]) -> np.ndarray:
 
 def score_btf_slices(params: ScoreParams, ctx: JobContext) -> None:
     """Score every external BTF candidate on every slice of the reference BTF job; store
-    ``metrics.json`` (and ``cost.json``)."""
+    ``metrics.json`` (and the measurement ``cost`` in the manifest)."""
     from models.btf.cases import case_errors, predicted_slice_l1, slice_mean_abs
     from models.btf.data import BtfDataset
 
@@ -211,7 +211,7 @@ def score_btf_slices(params: ScoreParams, ctx: JobContext) -> None:
     ctx.progress(0.85, "timing the models")
     cost = external_costs(models, ctx)
     cost["candidates"].update(builtin_btf_costs(builtins, ctx))
-    ctx.put_json("cost.json", cost)
+    ctx.measure("cost", cost)
     ctx.progress(1.0, f"scored {len(models)} BTF model(s) on {len(data)} slices")
 
 
@@ -233,7 +233,7 @@ def load_builtin_btf(label: str, ref: str, ctx: JobContext) -> Any:
 
 
 def builtin_btf_costs(builtins: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
-    """``cost.json`` entries of the ``train.btf`` candidates, timed as the external ones."""
+    """``cost`` entries of the ``train.btf`` candidates, timed as the external ones."""
     from models.external.cost import measure_builtin_btf
 
     out = {}

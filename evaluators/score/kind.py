@@ -35,8 +35,9 @@ A user's model, ``{"external": {"model": REF, "kind": "brdf" | "btf"}}``
 scored as a ``brdf-model`` is; external BTFs are scored against the slices of a BTF job
 (reference ``job:<generate.btf id>``) with ``train.btf``'s L1, per failure case too. Each
 external candidate's cost, measured as the built-in models' (``ns_per_eval`` on a fixed
-batch in its runtime, parameter bytes), goes to ``cost.json``: the one artifact whose bytes
-vary between runs.
+batch in its runtime, parameter bytes), goes to the job's manifest as the measurement
+``cost`` (``timings.measured.cost``), not to an artifact: timings vary between runs, and the
+artifacts of a spec are the same bytes every time.
 
 Choices for images, recorded in ``metrics.json`` under ``settings``:
 
@@ -118,7 +119,7 @@ def run_score(params: ScoreParams, ctx: JobContext) -> None:
     users = {k: c.data.model for k, c in candidates.items() if c.kind == external.EXTERNAL_BRDF}
     if users:
         ctx.progress(0.95, f"timing {len(users)} external model(s)")
-        ctx.put_json("cost.json", external.external_costs(users, ctx))
+        ctx.measure("cost", external.external_costs(users, ctx))
     ctx.progress(1.0, f"scored {len(candidates)} candidates with {', '.join(metrics)}")
 
 
@@ -159,7 +160,7 @@ register(
         description="Scores candidate artifacts against a reference (images: FLIP, PSNR, "
         "SSIM, MAE, MSE; MERL BRDF tables, and trained models' materials against them: "
         "SMAPE, MAE in BRDF space).",
-        artifacts=("metrics.json", "flip_<label>.png", "cost.json"),
+        artifacts=("metrics.json", "flip_<label>.png"),
         smoke={
             "reference": "step:render/image.exr",
             "candidates": {"same": "step:render/image.exr"},

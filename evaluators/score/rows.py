@@ -10,7 +10,7 @@ row's ``dataset`` is the reference ref (a ``generate.merl`` job for a whole mode
 reference image).
 
 Costs, measured the same way for every model and named with their ``runtime``: an
-external candidate's (``{"external": {...}}``) from the job's ``cost.json``
+external candidate's (``{"external": {...}}``) from the job's measurement ``cost`` (manifest)
 (:mod:`models.external.cost`: ``ns_per_eval`` on the fixed batch, ``bytes_per_network`` its
 parameter bytes); a trained model's (``{"model": "job:<train>/model.json", ...}``) from its
 training job's rows (``speed.json``'s fused kernel time on the same kind of batch, bytes per
@@ -104,7 +104,7 @@ def score_rows(src: RowSource) -> list[ResultRow]:
     per = doc.get("per_material")
     per = per if isinstance(per, Mapping) else {}
     rows: list[ResultRow] = []
-    cost = src.read("cost.json")
+    cost = src.job.measured.get("cost")
     cases = doc.get("cases")
     cases = cases if isinstance(cases, Mapping) else {}
     for label, values in doc["metrics"].items():

@@ -14,7 +14,8 @@ square from the same seed), the median of :data:`COST_REPEATS` runs after one wa
   is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
 
 ``ns_per_eval`` = that time / batch; ``bytes_per_network`` = the model's ``param_bytes``.
-The document (``cost.json`` of a ``score`` job, :data:`COST_FORMAT`) names the ``runtime``
+The document (the measurement ``cost`` in a ``score`` job's manifest, :data:`COST_FORMAT`:
+not an artifact, since timings vary) names the ``runtime``
 and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
 run to run.
 """

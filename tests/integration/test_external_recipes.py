@@ -120,7 +120,8 @@ def test01_brdf_mlp_through_the_recipe(
     assert points["mine"]["runtime"] == points["hybrid"]["runtime"] == "drjit-fused"
     assert points["mine"]["cost"] > 0 and points["hybrid"]["cost"] > 0
     assert panel["runtimes"] == ["drjit-fused"] and "differ" not in panel["cost_label"]
-    cost = json.loads(artifact(conf, steps["scores"], "cost.json"))["candidates"]["mine"]
+    manifest = json.loads(ArtifactStore(conf.store_dir).read(steps["scores"].manifest_digest))
+    cost = manifest["timings"]["measured"]["cost"]["candidates"]["mine"]
     assert cost["bytes_per_network"] == 4 * sum(p.numel() for p in net.parameters())
 
     select = json.loads(artifact(conf, steps["select"], "select.json"))
