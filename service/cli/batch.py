@@ -342,6 +342,18 @@ def parse_batch(
     return Batch(source=source, steps=tuple(steps))
 
 
+def parse_vars(items: list[str]) -> dict[str, str]:
+    """``--var NAME=VALUE`` options as ``{name: value}``; :class:`BatchError` for an item
+    without ``=`` or a name."""
+    out: dict[str, str] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise BatchError([f"--var {item}: expected NAME=VALUE"])
+        out[name] = value
+    return out
+
+
 def load_batch(
     path: str | Path,
     *,

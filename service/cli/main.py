@@ -382,7 +382,7 @@ def batch(
     result table. ``--out`` writes the batch's result rows, one per measured value, as
     ``matforge results FILE`` does; ``--json`` prints the steps (job ids, states, metrics).
     """
-    from service.cli.batch import load_batch
+    from service.cli.batch import load_batch, parse_vars
     from service.cli.batch_run import run_batch
     from service.cli.results import metrics_tables, result_rows, results_table
     from service.cli.results_command import write_rows
@@ -390,14 +390,7 @@ def batch(
     if out is not None and out.suffix.lower() not in (".csv", ".json"):
         error(f"--out {out}: must end in .csv or .json")
         raise typer.Exit(EXIT_BAD_INPUT)
-    variables = {}
-    for item in var:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            error(f"--var {item}: expected NAME=VALUE")
-            raise typer.Exit(EXIT_BAD_INPUT)
-        variables[name] = value
-    plan = load_batch(file, variables=variables)
+    plan = load_batch(file, variables=parse_vars(var))
     with state_of(ctx).client() as client:
         outcome = run_batch(
             plan,

@@ -88,10 +88,10 @@ def _filters(
     return {k: v for k, v in out.items() if v}
 
 
-def _batch_steps(path: Path) -> list[dict[str, Any]]:
+def _batch_steps(path: Path, variables: dict[str, str] | None = None) -> list[dict[str, Any]]:
     from service.cli.batch import load_batch
 
-    plan = load_batch(path)
+    plan = load_batch(path, variables=variables)
     return [{"name": s.name, "spec": s.spec} for s in plan.steps]
 
 
@@ -105,7 +105,12 @@ def _warn_missing(source: str, steps: list[dict[str, Any]]) -> None:
         )
 
 
-def collect_local(data_dir: Path, args: list[str], filters: dict[str, Any]) -> list[dict[str, Any]]:
+def collect_local(
+    data_dir: Path,
+    args: list[str],
+    filters: dict[str, Any],
+    variables: dict[str, str] | None = None,
+) -> list[dict[str, Any]]:
     """The rows of ``args`` from the local store in ``data_dir``."""
     from service.cli.artifacts import open_local
     from service.results import RowFilter, batch_rows, select_rows
@@ -124,7 +129,7 @@ def collect_local(data_dir: Path, args: list[str], filters: dict[str, Any]) -> l
     rows: list[dict[str, Any]] = []
     for arg in args:
         if is_batch_file(arg):
-            result = batch_rows(_batch_steps(Path(arg)), jobs, store, where)
+            result = batch_rows(_batch_steps(Path(arg), variables), jobs, store, where)
             _warn_missing(arg, result.steps)
             rows += [r.document() for r in result.rows]
         else:
@@ -141,7 +146,10 @@ def collect_local(data_dir: Path, args: list[str], filters: dict[str, Any]) -> l
 
 
 def collect_remote(
-    ctx: typer.Context, args: list[str], filters: dict[str, Any]
+    ctx: typer.Context,
+    args: list[str],
+    filters: dict[str, Any],
+    variables: dict[str, str] | None = None,
 ) -> list[dict[str, Any]]:
     """The rows of ``args`` from the server."""
     rows: list[dict[str, Any]] = []
@@ -150,7 +158,7 @@ def collect_remote(
             return client.results(filters)
         for arg in args:
             if is_batch_file(arg):
-                doc = client.batch_results(_batch_steps(Path(arg)), filters)
+                doc = client.batch_results(_batch_steps(Path(arg), variables), filters)
                 _warn_missing(arg, list(doc.get("steps") or []))
                 rows += list(doc.get("rows") or [])
             else:
@@ -220,6 +228,11 @@ def register(app: typer.Typer) -> None:
             help="A method x metric table instead: per method the mean (and spread) of each "
             "metric and its costs, the best per column marked (--by names the method).",
         ),
+        var: list[str] = typer.Option(
+            [],
+            "--var",
+            help="NAME=VALUE for a batch file's vars, as given to `matforge batch`.",
+        ),
         by: str = typer.Option(
             "candidate",
             "--by",
@@ -235,13 +248,15 @@ def register(app: typer.Typer) -> None:
         if out is not None and out.suffix.lower() not in (".csv", ".json"):
             error(f"--out {out}: must end in .csv or .json")
             raise typer.Exit(EXIT_BAD_INPUT)
+        from service.cli.batch import parse_vars
+
         filters = _filters(kind, dataset, metric, candidate, scene)
         local = state_of(ctx).local_dir(data_dir)
         arg_list = list(args or [])
         if local is not None:
-            rows = collect_local(local, arg_list, filters)
+            rows = collect_local(local, arg_list, filters, parse_vars(var))
         else:
-            rows = collect_remote(ctx, arg_list, filters)
+            rows = collect_remote(ctx, arg_list, filters, parse_vars(var))
         if pivot:
             show_pivot(rows, by, out, as_json)
             return

@@ -523,3 +523,14 @@ def test31_vars_are_filled_from_the_command_line_or_their_defaults() -> None:
     bad = {**doc, "vars": {"model": "x"}}
     with pytest.raises(BatchError, match=r"var:spp: no variable 'spp'"):
         parse_batch(bad, validate=fake_validate)
+
+
+def test32_parse_vars() -> None:
+    """``--var NAME=VALUE`` (``batch`` and ``results`` share it): the value may hold ``=``;
+    an item without ``=`` or without a name is refused, naming it."""
+    from service.cli.batch import BatchError, parse_vars
+
+    assert parse_vars(["model=sha256:ab", "x=a=b"]) == {"model": "sha256:ab", "x": "a=b"}
+    for bad in ("model", "=v"):
+        with pytest.raises(BatchError, match=f"--var {bad}: expected NAME=VALUE"):
+            parse_vars([bad])
