@@ -55,8 +55,69 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
         m = SHA_REF.match(value)
         if m and not store.exists(m["digest"]):
             errors.append((loc, f"{value}: no such object in the store"))
+    if not errors:
+        errors = _external_model_errors(spec.params.model_dump(mode="json"), jobs, store)
     if errors:
         raise SpecError(errors)
+
+
+def _external_values(obj: Any, loc: str) -> Iterator[tuple[str, dict[str, Any]]]:
+    """``(location, value)`` of every ``{"external": {"model", "kind", ...}}`` in ``obj``."""
+    if isinstance(obj, dict):
+        ext = obj.get("external")
+        if isinstance(ext, dict) and isinstance(ext.get("model"), str):
+            yield f"{loc}.external", ext
+        for k, v in obj.items():
+            yield from _external_values(v, f"{loc}.{k}")
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _external_values(v, f"{loc}[{i}]")
+
+
+def _external_model_errors(
+    params: Any, jobs: JobStore, store: ArtifactStore
+) -> list[tuple[str, str]]:
+    """A user's model file whose signature is not its declared ``kind`` is refused before
+    queueing: an ONNX file's inputs (:func:`storage.formats.onnx.check_onnx_file`) or an MLP
+    file's ``format`` (``matforge.mlp-brdf/1`` for ``brdf``, ``-btf`` for ``btf``)."""
+    import json
+
+    from storage.formats.mlp_model import FORMATS
+    from storage.formats.onnx import check_onnx_file
+
+    errors: list[tuple[str, str]] = []
+    for loc, ext in _external_values(params, "params"):
+        ref, kind = ext["model"], ext.get("kind")
+        if kind not in ("brdf", "btf"):
+            continue  # the params model names it
+        digest = None
+        if (m := SHA_REF.match(ref)) is not None:
+            digest = m["digest"]
+        elif (m := JOB_REF.match(ref)) is not None:
+            try:
+                digest = jobs.artifact(m["job"], m["name"]).digest
+            except NotFoundError:
+                continue  # check_refs names it
+        if digest is None or not store.exists(digest):
+            continue
+        path = store.path(digest)
+        with open(path, "rb") as fh:
+            head = fh.read(1)
+        try:
+            if head == b"{":
+                doc = json.loads(path.read_text(encoding="utf-8"))
+                found = FORMATS.get(str(doc.get("format"))) if isinstance(doc, dict) else None
+                if found is not None and found != kind:
+                    errors.append(
+                        (f"{loc}.kind", f"{ref} is a {found} model ({doc['format']}), not {kind}")
+                    )
+            else:
+                check_onnx_file(path, ref, kind)
+        except FormatError as exc:
+            errors.append((f"{loc}.model", str(exc)))
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            errors.append((f"{loc}.model", f"{ref}: {exc}"))
+    return errors
 
 
 def _has_short_ref(obj: Any) -> bool:

@@ -106,3 +106,44 @@ def test03_memory_is_bounded_by_the_checker(tmp_path: Path) -> None:
         assert checker.validate(small, "small.onnx") == "application/x-onnx"
     finally:
         checker.close()
+
+
+def test04_a_wrong_declared_kind_is_refused_before_queueing(client: TestClient) -> None:
+    """An uploaded ONNX BRDF named as a BTF (and the other way round) is a 422 naming the
+    field and the signature, and nothing is queued (the reference: the file's own inputs)."""
+    r = client.post(
+        "/api/artifacts?name=lambert.onnx",
+        content=lambert_model("brdf").SerializeToString(),
+        headers=OCTETS,
+    )
+    assert r.status_code == 201, r.text
+    ref = r.json()["ref"]
+    before = len(client.get("/api/jobs").json())
+    spec = {"kind": "render", "params": {"scene": "sphere_env", "spp": 1, "resolution": [8, 8],
+            "material": {"external": {"model": ref, "kind": "btf"}}}}  # fmt: skip
+    res = client.post("/api/jobs", json=spec)
+    assert res.status_code == 422, res.text
+    assert "params.material.external.model" in res.text and "declared kind 'btf'" in res.text
+    assert len(client.get("/api/jobs").json()) == before
+    spec["params"]["material"]["external"]["kind"] = "brdf"  # type: ignore[index]
+    assert client.post("/api/jobs", json=spec).status_code == 201
+
+
+def test05_an_mlp_file_of_the_other_kind_is_refused_before_queueing(
+    client: TestClient, tmp_path: Path
+) -> None:
+    """A ``matforge.mlp-brdf/1`` file declared as a BTF: a 422 naming ``kind`` and the
+    file's format (the reference: the format the exporter wrote)."""
+    import torch
+
+    from matforge.export import brdf_mlp
+
+    net = torch.nn.Sequential(torch.nn.Linear(6, 8), torch.nn.ReLU(), torch.nn.Linear(8, 3))
+    path = brdf_mlp(net, tmp_path / "mine.json")
+    r = client.post("/api/artifacts?name=mine.json", content=path.read_bytes(), headers=OCTETS)
+    assert r.status_code == 201, r.text
+    spec = {"kind": "render", "params": {"scene": "sphere_env", "spp": 1, "resolution": [8, 8],
+            "material": {"external": {"model": r.json()["ref"], "kind": "btf"}}}}  # fmt: skip
+    res = client.post("/api/jobs", json=spec)
+    assert res.status_code == 422, res.text
+    assert "params.material.external.kind" in res.text and "matforge.mlp-brdf/1" in res.text
