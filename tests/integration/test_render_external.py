@@ -180,9 +180,9 @@ def test02_bad_files_are_refused_at_import_and_in_the_job(
     # The right file, the wrong kind.
     good = export.brdf_mlp(None, tmp_path / "a.json", analytic={"kd": KD, "alpha": 0.3, "eta": 1.5})
     params["material"] = {"external": {"model": _import(settings, good), "kind": "btf"}}
-    job = run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
-    assert job.state == "failed" and job.error is not None
-    assert job.error.startswith("material.external.kind: ") and "is a brdf model" in job.error
+    # refused before queueing, naming the field and the file's format
+    with pytest.raises(SpecError, match=r"params\.material\.external\.kind: .* is a brdf model"):
+        run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
 
 
 def test03_spec_time_errors(settings: Settings) -> None:

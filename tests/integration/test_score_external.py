@@ -26,6 +26,7 @@ from pydantic import ValidationError
 import models.external
 from evaluators.metrics.brdf import DEFAULT_PAIRS, PAIRS_SEED, TableSampler, direction_pairs
 from evaluators.score.kind import ScoreParams
+from jobapi.errors import SpecError
 from jobapi.row_sources import StoreSource
 from materials.tabulate import tabulate_analytic
 from service.settings import Settings
@@ -314,16 +315,17 @@ def test05_wrong_file_named(tmp_path: Path, settings: Settings) -> None:
     btf_onnx = upload(
         onnx_models.save(onnx_models.lambert_model("btf"), tmp_path / "b.onnx"), settings
     )
-    job = run_in_process(
-        {
-            "kind": "score",
-            "seed": 0,
-            "params": {
-                "reference": table_ref,
-                "candidates": {"x": {"external": {"model": btf_onnx, "kind": "brdf"}}},
-            },
+    spec = {
+        "kind": "score",
+        "seed": 0,
+        "params": {
+            "reference": table_ref,
+            "candidates": {"x": {"external": {"model": btf_onnx, "kind": "brdf"}}},
         },
-        settings,
-    )
-    assert job.state == "failed"
-    assert "candidate 'x'" in (job.error or "") and btf_onnx in (job.error or "")
+    }
+    # refused before queueing, naming the field, the file and the signature it needs
+    with pytest.raises(SpecError) as err:
+        run_in_process(spec, settings)
+    text = str(err.value)
+    assert "params.candidates.x.external.model" in text and btf_onnx in text
+    assert "declared kind 'brdf' needs inputs (wi, wo)" in text
