@@ -99,9 +99,10 @@ def fused_seconds(make: Any, kind: str, batch: int, repeats: int, *, uv_first: b
     from models.speed import time_fused
 
     mi = load_mitsuba()
-    if not mi.variant().startswith("llvm_"):
+    if not mi.variant().startswith(("llvm_", "cuda_")):
         raise ValueError(
-            f"timing the fused kernel needs Mitsuba's LLVM variant, not {mi.variant()}"
+            f"timing the fused kernel needs a vectorised Mitsuba variant (LLVM or CUDA), "
+            f"not {mi.variant()}"
         )
     import drjit as dr
 

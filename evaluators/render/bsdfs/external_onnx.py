@@ -217,6 +217,9 @@ def _define_class(mi: types.ModuleType) -> type:
     class ExternalOnnx:
         """Factory: the BRDF or BTF class by the ``kind`` property."""
 
+        #: The BSDF classes it makes (both ``mi.BSDF`` subclasses of this variant).
+        variants = (OnnxBrdf, OnnxBtf)
+
         def __new__(cls, props: Any) -> Any:
             model = _load(props)
             return (OnnxBtf if model.kind == "btf" else OnnxBrdf)(props, model)
