@@ -238,20 +238,26 @@ def test04_lambertian_mlp_btf_renders_like_mitsubas_diffuse(
     assert_same_render(ours, native, rtol=1e-5)
 
 
-def test05_onnx_without_the_onnx_path_is_a_clear_failure(settings: Settings) -> None:
-    import importlib.util
-
-    if importlib.util.find_spec("evaluators.render.bsdfs.external_onnx") is not None:
-        pytest.skip("this build renders ONNX models (tests/integration for the ONNX path)")
+def test05_a_broken_onnx_file_in_the_store_is_refused_before_queueing(
+    settings: Settings,
+) -> None:
+    """A file that reached the store without the upload check (a ModelProto cut after its
+    first fields) is refused at submission, naming the field and the file, and nothing is
+    queued (the reference: onnx's own parser refuses the bytes)."""
     store, jobs = ArtifactStore(settings.store_dir), JobStore(settings.db_path)
     try:
         info = store.put_bytes(b"\x08\x08\x12\x07pytorch")  # a ModelProto's first fields
         jobs.record_upload(info.digest, "m.onnx", "application/octet-stream", info.size)
+        before = jobs.count_jobs()
     finally:
         jobs.close()
     ref = f"sha256:{info.digest}"
     material = {"external": {"model": ref, "kind": "brdf"}}
     params = {"material": material, "resolution": [8, 8], "spp": 1}
-    job = run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
-    assert job.state == "failed" and job.error is not None
-    assert job.error.startswith(f"material.external.model: {ref} is an ONNX model, but this ")
+    with pytest.raises(SpecError, match=r"params\.material\.external\.model: .*" + ref[7:17]):
+        run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
+    jobs = JobStore(settings.db_path)
+    try:
+        assert jobs.count_jobs() == before
+    finally:
+        jobs.close()
