@@ -3,15 +3,23 @@
 Renders ``sphere_env`` exactly as the ``render`` kind does (same scene dict, passes of about
 4 M paths, host read-back after every pass, so Dr.Jit's lazy evaluation cannot hide work)
 with a native Mitsuba material and with the ``merl_table`` BSDF of its tabulation
-(:mod:`evaluators.render.bsdfs.merl_table`): a GGX gold conductor (alpha 0.3) and a rough plastic.
-Each
-configuration is warmed up once (kernel compilation), then timed ``--repeats`` times,
-native and table renders interleaved; a row reports the median wall time, the throughput
-relative to the native BSDF, the median CPU time of the process (all its threads) and the
-throughput ratio by CPU time, and the 1-minute load average after the runs. On a shared,
-loaded machine the wall-clock ratio swings with whatever else runs (other processes take
-the cores for whole time slices); the CPU-time ratio counts only this process's own work
-and is the steadier figure (it still sees the cache misses other processes cause).
+(:mod:`evaluators.render.bsdfs.merl_table`): a GGX gold conductor (alpha 0.3) and a rough
+plastic. The table BSDF is rendered in each of the ``--arms`` asked for, all in one run:
+``PRECISION/LAYOUT`` with the precisions ``float32`` (the default, 17.5 MB), ``float16``
+(11.7 MB, one 64-bit word per bin) and ``rgb9e5`` (5.8 MB, one 32-bit shared-exponent word
+per bin), and the layouts ``phi_d`` (MERL's order, phi_d fastest) and ``theta_h`` (theta_h
+fastest); and ``texture``, the float32 table read through Dr.Jit's ``Texture3f``
+(a measurement arm only, see :func:`texture_bsdf`).
+
+Each configuration is warmed up once (kernel compilation), then timed ``--repeats`` times,
+native and table renders interleaved (one of each per repeat, at that repeat's seeds); a
+row reports the median wall time, the throughput relative to the native BSDF, the median
+CPU time of the process (all its threads), the throughput ratio by CPU time, the range of
+the per-repeat CPU-time ratios (each against the native render of the same repeat: the
+spread over seeds), and the 1-minute load average after the runs. On a shared, loaded
+machine the wall-clock ratio swings with whatever else runs (other processes take the
+cores for whole time slices); the CPU-time ratio counts only this process's own work and
+is the steadier figure (it still sees the cache misses other processes cause).
 
 With ``--breakdown`` the same run also renders variants of the table BSDF whose ``brdf``
 is cut down, to show where its time goes: no table read (a constant), the bin coordinates
@@ -19,7 +27,7 @@ only, one read of the nearest bin, and both of those with every read confined to
 L2-sized slice of the table (768 KB). Sampling and pdf are the table BSDF's own in all.
 
 Run: ``.venv/bin/python benchmarks/bench_merl_bsdf.py [--repeats 5] [--spp 64] [--size 256]
-[--breakdown]``
+[--arms float32/phi_d rgb9e5/phi_d ...] [--breakdown]``
 """
 
 from __future__ import annotations
@@ -32,6 +40,8 @@ import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -66,9 +76,9 @@ MATERIALS: dict[str, dict[str, Any]] = {
 
 def bench(
     bsdfs: dict[str, Any], size: int, spp: int, max_depth: int, repeats: int
-) -> dict[str, tuple[float, float, float]]:
-    """Median wall seconds of one full ``sphere_env`` render per BSDF, its Mpaths/s, and
-    the median CPU seconds of the process over the render.
+) -> dict[str, tuple[float, float, float, list[float]]]:
+    """Median wall seconds of one full ``sphere_env`` render per BSDF, its Mpaths/s, the
+    median CPU seconds of the process over the render, and the CPU seconds of each repeat.
 
     The BSDFs' renders are interleaved (one of each per repeat), so that a change in the
     machine's load affects them alike and their ratio stays meaningful.
@@ -91,7 +101,8 @@ def bench(
     out = {}
     for label, t in times.items():
         seconds = statistics.median(t)
-        out[label] = (seconds, size * size * spp / seconds / 1e6, statistics.median(cpu[label]))
+        rate = size * size * spp / seconds / 1e6
+        out[label] = (seconds, rate, statistics.median(cpu[label]), cpu[label])
     return out
 
 
@@ -165,6 +176,50 @@ def breakdown_bsdfs(mi: Any, table: MerlTable) -> dict[str, Any]:
     return out
 
 
+def texture_bsdf(mi: Any, table: MerlTable, lobe: Any) -> Any:
+    """The table BSDF reading its table through Dr.Jit's ``Texture3f`` (trilinear, clamped
+    at the edges; phi_d made periodic by one padding bin on each side). A measurement arm
+    only: the texture cannot renormalise missing corners, so it is not shipped."""
+    import drjit as dr
+
+    cls = register_merl_bsdf(mi)
+    n_p = table.phi_d_bins
+    rgb = np.asarray(table.rgb, np.float32)
+    padded = np.concatenate([rgb[:, :, -1:], rgb, rgb[:, :, :1]], axis=2)
+    ops = hd.drjit_ops(dr)
+
+    def brdf(self: Any, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
+        active = active & (wi.z > 0) & (wo.z > 0)
+        th, td, pd = hd.halfdiff_angles(wi.x, wi.y, wi.z, wo.x, wo.y, wo.z, ops)
+        u_h, u_d, u_p = hd.merl_coordinates(th, td, pd, n_p, ops)
+        # Texture3f axes: tensor (D, H, W, C) = (theta_h, theta_d, phi_d + 2, 3); pos (x, y, z)
+        # along (W, H, D); texel centres at (i + 1/2) / N, as MERL's bin centres.
+        pos = mi.Point3f((u_p + 1.0) / (n_p + 2), u_d / hd.RES_THETA_D, u_h / hd.RES_THETA_H)
+        v = self.texture.eval(pos, active)
+        value = dr.maximum(mi.Color3f(v[0], v[1], v[2]), 0.0)
+        return dr.select(active, value, 0.0)
+
+    def init(self: Any, props: Any) -> None:
+        cls.__init__(self, props)
+        self.texture = mi.Texture3f(
+            mi.TensorXf(padded),
+            use_accel=True,
+            filter_mode=dr.FilterMode.Linear,
+            wrap_mode=dr.WrapMode.Clamp,
+        )
+
+    sub = type("MerlTexture", (cls,), {"brdf": brdf, "__init__": init})
+    mi.register_bsdf("merl_table_texture", lambda props: sub(props))
+    return mi.load_dict(
+        {
+            "type": "merl_table_texture",
+            "data": mi.TensorXf(rgb),
+            "alpha": lobe.alpha,
+            "specular_weight": lobe.specular_weight,
+        }
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
@@ -172,36 +227,59 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--breakdown", action="store_true", help="also render cut-down variants")
+    ap.add_argument(
+        "--arms",
+        nargs="+",
+        default=[
+            "float32/phi_d",
+            "float32/theta_h",
+            "float16/phi_d",
+            "float16/theta_h",
+            "rgb9e5/phi_d",
+            "rgb9e5/theta_h",
+            "texture",
+        ],
+        help="table arms PRECISION/LAYOUT (float32|float16 / phi_d|theta_h), or 'texture'",
+    )
     args = ap.parse_args()
     mi = load_mitsuba()
     machine = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
     print(
         "| scene | material | BSDF | resolution | spp | max_depth | variant | median s "
-        "| Mpaths/s | table / native | median CPU s | table / native (CPU) | machine "
-        "| load (1 min) |"
+        "| Mpaths/s | table / native | median CPU s | table / native (CPU) "
+        "| CPU ratio over repeats | machine | load (1 min) |"
     )
-    print("| --- " * 14 + "|")
+    print("| --- " * 15 + "|")
     for name, plugin in MATERIALS.items():
         table, _ = tabulate_mitsuba(plugin)
         bsdfs = {"native": load_bsdf(plugin, mi, name)}
         if args.breakdown:
             bsdfs.update(breakdown_bsdfs(mi, table))
         else:
-            bsdfs["merl_table"] = merl_bsdf(mi, table)
+            lobe = fit_sampling_lobe(table.rgb)
+            for arm in args.arms:
+                if arm == "texture":
+                    bsdfs[arm] = texture_bsdf(mi, table, lobe)
+                    continue
+                precision, layout = arm.split("/")
+                bsdfs[arm] = merl_bsdf(mi, table, lobe, precision=precision, layout=layout)
         results = bench(bsdfs, args.size, args.spp, args.max_depth, args.repeats)
         native_rate, native_cpu = results["native"][1], results["native"][2]
-        for label, (seconds, rate, cpu) in results.items():
+        native_each = results["native"][3]
+        for label, (seconds, rate, cpu, each) in results.items():
+            paired = [n / c for n, c in zip(native_each, each, strict=True)]
             print(
                 f"| sphere_env | {name} | {label} | {args.size}x{args.size} | {args.spp} | "
                 f"{args.max_depth} | {active_variant()} | {seconds:.3f} | {rate:.2f} | "
-                f"{rate / native_rate:.2f} | {cpu:.3f} | {native_cpu / cpu:.2f} | {machine} | "
+                f"{rate / native_rate:.2f} | {cpu:.3f} | {native_cpu / cpu:.2f} | "
+                f"{min(paired):.2f}-{max(paired):.2f} | {machine} | "
                 f"{os.getloadavg()[0]:.1f} |",
                 flush=True,
             )
     print(
         f"\nreproduce: .venv/bin/python benchmarks/bench_merl_bsdf.py --repeats {args.repeats} "
-        f"--spp {args.spp} --size {args.size} --max-depth {args.max_depth}"
-        + (" --breakdown" if args.breakdown else "")
+        f"--spp {args.spp} --size {args.size} --max-depth {args.max_depth} "
+        f"--arms {' '.join(args.arms)}" + (" --breakdown" if args.breakdown else "")
     )
 
 

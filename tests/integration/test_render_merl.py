@@ -133,12 +133,20 @@ def test01_merl_render_matches_mitsuba(
     ref = f"sha256:{record.digest}"
 
     merl = tuple(render(settings, {"merl": ref}, seed) for seed in (1, 2))
+    # The smallest table (shared-exponent words), through the spec's sibling key.
+    small = {"merl": ref, "table_precision": "rgb9e5"}
+    merl_small = tuple(render(settings, small, seed) for seed in (7, 8))
     native = tuple(render(settings, {"mitsuba": plugin}, seed) for seed in (3, 4))
     other = tuple(render(settings, {"mitsuba": perturbed}, seed) for seed in (5, 6))
     stats = compare(merl, native)  # type: ignore[arg-type]
+    stats_small = compare(merl_small, native)  # type: ignore[arg-type]
     control = compare(other, native)  # type: ignore[arg-type]
-    print(f"\n{name}: merl vs mitsuba {stats}\n{name}: perturbed vs mitsuba {control}")
+    print(
+        f"\n{name}: merl vs mitsuba {stats}\n{name}: merl rgb9e5 vs mitsuba {stats_small}"
+        f"\n{name}: perturbed vs mitsuba {control}"
+    )
     assert accepted(stats), stats
+    assert accepted(stats_small), stats_small
     assert not accepted(control), control
 
 
@@ -166,6 +174,9 @@ def test03_spec_time_errors(settings: Settings) -> None:
         run_in_process(
             {"kind": "render", "params": {"material": {"merl": "gold.binary"}}}, settings
         )
+    with pytest.raises(SpecError, match="table_precision"):
+        material = {"merl": "sha256:" + "0" * 64, "table_precision": "float8"}
+        run_in_process({"kind": "render", "params": {"material": material}}, settings)
     missing = "sha256:" + "0" * 64
     with pytest.raises(SpecError, match="no such object in the store"):
         run_in_process({"kind": "render", "params": {"material": {"merl": missing}}}, settings)

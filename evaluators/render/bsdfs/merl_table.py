@@ -9,7 +9,11 @@ the variant's own types (``mi.Float``, ``mi.TensorXf``, ``dr.gather``), no backe
 ``scalar_rgb`` fallback, registration raises ``RuntimeError``. On 2 cores it renders at
 about 0.7x the speed of the native BSDF it tabulates (``benchmarks/bench_merl_bsdf.py``;
 BENCHMARKS.md): the gap is the table's random reads (17.5 MB, larger than a core's L2),
-not arithmetic.
+not arithmetic. Smaller tables are read faster: the ``precision`` parameter holds the table
+as ``float16`` (one 64-bit word of three IEEE halves per bin, 11.7 MB) or ``rgb9e5`` (one
+32-bit word per bin, three 9-bit mantissas sharing a 5-bit exponent, 5.8 MB), which
+measured 0.86-0.93x native against 0.75-0.80x for float32 on an Intel Xeon with 2 MB of L2
+per core (BENCHMARKS.md); the default stays ``float32``, so renders keep their bytes.
 
 Evaluation
     The multilinear interpolation of :func:`materials.halfdiff.lookup` (``interpolate=True``)
@@ -19,7 +23,15 @@ Evaluation
     :func:`~materials.halfdiff.merl_coordinates` (both called with
     :func:`~materials.halfdiff.drjit_ops`), eight ``dr.gather`` calls of one RGB bin each,
     theta_h and theta_d clamped at the table edges, phi_d periodic. The table is held as
-    float32 (17.5 MB for 180 phi_d bins).
+    float32 (17.5 MB for 180 phi_d bins) unless ``precision`` says otherwise.
+Storage
+    ``precision``: ``float32`` (default, exact), ``float16`` (relative rounding at most
+    2^-11 per channel; decoded with integer shifts and one multiply, no 16-bit gathers, which
+    LLVM splits into scalar loads) or ``rgb9e5`` (the largest channel of a bin within 2^-9,
+    the others within half a unit of the shared scale; only for tables whose bins are
+    missing in all channels or none, a missing bin being the word ``0xFFFFFFFF``). The
+    encodings round the float32 table. ``layout``: ``phi_d`` (default, MERL's order) or
+    ``theta_h`` (theta_h fastest); same values, other addresses.
 Missing entries
     Negative entries are missing (MERL's convention). As in the numpy reference, a missing
     corner gets zero weight and the other corners are renormalised, per channel; where all
@@ -68,8 +80,49 @@ def register_merl_bsdf(mi: types.ModuleType) -> type:
     return register_vectorised_bsdf(mi, MERL_BSDF_NAME, _define_class, "MERL table BSDF")
 
 
-def merl_bsdf(mi: types.ModuleType, table: MerlTable, lobe: SamplingLobe | None = None) -> Any:
-    """An instantiated table BSDF (``mi.BSDF``) for ``table``; fits the lobe if not given."""
+#: Storage precisions of the table: ``float32`` (exact, 17.5 MB at 180 phi_d bins) and
+#: ``float16`` (IEEE half, 8.7 MB; relative rounding at most 2^-11).
+PRECISIONS = ("float32", "float16", "rgb9e5")
+#: Orders of the table in memory: ``phi_d`` fastest (MERL's own) or ``theta_h`` fastest.
+LAYOUTS = ("phi_d", "theta_h")
+
+
+#: The word of a missing bin in the ``rgb9e5`` table (decodes as -1 in every channel).
+RGB9E5_MISSING = 0xFFFFFFFF
+
+
+def encode_rgb9e5(rgb: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` non-negative RGB (negative: a missing bin) to ``uint32`` shared-exponent
+    words: three 9-bit mantissas and a 5-bit exponent (bias 15), rounded to nearest, as in
+    OpenGL's ``EXT_texture_shared_exponent``; values clamped to 65408, the format's largest.
+    The largest channel keeps 9 significant bits (relative error at most 2^-9: its mantissa
+    is at least 256); smaller channels share its scale (error at most half a unit of it)."""
+    n_bits, bias = 9, 15
+    top = (2**n_bits - 1) / 2**n_bits * 2.0 ** (31 - bias)
+    x = np.clip(np.asarray(rgb, np.float64), 0.0, top)
+    peak = x.max(axis=1)
+    with np.errstate(divide="ignore"):
+        exp = np.maximum(-bias - 1, np.floor(np.log2(np.maximum(peak, 1e-300)))) + 1 + bias
+    mant_peak = np.floor(peak / 2.0 ** (exp - bias - n_bits) + 0.5)
+    exp = np.where(mant_peak >= 2**n_bits, exp + 1, exp)
+    mant = np.floor(x / 2.0 ** (exp - bias - n_bits)[:, None] + 0.5).astype(np.uint32)
+    words = mant[:, 0] | (mant[:, 1] << 9) | (mant[:, 2] << 18) | (exp.astype(np.uint32) << 27)
+    return np.where((np.asarray(rgb) < 0).any(axis=1), np.uint32(RGB9E5_MISSING), words)
+
+
+def merl_bsdf(
+    mi: types.ModuleType,
+    table: MerlTable,
+    lobe: SamplingLobe | None = None,
+    *,
+    precision: str = "float32",
+    layout: str = "phi_d",
+) -> Any:
+    """An instantiated table BSDF (``mi.BSDF``) for ``table``; fits the lobe if not given.
+
+    ``precision`` and ``layout`` choose how the table is held in memory (:data:`PRECISIONS`,
+    :data:`LAYOUTS`); the defaults are the exact float32 table in MERL's order.
+    """
     register_merl_bsdf(mi)
     lobe = lobe or fit_sampling_lobe(table.rgb)
     return mi.load_dict(
@@ -78,6 +131,8 @@ def merl_bsdf(mi: types.ModuleType, table: MerlTable, lobe: SamplingLobe | None 
             "data": mi.TensorXf(table.rgb.astype(np.float32)),
             "alpha": lobe.alpha,
             "specular_weight": lobe.specular_weight,
+            "precision": precision,
+            "layout": layout,
         }
     )
 
@@ -103,6 +158,15 @@ def _define_class(mi: types.ModuleType) -> type:
         i1 = mi.UInt32(dr.clip(i1, 0, n - 1))
         return (i0, 1.0 - w1), (i1, w1)
 
+    def _half(bits: Any) -> Any:
+        # IEEE half (low 16 bits) to float32: the magnitude's bits shifted into float32's
+        # place and scaled by 2^(127 - 15) (exact for normals, subnormals and zero), sign
+        # copied. Halves hold no infinities or NaNs here (the table is finite).
+        magnitude = dr.reinterpret_array(
+            mi.Float, ((bits & 0x7FFF) << 13) | ((bits & 0x8000) << 16)
+        )
+        return magnitude * 5.192296858534828e33
+
     class MerlBSDF(mixture_reflector_base(mi)):  # type: ignore[misc]
         """MERL table BSDF (plugin ``"merl_table"``).
 
@@ -116,6 +180,10 @@ def _define_class(mi: types.ModuleType) -> type:
                                                         physical BRDF in 1/sr (instead of a file)
         ``alpha``              float          fitted    GGX roughness of the sampling lobe
         ``specular_weight``    float          fitted    probability of sampling the GGX lobe
+        ``precision``          string         float32   ``float32``, ``float16`` or ``rgb9e5``:
+                                                        how the table is held (module docs)
+        ``layout``             string         phi_d     ``phi_d`` or ``theta_h``: which
+                                                        angle's bins are adjacent in memory
         =====================  =============  ========  =========================================
 
         Example (XML, as the chi-square harness loads it)::
@@ -147,12 +215,37 @@ def _define_class(mi: types.ModuleType) -> type:
                 raise ValueError("merl_table: need alpha > 0, 0 <= specular_weight <= 1")
             self.alpha, self.specular_weight = float(alpha), float(weight)
             self.sampling = MixtureSampling(self.alpha, self.specular_weight)
-            table = np.ascontiguousarray(rgb, dtype=np.float32)
+            precision = str(props.get("precision", "float32"))
+            layout = str(props.get("layout", "phi_d"))
+            if precision not in PRECISIONS:
+                raise ValueError(
+                    f"merl_table: precision must be one of {PRECISIONS}, not {precision!r}"
+                )
+            if layout not in LAYOUTS:
+                raise ValueError(f"merl_table: layout must be one of {LAYOUTS}, not {layout!r}")
+            self.precision, self.layout = precision, layout
+            table = np.asarray(rgb, dtype=np.float32)
             valid = table >= 0.0
             # True when every bin is missing in all its channels or in none (tabulations):
             # the lookup then tests one channel and keeps one weight sum.
             self.whole_bins_missing = bool(np.array_equal(valid.all(axis=-1), valid.any(axis=-1)))
-            self.table = mi.Float(table.ravel())
+            if layout == "theta_h":
+                table = table.transpose(2, 1, 0, 3)  # (P, 90 theta_d, 90 theta_h, 3)
+            table = np.ascontiguousarray(table).ravel()
+            if precision == "float16":
+                # One 64-bit word per bin: R, G, B as IEEE halves in bits 0-15, 16-31, 32-47.
+                half = table.astype(np.float16).view(np.uint16).reshape(-1, 3).astype(np.uint64)
+                words = half[:, 0] | (half[:, 1] << 16) | (half[:, 2] << 32)
+                self.table = dr.uint64_array_t(mi.Float)(words)
+            elif precision == "rgb9e5":
+                if not self.whole_bins_missing:
+                    raise ValueError(
+                        "merl_table: precision 'rgb9e5' needs bins missing in all channels "
+                        "or none; this table has bins missing in some channels only"
+                    )
+                self.table = mi.UInt32(encode_rgb9e5(table.reshape(-1, 3)))
+            else:
+                self.table = mi.Float(table)
             self.m_flags = flags
             self.m_components = [flags]
 
@@ -172,10 +265,9 @@ def _define_class(mi: types.ModuleType) -> type:
             wsum = dr.zeros(mi.Float if self.whole_bins_missing else mi.Color3f)
             for i_h, w_h in ax_h:
                 for i_d, w_d in ax_d:
-                    row = (i_h * hd.RES_THETA_D + i_d) * n_p
                     w_hd = w_h * w_d
                     for i_p, w_p in ax_p:
-                        v = dr.gather(mi.Color3f, self.table, row + i_p, active)
+                        v = self._read(self._index(i_h, i_d, i_p), active)
                         if self.whole_bins_missing:
                             w = dr.select(v.x >= 0.0, w_hd * w_p, 0.0)
                             acc = dr.fma(v, w, acc)
@@ -186,6 +278,26 @@ def _define_class(mi: types.ModuleType) -> type:
                         wsum += w
             value = dr.select(wsum > 0.0, acc / dr.maximum(wsum, 1e-30), 0.0)
             return dr.select(active, value, 0.0)
+
+        def _index(self, i_h: Any, i_d: Any, i_p: Any) -> Any:
+            if self.layout == "theta_h":
+                return (i_p * hd.RES_THETA_D + i_d) * hd.RES_THETA_H + i_h
+            return (i_h * hd.RES_THETA_D + i_d) * self.phi_d_bins + i_p
+
+        def _read(self, index: Any, active: Any) -> Any:
+            if self.precision == "float32":
+                return dr.gather(mi.Color3f, self.table, index, active)
+            word = dr.gather(type(self.table), self.table, index, active)
+            if self.precision == "rgb9e5":
+                scale = dr.reinterpret_array(mi.Float, ((word >> 27) + (127 - 15 - 9)) << 23)
+                rgb = mi.Color3f(
+                    mi.Float(word & 0x1FF),
+                    mi.Float((word >> 9) & 0x1FF),
+                    mi.Float((word >> 18) & 0x1FF),
+                )
+                return dr.select(word == RGB9E5_MISSING, -1.0, rgb * scale)
+            lo, hi = mi.UInt32(word & 0xFFFFFFFF), mi.UInt32(word >> 32)
+            return mi.Color3f(_half(lo & 0xFFFF), _half(lo >> 16), _half(hi & 0xFFFF))
 
         def to_string(self) -> str:
             return (

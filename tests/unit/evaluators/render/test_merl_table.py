@@ -211,17 +211,30 @@ def test04_fitted_lobe(tables: dict[str, Path]) -> None:
         fit_sampling_lobe(np.full((90, 90, 180, 3), hd.MISSING))
 
 
-CHI2_CASES = [(name, deg) for name in sorted(PLUGINS) for deg in (0, 30, 60)]
+CHI2_CASES = [
+    (name, deg, precision)
+    for name in sorted(PLUGINS)
+    for deg in (0, 30, 60)
+    for precision in ("float32", "rgb9e5")
+]
 
 
-@pytest.mark.parametrize(("name", "deg"), CHI2_CASES, ids=[f"{n}-{d}deg" for n, d in CHI2_CASES])
-def test05_chi2(mi: types.ModuleType, tables: dict[str, Path], name: str, deg: int) -> None:
-    """Mitsuba's chi-square test of ``sample`` against ``pdf`` (1 M samples, seed 0)."""
+@pytest.mark.parametrize(
+    ("name", "deg", "precision"), CHI2_CASES, ids=[f"{n}-{d}deg-{p}" for n, d, p in CHI2_CASES]
+)
+def test05_chi2(
+    mi: types.ModuleType, tables: dict[str, Path], name: str, deg: int, precision: str
+) -> None:
+    """Mitsuba's chi-square test of ``sample`` against ``pdf`` (1 M samples, seed 0), with
+    the exact table and with the smallest one (``rgb9e5``)."""
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
     t = math.radians(deg)
     wi = mi.Vector3f(math.sin(t), 0.0, math.cos(t))
-    xml = f'<string name="filename" value="{tables[name]}"/>'
+    xml = (
+        f'<string name="filename" value="{tables[name]}"/>'
+        f'<string name="precision" value="{precision}"/>'
+    )
     sample_func, pdf_func = BSDFAdapter(MERL_BSDF_NAME, xml, wi=wi)
     chi2: Any = ChiSquareTest(
         domain=SphericalDomain(), sample_func=sample_func, pdf_func=pdf_func, sample_dim=3
@@ -231,13 +244,14 @@ def test05_chi2(mi: types.ModuleType, tables: dict[str, Path], name: str, deg: i
     assert ok, chi2.messages
 
 
+@pytest.mark.parametrize("precision", ["float32", "rgb9e5"])
 @pytest.mark.parametrize("name", sorted(PLUGINS))
 def test06_pdf_and_sample_consistency(
-    mi: types.ModuleType, tables: dict[str, Path], name: str
+    mi: types.ModuleType, tables: dict[str, Path], name: str, precision: str
 ) -> None:
     """pdf >= 0 on the whole sphere and integrates to <= 1; sample's pdf and weight agree
     with pdf and eval; eval_pdf is (eval, pdf)."""
-    bsdf = load(mi, tables[name])
+    bsdf = load(mi, tables[name], f'<string name="precision" value="{precision}"/>')
     rng = np.random.default_rng(3)
     for deg in (0.0, 45.0, 80.0):
         integral, stderr, w = check_pdf_and_sampling(mi, bsdf, deg, 1 << 20, rng)
