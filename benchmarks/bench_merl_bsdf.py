@@ -110,7 +110,7 @@ def breakdown_bsdfs(mi: Any, table: MerlTable) -> dict[str, Any]:
     """The table BSDF and its cut-down variants (see the module docstring), same lobe."""
     import drjit as dr
 
-    cls = register_merl_bsdf(mi)
+    cls: Any = register_merl_bsdf(mi)
     ops = hd.drjit_ops(dr)
 
     def coords(self: Any, wi: Any, wo: Any) -> Any:
@@ -182,7 +182,7 @@ def texture_bsdf(mi: Any, table: MerlTable, lobe: Any) -> Any:
     only: the texture cannot renormalise missing corners, so it is not shipped."""
     import drjit as dr
 
-    cls = register_merl_bsdf(mi)
+    cls: Any = register_merl_bsdf(mi)
     n_p = table.phi_d_bins
     rgb = np.asarray(table.rgb, np.float32)
     padded = np.concatenate([rgb[:, :, -1:], rgb, rgb[:, :, :1]], axis=2)
@@ -279,7 +279,7 @@ def main() -> None:
     print(
         f"\nreproduce: .venv/bin/python benchmarks/bench_merl_bsdf.py --repeats {args.repeats} "
         f"--spp {args.spp} --size {args.size} --max-depth {args.max_depth} "
-        f"--arms {' '.join(args.arms)}" + (" --breakdown" if args.breakdown else "")
+        + ("--breakdown" if args.breakdown else f"--arms {' '.join(args.arms)}")
     )
 
 

@@ -162,7 +162,7 @@ def _define_class(mi: types.ModuleType) -> type:
         # IEEE half (low 16 bits) to float32: the magnitude's bits shifted into float32's
         # place and scaled by 2^(127 - 15) (exact for normals, subnormals and zero), sign
         # copied. Halves hold no infinities or NaNs here (the table is finite).
-        magnitude = dr.reinterpret_array(
+        magnitude: Any = dr.reinterpret_array(
             mi.Float, ((bits & 0x7FFF) << 13) | ((bits & 0x8000) << 16)
         )
         return magnitude * 5.192296858534828e33
@@ -236,7 +236,8 @@ def _define_class(mi: types.ModuleType) -> type:
                 # One 64-bit word per bin: R, G, B as IEEE halves in bits 0-15, 16-31, 32-47.
                 half = table.astype(np.float16).view(np.uint16).reshape(-1, 3).astype(np.uint64)
                 words = half[:, 0] | (half[:, 1] << 16) | (half[:, 2] << 32)
-                self.table = dr.uint64_array_t(mi.Float)(words)
+                uint64: Any = dr.uint64_array_t(mi.Float)
+                self.table = uint64(words)
             elif precision == "rgb9e5":
                 if not self.whole_bins_missing:
                     raise ValueError(
