@@ -40,7 +40,7 @@ from service.settings import Settings
 from service.submission import import_file, run_in_process
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
-from storage.formats.merl import MEDIA_TYPE, write_merl
+from storage.formats.merl import MEDIA_TYPE, MerlTable, write_merl
 from storage.jobs import JobStore
 
 SIZE, SPP, MAX_DEPTH = 64, 64, 3
@@ -165,6 +165,30 @@ def test02_bad_table_fails_naming_the_ref(settings: Settings) -> None:
     assert job.state == "failed"
     assert job.error is not None and job.error.startswith(f"material.merl: {ref}: ")
     assert "size mismatch" in job.error
+
+
+def test02b_rgb9e5_refuses_bins_missing_in_some_channels(
+    settings: Settings, tmp_path: Path
+) -> None:
+    """A valid table with one bin missing in one channel only cannot be held as rgb9e5
+    (one word per bin): the job fails with one line naming the key and the reference."""
+    rgb = np.full((90, 90, 180, 3), 0.1)
+    rgb[10, 20, 30, 1] = -1.0
+    path = tmp_path / "partial.binary"
+    write_merl(path, MerlTable(rgb))
+    jobs = JobStore(settings.db_path)
+    try:
+        record = import_file(path, jobs, ArtifactStore(settings.store_dir))
+    finally:
+        jobs.close()
+    ref = f"sha256:{record.digest}"
+    material = {"merl": ref, "table_precision": "rgb9e5"}
+    params = {"material": material, "resolution": [16, 16], "spp": 1}
+    job = run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
+    assert job.state == "failed"
+    assert job.error is not None and "\n" not in job.error
+    assert job.error.startswith(f"material.table_precision: {ref}: ")
+    assert "missing in some channels only" in job.error
 
 
 def test03_spec_time_errors(settings: Settings) -> None:

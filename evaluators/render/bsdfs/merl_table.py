@@ -110,6 +110,25 @@ def encode_rgb9e5(rgb: np.ndarray) -> np.ndarray:
     return np.where((np.asarray(rgb) < 0).any(axis=1), np.uint32(RGB9E5_MISSING), words)
 
 
+def whole_bins_missing(rgb: np.ndarray) -> bool:
+    """True when every bin of ``rgb`` is missing (negative) in all its channels or in none."""
+    valid = np.asarray(rgb) >= 0.0
+    return bool(np.array_equal(valid.all(axis=-1), valid.any(axis=-1)))
+
+
+def check_storage(rgb: np.ndarray, precision: str, layout: str) -> None:
+    """Raise ``ValueError`` naming the problem when ``rgb`` cannot be held as asked."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"merl_table: precision must be one of {PRECISIONS}, not {precision!r}")
+    if layout not in LAYOUTS:
+        raise ValueError(f"merl_table: layout must be one of {LAYOUTS}, not {layout!r}")
+    if precision == "rgb9e5" and not whole_bins_missing(rgb):
+        raise ValueError(
+            "merl_table: precision 'rgb9e5' needs bins missing in all channels "
+            "or none; this table has bins missing in some channels only"
+        )
+
+
 def merl_bsdf(
     mi: types.ModuleType,
     table: MerlTable,
@@ -123,12 +142,14 @@ def merl_bsdf(
     ``precision`` and ``layout`` choose how the table is held in memory (:data:`PRECISIONS`,
     :data:`LAYOUTS`); the defaults are the exact float32 table in MERL's order.
     """
+    data = table.rgb.astype(np.float32)
+    check_storage(data, precision, layout)  # plain ValueErrors, before Mitsuba wraps them
     register_merl_bsdf(mi)
     lobe = lobe or fit_sampling_lobe(table.rgb)
     return mi.load_dict(
         {
             "type": MERL_BSDF_NAME,
-            "data": mi.TensorXf(table.rgb.astype(np.float32)),
+            "data": mi.TensorXf(data),
             "alpha": lobe.alpha,
             "specular_weight": lobe.specular_weight,
             "precision": precision,
@@ -217,18 +238,13 @@ def _define_class(mi: types.ModuleType) -> type:
             self.sampling = MixtureSampling(self.alpha, self.specular_weight)
             precision = str(props.get("precision", "float32"))
             layout = str(props.get("layout", "phi_d"))
-            if precision not in PRECISIONS:
-                raise ValueError(
-                    f"merl_table: precision must be one of {PRECISIONS}, not {precision!r}"
-                )
-            if layout not in LAYOUTS:
-                raise ValueError(f"merl_table: layout must be one of {LAYOUTS}, not {layout!r}")
-            self.precision, self.layout = precision, layout
             table = np.asarray(rgb, dtype=np.float32)
-            valid = table >= 0.0
+            # Unknown names, and rgb9e5 with bins missing in some channels, are refused.
+            check_storage(table, precision, layout)
+            self.precision, self.layout = precision, layout
             # True when every bin is missing in all its channels or in none (tabulations):
             # the lookup then tests one channel and keeps one weight sum.
-            self.whole_bins_missing = bool(np.array_equal(valid.all(axis=-1), valid.any(axis=-1)))
+            self.whole_bins_missing = whole_bins_missing(table)
             if layout == "theta_h":
                 table = table.transpose(2, 1, 0, 3)  # (P, 90 theta_d, 90 theta_h, 3)
             table = np.ascontiguousarray(table).ravel()
@@ -239,11 +255,6 @@ def _define_class(mi: types.ModuleType) -> type:
                 uint64: Any = dr.uint64_array_t(mi.Float)
                 self.table = uint64(words)
             elif precision == "rgb9e5":
-                if not self.whole_bins_missing:
-                    raise ValueError(
-                        "merl_table: precision 'rgb9e5' needs bins missing in all channels "
-                        "or none; this table has bins missing in some channels only"
-                    )
                 self.table = mi.UInt32(encode_rgb9e5(table.reshape(-1, 3)))
             else:
                 self.table = mi.Float(table)
