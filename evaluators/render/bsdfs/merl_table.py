@@ -6,14 +6,15 @@ needs one (``llvm_ad_rgb`` or ``cuda_ad_rgb``, as ``MATFORGE_VARIANT`` says): it
 the variant's own types (``mi.Float``, ``mi.TensorXf``, ``dr.gather``), no backend module
 (``tests/unit/evaluators/render/test_variant_generic.py`` guards both), and
 ``scripts/gpu_check.sh`` renders it on ``cuda_ad_rgb`` on a GPU machine. Under the
-``scalar_rgb`` fallback, registration raises ``RuntimeError``. On 2 cores it renders at
-about 0.7x the speed of the native BSDF it tabulates (``benchmarks/bench_merl_bsdf.py``;
-BENCHMARKS.md): the gap is the table's random reads (17.5 MB, larger than a core's L2),
-not arithmetic. Smaller tables are read faster: the ``precision`` parameter holds the table
-as ``float16`` (one 64-bit word of three IEEE halves per bin, 11.7 MB) or ``rgb9e5`` (one
-32-bit word per bin, three 9-bit mantissas sharing a 5-bit exponent, 5.8 MB), which
-measured 0.86-0.93x native against 0.75-0.80x for float32 on an Intel Xeon with 2 MB of L2
-per core (BENCHMARKS.md); the default stays ``float32``, so renders keep their bytes.
+``scalar_rgb`` fallback, registration raises ``RuntimeError``. On 2 cores, with the
+float32 table, it renders at about 0.7x the speed of the native BSDF it tabulates
+(``benchmarks/bench_merl_bsdf.py``; BENCHMARKS.md): the gap is the table's random reads
+(17.5 MB, larger than a core's L2), not arithmetic. Smaller tables are read faster: the
+``precision`` parameter holds the table as ``float16`` (one 64-bit word of three IEEE
+halves per bin, 11.7 MB) or ``rgb9e5`` (one 32-bit word per bin, three 9-bit mantissas
+sharing a 5-bit exponent, 5.8 MB); rgb9e5 measured 0.81-0.91x native against 0.68-0.74x
+for float32 (CPU time, three runs, an Intel Xeon with 2 MB of L2 per core). The default
+stays ``float32``, so renders keep their bytes.
 
 Evaluation
     The multilinear interpolation of :func:`materials.halfdiff.lookup` (``interpolate=True``)
