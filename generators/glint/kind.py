@@ -93,7 +93,8 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
             raise JobFailed(f"crop: {params.crop} is larger than the example ({full}x{full})")
         normals = np.ascontiguousarray(normals[: params.crop, : params.crop])
     n = int(normals.shape[0])
-    rate, res = params.value("lobe_rate"), params.value("ndf_resolution")
+    eff = params.effective()
+    rate, res = eff.lobe_rate, eff.ndf_resolution
     started = time.perf_counter()
     lobes = make_lobes(normals, rate=rate, sigma_r=params.sigma_r)
     extent = params.extent or auto_extent(lobes)
@@ -121,7 +122,7 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
     ctx.put_bytes("preview.png", preview_png(normals, explicit, maps, extent, title), "image/png")
 
     ours = map_bytes(maps) + len(lobes) * LOBE_BYTES
-    ref_side = params.value("reference_resolution")
+    ref_side = eff.reference_resolution
     ref_bytes = ref_side * ref_side * rate * rate * LOBE_BYTES
     ctx.put_json(
         "stats.json",

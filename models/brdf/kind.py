@@ -56,7 +56,7 @@ from pydantic import Field, model_validator
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.brdf.claims import brdf_claims
@@ -278,9 +278,9 @@ class TrainBrdfParams(StrictModel):
             raise ValueError("neural_latent_dim applies to model 'neural' only")
         return self
 
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        return preset_value(self, PRESETS, name)
+    def effective(self) -> TrainPreset:
+        """The preset with the set fields in its place."""
+        return resolve_preset(self, PRESETS)
 
 
 def architecture(params: TrainBrdfParams, init: Architecture | None) -> Architecture:
@@ -290,10 +290,11 @@ def architecture(params: TrainBrdfParams, init: Architecture | None) -> Architec
     if params.model == "analytic":
         wanted = Architecture("analytic", 0, 0, 0)
     else:
-        lat = params.value("latent_dim")
+        eff = params.effective()
+        lat = eff.latent_dim
         if params.model == "neural":
             lat = params.neural_latent_dim or equal_neural_latent(lat)
-        wanted = Architecture(params.model, params.value("width"), params.value("depth"), lat)
+        wanted = Architecture(params.model, eff.width, eff.depth, lat)
     if init is None:
         return wanted
     if init.model != params.model:
