@@ -126,7 +126,7 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
     doc = _write(ctx, params, final, ordered, metrics, curves)
     if params.speed != "off":
         ctx.progress(P_SCORED, f"timing the model (speed: {params.speed})")
-        ctx.put_json("speed.json", measure_speed(params, doc))
+        ctx.measure("speed", measure_speed(params, doc))
     train_curve = curves["train"]
     ms = 1000.0 * train_curve.seconds / steps if train_curve is not None else 0.0
     log.info(
@@ -210,7 +210,8 @@ def _write(
 
 
 def measure_speed(params: TrainBrdfParams, doc: dict[str, Any]) -> dict[str, Any]:
-    """The ``speed.json`` document of a trained model (see :mod:`models.brdf.kind`).
+    """The speed document of a trained model, kept in the manifest as
+    ``timings.measured.speed`` (see :mod:`models.brdf.kind`).
 
     ``speed: trained`` times the model at its own size and the analytic baseline; ``full``
     adds the paper's Table 4 sizes. Without a vectorised Mitsuba variant (LLVM or CUDA)
