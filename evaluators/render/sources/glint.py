@@ -54,6 +54,7 @@ from evaluators.render.sources.common import (
     inline_schema,
     register_material_source,
 )
+from jobapi.documents import read_typed
 from jobapi.errors import FormatError, JobFailed
 from jobapi.params import JobRef, StrictModel
 from jobapi.rows import number
@@ -62,6 +63,7 @@ from materials.glints.pndf_drjit import jit_lobes, jit_maps
 from materials.glints.surface import Surface, export_normal_map
 from materials.microfacet import NAMED_CONDUCTORS
 from storage.formats.exr import read_exr
+from storage.formats.glint_stats import GlintStats
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -358,13 +360,10 @@ def _glint_layer(
 ) -> tuple[float | None, int | None]:
     """Bytes and example side of one glint layer (``None`` where its data job is unknown)."""
     data = spec.get("data")
-    stats = None
     made_by = src.source(data) if isinstance(data, str) else None
-    if made_by is not None:
-        stats = made_by.read("stats.json")
-    stats = stats if isinstance(stats, Mapping) else {}
-    size = number((stats.get("example") or {}).get("size"))
-    tiny = number((stats.get("bytes") or {}).get("total"))
+    stats = read_typed(made_by.read("stats.json"), GlintStats) if made_by is not None else None
+    size = stats["example"]["size"] if stats is not None else None
+    tiny = float(stats["bytes"]["total"]) if stats is not None else None
     nbytes = layer_bytes(
         method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample, yan_rate=yan_rate
     )

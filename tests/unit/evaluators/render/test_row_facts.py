@@ -19,6 +19,7 @@ from evaluators.render.sources import common, material_sources
 from evaluators.render.sources.common import MaterialRowFacts, register_material_source
 from evaluators.render.sources.glint import layer_bytes
 from jobapi.rows import JobFacts, RowSource
+from tests.helpers.glint_stats import glint_stats
 
 DATA = "job:" + "d" * 32
 
@@ -79,8 +80,7 @@ def test02_a_source_without_the_hook_adds_nothing() -> None:
 
 
 def test03_glint_facts_come_from_the_glint_source() -> None:
-    stats = {"example": {"size": 16}, "bytes": {"total": 5000}}
-    data = Job("generate.glint", {}, {"stats.json": stats})
+    data = Job("generate.glint", {}, {"stats.json": glint_stats(size=16, total=5000)})
     glint = {"data": DATA, "method": "tiny_example", "texels_per_uv": 128.0}
     facts = render_facts(render({"glint": glint}, {"d" * 32: data}))
     want = layer_bytes("tiny_example", tiny_bytes=5000.0, texels_per_uv=128.0, oversample=2,
