@@ -38,7 +38,7 @@ from evaluators.render.integrators.neural_depth import (  # noqa: E402
     NEURAL_DEPTH_INTEGRATOR,
     register_neural_depth_integrator,
 )
-from evaluators.render.scenes import SceneSetup, build_scene  # noqa: E402
+from evaluators.render.scenes import SceneSetup, build_scene, floor_under_sphere  # noqa: E402
 from materials.backend import load_mitsuba  # noqa: E402
 
 DEPTHS: tuple[tuple[str, int], ...] = (("0 (analytic)", 0), ("1", 1), ("2", 2), ("inf", -1))
@@ -62,14 +62,7 @@ def scene(mi: Any, bsdf: Any, integrator: dict[str, Any], setup: SceneSetup, flo
     d = build_scene("sphere_env", mi, bsdf, setup)
     d["integrator"] = integrator
     if floor:
-        d["floor"] = {
-            "type": "rectangle",
-            "bsdf": bsdf,
-            "to_world": mi.ScalarTransform4f()
-            .translate([0.0, -1.0, 0.0])
-            .rotate([1.0, 0.0, 0.0], -90.0)
-            .scale(4.0),
-        }
+        d["floor"] = floor_under_sphere(mi, bsdf)
     return mi.load_dict(d)
 
 

@@ -14,14 +14,14 @@ import math
 import pickle
 import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from jobapi.documents import check_document
+from jobapi.documents import check_document, check_typed
 from jobapi.errors import JobCancelled, JobFailed, NotFoundError
 from jobapi.executor import Executor, InlineExecutor
 from jobapi.params import JOB_REF, SHA_REF
@@ -201,11 +201,22 @@ class JobContext:
 
     def put_json(self, name: str, obj: Any) -> ArtifactRecord:
         """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes). A chart document
-        (``curves.json``, ``pareto.json``) must follow its schema (:mod:`jobapi.documents`):
+        (``curves.json``, ``pareto.json``) must follow its schema, and a document the job's
+        kind declares (``Kind.documents``) its type (:mod:`jobapi.documents`):
         :class:`~jobapi.documents.DocumentError` otherwise, which fails the job."""
         check_document(name, obj)
+        typed = self._documents().get(name)
+        if typed is not None:
+            check_typed(name, obj, typed)
         text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
         return self.put_bytes(name, text.encode(), "application/json")
+
+    def _documents(self) -> Mapping[str, type]:
+        # The typed documents of the job's kind (none for a spec without a registered kind).
+        from jobapi.kinds import registered
+
+        kind = registered().get(str(self.spec.get("kind")))
+        return kind.documents if kind is not None else {}
 
     def measure(self, name: str, value: float | dict[str, Any]) -> None:
         """Record what the kind measured itself: a time in seconds (``render_seconds``: the

@@ -25,14 +25,40 @@ so that a kind that writes another shape fails its first test instead of drawing
   candidates on the front, each one of the points');
 - ``claims`` (optional): a list of ``{"claim": str, "holds": bool or null}`` objects;
 - other keys are a kind's own (``report.brdf``'s ``points`` per configuration).
+
+Typed documents: a kind declares the JSON documents it writes as ``TypedDict`` types
+(``Kind.documents``: ``{artifact name: type}``, decorated with :data:`document` so that a
+key the type does not name is refused). The type is the one definition of the document:
+the writer builds it (mypy checks its keys and values), ``put_json`` validates it
+(:func:`check_typed`: missing, unknown or mistyped keys fail the job, naming the field),
+readers parse it with :func:`read_typed` (typed access instead of ``.get() or {}``
+chains), and ``docs/reference/kinds.md`` lists its fields from the type
+(``scripts/kinds_table.py``). Validation never changes the document: the bytes written are
+the writer's, as before.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypeVar
 
-__all__ = ["DocumentError", "check_document", "check_curves", "check_pareto"]
+from pydantic import ConfigDict, TypeAdapter, ValidationError, with_config
+
+__all__ = [
+    "DocumentError",
+    "check_document",
+    "check_curves",
+    "check_pareto",
+    "check_typed",
+    "document",
+    "read_typed",
+]
+
+T = TypeVar("T")
+
+#: The decorator of a typed document (a ``TypedDict``): unknown keys are refused, and each
+#: field's docstring (a string literal under it) is its description in the docs.
+document = with_config(ConfigDict(extra="forbid", use_attribute_docstrings=True))
 
 #: Where the schemas are written down (named in every error).
 SCHEMA_DOC = "docs/artifacts.md (Chart documents)"
@@ -206,3 +232,72 @@ def check_document(name: str, doc: Any) -> None:
     check = CHECKS.get(name.rsplit("/", 1)[-1])
     if check is not None:
         check(doc, name)
+
+
+_ADAPTERS: dict[Any, TypeAdapter[Any]] = {}
+
+
+def _adapter(typed: Any) -> TypeAdapter[Any]:
+    # Built once per type: validating must not rebuild pydantic's schema every time.
+    if typed not in _ADAPTERS:
+        _ADAPTERS[typed] = TypeAdapter(typed)
+    return _ADAPTERS[typed]
+
+
+def check_typed(name: str, doc: Any, typed: type) -> None:
+    """Raise :class:`DocumentError` unless ``doc`` is a ``typed`` document: every key it
+    requires, no other, each value of its declared JSON type (strict: no coercion, but an
+    int is a number). Names the artifact, the field and the type."""
+    try:
+        _adapter(typed).validate_python(doc, strict=True)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(str(p) for p in err["loc"]) or "(document)"
+        raise DocumentError(
+            f"{name}: {field}: {err['msg']} (schema: {typed.__module__}.{typed.__qualname__})"
+        ) from None
+
+
+def read_typed(doc: Any, typed: type[T]) -> T | None:
+    """``doc`` (parsed JSON) as a ``typed`` document, or ``None`` when it is not one (a
+    missing artifact, or one of another shape): a reader then shows nothing rather than
+    guessing."""
+    try:
+        valid: T = _adapter(typed).validate_python(doc, strict=True)
+        return valid
+    except ValidationError:
+        return None
+
+
+def document_fields(typed: type) -> list[tuple[str, str, bool, str]]:
+    """``(field, JSON type, required, description)`` of every field of a typed document,
+    nested objects' fields as ``outer.inner``, in declaration order: the docs' table."""
+    schema = _adapter(typed).json_schema()
+    defs = schema.get("$defs", {})
+
+    def resolve(s: dict[str, Any]) -> dict[str, Any]:
+        while "$ref" in s:
+            s = defs[s["$ref"].rsplit("/", 1)[-1]]
+        return s
+
+    def type_of(s: dict[str, Any]) -> str:
+        s = resolve(s)
+        if "anyOf" in s:
+            return " or ".join(type_of(x) for x in s["anyOf"])
+        if s.get("type") == "array":
+            return f"list of {type_of(s.get('items', {}))}"
+        return str(s.get("type", "any"))
+
+    out: list[tuple[str, str, bool, str]] = []
+
+    def walk(s: dict[str, Any], prefix: str) -> None:
+        s = resolve(s)
+        required = set(s.get("required", ()))
+        for key, prop in s.get("properties", {}).items():
+            desc = " ".join(str(prop.get("description", "")).split())
+            out.append((prefix + key, type_of(prop), key in required, desc))
+            if "properties" in resolve(prop):
+                walk(prop, f"{prefix}{key}.")
+
+    walk(schema, "")
+    return out

@@ -101,6 +101,10 @@ class Kind:
             work, or ``params -> bool`` when it depends on the spec (a MERL table of an
             analytic source is numpy, of a Mitsuba BSDF is a kernel). Where true, a spec's
             identity includes the variant (:mod:`service.specs`).
+        documents: the JSON documents it writes, ``{artifact name: TypedDict}``
+            (:mod:`jobapi.documents`): ``put_json`` validates each against its type, readers
+            parse it with :func:`jobapi.documents.read_typed`, the kinds reference lists
+            its fields.
     """
 
     name: str
@@ -117,6 +121,7 @@ class Kind:
     stall_seconds: float = DEFAULT_STALL_SECONDS
     report: ReportFacts | None = None
     variant_bytes: bool | Callable[[Any], bool] = False
+    documents: Mapping[str, type] = field(default_factory=dict)
 
     def bytes_depend_on_variant(self, params: BaseModel) -> bool:
         """:attr:`variant_bytes` for these (validated) params."""

@@ -13,12 +13,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from jobapi.documents import document_fields
 from service import kinds
 from service.kind_docs import param_rows
 
 
 def kinds_markdown() -> str:
-    """The markdown table of the built-in kinds and their parameters (an installed plugin's
+    """The markdown table of the built-in kinds, their parameters and their typed documents'
+    fields (:mod:`jobapi.documents`; an installed plugin's
     kinds are its package's to document: the README stays the same with or without it)."""
     lines = []
     builtin = [k for k in kinds.all_kinds().values() if kinds.plugin_of(k.name) is None]
@@ -33,6 +35,16 @@ def kinds_markdown() -> str:
             cell = desc.replace("|", "\\|")
             lines.append(f"| `{name}` | {type_} | {default} | {cell} |")
         lines.append("")
+        for artifact, typed in kind.documents.items():
+            lines.append(f"`{artifact}` (`{typed.__module__}.{typed.__qualname__}`):\n")
+            lines.append("| field | type | required | description |")
+            lines.append("| --- | --- | --- | --- |")
+            for field, json_type, required, desc in document_fields(typed):
+                cell = desc.replace("|", "\\|")
+                lines.append(
+                    f"| `{field}` | {json_type} | {'yes' if required else 'no'} | {cell} |"
+                )
+            lines.append("")
     return "\n".join(lines).rstrip() + "\n"
 
 

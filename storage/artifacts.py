@@ -238,12 +238,6 @@ class ArtifactStore:
             raise IntegrityError(f"object sha256:{d} is corrupt on disk (digest mismatch)")
         return self.path(d)
 
-    def iter_chunks(self, digest: str) -> Iterator[bytes]:
-        """Stream a verified object: the whole object is hashed before the first chunk."""
-        p = self.open_verified(digest)
-        with open(p, "rb") as fh:
-            yield from iter(lambda: fh.read(_CHUNK), b"")
-
     # -- maintenance ---------------------------------------------------------------------
     def iter_objects(self) -> Iterator[tuple[str, Path]]:
         """``(digest, path)`` for every object file on disk."""

@@ -8,12 +8,11 @@ resolution or output writing), as the render kind measures it
 renders made before it was recorded, the job's wall time stands in. Timings stay out of the
 artifacts (same spec, same bytes), so they come from the job's record.
 
-A glint material (``{"glint": {...}}``) adds its evaluator (``config.method``), the
-example's side (``config.example``) and its memory, ``bytes_per_material``
-(:func:`evaluators.render.sources.glint.layer_bytes`: the tiny example's NDF maps and lobes
-from its ``generate.glint`` job's ``stats.json``, the Yan et al. export's lobes, or the
-smooth GGX's two roughnesses; a clearcoat's are added), so a glint ladder charts error
-against memory as well as time.
+A material source may add facts of its own (``config`` entries and ``bytes_per_material``):
+its ``row_facts`` hook, registered with the source next to its resolver
+(:mod:`evaluators.render.sources.common`; e.g. a glint material's evaluator, example side
+and memory, :func:`evaluators.render.sources.glint.glint_row_facts`). This module names no
+source.
 """
 
 from __future__ import annotations
@@ -21,7 +20,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from jobapi.rows import ResultRow, RowSource, base_row, number
+from evaluators.render.sources import material_sources  # the built-ins, registered
+from jobapi.rows import ResultRow, RowSource, base_row
 
 
 def material_source(material: Any) -> str | None:
@@ -33,53 +33,6 @@ def material_source(material: Any) -> str | None:
     if "model" in material:
         return "model"
     return str(next(iter(material)))
-
-
-def _glint_layer(
-    src: RowSource,
-    spec: Mapping[str, Any],
-    method: str,
-    texels: float,
-    oversample: int,
-    yan_rate: int = 1,
-) -> tuple[float | None, int | None]:
-    """Bytes and example side of one glint layer (``None`` where its data job is unknown)."""
-    from evaluators.render.sources.glint import layer_bytes
-
-    data = spec.get("data")
-    stats = None
-    made_by = src.source(data) if isinstance(data, str) else None
-    if made_by is not None:
-        stats = made_by.read("stats.json")
-    stats = stats if isinstance(stats, Mapping) else {}
-    size = number((stats.get("example") or {}).get("size"))
-    tiny = number((stats.get("bytes") or {}).get("total"))
-    nbytes = layer_bytes(
-        method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample, yan_rate=yan_rate
-    )
-    return nbytes, int(size) if size is not None else None
-
-
-def glint_facts(src: RowSource, glint: Mapping[str, Any]) -> dict[str, Any]:
-    """``bytes_per_material`` and config entries (``method``, ``example``) of a render's
-    ``{"glint": glint}`` material (defaults as :class:`~evaluators.render.sources.glint.
-    GlintSpec`'s: tiny_example, 256 texels per uv, oversample 2, yan_rate 1)."""
-    method = str(glint.get("method") or "tiny_example")
-    texels = number(glint.get("texels_per_uv"))
-    texels = 256.0 if texels is None else texels
-    over = number(glint.get("oversample"))
-    over_i = 2 if over is None else int(over)
-    rate = number(glint.get("yan_rate"))
-    rate_i = 1 if rate is None else int(rate)
-    nbytes, size = _glint_layer(src, glint, method, texels, over_i, rate_i)
-    config: dict[str, Any] = {"method": method, "example": size, "texels_per_uv": texels}
-    coat = glint.get("clearcoat")
-    if isinstance(coat, Mapping):
-        coat_method = str(coat.get("method") or method)
-        coat_bytes, _ = _glint_layer(src, coat, coat_method, texels, over_i, rate_i)
-        nbytes = None if nbytes is None or coat_bytes is None else nbytes + coat_bytes
-        config["clearcoat"] = coat_method
-    return {"bytes_per_material": nbytes, "config": config}
 
 
 def render_facts(src: RowSource) -> dict[str, Any]:
@@ -100,10 +53,11 @@ def render_facts(src: RowSource) -> dict[str, Any]:
     if isinstance(material, Mapping) and isinstance(material.get("material"), str):
         config["material"] = material["material"]
     facts: dict[str, Any] = {}
-    if isinstance(material, Mapping) and isinstance(material.get("glint"), Mapping):
-        glint = glint_facts(src, material["glint"])
-        config.update(glint["config"])
-        facts["bytes_per_material"] = glint["bytes_per_material"]
+    source = material_sources().get(str(config["source"]))
+    if source is not None and source.row_facts is not None and isinstance(material, Mapping):
+        own = source.row_facts(src, material)
+        config.update(own.config)
+        facts["bytes_per_material"] = own.bytes_per_material
     return {
         "scene": p.get("scene"),
         "spp": spp if isinstance(spp, int) else None,

@@ -267,6 +267,19 @@ def sphere_points(
     return scene
 
 
+def floor_under_sphere(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
+    """A floor of ``bsdf`` under the unit sphere of ``sphere_env``, for interreflections: a
+    square of side 8 in y = -1, normal +y (add it to the scene dict as ``"floor"``)."""
+    return {
+        "type": "rectangle",
+        "bsdf": bsdf,
+        "to_world": mi.ScalarTransform4f()
+        .translate([0.0, -1.0, 0.0])
+        .rotate([1.0, 0.0, 0.0], -90.0)
+        .scale(4.0),
+    }
+
+
 def _floor_square(mi: types.ModuleType, bsdf: Any, half_size: float) -> Any:
     """A square of side ``2 half_size`` in y = 0, normal +y, uv in [0, 1]^2 (u along +x,
     v along -z; shading frame ``(dp/du, dp/dv, n)``).

@@ -14,6 +14,7 @@ Deterministic bytes for the same numbers (:func:`evaluators.metrics.figures.figu
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from evaluators.metrics.figures import figure_png
@@ -71,7 +72,7 @@ def pareto_png(panels: list[dict[str, Any]], title: str) -> bytes:
     return figure_png(draw, (6.0 * cols, 3.6 * rows + 0.4))
 
 
-def select_png(ladders: list[dict[str, Any]], target: float) -> bytes:
+def select_png(ladders: Sequence[Mapping[str, Any]], target: float) -> bytes:
     """Per ladder: the rungs' values as bars in order of increasing cost (labelled with the
     cost), the target as a dashed line, the chosen rung highlighted."""
     cols = 1 if len(ladders) == 1 else 2

@@ -32,10 +32,17 @@ reference with ``spp`` and ``render_seconds`` (and the model cost, if chosen by 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import (
+    TYPE_CHECKING,
+    Any,
+    NotRequired,  # pydantic needs this TypedDict on 3.11
+)
+
+from typing_extensions import TypedDict
 
 from evaluators.report.kind import gather_rows
 from evaluators.report.select_params import SelectParams
+from jobapi.documents import document, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -47,12 +54,96 @@ if TYPE_CHECKING:
 FORMAT = "matforge.select/1"
 
 
-def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[dict[str, Any]]:
+@document
+class SelectRung(TypedDict):
+    """One rung of a ladder, in order of increasing cost."""
+
+    candidate: str
+    """The candidate (a run's label, or the scene mode's rung name)."""
+    value: float
+    """Its mean ``metric`` over seeds."""
+    n: int
+    """Seeds (runs) behind the value."""
+    min: float
+    """The smallest value over seeds."""
+    max: float
+    """The largest value over seeds."""
+    cost: float
+    """Its ``cost``."""
+    runtime: str | None
+    """What evaluated it (``drjit-fused``, ``onnxruntime``, ``mitsuba``; ``null``: unknown)."""
+    meets: bool
+    """Whether the value meets the target."""
+    spp: NotRequired[int]
+    """Scene mode: samples per pixel of its render."""
+    render_seconds: NotRequired[float]
+    """Scene mode: its render's wall seconds (scene load and passes)."""
+    frame_seconds: NotRequired[float]
+    """Scene mode: its frame time with compiled kernels."""
+    integrator: NotRequired[str]
+    """Scene mode: the integrator it rendered with."""
+    material: NotRequired[dict[str, Any]]
+    """Scene mode: its material, as given."""
+    image: NotRequired[str]
+    """Scene mode: its image artifact (``rung_<name>.exr``)."""
+
+
+@document
+class SelectLadder(TypedDict):
+    """The rungs of one dataset and scene, and the choice."""
+
+    dataset: str | None
+    """The dataset the rungs share (``null``: none)."""
+    scene: str | None
+    """The scene they share (``null``: none)."""
+    metric: str
+    """The quality metric."""
+    cost: str
+    """The cost column."""
+    cost_label: str | None
+    """The cost axis label."""
+    rungs: list[SelectRung]
+    """The rungs by increasing cost."""
+    chosen: str | None
+    """The cheapest rung that meets the target (``null``: none does)."""
+    why: str
+    """The reason, in words."""
+
+
+@document
+class SelectDocument(TypedDict):
+    """``select.json`` of ``select``."""
+
+    format: str
+    """``matforge.select/1``."""
+    metric: str
+    """The quality metric (``params.metric``)."""
+    target: float
+    """The target it must meet (``params.target``)."""
+    cost: str
+    """What cheapest is measured in (``params.cost``)."""
+    lower_is_better: bool
+    """Whether meeting the target is ``<=`` (an error) or ``>=``."""
+    ladders: list[SelectLadder]
+    """One ladder per dataset and scene."""
+    runs: NotRequired[list[str]]
+    """Runs mode: the ``job:<id>`` refs chosen among."""
+    mode: NotRequired[str]
+    """Scene mode: ``scene``."""
+    scene: NotRequired[dict[str, Any]]
+    """Scene mode: the scene, as given."""
+    reference: NotRequired[str | dict[str, Any]]
+    """Scene mode: the reference, as given (a ref or a material with its spp)."""
+    ladder: NotRequired[list[dict[str, Any]]]
+    """Scene mode: the ladder, as given."""
+
+
+def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[SelectLadder]:
     """Per panel, the rungs by increasing cost with ``meets``, and the chosen rung."""
-    out = []
+    out: list[SelectLadder] = []
     for panel in panels:
-        rungs = sorted(panel["points"], key=lambda p: (p["cost"], p["candidate"]))
-        rungs = [
+        points = sorted(panel["points"], key=lambda p: (p["cost"], p["candidate"]))
+        rungs: list[SelectRung] = [
             {
                 "candidate": p["candidate"],
                 "value": p["mean"],
@@ -63,7 +154,7 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[di
                 "runtime": p.get("runtime"),
                 "meets": p["mean"] <= target if lower else p["mean"] >= target,
             }
-            for p in rungs
+            for p in points
         ]
         chosen = next((r for r in rungs if r["meets"]), None)
         rel = "<=" if lower else ">="
@@ -129,18 +220,16 @@ def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
         )
     lower = lower_is_better(params.metric) is not False
     result = ladders(found, params.target, lower)
-    ctx.put_json(
-        "select.json",
-        {
-            "format": FORMAT,
-            "runs": list(params.runs),
-            "metric": params.metric,
-            "target": params.target,
-            "lower_is_better": lower,
-            "cost": params.cost,
-            "ladders": result,
-        },
-    )
+    doc: SelectDocument = {
+        "format": FORMAT,
+        "runs": list(params.runs),
+        "metric": params.metric,
+        "target": params.target,
+        "lower_is_better": lower,
+        "cost": params.cost,
+        "ladders": result,
+    }
+    ctx.put_json("select.json", doc)
     ctx.put_bytes("select.png", select_png(result, params.target), "image/png")
     picks = "; ".join(f"{lad['chosen'] or 'none'}" for lad in result)
     ctx.progress(1.0, f"{len(result)} ladders; chosen: {picks}")
@@ -151,26 +240,26 @@ COLUMNS = ("value", "cost", "runtime", "meets", "chosen")
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """One row per ladder and rung (``"<dataset> / <candidate>"`` when several ladders)."""
-    doc = read("select.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("ladders"), list):
+    doc = read_typed(read("select.json"), SelectDocument)
+    if doc is None:
         return None
     several = len(doc["ladders"]) > 1
-    rows = {}
+    rows: dict[str, dict[str, Any]] = {}
     for lad in doc["ladders"]:
-        for r in lad.get("rungs") or []:
-            label = f"{lad.get('dataset')} / {r['candidate']}" if several else str(r["candidate"])
+        for r in lad["rungs"]:
+            label = f"{lad['dataset']} / {r['candidate']}" if several else r["candidate"]
             rows[label] = {
-                "value": r.get("value"),
-                "cost": r.get("cost"),
-                "runtime": r.get("runtime"),
-                "meets": r.get("meets"),
-                "chosen": r["candidate"] == lad.get("chosen"),
+                "value": r["value"],
+                "cost": r["cost"],
+                "runtime": r["runtime"],
+                "meets": r["meets"],
+                "chosen": r["candidate"] == lad["chosen"],
             }
-    claims = [
+    claims: list[dict[str, Any]] = [
         {
-            "claim": f"cheapest rung meeting {doc.get('metric')} target {doc.get('target')}",
-            "holds": lad.get("chosen") is not None,
-            "why": lad.get("why"),
+            "claim": f"cheapest rung meeting {doc['metric']} target {doc['target']}",
+            "holds": lad["chosen"] is not None,
+            "why": lad["why"],
         }
         for lad in doc["ladders"]
     ]
@@ -180,7 +269,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         columns=list(COLUMNS),
         rows=rows,
         claims=claims,
-        settings={k: doc.get(k) for k in ("metric", "target", "cost")},
+        settings={"metric": doc["metric"], "target": doc["target"], "cost": doc["cost"]},
     )
 
 
@@ -188,32 +277,31 @@ def select_rows(src: RowSource) -> list[ResultRow]:
     """Result rows of the scene mode: per rung, its metric against the reference with its
     spp, ``render_seconds`` and model cost. The ``runs`` mode has none of its own (its rows
     are its runs')."""
-    doc = src.read("select.json")
-    if not isinstance(doc, dict) or doc.get("mode") != "scene":
+    doc = read_typed(src.read("select.json"), SelectDocument)
+    if doc is None or doc.get("mode") != "scene":
         return []
-    metric, cost = str(doc.get("metric")), doc.get("cost")
+    metric, cost = doc["metric"], doc["cost"]
     out = []
-    for lad in doc.get("ladders") or []:
-        for r in lad.get("rungs") or []:
-            value = number(r.get("value"))
+    for lad in doc["ladders"]:
+        for r in lad["rungs"]:
+            value = number(r["value"])
             if value is None:
                 continue
             costs: dict[str, Any] = {"render_seconds": number(r.get("render_seconds"))}
-            spp = r.get("spp")
-            costs["spp"] = int(spp) if isinstance(spp, int) else None
+            costs["spp"] = r.get("spp")
             # frame_seconds is the scene mode's own measure, not a result-row cost: it
             # goes with the rung's config
-            if cost not in ("render_seconds", "spp", "frame_seconds") and isinstance(cost, str):
-                costs[cost] = number(r.get("cost"))
+            if cost not in ("render_seconds", "spp", "frame_seconds"):
+                costs[cost] = number(r["cost"])
             out.append(
                 base_row(
                     src,
                     metric,
                     value,
-                    dataset=str(lad.get("dataset")),
-                    scene=lad.get("scene"),
-                    candidate=str(r.get("candidate")),
-                    runtime=r.get("runtime") if isinstance(r.get("runtime"), str) else None,
+                    dataset=str(lad["dataset"]),
+                    scene=lad["scene"],
+                    candidate=r["candidate"],
+                    runtime=r["runtime"],
                     config={
                         "material": r.get("material"),
                         "integrator": r.get("integrator"),
@@ -242,6 +330,7 @@ register(
         "job's executor) and scoring each against the reference: per reference, the ladder "
         "of rungs by cost, which meet the target, and the one chosen.",
         artifacts=("select.json", "select.png"),
+        documents={"select.json": SelectDocument},
         smoke={
             "runs": ["step:train.brdf"],
             "metric": "smape",

@@ -424,12 +424,14 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
     for r in lad["rungs"]:
         p = extra[r["candidate"]]
         r.update(
-            spp=p["spp"],
-            render_seconds=p["render_seconds"],
-            frame_seconds=p["frame_seconds"],
-            integrator=p["integrator"],
-            material=p["material"],
-            image=f"rung_{r['candidate']}.exr",
+            {
+                "spp": p["spp"],
+                "render_seconds": p["render_seconds"],
+                "frame_seconds": p["frame_seconds"],
+                "integrator": p["integrator"],
+                "material": p["material"],
+                "image": f"rung_{r['candidate']}.exr",
+            }
         )
     return {
         "mode": "scene",

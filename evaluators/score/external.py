@@ -28,6 +28,7 @@ stay byte-identical for the same spec); the result rows read them from there.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -106,15 +107,23 @@ def external_brdf_input(label: str, spec: ExternalCandidate, ctx: JobContext) ->
     )
 
 
-def external_costs(models: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
-    """The ``cost`` document of the external candidates ``{label: model}`` (see the module)."""
-    from models.external.cost import COST_FORMAT, measure_cost
+def external_costs(
+    models: dict[str, Any], ctx: JobContext, builtins: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """The ``cost`` document of the external candidates ``{label: model}`` and of the
+    built-in ``train.btf`` ones (``builtins``, each a
+    :class:`models.btf.portable.PortableBtf`, timed the same way; see the module)."""
+    from models.external.cost import COST_FORMAT, measure_builtin_btf, measure_cost
 
+    timers: list[tuple[str, Callable[[Any], dict[str, Any]], Any]] = [
+        *((label, measure_cost, m) for label, m in sorted(models.items())),
+        *((label, measure_builtin_btf, m) for label, m in sorted((builtins or {}).items())),
+    ]
     out: dict[str, Any] = {}
-    for label, model in sorted(models.items()):
+    for label, measure, model in timers:
         ctx.check_cancelled()
         try:
-            out[label] = measure_cost(model)
+            out[label] = measure(model)
         except ValueError as exc:
             raise JobFailed(f"candidate {label!r}: cost: {exc}") from None
     return {"format": COST_FORMAT, "candidates": out}
@@ -209,9 +218,7 @@ def score_btf_slices(params: ScoreParams, ctx: JobContext) -> None:
         {"reference": params.reference, "metrics": metrics, "cases": cases, "settings": settings},
     )
     ctx.progress(0.85, "timing the models")
-    cost = external_costs(models, ctx)
-    cost["candidates"].update(builtin_btf_costs(builtins, ctx))
-    ctx.measure("cost", cost)
+    ctx.measure("cost", external_costs(models, ctx, builtins))
     ctx.progress(1.0, f"scored {len(models)} BTF model(s) on {len(data)} slices")
 
 
@@ -230,20 +237,6 @@ def load_builtin_btf(label: str, ref: str, ctx: JobContext) -> Any:
         return read_model(doc, read_textures(ctx.read_ref(f"job:{job.id}/textures.npz")))
     except (ValueError, OSError) as exc:
         raise JobFailed(f"candidate {label!r}: {ref}: {exc}") from None
-
-
-def builtin_btf_costs(builtins: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
-    """``cost`` entries of the ``train.btf`` candidates, timed as the external ones."""
-    from models.external.cost import measure_builtin_btf
-
-    out = {}
-    for label, model in sorted(builtins.items()):
-        ctx.check_cancelled()
-        try:
-            out[label] = measure_builtin_btf(model)
-        except ValueError as exc:
-            raise JobFailed(f"candidate {label!r}: cost: {exc}") from None
-    return out
 
 
 def _never_loaded(path: Path, name: str) -> Any:

@@ -134,8 +134,8 @@ def metrics_document(params: TssParams, model: PortableBtf | Any, sim: Simulatio
         "motion": motion,
         "figure": {"frame": sim.figure.frame, "interval": sim.figure.interval},
         "settings": {
-            "frames": int(params.value("frames")),
-            "image": list(params.value("image")),
+            "frames": params.effective().frames,
+            "image": list(params.effective().image),
             "resolutions": sorted({r for r, _ in sim.series}),
             "intervals": list(params.intervals),
             "uv_scale": params.uv_scale,
@@ -208,7 +208,8 @@ def run_evaluate_tss(params: TssParams, ctx: JobContext) -> None:
         fused = FusedBtf(model, mi)
     h, w = model.resolution
     resolutions = params.texture_resolutions(max(h, w))
-    frames, size = int(params.value("frames")), tuple(params.value("image"))
+    eff = params.effective()
+    frames, size = eff.frames, eff.image
     path = camera_path(params.path, frames, ctx.rng("evaluate.tss/path"))
     if float(path.eye[:, 2].min()) <= 0.0:
         raise JobFailed("path: the eye goes below the plane; lower the motion amplitudes")

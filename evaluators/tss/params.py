@@ -7,14 +7,14 @@ Units: metres, degrees, seconds. World frame: z up; the textured plane is the sq
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import BeforeValidator, Field, field_validator, model_validator
 
 from evaluators.metrics.images import DEFAULT_PPD
 from evaluators.render.sources.external import ExternalSpec
 from jobapi.params import JobRef, StrictModel
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 
 #: Side of the textured plane, metres.
 PLANE_SIDE = 1.0
@@ -231,14 +231,14 @@ class TssParams(StrictModel):
         description="FLIP's observer pixels per degree (default: FLIP's 67).",
     )  # fmt: skip
 
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        return preset_value(self, PRESETS, name)
+    def effective(self) -> TssPreset:
+        """The preset with the set fields in its place."""
+        return resolve_preset(self, PRESETS)
 
     def texture_resolutions(self, model_resolution: int) -> list[int]:
         """The radiance-texture sides to simulate for a model of ``model_resolution``^2
         texels: the given list, else the preset's, else texel-matched."""
-        res = self.value("resolutions")
+        res = self.effective().resolutions
         if res is None:
             return [model_resolution * self.uv_scale]
         return [int(r) for r in res]

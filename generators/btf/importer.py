@@ -13,10 +13,10 @@ measurement's error is not known), ``btf.json``, ``preview.png``.
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -165,33 +165,58 @@ def run_import_btf(params: ImportBtfParams, ctx: JobContext) -> None:
         )
         for lo in range(0, len(entries), per)
     ]  # fmt: skip
-    names = [shard_name(k) for k in range(len(tasks))]
-    preview = PreviewCollector([len(t.entries) for t in tasks], names, resolution)
     ctx.progress(0.0, f"{pair_count_label(len(entries))} of {resolution[1]}x{resolution[0]}")
+    counts = [len(t.entries) for t in tasks]
+    shards = Shards(convert_shard, tasks, counts, resolution, angles, wi, wo)
+    _write(params, ctx, label, shards, files=[e.file for e in entries], png=params.png)
+
+
+@dataclass(frozen=True)
+class Shards:
+    """What both sources (a folder, a Bonn ``.btf``) convert: the tasks, one per shard, the
+    function that turns one into a shard's bytes, each shard's slice count, and the slices'
+    directions (degrees ``(N, 4)`` and unit vectors ``(N, 3)``, float64)."""
+
+    convert: Callable[[Any], bytes]
+    tasks: Sequence[Any]
+    counts: list[int]
+    resolution: tuple[int, int]
+    angles: np.ndarray
+    wi: np.ndarray
+    wo: np.ndarray
+
+
+def _write(
+    params: ImportBtfParams, ctx: JobContext, label: str, shards: Shards, **index: Any
+) -> None:
+    """Convert the shards (streamed to the store, the preview collected on the way), then
+    write ``btf.json`` (with the source's own ``index`` keys) and ``preview.png``."""
+    names = [shard_name(k) for k in range(len(shards.tasks))]
+    preview = PreviewCollector(shards.counts, names, shards.resolution)
     try:
         ctx.map_artifact_shards(
-            convert_shard, tasks, names, media_type="application/x-npz",
+            shards.convert, shards.tasks, names, media_type="application/x-npz",
             on_result=preview, label="shard", progress_range=(0.0, 0.95),
         )  # fmt: skip
     except FormatError as exc:
         raise JobFailed(f"archive: {exc}") from None
     doc = index_document(
-        resolution,
-        [(names[k], len(t.entries)) for k, t in enumerate(tasks)],
+        shards.resolution,
+        list(zip(names, shards.counts, strict=True)),
         source="import.btf",
         archive=params.archive,
         archive_name=label,
-        files=[e.file for e in entries],
-        directions=np.round(angles, 6).tolist(),
-        png=params.png,
+        directions=np.round(shards.angles, 6).tolist(),
         scale=params.scale,
         dtype=params.dtype,
         stderr=None,
+        **index,
     )
     ctx.put_json("btf.json", doc)
-    title = f"import.btf: {label}, {pair_count_label(len(entries))}"
-    ctx.put_bytes("preview.png", preview.png(wi, wo, title), "image/png")
-    ctx.progress(1.0, f"{len(entries)} slices in {len(tasks)} shards")
+    count = sum(shards.counts)
+    title = f"import.btf: {label}, {pair_count_label(count)}"
+    ctx.put_bytes("preview.png", preview.png(shards.wi, shards.wo, title), "image/png")
+    ctx.progress(1.0, f"{count} slices in {len(shards.tasks)} shards")
 
 
 def run_import_ubo(params: ImportBtfParams, ctx: JobContext, path: Path, label: str) -> None:
@@ -218,23 +243,16 @@ def run_import_ubo(params: ImportBtfParams, ctx: JobContext, path: Path, label: 
         )  # fmt: skip
         for lo in range(0, h.count, per)
     ]
-    names = [shard_name(k) for k in range(len(tasks))]
-    preview = PreviewCollector([t.hi - t.lo for t in tasks], names, resolution)
     ctx.progress(0.0, f"{label}: {h.variant}, {pair_count_label(h.count)} of "
                  f"{h.width}x{h.height}")  # fmt: skip
-    try:
-        ctx.map_artifact_shards(
-            convert_ubo_shard, tasks, names, media_type="application/x-npz",
-            on_result=preview, label="shard", progress_range=(0.0, 0.95),
-        )  # fmt: skip
-    except FormatError as exc:
-        raise JobFailed(f"archive: {exc}") from None
-    doc = index_document(
-        resolution,
-        [(names[k], t.hi - t.lo) for k, t in enumerate(tasks)],
-        source="import.btf",
-        archive=params.archive,
-        archive_name=label,
+    shards = Shards(
+        convert_ubo_shard, tasks, [t.hi - t.lo for t in tasks], resolution, angles, wi, wo
+    )
+    _write(
+        params,
+        ctx,
+        label,
+        shards,
         ubo={
             "variant": h.variant,
             "signature": h.signature,
@@ -246,15 +264,7 @@ def run_import_ubo(params: ImportBtfParams, ctx: JobContext, path: Path, label: 
             "rgb_scale": list(h.rgb_scale),
             "channels": h.channels,
         },  # fmt: skip
-        directions=np.round(angles, 6).tolist(),
-        scale=params.scale,
-        dtype=params.dtype,
-        stderr=None,
     )
-    ctx.put_json("btf.json", doc)
-    title = f"import.btf: {label}, {pair_count_label(h.count)}"
-    ctx.put_bytes("preview.png", preview.png(wi, wo, title), "image/png")
-    ctx.progress(1.0, f"{h.count} slices in {len(tasks)} shards")
 
 
 register(

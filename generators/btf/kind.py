@@ -118,7 +118,7 @@ def surface_maps(params: BtfGenParams, ctx: JobContext) -> SurfaceMaps | None:
     s = params.surface
     if isinstance(s, FlatSurface):
         return None
-    size = s.size or int(params.value("resolution"))
+    size = s.size or params.effective().resolution
     return procedural_surface(s.procedural, size, ctx.rng("generate.btf/surface"), relief=s.relief)
 
 
@@ -139,8 +139,8 @@ def _gray(x: np.ndarray) -> np.ndarray:
 
 def run_generate_btf(params: BtfGenParams, ctx: JobContext) -> None:
     """Render every slice into shards, then the index, the maps and the preview."""
-    res, spp = int(params.value("resolution")), int(params.value("spp"))
-    max_depth, per_shard = int(params.value("max_depth")), int(params.value("shard_slices"))
+    eff = params.effective()
+    res, spp, max_depth, per_shard = eff.resolution, eff.spp, eff.max_depth, eff.shard_slices
     wi, wo = params.pairs()
     n = len(wi)
     surface = params.surface.model_dump(mode="json")

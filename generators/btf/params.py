@@ -10,7 +10,7 @@ from pydantic import AfterValidator, BeforeValidator, Field, model_validator
 
 from evaluators.render.sources.common import material_sources
 from jobapi.params import StrictModel
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 from materials.btf.directions import check_pairs, preset_pairs, to_vector
 from materials.btf.surfaces import KINDS
 
@@ -173,9 +173,10 @@ class BtfGenParams(StrictModel):
         "stated error is then an upper bound) or 'independent' uniform.",
     )
 
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        return preset_value(self, PRESETS, name)
+    def effective(self) -> BtfPreset:
+        """The preset with the set fields in its place (``directions`` stays the preset's
+        name: :meth:`pairs` applies the field)."""
+        return resolve_preset(self, PRESETS, keep=("directions",))
 
     def pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """``(wi, wo)`` unit vectors ``(N, 3)``, float64, in the order of the slices."""

@@ -19,7 +19,7 @@ from evaluators.render.scenes import SCENES, Camera, PointLight
 from generators.fabric.queries import BTDF_FRACTION, LOG_SIZE_MIN
 from generators.fabric.scene_queries import SceneDesign, pixel_footprints
 from jobapi.params import StrictModel
-from jobapi.presets import preset_value
+from jobapi.presets import resolve_preset
 from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS
 from materials.fabric.samplers import check_sampling
 
@@ -344,31 +344,36 @@ class FabricGenParams(StrictModel):
             raise _invalid(f"at most {MAX_MATERIALS} materials per job, got {n}")
         return self
 
+    def effective(self) -> FabricPreset:
+        """The preset with the set fields in its place, but for the set counts (a field is
+        one count, a preset a per-pattern table): :meth:`resolved` applies those."""
+        return resolve_preset(self, PRESETS, keep=("texture_sets", "shading_sets"))
+
     def resolved(self) -> Resolved:
         """The effective configuration: explicit fields over the preset's."""
-        patterns = tuple(preset_value(self, PRESETS, "patterns"))
+        # The set counts: a field is one count for all patterns, a preset a per-pattern table.
+        eff = self.effective()
+        patterns = eff.patterns
 
-        def sets(name: str) -> dict[str, int]:
-            # A preset gives a per-pattern table ("*": the others); a field one count for all.
-            value = preset_value(self, PRESETS, name)
-            if isinstance(value, int):
-                return {p: value for p in patterns}
-            return {p: value.get(p, value["*"]) for p in patterns}
+        def sets(field: int | None, table: dict[str, int]) -> dict[str, int]:
+            if field is not None:
+                return {p: field for p in patterns}
+            return {p: table.get(p, table["*"]) for p in patterns}
 
         return Resolved(
             patterns=patterns,
-            texture_sets=sets("texture_sets"),
-            shading_sets=sets("shading_sets"),
-            queries=preset_value(self, PRESETS, "queries_per_material"),
-            samples=preset_value(self, PRESETS, "samples"),
+            texture_sets=sets(self.texture_sets, eff.texture_sets),
+            shading_sets=sets(self.shading_sets, eff.shading_sets),
+            queries=eff.queries_per_material,
+            samples=eff.samples,
             sampler=self.sampler,
-            shard_queries=preset_value(self, PRESETS, "shard_queries"),
-            map_resolution=preset_value(self, PRESETS, "map_resolution"),
+            shard_queries=eff.shard_queries,
+            map_resolution=eff.map_resolution,
             backend=self.backend,
             btdf_fraction=self.btdf_fraction,
             sizes=self.sizes,
             scene=None if self.scene is None else self.scene.design(),
-            beta_sweep=PRESETS[self.preset].beta_sweep,
+            beta_sweep=eff.beta_sweep,
         )
 
 

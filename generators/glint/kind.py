@@ -35,6 +35,7 @@ import numpy as np
 from generators.glint.params import GlintGenParams, MapExample, ProceduralExample
 from generators.glint.preview import preview_png
 from generators.glint.rows import glint_rows
+from jobapi.documents import read_typed
 from jobapi.errors import FormatError, JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -43,6 +44,7 @@ from materials.glints.lobes import LOBE_BYTES, make_lobes
 from materials.glints.ndf_maps import auto_extent, map_bytes, ndf_maps
 from materials.glints.surface import Surface, export_normal_map
 from storage.formats.exr import exr_bytes
+from storage.formats.glint_stats import GlintStats
 from storage.formats.normal_map import read_normal_map
 from storage.formats.npz import npz_bytes
 
@@ -93,7 +95,8 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
             raise JobFailed(f"crop: {params.crop} is larger than the example ({full}x{full})")
         normals = np.ascontiguousarray(normals[: params.crop, : params.crop])
     n = int(normals.shape[0])
-    rate, res = params.value("lobe_rate"), params.value("ndf_resolution")
+    eff = params.effective()
+    rate, res = eff.lobe_rate, eff.ndf_resolution
     started = time.perf_counter()
     lobes = make_lobes(normals, rate=rate, sigma_r=params.sigma_r)
     extent = params.extent or auto_extent(lobes)
@@ -121,34 +124,31 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
     ctx.put_bytes("preview.png", preview_png(normals, explicit, maps, extent, title), "image/png")
 
     ours = map_bytes(maps) + len(lobes) * LOBE_BYTES
-    ref_side = params.value("reference_resolution")
+    ref_side = eff.reference_resolution
     ref_bytes = ref_side * ref_side * rate * rate * LOBE_BYTES
-    ctx.put_json(
-        "stats.json",
-        {
-            "example": {"size": n, "type": kind, "cropped_from": full if n != full else None},
-            "levels": len(maps),
-            "ndf_resolution": res,
-            "extent": extent,
-            "lobes": len(lobes),
-            "precompute_seconds": round(seconds, 4),
-            "bytes": {
-                "ndf_maps": map_bytes(maps),
-                "lobes": len(lobes) * LOBE_BYTES,
-                "total": ours,
-            },
-            "reference": {
-                "resolution": ref_side,
-                "lobe_rate": rate,
-                "lobes": ref_side * ref_side * rate * rate,
-                "bytes": ref_bytes,
-                "note": "Yan et al. 2016's explicit map: one lobe record per seed",
-            },
-            "memory_ratio": ours / ref_bytes,
-            "note": "precompute_seconds varies from run to run; the only non-deterministic "
-            "artifact",
+    stats: GlintStats = {
+        "example": {"size": n, "type": kind, "cropped_from": full if n != full else None},
+        "levels": len(maps),
+        "ndf_resolution": res,
+        "extent": extent,
+        "lobes": len(lobes),
+        "precompute_seconds": round(seconds, 4),
+        "bytes": {
+            "ndf_maps": map_bytes(maps),
+            "lobes": len(lobes) * LOBE_BYTES,
+            "total": ours,
         },
-    )
+        "reference": {
+            "resolution": ref_side,
+            "lobe_rate": rate,
+            "lobes": ref_side * ref_side * rate * rate,
+            "bytes": ref_bytes,
+            "note": "Yan et al. 2016's explicit map: one lobe record per seed",
+        },
+        "memory_ratio": ours / ref_bytes,
+        "note": "precompute_seconds varies from run to run; the only non-deterministic artifact",
+    }
+    ctx.put_json("stats.json", stats)
     ctx.progress(
         1.0,
         f"{len(maps)} levels of {res}x{res} NDF images in {seconds:.2f} s; "
@@ -159,23 +159,22 @@ def run_generate_glint(params: GlintGenParams, ctx: JobContext) -> None:
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``stats.json``, one row (the example) with its memory against the
     reference and the precompute time."""
-    doc = read("stats.json")
-    if not isinstance(doc, dict):
+    doc = read_typed(read("stats.json"), GlintStats)
+    if doc is None:
         return None
-    ex: dict[str, Any] = doc.get("example") or {}
-    row = {
-        "size": ex.get("size"),
-        "levels": doc.get("levels"),
-        "ndf_resolution": doc.get("ndf_resolution"),
-        "lobes": doc.get("lobes"),
-        "bytes": (doc.get("bytes") or {}).get("total"),
-        "reference_bytes": (doc.get("reference") or {}).get("bytes"),
-        "memory_ratio": doc.get("memory_ratio"),
-        "precompute_seconds": doc.get("precompute_seconds"),
+    row: dict[str, Any] = {
+        "size": doc["example"]["size"],
+        "levels": doc["levels"],
+        "ndf_resolution": doc["ndf_resolution"],
+        "lobes": doc["lobes"],
+        "bytes": doc["bytes"]["total"],
+        "reference_bytes": doc["reference"]["bytes"],
+        "memory_ratio": doc["memory_ratio"],
+        "precompute_seconds": doc["precompute_seconds"],
     }
     return ResultTable(
         title="Tiny example", label_header="Example", columns=list(row),
-        rows={str(ex.get("type", "example")): row},
+        rows={doc["example"]["type"]: row},
     )  # fmt: skip
 
 
@@ -197,6 +196,7 @@ register(
         smoke={"example": {"procedural": "isotropic_noise", "size": 8}, "ndf_resolution": 16},
         summary=summarize,
         rows=glint_rows(summarize),
+        documents={"stats.json": GlintStats},
         layout=LAYOUT,
     )
 )

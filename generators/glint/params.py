@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 from pydantic import BeforeValidator, Field, model_validator
 
 from jobapi.params import Ref, StrictModel
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 from materials.glints.examples import SIZES, TYPES
 from materials.glints.surface import Distribution, Transform
 
@@ -193,6 +193,6 @@ class GlintGenParams(StrictModel):
                 raise ValueError(f"crop {self.crop} is larger than the example ({ex.size})")
         return self
 
-    def value(self, name: str) -> int:
-        """The field ``name``, or the preset's value when it is unset."""
-        return int(preset_value(self, PRESETS, name))
+    def effective(self) -> GlintPreset:
+        """The preset with the set fields in its place."""
+        return resolve_preset(self, PRESETS)

@@ -19,7 +19,9 @@ Artifacts:
   zeros) and ``mae`` against the source tables at the
   fixed-seed scoring pairs, with means overall, per family and per split
   (:mod:`models.brdf.report`);
-- ``speed.json`` (unless ``speed: off``): ns per evaluation of the fused Dr.Jit kernel (wall
+Not an artifact: the speed document (unless ``speed: off``), kept in the job's manifest as
+``timings.measured.speed`` (timings vary between runs, and artifacts are the same bytes for
+the same spec): ns per evaluation of the fused Dr.Jit kernel (wall
   and, steadier on a shared machine, CPU time on 2 dedicated cores), its FLOP per evaluation
   and GFLOP/s per core, and of torch eager, bytes per network and per material, measured in
   this job by
@@ -29,8 +31,7 @@ Artifacts:
   and neural at the paper's Table 4 sizes 16x2 ... 64x3 (fresh weights); ``speed_batch``
   pairs per measurement, median of :data:`SPEED_REPEATS` runs, 2 threads.
 
-Same spec, same bytes, except ``speed.json``: it holds timings, so it is the one artifact
-whose bytes vary between runs (like ``stats.json`` of ``generate.fabric``). All randomness
+Same spec, same bytes. All randomness
 comes from the job's seed (``ctx.sub_seed``), training runs with
 :func:`models.brdf.train.deterministic_torch`, and no other artifact holds a timing (the last
 progress message and the log line of :mod:`models.brdf.runner` do; the job's manifest has
@@ -56,7 +57,7 @@ from pydantic import Field, model_validator
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.brdf.claims import brdf_claims
@@ -68,7 +69,7 @@ if TYPE_CHECKING:
 
 #: Most tables one job may train on.
 MAX_TABLES = 500
-#: Runs per median of each ``speed.json`` measurement (after one warm-up run).
+#: Runs per median of each speed measurement (after one warm-up run).
 SPEED_REPEATS = 5
 
 
@@ -151,7 +152,7 @@ class TrainBrdfParams(StrictModel):
     ``init``                ref                  none       model.json / model.pt to start
     ``freeze_network``      bool                 false      fit only ``(z, p)`` (needs init)
     ``device``              auto | cpu | cuda    cpu        where to train
-    ``speed``               full | trained |     trained    what ``speed.json`` times
+    ``speed``               full | trained |     trained    what the speed timing covers
                             off
     ``speed_batch``         int                  2^18       pairs per speed measurement
     ======================  ===================  =========  =================================
@@ -250,16 +251,16 @@ class TrainBrdfParams(StrictModel):
     device: Device = device_field("cpu")
     speed: Literal["full", "trained", "off"] = Field(
         default="trained",
-        description="speed.json, ns per evaluation (fused Dr.Jit kernel and torch eager): "
-        "'trained' the trained size and the analytic model (seconds), 'full' also the bare "
-        "MLP, hybrid and neural at 16x2..64x3 (a few minutes), 'off' no speed.json. Its "
-        "timings vary between runs: the one non-deterministic artifact.",
+        description="Time the model, ns per evaluation (fused Dr.Jit kernel and torch eager), "
+        "kept in the manifest (timings.measured.speed, not an artifact: timings vary "
+        "between runs): 'trained' the trained size and the analytic model (seconds), 'full' "
+        "also the bare MLP, hybrid and neural at 16x2..64x3 (a few minutes), 'off' nothing.",
     )
     speed_batch: int = Field(
         default=1 << 18,
         ge=1024,
         le=1 << 22,
-        description="Cosine-weighted pairs per speed.json measurement (median of 5 runs).",
+        description="Cosine-weighted pairs per speed measurement (median of 5 runs).",
     )
 
     @model_validator(mode="after")
@@ -278,9 +279,9 @@ class TrainBrdfParams(StrictModel):
             raise ValueError("neural_latent_dim applies to model 'neural' only")
         return self
 
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        return preset_value(self, PRESETS, name)
+    def effective(self) -> TrainPreset:
+        """The preset with the set fields in its place."""
+        return resolve_preset(self, PRESETS)
 
 
 def architecture(params: TrainBrdfParams, init: Architecture | None) -> Architecture:
@@ -290,10 +291,11 @@ def architecture(params: TrainBrdfParams, init: Architecture | None) -> Architec
     if params.model == "analytic":
         wanted = Architecture("analytic", 0, 0, 0)
     else:
-        lat = params.value("latent_dim")
+        eff = params.effective()
+        lat = eff.latent_dim
         if params.model == "neural":
             lat = params.neural_latent_dim or equal_neural_latent(lat)
-        wanted = Architecture(params.model, params.value("width"), params.value("depth"), lat)
+        wanted = Architecture(params.model, eff.width, eff.depth, lat)
     if init is None:
         return wanted
     if init.model != params.model:
@@ -373,7 +375,6 @@ register(
             "curves.json",
             "curves.png",
             "metrics.json",
-            "speed.json",
         ),
         smoke={
             "dataset": "step:generate.merl",

@@ -25,11 +25,13 @@ Artifacts:
   SMAPE over seeds and its spread; ``iridescent`` (thin film) and ``blend`` (multi-lobe)
   singled out, as in the paper's Fig. 12.
 
-Cost: from each run's ``speed.json`` (``train.brdf``'s ``speed: trained`` or ``full``), its
-trained-size row; a configuration none of whose runs has one is timed here, once, with
-the first run's model (:func:`models.speed.model_row`, ``speed_batch`` pairs, median of 5,
-2 threads), and its ``ns_source`` says so. Same runs, same bytes, unless a configuration
-had to be timed here (then the ns figures vary between runs, as ``speed.json`` does).
+Cost: from each run's speed timings (``train.brdf``'s ``speed: trained`` or ``full``, in its
+manifest's ``timings.measured.speed``; a ``speed.json`` artifact for runs made before
+timings moved there), its trained-size row; a configuration none of whose runs has one is
+timed here, once, with the first run's model (:func:`models.speed.model_row`,
+``speed_batch`` pairs, median of 5, 2 threads), and its ``ns_source`` says so.
+Same runs, same bytes, unless a configuration had to be timed here (then the ns figures
+vary between runs, as the runs' timings do).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.params import JobRef, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
+from jobapi.row_sources import measured_timings
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -59,7 +62,7 @@ class ReportBrdfParams(StrictModel):
     ===============  =======================  ========  ===================================
     ``runs``         list of ``job:<id>``     required  finished train.brdf jobs, 1..64
     ``speed_batch``  int                      2^18      pairs per ns/eval measurement of a
-                                                        configuration without speed.json
+                                                        configuration without speed timings
     ===============  =======================  ========  ===================================
 
     Example (in a batch file, ``step:<name>`` is the whole job)::
@@ -78,7 +81,7 @@ class ReportBrdfParams(StrictModel):
         ge=1024,
         le=1 << 22,
         description="Pairs per ns/eval measurement, for configurations whose runs have no "
-        "speed.json (they are timed here, median of 5).",
+        "speed timings (they are timed here, median of 5).",
     )
 
 
@@ -96,10 +99,15 @@ def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
     metrics, doc = read("metrics.json"), read("model.json")
     arch = doc["architecture"]
     speed, source = None, "none"
-    if "speed.json" in names:
-        rows = [r for r in read("speed.json").get("rows", []) if r.get("trained")]
+    # The speed document: the manifest's timings.measured.speed, or the speed.json artifact
+    # of a run made before timings moved to the manifest.
+    timed = measured_timings(job, ctx.store).get("speed")
+    if timed is None and "speed.json" in names:
+        timed = read("speed.json")
+    if isinstance(timed, dict):
+        rows = [r for r in timed.get("rows", []) if r.get("trained")]
         if rows:
-            speed, source = rows[0], "speed.json of the runs"
+            speed, source = rows[0], "speed timings of the runs"
     run = Run(
         job_id=job_id,
         seed=job.seed,
@@ -180,7 +188,8 @@ def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
             "accuracy": "mean SMAPE (Eq. 6) over materials per run (metrics.json), then mean "
             "over seeds; std is the sample std (ddof 1)",
             "cost": "ns_per_eval: fused Dr.Jit kernel execution ns per evaluation "
-            "(speed.json fused_kernel_ns), median over runs; the x axis of pareto.png; "
+            "(the runs' speed timings, fused_kernel_ns), median over runs; the x axis of "
+            "pareto.png; "
             "bytes per material = 4 x per-material floats",
             "front": "not beaten on both mean SMAPE and ns_per_eval by another configuration",
         },

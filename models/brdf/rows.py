@@ -4,11 +4,13 @@ One row per material and metric of ``metrics.json`` (``smape``, ``smape_floor``,
 and, for models with an analytic part, ``smape_analytic``, ``smape_floor_analytic`` and
 ``mae_analytic``), the same metrics of the
 mean over materials (``material`` ``"mean"``), and the trained size's speed
-(``fused_kernel_ns``, ``fused_ns``, ``torch_ns`` of ``speed.json``). Every row carries the
+(``fused_kernel_ns``, ``fused_ns``, ``torch_ns`` of the speed document: the manifest's
+``timings.measured.speed``, or the ``speed.json`` artifact of a job run before timings moved
+to the manifest). Every row carries the
 configuration (``candidate`` ``"hybrid 32x3"`` as :class:`models.brdf.study.Run` names it),
 the dataset (the ``generate.merl`` job) and the costs: ``ns_per_eval`` is the trained
 size's ``fused_kernel_ns``, bytes per material 4 x the per-material floats, bytes per
-network from ``speed.json``, ``train_seconds`` the job's wall time, ``runtime``
+network from the speed document, ``train_seconds`` the job's wall time, ``runtime``
 ``drjit-fused``.
 """
 
@@ -25,7 +27,7 @@ METRICS = (
 )  # fmt: skip
 #: What evaluates a train.brdf model (its ``ns_per_eval`` is the fused kernel's).
 RUNTIME = "drjit-fused"
-#: The speed metrics of ``speed.json``'s trained-size row.
+#: The speed metrics of the speed document's trained-size row.
 SPEED_METRICS = ("fused_kernel_ns", "fused_ns", "torch_ns")
 
 
@@ -60,7 +62,7 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
         "preset": params.get("preset"),
         "steps": params.get("steps"),
     }
-    speed = _trained_speed(src.read("speed.json"))
+    speed = _trained_speed(src.job.measured.get("speed") or src.read("speed.json"))
     common: dict[str, Any] = {
         "candidate": config_label(model, width, depth),
         "dataset": dataset_of(params, "dataset"),

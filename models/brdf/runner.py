@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -32,8 +33,10 @@ P_LOADED, P_FITTED, P_SCORED = 0.05, 0.85, 0.97
 
 
 def _resolved(params: TrainBrdfParams) -> dict[str, Any]:
-    names = ("width", "depth", "latent_dim", "steps", "batch_pairs", "lr", "weight_decay")
-    return {n: params.value(n) for n in (*names, "clip", "eval_pairs")}
+    # Every tunable field's effective value, in the preset's field order (no summary line).
+    values = asdict(params.effective())
+    del values["summary"]
+    return values
 
 
 def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
@@ -45,7 +48,8 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
     train_set, held = split_by_family(materials, params.holdout_families)
     init = load_init(params.init, ctx) if params.init is not None else None
     arch = architecture(params, init[0].arch if init else None)
-    steps = int(params.value("steps"))
+    eff = params.effective()
+    steps = eff.steps
     held_steps = params.holdout_steps or steps
     total = steps + (held_steps if held else 0)
     ctx.progress(P_LOADED, f"{len(materials)} tables, {arch.model} model")
@@ -60,10 +64,10 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
     def config(n_steps: int, train_network: bool) -> FitConfig:
         return FitConfig(
             steps=n_steps,
-            batch_pairs=int(params.value("batch_pairs")),
-            lr=float(params.value("lr")),
-            weight_decay=float(params.value("weight_decay")),
-            clip=float(params.value("clip")),
+            batch_pairs=eff.batch_pairs,
+            lr=float(eff.lr),
+            weight_decay=float(eff.weight_decay),
+            clip=float(eff.clip),
             train_network=train_network,
         )
 
@@ -115,14 +119,14 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
             final,
             ordered,
             splits,
-            int(params.value("eval_pairs")),
+            eff.eval_pairs,
             check_cancelled=ctx.check_cancelled,
         )
     ctx.progress(P_SCORED, "writing artifacts")
     doc = _write(ctx, params, final, ordered, metrics, curves)
     if params.speed != "off":
         ctx.progress(P_SCORED, f"timing the model (speed: {params.speed})")
-        ctx.put_json("speed.json", measure_speed(params, doc))
+        ctx.measure("speed", measure_speed(params, doc))
     train_curve = curves["train"]
     ms = 1000.0 * train_curve.seconds / steps if train_curve is not None else 0.0
     log.info(
@@ -206,7 +210,8 @@ def _write(
 
 
 def measure_speed(params: TrainBrdfParams, doc: dict[str, Any]) -> dict[str, Any]:
-    """The ``speed.json`` document of a trained model (see :mod:`models.brdf.kind`).
+    """The speed document of a trained model, kept in the manifest as
+    ``timings.measured.speed`` (see :mod:`models.brdf.kind`).
 
     ``speed: trained`` times the model at its own size and the analytic baseline; ``full``
     adds the paper's Table 4 sizes. Without a vectorised Mitsuba variant (LLVM or CUDA)
@@ -224,7 +229,7 @@ def measure_speed(params: TrainBrdfParams, doc: dict[str, Any]) -> dict[str, Any
             f"the fused kernel; got {mi.variant()}",
             "rows": [],
         }
-    latent = int(params.value("latent_dim")) if params.model != "analytic" else 4
+    latent = params.effective().latent_dim if params.model != "analytic" else 4
     report = speed_report(
         mi,
         doc,

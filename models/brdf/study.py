@@ -9,8 +9,9 @@ their seed. Conventions (De Oliveira et al., hybrid neural-microfacet BRDF):
   configuration's accuracy is the mean over its seeds of that, with the sample standard
   deviation (``ddof = 1``; 0 for one seed) and the min and max;
 - cost: ``ns_per_eval``, nanoseconds per BRDF evaluation of the fused Dr.Jit kernel
-  (``fused_kernel_ns`` of the trained-size row of ``speed.json``: kernel execution only, what
-  a renderer pays per evaluation), the median over the configuration's runs that have one;
+  (``fused_kernel_ns`` of the trained-size row of the runs' speed timings: kernel execution
+  only, what a renderer pays per evaluation), the median over the configuration's runs
+  that have one;
   the same name and meaning as the ``ns_per_eval`` cost of :mod:`jobapi.rows`;
 - Pareto front: the configurations that no other configuration beats on both mean SMAPE and
   ns/eval (lower is better for both, at least one strictly);
@@ -102,7 +103,7 @@ class Config:
             "runs": [f"job:{r.job_id}" for r in self.runs],
             **spread(values),
             # One cost per meaning (issue 13): the plotted ns_per_eval is the kernel's own
-            # time; speed.json's fused_ns (tracing + launch + wait, per evaluation of one
+            # time; the speed timings' fused_ns (tracing + launch + wait, per evaluation of one
             # batch) is another meaning and stays there and in the results table.
             "ns_per_eval": statistics.median(kernel) if kernel else None,
             "torch_ns": _median(costs, "torch_ns"),

@@ -19,14 +19,14 @@ over the training and held-out slices, and the storage); ``curves.json`` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, model_validator
 
 from jobapi.kinds import Kind, register
 from jobapi.params import Device, JobRef, StrictModel, device_field
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
 from models.btf.rows import train_btf_rows
@@ -134,13 +134,13 @@ class TrainBtfParams(StrictModel):
     )  # fmt: skip
     device: Device = device_field("auto")
 
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        if name == "epochs" and self.epochs is None and self.model == "neumip_max":
-            return PRESETS[self.preset].teacher_epochs
-        if name == "check_steps":
-            return self.check_steps
-        return preset_value(self, PRESETS, name)
+    def effective(self) -> BtfTrainPreset:
+        """The preset with the set fields in its place; ``neumip_max`` (the teacher) takes
+        ``teacher_epochs`` when ``epochs`` is unset."""
+        eff = resolve_preset(self, PRESETS)
+        if self.epochs is None and self.model == "neumip_max":
+            eff = replace(eff, epochs=eff.teacher_epochs)
+        return eff
 
     holdout: float | None = Field(
         default=None, ge=0.0, le=0.5,

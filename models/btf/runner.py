@@ -96,7 +96,7 @@ def _fit_network(
         d = params.distill
         teacher = load_teacher(d.teacher, ctx, (h, w)).to(device)
         distill = Distillation(teacher, sigma=d.sigma, lambda1=d.lambda1, lambda2=d.lambda2)
-    epochs = int(params.value("epochs"))
+    epochs = params.effective().epochs
 
     def report(step: int, n: int, train_l1: float, test_l1: float) -> None:
         frac = P_LOADED + (P_FITTED - P_LOADED) * step / n
@@ -104,11 +104,10 @@ def _fit_network(
 
     gen = torch.Generator().manual_seed(ctx.sub_seed("train.btf/jitter"))
     order = ctx.rng("train.btf/order")
-    check, plateau = params.value("check_steps"), params.value("plateau_steps")
     cfg = FitConfig(
         epochs=epochs,
-        check_steps=None if check is None else int(check),
-        plateau_steps=None if plateau is None else int(plateau),
+        check_steps=params.check_steps,
+        plateau_steps=params.effective().plateau_steps,
     )
     curves = fit(net, data, train, test, cfg, gen, order,
                  distill=distill, on_progress=report,
@@ -119,17 +118,18 @@ def _fit_network(
 def _fit_lafortune(
     params: TrainBtfParams, ctx: JobContext, data: BtfDataset, train: np.ndarray
 ) -> PortableBtf:
-    limit = params.value("lafortune_slices")
+    eff = params.effective()
+    limit = eff.lafortune_slices
     use = train
-    if limit is not None and len(train) > int(limit):
-        use = train[np.linspace(0, len(train) - 1, int(limit)).round().astype(int)]
+    if limit is not None and len(train) > limit:
+        use = train[np.linspace(0, len(train) - 1, limit).round().astype(int)]
     h, w = data.resolution
     values = np.empty((h * w, len(use), 3), np.float32)
     for k, (_, rgb) in enumerate(data.iter_slices(use)):
         values[:, k, :] = rgb.reshape(-1, 3)
     wi, wo = data.wi[use].astype(np.float64), data.wo[use].astype(np.float64)
     mean = (values / np.maximum(wi[None, :, 2:3], 1e-3)).mean(axis=1)
-    iters = int(params.value("lafortune_iterations"))
+    iters = eff.lafortune_iterations
 
     def progress(f: float) -> None:
         ctx.progress(P_LOADED + (P_FITTED - P_LOADED) * f, f"Levenberg-Marquardt: {100 * f:.0f} %")
@@ -157,7 +157,8 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
     started = time.perf_counter()
     ctx.progress(0.0, "loading the BTF")
     data = BtfDataset.open(params.data, ctx)
-    holdout = float(params.value("holdout"))
+    eff = params.effective()
+    holdout = float(eff.holdout)
     train, test = data.split(holdout)
     h, w = data.resolution
     ctx.progress(
@@ -166,9 +167,10 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
     label = label_of(params)
     training = {
         "params": params.model_dump(mode="json"),
-        "resolved": {n: params.value(n) for n in ("epochs", "check_steps", "plateau_steps",
-                                                   "holdout", "lafortune_iterations",
-                                                   "lafortune_slices")},
+        "resolved": {"epochs": eff.epochs, "check_steps": params.check_steps,
+                     "plateau_steps": eff.plateau_steps, "holdout": eff.holdout,
+                     "lafortune_iterations": eff.lafortune_iterations,
+                     "lafortune_slices": eff.lafortune_slices},
         "seed": ctx.seed, "data": params.data, "label": label,
     }  # fmt: skip
     curves: Curves | None = None

@@ -31,13 +31,13 @@ line do). With ``auto`` on a CUDA machine training runs there, which is not bit-
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
 
 from jobapi.kinds import Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
-from jobapi.presets import preset_note, preset_value
+from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.fabric.claims import fabric_claims
@@ -253,9 +253,9 @@ class TrainFabricParams(StrictModel):
     )
     device: Device = device_field("auto")
 
-    def value(self, name: str) -> Any:
-        """The field ``name``, or the preset's value when it is unset."""
-        return preset_value(self, PRESETS, name)
+    def effective(self) -> FabricPreset:
+        """The preset with the set fields in its place."""
+        return resolve_preset(self, PRESETS)
 
 
 def run_train_fabric(params: TrainFabricParams, ctx: JobContext) -> None:

@@ -67,7 +67,7 @@ Second-pass options (issue 12; the defaults are the network above, unchanged):
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -396,9 +396,3 @@ def build_network(arch: Architecture, seed: int) -> FabricNetwork:
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         return FabricNetwork(arch)
-
-
-def count_parameters(module: nn.Module, names: Sequence[str] | None = None) -> int:
-    """Parameters of ``module`` (or of its children ``names``)."""
-    mods = [getattr(module, n) for n in names] if names else [module]
-    return sum(p.numel() for m in mods for p in m.parameters())

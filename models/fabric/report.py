@@ -128,11 +128,6 @@ def footprint_errors(
     return out
 
 
-def material_metrics(net: FabricNetwork, m: MaterialData, latent: np.ndarray) -> dict[str, Any]:
-    """One material's row of ``metrics.json`` (see the module docstring)."""
-    return _material(net, m, latent)[0]
-
-
 def _material(
     net: FabricNetwork, m: MaterialData, latent: np.ndarray
 ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import pickle
 import time
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -31,27 +32,27 @@ log = logging.getLogger(__name__)
 
 #: Progress fractions: dataset loaded, fitting done, metrics done.
 P_LOADED, P_FITTED, P_SCORED = 0.05, 0.9, 0.97
-_TUNABLE = ("encoder_width", "decoder_width", "map_resolution", "steps", "batch",
-            "materials_per_step", "lr", "momentum", "weight_decay", "clip", "holdout",
-            "train_queries", "loss", "centre_encoding", "size_encoding", "centre_bins",
-            "phase_channels", "param_skip")  # fmt: skip
 
 
 def resolved(params: TrainFabricParams) -> dict[str, Any]:
-    """Every tunable field's effective value."""
-    return {n: params.value(n) for n in _TUNABLE}
+    """Every tunable field's effective value, in the preset's field order (its ``summary``
+    line left out)."""
+    values = asdict(params.effective())
+    del values["summary"]
+    return values
 
 
 def _initial(params: TrainFabricParams, ctx: JobContext) -> FabricNetwork:
+    eff = params.effective()
     arch = Architecture(
-        encoder_width=int(params.value("encoder_width")),
-        map_resolution=int(params.value("map_resolution")),
-        decoder_width=int(params.value("decoder_width")),
-        centre_encoding=str(params.value("centre_encoding")),
-        size_encoding=str(params.value("size_encoding")),
-        centre_bins=int(params.value("centre_bins")),
-        phase_channels=int(params.value("phase_channels")),
-        param_skip=int(bool(params.value("param_skip"))),
+        encoder_width=eff.encoder_width,
+        map_resolution=eff.map_resolution,
+        decoder_width=eff.decoder_width,
+        centre_encoding=eff.centre_encoding,
+        size_encoding=eff.size_encoding,
+        centre_bins=eff.centre_bins,
+        phase_channels=eff.phase_channels,
+        param_skip=int(eff.param_skip),
     )
     net = build_network(arch, ctx.sub_seed("train.fabric/init"))
     if params.init is None:
@@ -75,17 +76,13 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
     """Run a ``train.fabric`` job end to end."""
     started = time.perf_counter()
     device = pick_device(params.device, ctx)
-    cfg = resolved(params)
+    cfg = params.effective()
     ctx.progress(0.0, "loading dataset")
     materials = load_dataset(
-        params.dataset,
-        ctx,
-        int(cfg["map_resolution"]),
-        float(cfg["holdout"]),
-        cfg["train_queries"],
+        params.dataset, ctx, cfg.map_resolution, float(cfg.holdout), cfg.train_queries
     )
     ctx.progress(P_LOADED, f"{len(materials)} materials on {device}")
-    steps = int(cfg["steps"])
+    steps = cfg.steps
 
     def report(step: int, n: int, loss: float) -> None:
         frac = P_LOADED + (P_FITTED - P_LOADED) * step / n
@@ -96,16 +93,16 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
         net = _initial(params, ctx).to(device)
         curves = fit(
             net,
-            TrainingSet(materials, device, str(cfg["loss"])),
+            TrainingSet(materials, device, cfg.loss),
             FitConfig(
                 steps=steps,
-                batch=int(cfg["batch"]),
-                materials_per_step=int(cfg["materials_per_step"]),
-                lr=float(cfg["lr"]),
-                momentum=float(cfg["momentum"]),
-                weight_decay=float(cfg["weight_decay"]),
-                clip=float(cfg["clip"]),
-                loss=str(cfg["loss"]),
+                batch=cfg.batch,
+                materials_per_step=cfg.materials_per_step,
+                lr=float(cfg.lr),
+                momentum=float(cfg.momentum),
+                weight_decay=float(cfg.weight_decay),
+                clip=float(cfg.clip),
+                loss=cfg.loss,
             ),
             batch_gen,
             on_progress=report,

@@ -1,11 +1,11 @@
 """``report.brdf`` through the registry over tiny ``train.brdf`` runs.
 
-Runs: analytic (2 seeds, with ``speed.json``), hybrid 16x2 (2 seeds, with ``speed.json``)
+Runs: analytic (2 seeds, timed: ``speed: trained``), hybrid 16x2 (2 seeds, timed)
 and neural 16x2 (1 seed, ``speed: off``: the report times it itself), 12 steps each on a
 3-material collection. References: each run's own ``metrics.json`` (the per-seed values and
-their numpy mean / std / min / max), each run's ``speed.json`` trained row (the cost), and
-the claims recomputed here from those numbers. Errors: a job that is not train.brdf, runs on
-different datasets, a duplicate.
+their numpy mean / std / min / max), each run's speed timings' trained row (its manifest's
+``timings.measured.speed``: the cost), and the claims recomputed here from those numbers.
+Errors: a job that is not train.brdf, runs on different datasets, a duplicate.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
+from tests.helpers.manifests import speed_of
 
 TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "speed_batch": 4096}
 NET = {"width": 16, "depth": 2}
@@ -85,10 +86,10 @@ def test01_report_over_runs(runs: tuple[Settings, Job, list[Job]]) -> None:
         # very values metrics.json holds.
         assert (p["smape_min"], p["smape_max"]) == (min(vals), max(vals))
         assert [s["smape"] for s in spread[label]["per_seed"]] == vals
-    # Cost: the runs' speed.json trained rows (median over runs); neural was timed here.
-    kernel = [read(settings, j, "speed.json")["rows"][0]["fused_kernel_ns"] for j in jobs[2:4]]
+    # Cost: the runs' speed timings, trained rows (median over runs); neural was timed here.
+    kernel = [speed_of(settings, j)["rows"][0]["fused_kernel_ns"] for j in jobs[2:4]]
     assert points["hybrid 16x2"]["ns_per_eval"] == pytest.approx(np.median(kernel))
-    assert points["hybrid 16x2"]["ns_source"] == ["speed.json of the runs"]
+    assert points["hybrid 16x2"]["ns_source"] == ["speed timings of the runs"]
     assert points["neural 16x2"]["ns_source"] == ["timed by this job"]
     assert all(p["ns_per_eval"] > 0 for p in points.values())
     assert points["analytic"]["bytes_per_material"] == 28

@@ -3,10 +3,10 @@
 
 Jobs: a 2-material MERL collection; ``train.brdf`` analytic (seeds 0 and 1) and hybrid
 16x2 (seed 0), 12 steps each; a sphere at 8 spp (the reference) and at 1 and 2 spp, scored
-with FLIP. References: each run's own ``metrics.json`` and ``speed.json`` (the points'
-errors and costs), the renders' spp and job times, the front by brute force, the claim
-recomputed from those numbers. Errors: a job without result rows, a duplicate, nothing to
-chart.
+with FLIP. References: each run's own ``metrics.json`` and speed timings (its manifest's
+``timings.measured.speed``: the points' errors and costs), the renders' spp and job times,
+the front by brute force, the claim recomputed from those numbers.
+Errors: a job without result rows, a duplicate, nothing to chart.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job, JobStore
+from tests.helpers.manifests import speed_of
 from tests.helpers.renders import own_render_seconds
 
 TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "speed_batch": 4096}
@@ -113,9 +114,7 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
     assert analytic["mean"] == pytest.approx(np.mean(means))
     assert (analytic["min"], analytic["max"]) == (min(means), max(means))
     kernel = [
-        next(r for r in read(settings, jobs[k], "speed.json")["rows"] if r["trained"])[
-            "fused_kernel_ns"
-        ]
+        next(r for r in speed_of(settings, jobs[k])["rows"] if r["trained"])["fused_kernel_ns"]
         for k in ("a0", "a1")
     ]
     assert analytic["cost"] == pytest.approx(np.median(kernel))

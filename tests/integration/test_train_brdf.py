@@ -24,12 +24,13 @@ from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
+from tests.helpers.manifests import measured
 
 ARTIFACTS = {"model.pt", "model.json", "materials.json", "curves.json", "curves.png",
              "metrics.json"}  # fmt: skip
 TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "width": 16, "depth": 2,
         "speed": "off"}  # fmt: skip
-#: The cheapest speed.json: the trained size and analytic, 4096 pairs per measurement.
+#: The cheapest speed timing: the trained size and analytic, 4096 pairs per measurement.
 TIMED = {"speed": "trained", "speed_batch": 4096}
 
 
@@ -74,8 +75,9 @@ def test01_each_model_trains_and_its_artifacts_agree(
         params = {k: v for k, v in params.items() if k not in ("width", "depth")}
     job = train(settings, params)
     assert job.state == "succeeded", job.error
-    assert {a.name for a in job.artifacts} == ARTIFACTS | {"speed.json"}
-    speed = read_json(settings, job, "speed.json")
+    # Timings are not artifacts (same spec, same bytes): the manifest keeps them.
+    assert {a.name for a in job.artifacts} == ARTIFACTS
+    speed = measured(settings, job)["speed"]
     assert speed["format"] == "matforge.speed/1" and speed["mode"] == "trained"
     assert speed["batch"] == 4096
     trained, analytic = speed["rows"]  # the trained size, then the analytic baseline
@@ -135,10 +137,10 @@ def test02_same_spec_same_bytes(brdf_env: tuple[Settings, str]) -> None:
     again = train(settings, params, force=True)
     assert first.state == again.state == "succeeded", (first.error, again.error)
     assert first.id != again.id
-    # speed.json holds timings: the one artifact whose bytes may differ (kind docstring).
+    # The speed timings (which vary) are in the manifests, so every artifact is the same.
     one, two = ({a.name: a.digest for a in j.artifacts} for j in (first, again))
-    assert one.pop("speed.json") and two.pop("speed.json")
     assert one == two and set(one) == ARTIFACTS
+    assert measured(settings, first)["speed"]["rows"] and measured(settings, again)["speed"]
 
 
 def test03_divergence_fails_the_job_with_a_clear_error(brdf_env: tuple[Settings, str]) -> None:
@@ -154,7 +156,8 @@ def test04_init_with_frozen_network_fits_only_z_and_p(brdf_env: tuple[Settings, 
     settings, gen = brdf_env
     base = train(settings, {**TINY, "dataset": f"job:{gen}", "holdout_families": ["metal"]})
     assert base.state == "succeeded", base.error
-    assert {a.name for a in base.artifacts} == ARTIFACTS  # speed: off, no speed.json
+    assert {a.name for a in base.artifacts} == ARTIFACTS
+    assert "speed" not in measured(settings, base)  # speed: off
     metrics = read_json(settings, base, "metrics.json")
     assert metrics["splits"]["heldout"]["count"] == 1 and metrics["splits"]["train"]["count"] == 2
     curves = read_json(settings, base, "curves.json")

@@ -96,7 +96,7 @@ def run_simulation(
     trained: Trained, mi: types.ModuleType, params: TssParams, resolutions: list[int]
 ) -> tuple[Simulation, CameraPath, dict[int, tuple[np.ndarray, dict[Any, np.ndarray]]]]:
     """The simulation of ``params`` with every frame kept: ``{k: (reference, frames)}``."""
-    path = camera_path(params.path, int(params.value("frames")), np.random.default_rng(0))
+    path = camera_path(params.path, params.effective().frames, np.random.default_rng(0))
     plane = Plane(FusedBtf(trained.portable, mi), params.lights, params.uv_scale)
     kept: dict[int, tuple[np.ndarray, dict[Any, np.ndarray]]] = {}
     sim = simulate(
@@ -104,7 +104,7 @@ def run_simulation(
         path,
         resolutions,
         params.intervals,
-        tuple(params.value("image")),
+        params.effective().image,
         amortised=params.texture_pass == "amortised",
         ppd=params.flip_ppd,
         on_frame=lambda k, ref, frames: kept.update({k: (ref, dict(frames))}),

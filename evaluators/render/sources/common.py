@@ -13,6 +13,13 @@ its value (checked when the spec is validated, before anything is queued) and a 
 code base knows the list of sources; the ``material`` field of a params model is simply
 :data:`MaterialParam`.
 
+Result rows: a source may declare ``row_facts(src, material) -> MaterialRowFacts``, what a
+render of its material adds to the render's result rows and to the rows of images scored
+against it (its ``config`` entries, its ``bytes_per_material``); ``src`` is the render job
+(:class:`jobapi.rows.RowSource`), ``material`` the render's whole ``material`` object as
+the spec holds it. :func:`evaluators.render.rows.render_facts` asks the source; it never
+names one.
+
 Sibling keys: a source may declare a pydantic model of *sibling* keys that sit next to its
 key in the same object (``"material"`` above). The object then has exactly one source key
 plus any of that source's siblings, and the source's resolver receives the whole validated
@@ -47,9 +54,24 @@ if TYPE_CHECKING:
     import types
 
     from jobapi.context import JobContext
+    from jobapi.rows import RowSource
 
 #: ``resolver(value, ctx, mi)``: returns a Mitsuba BSDF plugin dict or an instantiated BSDF.
 Resolver = Callable[[Any, "JobContext", "types.ModuleType"], Any]
+
+
+@dataclass(frozen=True)
+class MaterialRowFacts:
+    """What a render's material adds to its result rows: ``config`` entries (merged into
+    the row's ``config``) and the memory of the material, ``bytes_per_material``
+    (``None``: unknown)."""
+
+    config: dict[str, Any]
+    bytes_per_material: float | None = None
+
+
+#: ``row_facts(src, material)``: see the module docstring.
+RowFacts = Callable[["RowSource", Mapping[str, Any]], MaterialRowFacts]
 
 
 @dataclass(frozen=True)
@@ -63,6 +85,7 @@ class MaterialSource:
         summary: one line for documentation and the OpenAPI schema.
         siblings: a pydantic model of the keys allowed next to ``key`` (``None``: none);
             when set, the resolver receives the whole object ``{key: value, **siblings}``.
+        row_facts: what a render of the material adds to result rows (``None``: nothing).
     """
 
     key: str
@@ -70,6 +93,7 @@ class MaterialSource:
     resolver: Resolver
     summary: str
     siblings: type[BaseModel] | None = None
+    row_facts: RowFacts | None = None
     adapter: TypeAdapter[Any] = field(init=False, repr=False, compare=False)
     sibling_adapter: TypeAdapter[Any] | None = field(init=False, repr=False, compare=False)
 
@@ -90,18 +114,25 @@ def register_material_source(
     value_type: Any,
     summary: str,
     siblings: type[BaseModel] | None = None,
+    row_facts: RowFacts | None = None,
 ) -> MaterialSource:
     """Register a material source under ``key`` (re-registering a key replaces it).
 
     ``siblings`` (optional) is a pydantic model of the extra keys the source allows next to
-    its own; see the module docstring.
+    its own, ``row_facts`` (optional) what its renders add to result rows; see the module
+    docstring.
     """
     if not re.fullmatch(r"[a-z][a-z0-9_]{0,31}", key):
         raise ValueError(f"material source keys are short lower-case identifiers, got {key!r}")
     if siblings is not None and key in siblings.model_fields:
         raise ValueError(f"material source {key!r} cannot also be one of its sibling keys")
     source = MaterialSource(
-        key=key, value_type=value_type, resolver=resolver, summary=summary, siblings=siblings
+        key=key,
+        value_type=value_type,
+        resolver=resolver,
+        summary=summary,
+        siblings=siblings,
+        row_facts=row_facts,
     )
     _SOURCES[key] = source
     return source

@@ -37,6 +37,7 @@ import io
 import json
 import math
 import types
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
@@ -48,17 +49,25 @@ from evaluators.render.bsdfs.glint import (
     put_layers,
     register_glint_bsdf,
 )
-from evaluators.render.sources.common import inline_schema, register_material_source
+from evaluators.render.sources.common import (
+    MaterialRowFacts,
+    inline_schema,
+    register_material_source,
+)
+from jobapi.documents import read_typed
 from jobapi.errors import FormatError, JobFailed
 from jobapi.params import JobRef, StrictModel
+from jobapi.rows import number
 from materials.glints.lobes import LOBE_BYTES, Lobes, make_lobes
 from materials.glints.pndf_drjit import jit_lobes, jit_maps
 from materials.glints.surface import Surface, export_normal_map
 from materials.microfacet import NAMED_CONDUCTORS
 from storage.formats.exr import read_exr
+from storage.formats.glint_stats import GlintStats
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
+    from jobapi.rows import RowSource
 
 
 #: Two numbers; a JSON array fills it even in strict mode.
@@ -341,10 +350,60 @@ def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     )
 
 
+def _glint_layer(
+    src: RowSource,
+    spec: Mapping[str, Any],
+    method: str,
+    texels: float,
+    oversample: int,
+    yan_rate: int = 1,
+) -> tuple[float | None, int | None]:
+    """Bytes and example side of one glint layer (``None`` where its data job is unknown)."""
+    data = spec.get("data")
+    made_by = src.source(data) if isinstance(data, str) else None
+    stats = read_typed(made_by.read("stats.json"), GlintStats) if made_by is not None else None
+    size = stats["example"]["size"] if stats is not None else None
+    tiny = float(stats["bytes"]["total"]) if stats is not None else None
+    nbytes = layer_bytes(
+        method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample, yan_rate=yan_rate
+    )
+    return nbytes, int(size) if size is not None else None
+
+
+def glint_row_facts(src: RowSource, material: Mapping[str, Any]) -> MaterialRowFacts:
+    """What a render's ``{"glint": {...}}`` material adds to its result rows: its evaluator
+    (``config.method``), the example's side (``config.example``), ``texels_per_uv``, a
+    clearcoat's method, and its memory, ``bytes_per_material`` (:func:`layer_bytes`: the
+    tiny example's NDF maps and lobes from its ``generate.glint`` job's ``stats.json``, the
+    Yan et al. export's lobes, or the smooth GGX's two roughnesses; a clearcoat's are
+    added), so that a glint ladder charts error against memory as well as time. Defaults as
+    :class:`GlintSpec`'s: tiny_example, 256 texels per uv, oversample 2, yan_rate 1."""
+    glint = material.get("glint")
+    if not isinstance(glint, Mapping):
+        return MaterialRowFacts(config={})
+    method = str(glint.get("method") or "tiny_example")
+    texels = number(glint.get("texels_per_uv"))
+    texels = 256.0 if texels is None else texels
+    over = number(glint.get("oversample"))
+    over_i = 2 if over is None else int(over)
+    rate = number(glint.get("yan_rate"))
+    rate_i = 1 if rate is None else int(rate)
+    nbytes, size = _glint_layer(src, glint, method, texels, over_i, rate_i)
+    config: dict[str, Any] = {"method": method, "example": size, "texels_per_uv": texels}
+    coat = glint.get("clearcoat")
+    if isinstance(coat, Mapping):
+        coat_method = str(coat.get("method") or method)
+        coat_bytes, _ = _glint_layer(src, coat, coat_method, texels, over_i, rate_i)
+        nbytes = None if nbytes is None or coat_bytes is None else nbytes + coat_bytes
+        config["clearcoat"] = coat_method
+    return MaterialRowFacts(config=config, bytes_per_material=nbytes)
+
+
 register_material_source(
     "glint",
     resolve_glint,
     value_type=GlintValue,
     summary="Glinty microstructure (Xing et al. 2024) from a generate.glint job: data, "
     "method (tiny_example | yan | smooth_ggx), texels_per_uv, conductor, surface, clearcoat.",
+    row_facts=glint_row_facts,
 )

@@ -11,6 +11,7 @@ import pytest
 
 from jobapi.rows import JobFacts, ResultRow, RowSource
 from service import kinds
+from tests.helpers.glint_stats import glint_stats
 
 A, B, C = "a" * 32, "b" * 32, "c" * 32
 
@@ -28,8 +29,10 @@ class FakeSource:
         seed: int = 0,
         seconds: float | None = 2.0,
         others: Mapping[str, FakeSource] | None = None,
+        measured: Mapping[str, Any] | None = None,
     ) -> None:
-        self.job = JobFacts(id=job_id, kind=kind, seed=seed, params=params, run_seconds=seconds)
+        self.job = JobFacts(id=job_id, kind=kind, seed=seed, params=params, run_seconds=seconds,
+                            measured=measured or {})  # fmt: skip
         self._artifacts, self._others = artifacts, others or {}
 
     def read(self, name: str) -> Any:
@@ -143,12 +146,14 @@ def test03_train_brdf() -> None:
             },
         ]
     }
-    src = FakeSource(
-        "train.brdf",
-        {"dataset": f"job:{B}", "preset": "small", "steps": 300},
-        {"metrics.json": metrics, "materials.json": info, "speed.json": speed},
-        seconds=90.0,
-    )
+    params = {"dataset": f"job:{B}", "preset": "small", "steps": 300}
+    artifacts = {"metrics.json": metrics, "materials.json": info}
+    # The speed timings are in the manifest (timings.measured.speed); a job run before they
+    # moved there has them as a speed.json artifact, and gives the same rows.
+    src = FakeSource("train.brdf", params, artifacts, seconds=90.0, measured={"speed": speed})
+    legacy = FakeSource("train.brdf", params, {**artifacts, "speed.json": speed}, seconds=90.0)
+    assert rows_of(legacy) == rows_of(src)
+    assert not [r for r in rows_of(FakeSource("train.brdf", params, artifacts)) if r.ns_per_eval]
     rows = rows_of(src)
     gold = by_metric(rows, material="gold")
     assert set(gold) == {"smape", "smape_floor", "mae", "smape_analytic"}
@@ -253,14 +258,8 @@ def test06_render_and_missing_artifacts() -> None:
 
 
 def test07_generators_measure_their_output() -> None:
-    glint = {
-        "example": {"type": "isotropic_noise", "size": 16},
-        "levels": 4,
-        "bytes": {"total": 4096},
-        "reference": {"bytes": 65536},
-        "memory_ratio": 0.0625,
-        "precompute_seconds": 0.5,
-    }
+    glint = glint_stats(total=4096, memory_ratio=0.0625)
+    glint["reference"]["bytes"] = 65536
     rows = by_metric(rows_of(FakeSource("generate.glint", {}, {"stats.json": glint})))
     assert {k: r.value for k, r in rows.items()} == {
         "bytes": 4096,
@@ -272,7 +271,10 @@ def test07_generators_measure_their_output() -> None:
     assert rows["memory_ratio"].lower_is_better is True
     # Every row costed with the example's own bytes, its size in config.
     assert {r.bytes_per_material for r in rows.values()} == {4096}
-    assert rows["bytes"].config == {"size": 16, "levels": 4}
+    assert rows["bytes"].config == {"size": 16, "levels": 4, "ndf_resolution": 32, "lobes": 1024}
+    # A stats.json of another shape is not read (no guessing from a partial document).
+    partial = {"example": {"size": 16}, "bytes": {"total": 4096}}
+    assert rows_of(FakeSource("generate.glint", {}, {"stats.json": partial})) == []
     btf = {
         "count": 10,
         "resolution": [32, 32],
@@ -313,7 +315,7 @@ def test08_glint_renders_carry_their_memory() -> None:
     data = FakeSource(
         "generate.glint",
         {},
-        {"stats.json": {"example": {"size": 16}, "bytes": {"total": 5000}}},
+        {"stats.json": glint_stats(size=16, total=5000)},
         job_id=C,
     )
 

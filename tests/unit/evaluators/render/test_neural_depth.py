@@ -24,7 +24,7 @@ from evaluators.render.integrators.neural_depth import (
     NEURAL_DEPTH_INTEGRATOR,
     register_neural_depth_integrator,
 )
-from evaluators.render.scenes import SceneSetup, build_scene
+from evaluators.render.scenes import SceneSetup, build_scene, floor_under_sphere
 from tests.helpers.brdf_models import make_model
 from tests.helpers.renders import assert_same_render
 
@@ -57,14 +57,7 @@ def render(mi: types.ModuleType, bsdf: Any, integrator: dict[str, Any], floor: b
     scene = build_scene("sphere_env", mi, bsdf, SETUP)
     scene["integrator"] = integrator
     if floor:
-        scene["floor"] = {
-            "type": "rectangle",
-            "bsdf": bsdf,
-            "to_world": mi.ScalarTransform4f()
-            .translate([0.0, -1.0, 0.0])
-            .rotate([1.0, 0.0, 0.0], -90.0)
-            .scale(4.0),
-        }
+        scene["floor"] = floor_under_sphere(mi, bsdf)
     return np.asarray(mi.render(mi.load_dict(scene), seed=3), np.float64)
 
 

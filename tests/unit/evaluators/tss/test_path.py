@@ -74,11 +74,11 @@ def params(**fields: object) -> TssParams:
 
 def test05_params_defaults_and_presets() -> None:
     p = params()
-    assert p.intervals == [0, 1, 2, 4, 6] and p.value("frames") == 48 and p.uv_scale == 2
-    assert p.value("image") == (128, 128) and len(p.lights) == 3
+    assert p.intervals == [0, 1, 2, 4, 6] and p.effective().frames == 48 and p.uv_scale == 2
+    assert p.effective().image == (128, 128) and len(p.lights) == 3
     assert p.texture_resolutions(16) == [32]  # texel-matched: the model's 16 x uv_scale 2
     paper = params(preset="paper")
-    assert paper.value("frames") == 90 and paper.value("image") == (512, 512)
+    assert paper.effective().frames == 90 and paper.effective().image == (512, 512)
     assert paper.texture_resolutions(400) == [800, 1200, 1600, 2000]
     assert params(intervals=[4, 0], resolutions=[64, 8]).intervals == [0, 4]
     light = params(lights=[{"position": [0, 0, 1], "intensity": [1, 2, 3]}]).lights[0]

@@ -1,0 +1,114 @@
+"""Typed documents (:mod:`jobapi.documents`, ``Kind.documents``): the writer's document is
+validated against its ``TypedDict`` on ``put_json`` (missing, unknown or mistyped keys fail,
+naming the field), its bytes are the writer's own, and readers get a typed document or
+``None``.
+
+References: the bytes of ``json.dumps(..., sort_keys=True, indent=2)`` of the same object
+(validation must not change it), and hand-built documents with one fault each.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NotRequired
+
+import pytest
+from typing_extensions import TypedDict
+
+from jobapi import kinds as jobapi_kinds
+from jobapi.context import JobContext
+from jobapi.documents import DocumentError, check_typed, document, read_typed
+from jobapi.kinds import Kind
+from jobapi.params import StrictModel
+from storage.artifacts import ArtifactStore
+from storage.formats.glint_stats import GlintStats
+from storage.jobs import JobStore
+from tests.helpers.glint_stats import glint_stats
+
+
+@document
+class Inner(TypedDict):
+    size: int
+    """A size."""
+
+
+@document
+class Doc(TypedDict):
+    name: str
+    """A name."""
+    values: list[float]
+    """Numbers."""
+    inner: Inner
+    """A nested part."""
+    note: NotRequired[str | None]
+    """Optional."""
+
+
+GOOD = {"name": "a", "values": [1, 2.5], "inner": {"size": 3}}
+
+
+def test01_a_good_document_passes_and_reads_typed() -> None:
+    check_typed("doc.json", GOOD, Doc)
+    got = read_typed(GOOD, Doc)
+    assert got is not None and got["inner"]["size"] == 3 and got["values"] == [1, 2.5]
+
+
+@pytest.mark.parametrize(
+    ("doc", "field"),
+    [
+        ({"name": "a", "values": [1.0]}, "inner"),  # missing
+        ({**GOOD, "extra": 1}, "extra"),  # unknown
+        ({**GOOD, "inner": {"size": "3"}}, "inner.size"),  # mistyped, no coercion
+        ({**GOOD, "values": [1.0, None]}, "values.1"),
+    ],
+)
+def test02_a_bad_document_fails_naming_the_field(doc: dict, field: str) -> None:
+    with pytest.raises(DocumentError, match=rf"doc\.json: {field}: .*schema: .*Doc"):
+        check_typed("doc.json", doc, Doc)
+    assert read_typed(doc, Doc) is None
+
+
+class NoParams(StrictModel):
+    """No parameters."""
+
+
+@pytest.fixture
+def typed_kind() -> Iterator[str]:
+    kind = Kind(name="test_typed_docs", params=NoParams, runner=lambda p, c: None,
+                description="declares doc.json", documents={"doc.json": Doc})  # fmt: skip
+    jobapi_kinds.register(kind)
+    try:
+        yield kind.name
+    finally:
+        jobapi_kinds._KINDS.pop(kind.name, None)
+
+
+def _ctx(tmp_path: Path, kind: str) -> JobContext:
+    return JobContext(job_id="0" * 32, seed=0, spec={"kind": kind, "params": {}},
+                      store=ArtifactStore(tmp_path / "objects"), jobs=JobStore(tmp_path / "j.db"),
+                      workdir=tmp_path)  # fmt: skip
+
+
+def test03_put_json_validates_the_kinds_documents(typed_kind: str, tmp_path: Path) -> None:
+    ctx = _ctx(tmp_path, typed_kind)
+    rec = ctx.put_json("doc.json", GOOD)
+    want = json.dumps(GOOD, indent=2, sort_keys=True, allow_nan=False) + "\n"
+    assert ctx.store.read(rec.digest) == want.encode()  # the writer's bytes, unchanged
+    with pytest.raises(DocumentError, match="doc.json: inner"):
+        ctx.put_json("doc.json", {"name": "a", "values": []})
+    ctx.put_json("other.json", {"anything": True})  # undeclared documents are not checked
+
+
+def test04_builtin_documents_are_typed_dicts_of_json() -> None:
+    from service import kinds
+
+    kinds.load_builtin()
+    declared = {(k.name, n): t for k in jobapi_kinds.registered().values()
+                for n, t in k.documents.items()}  # fmt: skip
+    assert declared[("generate.glint", "stats.json")] is GlintStats
+    for (kind, name), typed in declared.items():
+        assert name in jobapi_kinds.registered()[kind].artifacts, (kind, name)
+        assert typed.__annotations__, (kind, name)
+    check_typed("stats.json", glint_stats(), GlintStats)
