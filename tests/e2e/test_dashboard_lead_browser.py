@@ -21,6 +21,7 @@ from service.compare_pictures import job_pictures
 from service.routes.dashboard import picture_views
 from service.settings import Settings
 from storage.jobs import JobStore
+from tests.unit.service.test_dashboard_pictures import NO_LEAD
 
 from .harness import dashboard_server
 from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
@@ -94,11 +95,20 @@ def test_lead_picture_first_on_the_job_page_and_in_compare(
         shown.scroll_into_view_if_needed()
         assert shown.get_attribute("alt") == first["name"], (kind, first["name"])
         pg.wait_for_function("i => i.complete && i.naturalWidth > 0", arg=shown.element_handle())
-        if first["group"] == "lead":  # a declared lead: full size, above the gallery
-            assert pg.locator(".lead figure img").first.get_attribute("alt") == first["name"]
+        # every picture kind but the reasoned exceptions declares its lead (unit test
+        # test01c): shown first, above the gallery, at its own size (or the page's width)
+        assert first["group"] == ("image" if kind in NO_LEAD else "lead"), (kind, first)
+        if first["group"] == "lead":
+            img = pg.locator(".lead figure img").first
+            assert img.get_attribute("alt") == first["name"]
             lead = pg.locator(".lead").first.bounding_box()
             section = pg.locator("section:has(> h2:text-is('Images'))").bounding_box()
             assert lead["width"] >= 0.9 * section["width"], (lead, section)
+            shown_w, natural_w, room = img.evaluate(
+                "i => [i.clientWidth, i.naturalWidth,"
+                " i.closest('.lead').clientWidth - 2 * 9.6]"  # the figure's padding
+            )
+            assert abs(shown_w - min(natural_w, room)) <= 2, (kind, shown_w, natural_w, room)
     pg.screenshot(path=str(SHOTS / f"matforge-lead-{kind.replace('.', '-')}.png"), full_page=True)
     # the compare view's main pictures: the lead (or a score's inputs), none missing
     main = job_pictures(job, prepared["db"])["main"]
