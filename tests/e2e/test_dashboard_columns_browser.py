@@ -238,12 +238,13 @@ def test04_the_list_fits_its_card(
     grouped: bool,
 ) -> None:
     """Issue: the Time column was cut at 1280, 1440 and 1920 px, and the grouped view
-    scrolled sideways so that "not in a batch" read "in a batch". With three extra columns,
+    scrolled sideways so that "not in a batch" read "in a batch". With four extra columns
+    (one of them long text),
     long names and long errors, the table is no wider than its card, and the Time cell of
     every row and the whole group label lie inside the card."""
     pg = page
     pg.set_viewport_size({"width": width, "height": 900})
-    cols = "params.model,params.material,metric.smape_mean"
+    cols = "params.model,params.material,params.width,metric.smape_mean"
     pg.goto(f"{server}/?columns={cols}{'&group=1' if grouped else ''}&token={TOKEN}")
     rows_shown(pg, len(RUNS) + 7)
     pg.wait_for_function(

@@ -191,6 +191,7 @@
         MF.el("span", { class: "col-key" }, ...MF.breakable(key)), remove);
       headRow.insertBefore(th, messageHead);
     }
+    document.getElementById("jobs-table").classList.toggle("with-columns", columns.length > 0);
     filterInfo.textContent = filters.length ?
       `${filters.length} filter(s): ${filters.join(" and ")}` : "";
   }
