@@ -37,7 +37,7 @@ from evaluators.render.scenes import SCENES, Camera, PointLight, SceneSetup, bui
 from evaluators.render.sources import MaterialParam, resolve_material
 from evaluators.render.sources.common import mitsuba_message
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import StrictModel
 from jobapi.results import ArtifactReader, ResultTable
 from materials.backend import active_variant, load_mitsuba
@@ -383,6 +383,16 @@ register(
         "MATFORGE_VARIANT: LLVM or CUDA).",
         artifacts=("image.exr", "preview.png", "render.json"),
         smoke={"resolution": [32, 32], "spp": 4, "max_depth": 4},
+        figures=(
+            Figure(
+                "image.exr",
+                caption=(
+                    "The render (linear HDR, shown tone-mapped; preview.png is the same "
+                    "picture in sRGB)."
+                ),
+                lead=True,
+            ),
+        ),
         summary=summarize,
         rows=render_rows,
     )

@@ -29,7 +29,7 @@ from pydantic import Field
 
 from evaluators.report.fronts import COST_LABELS
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register, registered
+from jobapi.kinds import Figure, Kind, register, registered
 from jobapi.params import JobRef, StrictModel, job_id_of
 from jobapi.results import ArtifactReader, ResultTable
 
@@ -197,6 +197,15 @@ register(
         "seed spread, per-family errors and the families' claims checked.",
         artifacts=("pareto.json", "pareto.png", "rows.json"),
         smoke={"runs": ["step:train.brdf"]},
+        figures=(
+            Figure(
+                "pareto.png",
+                caption=(
+                    "Error against cost: the Pareto front of each dataset, scene, metric and cost."
+                ),
+                lead=True,
+            ),
+        ),
         summary=summarize,
     )
 )

@@ -44,7 +44,7 @@ from evaluators.report.kind import gather_rows
 from evaluators.report.select_params import SelectParams
 from jobapi.documents import document, read_typed
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.rows import ResultRow, RowSource, base_row, lower_is_better, number
 
@@ -337,6 +337,15 @@ register(
             "target": 2.0,
             "cost": "ns_per_eval",
         },
+        figures=(
+            Figure(
+                "select.png",
+                caption=(
+                    "Each reference's ladder of candidates by cost, the target and the one chosen."
+                ),
+                lead=True,
+            ),
+        ),
         summary=summarize,
         rows=select_rows,
     )

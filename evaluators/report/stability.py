@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 from pydantic import Field, StringConstraints, model_validator
 
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register, registered, report_facts
+from jobapi.kinds import Figure, Kind, register, registered, report_facts
 from jobapi.params import JobRef, StrictModel, job_id_of
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable
@@ -389,6 +389,16 @@ register(
         "models NaN/Inf at extreme inputs, directional albedo above 1 and reciprocity error.",
         artifacts=("stability.json", "stability.png"),
         smoke={"runs": ["step:train.brdf"]},
+        figures=(
+            Figure(
+                "stability.png",
+                caption=(
+                    "Error per family and failure case against each model's average (the heat "
+                    "table)."
+                ),
+                lead=True,
+            ),
+        ),
         summary=summarize,
     )
 )

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 from evaluators.tss.params import PLANE_SIDE, ExternalBtfRef, TssParams
 from evaluators.tss.rows import tss_rows
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import job_id_of
 from jobapi.results import ArtifactReader, ResultTable
 
@@ -281,6 +281,16 @@ register(
         "Fig. 6).",
         artifacts=("metrics.json", "timing.json", "path.json", "table.png", "frames.png"),
         smoke={"model": "step:train.btf", "frames": 6, "intervals": [0, 2], "image": [32, 32]},
+        figures=(
+            Figure(
+                "frames.png",
+                caption=(
+                    "Screen-space reference, each interval's frame and their FLIP maps (Fig. "
+                    "6's layout)."
+                ),
+                lead=True,
+            ),
+        ),
         summary=summarize,
         rows=tss_rows,
         layout=LAYOUT,

@@ -25,7 +25,7 @@ from generators.btf.import_ubo import UboTask, convert_ubo_shard, directions
 from generators.btf.kind import summarize
 from generators.btf.preview import PreviewCollector
 from jobapi.errors import FormatError, JobFailed, TooLargeError
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Ref, StrictModel
 from materials.btf.directions import check_pairs, pair_count_label, to_vector
 from storage.formats.btf import index_document, shard_name, write_shard
@@ -276,6 +276,7 @@ register(
         "a decompressed UBO2014 archive gives, or a Bonn .btf file: UBO2014's DFMF, or FMF) "
         "into generate.btf's shard layout.",
         artifacts=("slices-0000.npz", "btf.json", "preview.png"),
+        figures=(Figure("preview.png", caption="A few of the imported slices.", lead=True),),
         summary=summarize,
     )
 )

@@ -55,7 +55,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import Field, model_validator
 
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts, phase_loss
@@ -385,6 +385,13 @@ register(
             "eval_pairs": 4096,
             "speed_batch": 1024,
         },
+        figures=(
+            Figure(
+                "curves.png",
+                caption="Training curves (the Charts section draws them interactively).",
+                lead=True,
+            ),
+        ),
         summary=summarize,
         rows=train_brdf_rows,
         report=ReportFacts(

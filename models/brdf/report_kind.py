@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import Field
 
 from jobapi.errors import JobFailed
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import JobRef, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.row_sources import measured_timings
@@ -299,6 +299,13 @@ register(
         "Pareto front, seed spread, per-family errors and the paper's claims checked.",
         artifacts=("pareto.json", "pareto.png", "spread.json", "families.json", "families.png"),
         smoke={"runs": ["step:train.brdf"], "speed_batch": 1024},
+        figures=(
+            Figure(
+                "pareto.png",
+                caption="Mean SMAPE against fused ns/eval: the Pareto front with seed spread.",
+                lead=True,
+            ),
+        ),
         summary=summarize,
     )
 )

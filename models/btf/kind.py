@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, model_validator
 
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
@@ -212,6 +212,13 @@ register(
             "curves.png",
         ),  # fmt: skip
         smoke={"data": "step:generate.btf", "model": "c2f", "epochs": 2},
+        figures=(
+            Figure(
+                "reconstructions.png",
+                caption="Held-out slices: truth, the model and their error (Fig. 8's layout).",
+                lead=True,
+            ),
+        ),
         summary=summarize,
         rows=train_btf_rows,
         # failure cases (shadowed / specular slices, models.btf.cases) differ in scale:

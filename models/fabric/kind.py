@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
 
-from jobapi.kinds import Kind, register
+from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
@@ -312,6 +312,13 @@ register(
             "batch": 32,
             "materials_per_step": 1,
         },
+        figures=(
+            Figure(
+                "curves.png",
+                caption="Training curves (the Charts section draws them interactively).",
+                lead=True,
+            ),
+        ),
         summary=summarize,
         rows=train_fabric_rows,
         # the headline: the network's rows (its Monte Carlo baselines have rows too)

@@ -22,6 +22,8 @@ from service.cli.batch import StepResult
 from service.cli.tables import fitted_tables
 
 BASE_COLUMNS = ("step", "kind", "job_id", "state", "seconds", "error")
+#: The most characters of each column that a narrow table keeps whole.
+KEPT_WIDTH = {"step": 24, "kind": 18, "job_id": 12, "state": 9, "seconds": 8}
 
 
 def result_rows(results: list[StepResult]) -> tuple[list[str], list[dict[str, Any]]]:
@@ -107,14 +109,19 @@ def results_table(
     lines = [headline(r.table) for r in results] if results is not None else []
     table = Table(title=title)
     for col in shown:
+        # the step, kind, id, state and time keep their width (a step name up to 24
+        # characters): the result line gives way first, as in `matforge ls`
+        texts = [col, *(_cell(r.get(col))[: 12 if col == "job_id" else None] for r in rows)]
+        keep = min(max(len(t) for t in texts), KEPT_WIDTH.get(col, 0))
         table.add_column(
             col,
             overflow="fold",
+            min_width=keep or None,
             max_width=48 if col == "error" else None,
             justify="right" if col == "seconds" or "." in col else "left",
         )
     if any(lines):
-        table.add_column("result", overflow="ellipsis", no_wrap=True)
+        table.add_column("result", overflow="ellipsis", no_wrap=True, min_width=12)
     for i, row in enumerate(rows):
         cells = []
         for col in shown:

@@ -229,6 +229,50 @@ def _live_plots(job: Job) -> dict[str, str]:
     return {"live-curves": f"/api/jobs/{job.id}/live/curves.json"} if "curves.json" in makes else {}
 
 
+#: The artifact that holds the tidy result rows a job read (a report's inputs): its
+#: method x metric table is shown on the job page.
+ROWS_ARTIFACT = "rows.json"
+
+
+def _pivot_cell(col: dict[str, Any], got: dict[str, Any] | None) -> str:
+    if got is None:
+        return ""
+    if col["role"] != "metric":
+        return f"{got['median']:.4g}"
+    text = f"{got['mean']:.4g}"
+    return text + (f" \u00b1 {got['std']:.2g}" if got.get("std") is not None else "")
+
+
+def methods_table(job: Job, store: ArtifactStore) -> dict[str, Any] | None:
+    """The method x metric table (:func:`service.results_pivot.pivot`, as ``matforge
+    results --pivot`` prints it) of the result rows in the job's ``rows.json``: a row per
+    method, each metric's mean ± spread and each cost's median, the best per column;
+    ``None`` when the job has no such rows or a single method."""
+    from service.results_pivot import pivot
+
+    record = next((a for a in job.artifacts if a.name == ROWS_ARTIFACT), None)
+    rows = read_json(store, record.digest) if record is not None else None
+    if isinstance(rows, dict):
+        rows = rows.get("rows")
+    if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+        return None
+    doc = pivot(rows)
+    if len(doc["methods"]) < 2 or not doc["columns"]:
+        return None
+    return {
+        "by": doc["by"],
+        "columns": doc["columns"],
+        "rows": [
+            {
+                "method": m,
+                "cells": [_pivot_cell(c, doc["cells"][m].get(c["name"])) for c in doc["columns"]],
+                "best": [doc["best"].get(c["name"]) == m for c in doc["columns"]],
+            }
+            for m in doc["methods"]
+        ],
+    }
+
+
 def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> dict[str, Any]:
     """Everything the job page shows, from the job row and its (small) JSON artifacts."""
     manifest = read_json(store, job.manifest_digest) if job.manifest_digest else None
@@ -240,6 +284,7 @@ def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> di
         "images": picture_views(job.artifacts, job.kind),
         "inputs": input_pictures(job, jobs) if jobs is not None else [],
         "metrics": _with_directions(job_summary(job, store)),
+        "methods": methods_table(job, store),
         "plots": {
             a.name.removesuffix(".json"): f"/api/artifacts/{a.digest}"
             for a in job.artifacts

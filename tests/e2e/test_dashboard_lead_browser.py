@@ -10,6 +10,7 @@ placeholder. The kinds come from the registry, so a new one is tested too. Scree
 from __future__ import annotations
 
 import fnmatch
+import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from service.compare_pictures import job_pictures
 from service.routes.dashboard import picture_views
 from service.settings import Settings
 from storage.jobs import JobStore
+from tests.unit.service.test_dashboard_pictures import NO_LEAD
 
 from .harness import dashboard_server
 from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
@@ -94,11 +96,26 @@ def test_lead_picture_first_on_the_job_page_and_in_compare(
         shown.scroll_into_view_if_needed()
         assert shown.get_attribute("alt") == first["name"], (kind, first["name"])
         pg.wait_for_function("i => i.complete && i.naturalWidth > 0", arg=shown.element_handle())
-        if first["group"] == "lead":  # a declared lead: full size, above the gallery
-            assert pg.locator(".lead figure img").first.get_attribute("alt") == first["name"]
+        # every picture kind but the reasoned exceptions declares its lead (unit test
+        # test01c): shown first, above the gallery, at its own size (a whole multiple of it
+        # when small; the page's width caps it)
+        assert first["group"] == ("image" if kind in NO_LEAD else "lead"), (kind, first)
+        if first["group"] == "lead":
+            img = pg.locator(".lead figure img").first
+            assert img.get_attribute("alt") == first["name"]
             lead = pg.locator(".lead").first.bounding_box()
             section = pg.locator("section:has(> h2:text-is('Images'))").bounding_box()
             assert lead["width"] >= 0.9 * section["width"], (lead, section)
+            pg.wait_for_function("i => i.style.width !== ''", arg=img.element_handle())
+            shown_w, natural_w, room = img.evaluate(
+                "i => [i.clientWidth, i.naturalWidth,"
+                " i.closest('.lead').clientWidth - 2 * 9.6]"  # the figure's padding
+            )
+            # a lead narrower than 320 px is enlarged by a whole factor (square pixels)
+            want = natural_w * max(1, math.ceil(320 / natural_w))
+            assert abs(shown_w - min(want, room)) <= 2, (kind, shown_w, natural_w, room)
+            if want > natural_w:
+                assert img.evaluate("i => getComputedStyle(i).imageRendering") == "pixelated"
     pg.screenshot(path=str(SHOTS / f"matforge-lead-{kind.replace('.', '-')}.png"), full_page=True)
     # the compare view's main pictures: the lead (or a score's inputs), none missing
     main = job_pictures(job, prepared["db"])["main"]

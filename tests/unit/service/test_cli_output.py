@@ -124,3 +124,46 @@ def test06_piped_output_is_narrow(monkeypatch: pytest.MonkeyPatch) -> None:
         lines = res.stdout.splitlines()
         assert len(lines) > 5
         assert max(len(line) for line in lines) <= PIPE_WIDTH <= 120, args
+
+
+@pytest.mark.parametrize("width", [80, 100, 120])
+def test07_batch_summary_keeps_step_kind_id_state_whole(width: int) -> None:
+    """``matforge batch`` piped to a file (100 columns) or in a narrow terminal: the step,
+    kind, 12-character id, state and seconds of each step are printed whole (they were
+    folded into 4-character pieces, "rend/er", "succe/eded"); the result line is cut
+    first. The reference is the rows' own text."""
+    from jobapi.results import ResultTable
+    from service.cli.batch import StepResult
+    from service.cli.results import result_rows, results_table
+
+    results = [
+        StepResult(
+            step=step,
+            kind=kind,
+            job_id=f"{i:x}" * 32,
+            state="succeeded",
+            seconds=15.27 * i,
+            table=ResultTable(
+                title="t",
+                label_header="Candidate",
+                columns=["flip"],
+                rows={f"candidate_{j}": {"flip": 0.1 * j} for j in range(8)},
+            ),
+        )
+        for i, (step, kind) in enumerate(
+            [("gold_rougher", "render"), ("fabric", "generate.fabric"), ("scores", "score")],
+            start=1,
+        )
+    ]
+    columns, rows = result_rows(results)
+    out = io.StringIO()
+    Console(file=out, width=width).print(results_table(columns, rows, "batch x", results))
+    lines = out.getvalue().splitlines()
+    assert max(len(line) for line in lines) <= width
+    for r in results:
+        row = next(line for line in lines if r.job_id[:12] in line)  # type: ignore[index]
+        for cell in (r.step, r.kind, "succeeded", f"{r.seconds:.4g}"):
+            assert cell in row, (width, cell, row)
+        assert "flip:" in row  # the result shows its start, cut at the end
+        if width >= 100:
+            assert "flip: candidate_0" in row

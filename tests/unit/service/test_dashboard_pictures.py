@@ -38,6 +38,55 @@ def test01b_generators_preview_leads(kind: str) -> None:
     assert images[0]["note"]
 
 
+#: Picture kinds that declare no lead picture, and why (every other one must declare one).
+NO_LEAD = {
+    "score": "its pictures are FLIP maps under one colour bar; its reference and candidates "
+    "come first, as the Inputs section (the compare view's main pictures)",
+    "generate.merl": "one half/difference slice per material, all equal: a gallery of plots "
+    "with labelled axes, enlarged with square pixels",
+}
+PICTURES = ("*.png", "*.exr")
+
+
+def _pictures(kind: object) -> list[str]:
+    import fnmatch
+
+    arts = getattr(kind, "artifacts", ())
+    return [a for a in arts if any(fnmatch.fnmatch(a, p) for p in PICTURES)]
+
+
+def test01c_every_picture_kind_declares_its_lead() -> None:
+    """README: the lead picture comes first, at full size, for every kind. Every registered
+    kind that writes a picture declares one lead figure on its ``Kind`` (next to the kind,
+    not a list here), matching one of its picture artifacts, which then sorts first."""
+    import fnmatch
+
+    kinds.load_builtin()
+    found = {}
+    for kind in kinds.all_kinds().values():
+        pics = _pictures(kind)
+        if not pics:
+            continue
+        leads = [f for f in kind.figures if f.lead]
+        found[kind.name] = [f.pattern for f in leads]
+        if kind.name in NO_LEAD:
+            assert not leads, (kind.name, "declares a lead now: drop it from NO_LEAD")
+            continue
+        assert len(leads) == 1, (kind.name, leads)
+        lead = leads[0]
+        named = [a for a in pics if fnmatch.fnmatchcase(a, lead.pattern)]
+        assert named, (kind.name, lead.pattern, pics)
+        assert lead.caption, kind.name
+        others = [png(a) for a in pics if a not in named] + [png("a_first.png")]
+        media = "image/x-exr" if named[0].endswith(".exr") else "image/png"
+        record = ArtifactRecord(name=named[0], digest="1" * 64, size=1, media_type=media)
+        images = picture_views([*others, record], kind.name)
+        assert (images[0]["name"], images[0]["group"]) == (named[0], "lead"), kind.name
+    assert {"render", "train.brdf", "train.btf", "train.fabric", "select", "evaluate.tss",
+            "report.pareto", "report.brdf", "report.stability"} <= set(found)  # fmt: skip
+    assert set(NO_LEAD) <= set(found), "an exception for a kind without pictures"
+
+
 def test02_merl_slices_have_labelled_axes() -> None:
     kinds.load_builtin()
     (image,) = picture_views([png("gold.png")], "generate.merl")

@@ -186,7 +186,17 @@ const MF = (() => {
     return `${+(v / scale).toPrecision(3)} ${prefix}${u}`.trim();
   }
 
+  /** Text nodes of ``text`` with a <wbr> after each dot, so a long dotted name can wrap. */
+  function breakable(text) {
+    const out = [];
+    String(text).split(".").forEach((part, i, parts) => {
+      out.push(document.createTextNode(i < parts.length - 1 ? `${part}.` : part));
+      if (i < parts.length - 1) out.push(document.createElement("wbr"));
+    });
+    return out;
+  }
+
   stripToken();
   return { api, el, seconds, when, badge, progress, localTimes, curveSeries, paretoPanels,
-           unitOf, si };
+           unitOf, si, breakable };
 })();

@@ -19,10 +19,21 @@
   function pixelate(img) {
     img.classList.toggle("pixelated", img.naturalWidth > 0 && img.naturalWidth < img.clientWidth);
   }
+  /** The lead picture is shown at its own size; one smaller than LEAD_MIN_PX wide (a small
+      render, a tiny example) at the smallest whole multiple of it that reaches LEAD_MIN_PX,
+      so that its pixels stay square and it does not look smaller than the gallery (the
+      page's width still caps it). */
+  const LEAD_MIN_PX = 320;
+  function leadSize(img) {
+    const w = img.naturalWidth;
+    if (!w || !img.closest(".lead")) return;
+    const scale = w >= LEAD_MIN_PX ? 1 : Math.ceil(LEAD_MIN_PX / w);
+    img.style.width = `${w * scale}px`;
+  }
   const pictures = document.querySelectorAll("figure img");
   for (const img of pictures) {
-    if (img.complete) pixelate(img);
-    img.addEventListener("load", () => pixelate(img));
+    if (img.complete) { leadSize(img); pixelate(img); }
+    img.addEventListener("load", () => { leadSize(img); pixelate(img); });
   }
   window.addEventListener("resize", () => pictures.forEach(pixelate));
 

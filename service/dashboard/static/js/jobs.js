@@ -1,6 +1,8 @@
 /* The jobs list: polls /api/jobs (one page, filtered and sorted by the server) and
    /api/stats every second. Filters, sort and page live in the address (?name=&state=&kind=
-   &sort=&page=), so a view can be bookmarked and shared. */
+   &sort=&page=, and the parameter and metric columns and filters: ?columns=params.model,
+   metric.smape_mean&filter=params.model=hybrid&filter=metric.smape_mean<0.1), so a view can
+   be bookmarked and shared. */
 "use strict";
 
 (() => {
@@ -22,6 +24,14 @@
   const batchName = document.getElementById("batch-name");
   const compareButton = document.getElementById("compare-btn");
   const compareClear = document.getElementById("compare-clear");
+  const columnsForm = document.getElementById("columns-form");
+  const columnsInput = document.getElementById("f-columns");
+  const filterInput = document.getElementById("f-filter");
+  const filterInfo = document.getElementById("filter-info");
+  const headRow = document.getElementById("jobs-head");
+  const messageHead = headRow.querySelector(".col-message");
+  /** The fixed columns of a row (job, kind, state, progress, message, created, time). */
+  const FIXED_COLUMNS = 7;
   /** Jobs ticked for the compare view (kept across pages and refreshes). */
   const picked = new Set();
   /** Thumbnail URL of a succeeded job (null: it has no picture), by job id. */
@@ -43,6 +53,31 @@
   let batch = initial.get("batch") || "";
   let sort = initial.get("sort") || "-created";
   let page = Math.max(1, parseInt(initial.get("page") || "1", 10) || 1);
+  /** Chosen column keys (params.X, metric.Y) and filters ("key op value"), as the API
+      takes them (service/job_columns.py checks both and names a bad one). */
+  let columns = splitColumns(initial.getAll("columns").join(","));
+  let filters = initial.getAll("filter").map((f) => f.trim()).filter(Boolean);
+  columnsInput.value = columns.join(", ");
+  filterInput.value = filters.join(", ");
+
+  function splitColumns(text) {
+    const out = [];
+    for (const part of text.split(",")) {
+      const key = part.trim();
+      if (key && !out.includes(key)) out.push(key);
+    }
+    return out;
+  }
+
+  /** Filters from the box: split at the commas that start a new column key, so a value
+      may itself hold a comma. */
+  function splitFilters(text) {
+    return text.split(/,(?=\s*(?:params|metric)\.)/).map((f) => f.trim()).filter(Boolean);
+  }
+
+  function colspan() {
+    return String(FIXED_COLUMNS + columns.length);
+  }
 
   /** The view's query (what the address bar shows). */
   function viewQuery() {
@@ -51,6 +86,8 @@
     if (stateSelect.value) q.set("state", stateSelect.value);
     if (kindSelect.value) q.set("kind", kindSelect.value);
     if (batch) q.set("batch", batch);
+    if (columns.length) q.set("columns", columns.join(","));
+    for (const f of filters) q.append("filter", f);
     if (groupBox.checked) q.set("group", "1");
     if (sort !== "-created") q.set("sort", sort);
     if (page > 1) q.set("page", String(page));
@@ -115,6 +152,50 @@
     return box;
   }
 
+  /** A column's value as table text: numbers to 4 significant digits, nested values as
+      JSON (as `matforge ls --column` prints them). */
+  function cellText(value, key) {
+    if (value === null || value === undefined) return "";
+    const unit = key.startsWith("metric.") ? MF.unitOf(key) : "";
+    if (typeof value === "number" && unit) return MF.si(value, unit);
+    if (typeof value === "number") {
+      return Number.isInteger(value) ? String(value) : String(Number(value.toPrecision(4)));
+    }
+    if (typeof value === "object") return JSON.stringify(value);
+    return String(value);
+  }
+
+  function valueCells(job) {
+    const values = job.columns || {};
+    return columns.map((key) => {
+      const value = values[key];
+      const text = cellText(value, key);
+      return MF.el("td", { class: typeof value === "number" ? "num mono col-value" : "col-value",
+                           "data-column": key, title: text || "none", text: text || "–" });
+    });
+  }
+
+  /** The header cells of the chosen columns (before Message), each with a remove button. */
+  function renderHead() {
+    for (const th of headRow.querySelectorAll("th.col-value")) th.remove();
+    for (const key of columns) {
+      const remove = MF.el("button", { type: "button", class: "col-remove", text: "×",
+                                       title: `remove the column ${key}`,
+                                       "aria-label": `remove the column ${key}` });
+      remove.addEventListener("click", () => {
+        columns = columns.filter((k) => k !== key);
+        columnsInput.value = columns.join(", ");
+        refilter();
+      });
+      const th = MF.el("th", { class: "col-value", "data-column": key, title: key },
+        MF.el("span", { class: "col-key" }, ...MF.breakable(key)), remove);
+      headRow.insertBefore(th, messageHead);
+    }
+    document.getElementById("jobs-table").classList.toggle("with-columns", columns.length > 0);
+    filterInfo.textContent = filters.length ?
+      `${filters.length} filter(s): ${filters.join(" and ")}` : "";
+  }
+
   function row(job) {
     const title = job.name || job.kind;
     const failed = job.state === "failed" && job.error;
@@ -125,11 +206,12 @@
         pickBox(job),
         MF.el("span", { class: "thumb-slot" }, src ? thumb(src) : null),
         MF.el("span", {},
-          MF.el("a", { class: "job-name", href: `/jobs/${job.id}`, text: title }),
+          MF.el("a", { class: "job-name", href: `/jobs/${job.id}`, title, text: title }),
           MF.el("span", { class: "job-id", text: job.id.slice(0, 12) })))),
       MF.el("td", { text: job.kind }),
       MF.el("td", {}, MF.badge(job.state)),
       MF.el("td", {}, MF.progress(job)),
+      ...valueCells(job),
       MF.el("td", { class: failed ? "message error" : "message",
                     title: failed ? job.error : job.message,
                     text: failed ? job.error : job.message }),
@@ -140,9 +222,10 @@
 
   function render(jobs) {
     if (!jobs.length) {
-      const filtered = nameInput.value.trim() || stateSelect.value || kindSelect.value || batch;
+      const filtered = nameInput.value.trim() || stateSelect.value || kindSelect.value || batch ||
+        filters.length;
       body.replaceChildren(MF.el("tr", { class: "empty" }, MF.el("td", {
-        colspan: "7",
+        colspan: colspan(),
         text: filtered ? "No jobs match these filters." :
           "No jobs yet. Submit one with `matforge submit SPEC` or POST /api/jobs.",
       })));
@@ -160,7 +243,7 @@
     }
     const rows = [];
     for (const [label, members] of groups) {
-      const head = MF.el("td", { colspan: "7" },
+      const head = MF.el("td", { colspan: colspan() },
         MF.el("span", { class: "group-label", text: label || "not in a batch" }),
         MF.el("span", { class: "muted small", text: ` · ${members.length} job(s) on this page` }));
       if (label) {
@@ -226,7 +309,7 @@
     } catch (err) {
       statusLine.textContent = `cannot refresh: ${err.message}`;
       body.replaceChildren(MF.el("tr", { class: "empty" }, MF.el("td", {
-        colspan: "7", class: "error", text: err.message,
+        colspan: colspan(), class: "error", text: err.message,
       })));
     }
     timer = window.setTimeout(refresh, POLL_MS);
@@ -236,6 +319,7 @@
     const query = viewQuery().toString();
     window.history.replaceState(null, "", window.location.pathname + (query ? `?${query}` : ""));
     renderSort();
+    renderHead();
     batchFilter.hidden = !batch;
     batchName.textContent = batch;
     window.clearTimeout(timer);
@@ -250,6 +334,12 @@
   nameInput.addEventListener("input", () => {
     window.clearTimeout(searchTimer);
     searchTimer = window.setTimeout(refilter, SEARCH_DELAY_MS);
+  });
+  columnsForm.addEventListener("submit", (event) => {
+    event.preventDefault();
+    columns = splitColumns(columnsInput.value);
+    filters = splitFilters(filterInput.value);
+    refilter();
   });
   compareButton.addEventListener("click", () => {
     window.location.href = `/compare?jobs=${[...picked].map((id) => id.slice(0, 12)).join(",")}`;
@@ -282,6 +372,7 @@
   prev.addEventListener("click", () => { page = Math.max(1, page - 1); changed(); });
   next.addEventListener("click", () => { page += 1; changed(); });
   renderSort();
+  renderHead();
   batchFilter.hidden = !batch;
   batchName.textContent = batch;
   refresh();

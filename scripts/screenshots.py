@@ -1,0 +1,326 @@
+"""Screenshots of the dashboard for the docs: a job page of every kind, the job list and the
+compare view, taken in headless Chromium from small jobs run here.
+
+Run: ``.venv/bin/python scripts/screenshots.py`` (about 3 minutes on 2 cores). It runs the
+smoke job of every built-in kind that has smoke params (inputs first, as the browser tests
+make them; renders a little larger, so that their pictures are worth looking at), and three
+renders of different materials for the compare view, into a temporary data directory;
+serves the dashboard there (no workers); and writes 1280-px-wide PNGs, reduced to 256
+colours, to ``docs/screenshots/`` (``docs/compare-view.png`` too) and the page that shows
+them, ``docs/screenshots.md``. Needs Debian's ``/usr/bin/chromium`` (``make setup``).
+``--out DIR`` writes the PNGs elsewhere and leaves the docs alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from service import kinds  # noqa: E402
+from service.cli.batch import substitute_refs  # noqa: E402
+from service.settings import Settings  # noqa: E402
+from service.specs import STEP_REF  # noqa: E402
+from service.submission import run_in_process  # noqa: E402
+from storage.jobs import Job  # noqa: E402
+
+CHROMIUM = Path("/usr/bin/chromium")
+TOKEN = "screenshots"
+WIDTH = 1280
+#: The tallest screenshot (a long job page is cut here).
+MAX_HEIGHT = 1800
+#: Renders at this size rather than the smoke test's 32 x 32 (the score smoke job then
+#: compares pictures of this size too).
+RENDER = {"resolution": [160, 120], "spp": 16}
+#: The compare view's renders: three materials in the same scene.
+COMPARE_RENDERS = {
+    "diffuse": {"mitsuba": {"type": "diffuse"}},
+    "rough gold": {"mitsuba": {"type": "roughconductor", "material": "Au", "alpha": 0.2}},
+    "blue plastic": {
+        "mitsuba": {
+            "type": "roughplastic",
+            "alpha": 0.1,
+            "diffuse_reflectance": {"type": "rgb", "value": [0.1, 0.25, 0.7]},
+        }
+    },
+}
+
+
+class Runs:
+    """Smoke jobs by kind, inputs first (a ``step:KIND`` ref is that kind's smoke job)."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.done: dict[str, Job] = {}
+
+    def job(self, name: str) -> Job:
+        if name not in self.done:
+            kind = kinds.get_kind(name)
+
+            def resolve(ref: str) -> str:
+                m = STEP_REF.match(ref)
+                assert m is not None
+                dep = self.job(m["step"])
+                if dep.state != "succeeded":
+                    raise RuntimeError(f"{name} needs {m['step']}, which failed: {dep.error}")
+                return f"job:{dep.id}" if m["name"] is None else f"job:{dep.id}/{m['name']}"
+
+            params: dict[str, Any] = substitute_refs(kind.smoke, resolve)
+            if name == "render":
+                params = {**params, **RENDER}
+            spec = {"kind": name, "name": f"{name} (smoke)", "params": params}
+            started = time.monotonic()
+            self.done[name] = run_in_process(spec, self.settings)
+            print(f"  {name}: {self.done[name].state} in {time.monotonic() - started:.1f} s")
+        return self.done[name]
+
+
+def compare_score(settings: Settings) -> Job:
+    """A score job of two candidates against a 64-spp reference of rough gold: the same
+    material at 4 spp (noise), and a rougher one at 64 spp (a material change)."""
+    gold = COMPARE_RENDERS["rough gold"]
+    rougher = {"mitsuba": {**gold["mitsuba"], "alpha": 0.35}}
+
+    def render(name: str, material: dict[str, Any], spp: int) -> str:
+        params = {"material": material, **RENDER, "spp": spp}
+        job = run_in_process({"kind": "render", "name": name, "params": params}, settings)
+        if job.state != "succeeded":
+            raise RuntimeError(f"render {name} failed: {job.error}")
+        return f"job:{job.id}/image.exr"
+
+    params = {
+        "reference": render("gold, 64 spp", gold, 64),
+        "candidates": {
+            "spp4": render("gold, 4 spp", gold, 4),
+            "alpha0.35": render("rougher gold, 64 spp", rougher, 64),
+        },
+    }
+    return run_in_process(
+        {"kind": "score", "name": "gold: noise and roughness", "params": params}, settings
+    )
+
+
+@contextmanager
+def dashboard(data: Path, log_path: Path) -> Iterator[str]:
+    """``serve()`` on a free port (no workers) with :data:`TOKEN`; yields its URL."""
+    code = (
+        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
+        "from service.server import serve; from service.settings import Settings; "
+        "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
+        "host='127.0.0.1', port=0, workers=0)"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
+    env["MATFORGE_TOKEN"] = TOKEN
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code, str(data), str(ROOT)],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    try:
+        url = None
+        deadline = time.monotonic() + 60
+        while url is None and time.monotonic() < deadline and proc.poll() is None:
+            m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
+            url = m.group(1).rstrip("/") if m else None
+            time.sleep(0.1)
+        if url is None:
+            raise RuntimeError(f"the server did not start:\n{log_path.read_text()}")
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def small_png(shot: bytes) -> bytes:
+    """A screenshot reduced to 256 colours (a tenth of the size; UI colours survive)."""
+    import numpy as np
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(shot)).convert("RGB")
+    pixels = np.asarray(image)
+    # cut the page's empty bottom (rows of the background colour), leaving a margin
+    busy = np.flatnonzero((pixels != pixels[-1, 0]).any(axis=(1, 2)))
+    height = min(MAX_HEIGHT, int(busy[-1]) + 33 if busy.size else image.height, image.height)
+    image = image.crop((0, 0, image.width, height))
+    out = io.BytesIO()
+    image.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+        out, "PNG", optimize=True
+    )
+    return out.getvalue()
+
+
+#: A page is ready when its images are loaded (charts draw as their documents arrive).
+SETTLED = "() => [...document.images].every(i => i.complete && i.naturalWidth > 0)"
+
+
+def shoot(pg: Any, url: str, path: Path, wait: str = SETTLED, full: bool = True) -> None:
+    pg.goto(url)
+    pg.evaluate("window.scrollTo(0, document.body.scrollHeight)")  # lazy images load
+    pg.wait_for_function(wait, timeout=30_000)
+    pg.evaluate("window.scrollTo(0, 0)")
+    pg.wait_for_timeout(1500)  # chart animations
+    path.write_bytes(small_png(pg.screenshot(full_page=full)))
+    print(f"  {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+
+
+def page_markdown(shots: list[tuple[str, str, str]]) -> str:
+    """docs/screenshots.md: each screenshot under a heading, with what it shows."""
+    lines = [
+        "# Screenshots",
+        "",
+        "The dashboard as it shows small jobs of every kind: each job page (its lead",
+        "picture first, at full size; its charts; its result table), the job list with",
+        "parameter and metric columns, and the compare view. Generated by",
+        "`scripts/screenshots.py` from the smoke jobs of every kind (renders at 160 x 120),",
+        "at 1280 px wide; pages longer than 1800 px are cut there.",
+        "",
+    ]
+    for title, file, caption in shots:
+        lines += [f"## {title}", "", caption, "", f"![{title}]({file})", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, help="write the PNGs here (not the docs)")
+    args = ap.parse_args(argv)
+    if not CHROMIUM.exists():
+        print(f"needs {CHROMIUM} (`make setup`)", file=sys.stderr)
+        return 2
+    out = args.out or ROOT / "docs" / "screenshots"
+    out.mkdir(parents=True, exist_ok=True)
+    kinds.load_builtin()
+    builtin = sorted(
+        (k for k in kinds.all_kinds().values() if kinds.plugin_of(k.name) is None),
+        key=lambda k: k.name,
+    )
+    from playwright.sync_api import sync_playwright
+
+    with tempfile.TemporaryDirectory(prefix="matforge-shots-") as tmp:
+        data = Path(tmp) / "data"
+        (data / "scratch").mkdir(parents=True)
+        settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+        runs = Runs(settings)
+        print("running the smoke job of every kind:")
+        for kind in builtin:
+            if kind.smoke:
+                runs.job(kind.name)
+        renders = [
+            run_in_process(
+                {"kind": "render", "name": label, "params": {"material": m, **RENDER, "spp": 64}},
+                settings,
+            )
+            for label, m in COMPARE_RENDERS.items()
+        ]
+        score = compare_score(settings)
+        failed = {n: j.error for n, j in runs.done.items() if j.state != "succeeded"}
+        failed |= {j.name or j.id: j.error for j in [*renders, score] if j.state != "succeeded"}
+        if failed:
+            print(f"jobs failed: {failed}", file=sys.stderr)
+            return 1
+        shots: list[tuple[str, str, str]] = []
+        with (
+            dashboard(data, Path(tmp) / "server.log") as url,
+            sync_playwright() as pw,
+        ):
+            browser = pw.chromium.launch(
+                executable_path=str(CHROMIUM), args=["--headless", "--no-sandbox"]
+            )
+            pg = browser.new_context(viewport={"width": WIDTH, "height": 900}).new_page()
+            pg.goto(f"{url}/?token={TOKEN}")  # the session cookie
+            print("screenshots:")
+            for kind in builtin:
+                job = runs.done.get(kind.name)
+                if job is None:
+                    shots.append(
+                        (
+                            f"`{kind.name}`",
+                            "",
+                            f"{kind.description} (No screenshot: "
+                            "the kind has no smoke params; it needs measured data.)",
+                        )
+                    )
+                    continue
+                file = f"job-{kind.name.replace('.', '-')}.png"
+                shoot(pg, f"{url}/jobs/{job.id}", out / file)
+                shots.append((f"`{kind.name}`", f"screenshots/{file}", kind.description))
+            rows = "() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0"
+            cols = "columns=params.model,params.spp,metric.smape_mean,metric.flip&group=1"
+            shoot(pg, f"{url}/?{cols}", out / "jobs.png", wait=rows, full=False)
+            shots.append(
+                (
+                    "The job list",
+                    "screenshots/jobs.png",
+                    "Every job above, grouped by batch, with two parameter and two metric "
+                    "columns (`?columns=params.model,params.spp,metric.smape_mean,"
+                    "metric.flip`); filters such as `params.model=hybrid` or "
+                    "`metric.smape_mean<0.1` go in the Filter box.",
+                )
+            )
+            ids = ",".join(j.id[:12] for j in renders)
+            compare = out / "compare-renders.png"
+            shoot(pg, f"{url}/compare?jobs={ids}", compare, full=False)
+            shots.append(
+                (
+                    "The compare view: three renders",
+                    "screenshots/compare-renders.png",
+                    "Three materials in one scene side by side, with linked zoom and "
+                    "pan and the exposure slider.",
+                )
+            )
+            if score is not None:
+                shoot(
+                    pg, f"{url}/compare?jobs={score.id[:12]}", out / "compare-score.png", full=False
+                )
+                shots.append(
+                    (
+                        "The compare view: a score job",
+                        "screenshots/compare-score.png",
+                        "A score job's reference and its two candidates (the same gold at 4 spp, a "
+                        "rougher gold), paired by role.",
+                    )
+                )
+                shoot(
+                    pg,
+                    f"{url}/compare?jobs={score.id[:12]}&picture=diff",
+                    out / "compare-score-diff.png",
+                    full=False,
+                )
+                shots.append(
+                    (
+                        "The compare view: the difference",
+                        "screenshots/compare-score-diff.png",
+                        "The signed difference of each candidate to the reference, under "
+                        "one colour bar.",
+                    )
+                )
+            browser.close()
+    if args.out is None:
+        (ROOT / "docs" / "compare-view.png").write_bytes(compare.read_bytes())
+        (ROOT / "docs" / "screenshots.md").write_text(page_markdown(shots))
+        print("  docs/compare-view.png, docs/screenshots.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,92 @@
+"""A report's method x metric table on its job page, in headless Chromium (nerfbaselines
+style, as ``matforge results --pivot`` prints it): a ``report.pareto`` over two ``train.brdf``
+runs of different widths (16 and 32) shows a row per method, each metric's mean and each
+cost, and the best of each column marked.
+
+The reference is the report's own ``rows.json``, averaged here with plain Python (not with
+:mod:`service.results_pivot`). Screenshot: ``/tmp/matforge-dashboard-methods.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service import kinds
+from service.settings import Settings
+from service.submission import run_in_process
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job
+
+from .harness import dashboard_server
+from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
+]
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    kinds.load_builtin()
+    data = Path(tmp_path_factory.mktemp("dashboard-methods")) / "data"
+    (data / "scratch").mkdir(parents=True)
+    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+
+    def run(spec: dict[str, Any]) -> Job:
+        job = run_in_process(spec, settings)
+        assert job.state == "succeeded", job.error
+        return job
+
+    merl = run({"kind": "generate.merl", "params": kinds.get_kind("generate.merl").smoke})
+    smoke = dict(kinds.get_kind("train.brdf").smoke)
+    trained = [
+        run({"kind": "train.brdf", "params": {**smoke, "dataset": f"job:{merl.id}", "width": w}})
+        for w in (16, 32)
+    ]
+    report = run({"kind": "report.pareto", "params": {"runs": [f"job:{j.id}" for j in trained]}})
+    yield {"data": data, "report": report, "store": ArtifactStore(settings.store_dir)}
+
+
+@pytest.fixture(scope="module")
+def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    log_dir = tmp_path_factory.mktemp("server-log")
+    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
+    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
+        yield url
+
+
+def test_methods_table_of_a_report(page: Any, server: str, prepared: dict[str, Any]) -> None:  # noqa: F811
+    pg = page
+    report: Job = prepared["report"]
+    record = next(a for a in report.artifacts if a.name == "rows.json")
+    rows = json.loads(prepared["store"].read(record.digest))
+    # the reference: each candidate's mean SMAPE, from the rows themselves
+    smape: dict[str, list[float]] = {}
+    for r in rows:
+        if r["metric"] == "smape":
+            smape.setdefault(r["candidate"], []).append(r["value"])
+    assert len(smape) == 2, smape
+    means = {c: statistics.fmean(v) for c, v in smape.items()}
+    pg.goto(f"{server}/jobs/{report.id}?token={TOKEN}")
+    table = pg.locator("#methods-table")
+    table.wait_for()
+    heads = table.locator("thead th").evaluate_all("ths => ths.map(t => t.dataset.column || '')")
+    assert "smape" in heads and "ns_per_eval" in heads, heads
+    col = heads.index("smape")
+    shown = table.locator("tbody tr").evaluate_all(
+        "trs => trs.map(tr => [tr.dataset.method, [...tr.cells].map(c => c.textContent),"
+        " [...tr.cells].map(c => c.classList.contains('best'))])"
+    )
+    assert {m for m, _, _ in shown} == set(means)
+    for method, cells, best in shown:
+        assert float(cells[col].split(" ")[0]) == pytest.approx(means[method], rel=1e-3)
+        assert best[col] == (means[method] == min(means.values())), (method, cells, best)
+    pg.screenshot(path=str(SHOTS / "matforge-dashboard-methods.png"), full_page=True)
+    assert pg.problems == [], pg.problems
