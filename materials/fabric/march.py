@@ -37,7 +37,7 @@ from materials.fabric import yarn
 from materials.fabric.array_ops import Array, ArrayOps, NumpyOps
 
 March = Literal["hierarchical", "plain"]
-MARCHES: tuple[str, ...] = ("hierarchical", "plain")
+MARCHES: tuple[March, ...] = ("hierarchical", "plain")
 
 #: Texels per pattern cell side, finest first; each level halves the one before.
 LEVELS: tuple[int, ...] = (16, 8, 4, 2, 1)

@@ -43,8 +43,14 @@ def _counting(ops: NumpyOps) -> list[int]:
     calls = [0]
     plain_march = NumpyOps.march
 
-    def march(count, max_steps, lanes, flag, body: Callable):  # type: ignore[no-untyped-def]
-        def counted(k, lane):  # type: ignore[no-untyped-def]
+    def march(
+        count: np.ndarray,
+        max_steps: int,
+        lanes: tuple[np.ndarray, ...],
+        flag: np.ndarray,
+        body: Callable[[np.ndarray, tuple[np.ndarray, ...]], tuple[np.ndarray, np.ndarray]],
+    ) -> np.ndarray:
+        def counted(k: np.ndarray, lane: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
             calls[0] += len(k)
             return body(k, lane)
 
