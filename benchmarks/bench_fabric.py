@@ -5,12 +5,15 @@ queries drawn like the paper's data (Sec. 5.1): footprint centres uniform over t
 sizes uniform in [0, 1] or [1, 5] tiles (half each), light directions uniform over the
 sphere (half of them from below: transmission), view directions uniform over the upper
 hemisphere. Every query gets ``--samples`` footprint samples (the paper uses 2048). Each
-configuration runs once to warm up (Dr.Jit compiles its kernel), then ``--repeats`` times;
-rows report the median. Results are read back to numpy, so Dr.Jit's lazy evaluation cannot
-hide work (NOTES.md). The paper's rate, 3.2 M queries x 2048 samples in 22 minutes on an
-RTX 3090, is 4.96 M samples/s.
+configuration runs once to warm up (Dr.Jit compiles its kernel), then ``--repeats``
+rounds that interleave the configurations; rows report the median. ``--march both`` (the
+default) times the hierarchical and the plain visibility march in the same run and prints
+their ratio, the figure to compare on a shared, loaded machine. Results are read back to
+numpy, so Dr.Jit's lazy evaluation cannot hide work (NOTES.md). The paper's rate, 3.2 M
+queries x 2048 samples in 22 minutes on an RTX 3090, is 4.96 M samples/s.
 
-Run: ``.venv/bin/python benchmarks/bench_fabric.py [--queries 4096] [--samples 2048]``
+Run: ``.venv/bin/python benchmarks/bench_fabric.py [--queries 4096] [--samples 2048]
+[--march both|hierarchical|plain]``
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import platform
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from materials.fabric.aggregate import Backend, FootprintQueries, estimate  # noqa: E402
+from materials.fabric.march import MARCHES, March  # noqa: E402
 from materials.fabric.params import FabricParams, YarnPair  # noqa: E402
 from materials.fabric.patterns import PATTERNS  # noqa: E402
 from materials.fabric.samplers import Sampler  # noqa: E402
@@ -50,82 +55,117 @@ def paper_like_queries(count: int, seed: int = 0) -> FootprintQueries:
     return FootprintQueries(rng.uniform(0, 1, (count, 2)), size, wi, wo)
 
 
-def bench(
-    backend: Backend,
-    sampler: Sampler,
-    queries: FootprintQueries,
-    samples: int,
-    visibility: bool,
-    repeats: int,
-    threads: int,
-) -> float:
-    """Median seconds of one estimate() over the whole batch."""
-    params = FabricParams(
-        PATTERNS["twill_5x5"],
-        psi_deg=YarnPair(25.0, 25.0),
-        u_max_deg=YarnPair(30.0, 30.0),
-        alpha=YarnPair(0.3, 0.3),
-        beta=YarnPair(0.7, 0.7),
-    )
+PARAMS = FabricParams(
+    PATTERNS["twill_5x5"],
+    psi_deg=YarnPair(25.0, 25.0),
+    u_max_deg=YarnPair(30.0, 30.0),
+    alpha=YarnPair(0.3, 0.3),
+    beta=YarnPair(0.7, 0.7),
+)
+#: Samples of one material at the ``paper`` preset: 3,276,800 queries x 2,048 samples.
+PAPER_MATERIAL_SAMPLES = 3_276_800 * 2048
 
-    def run() -> None:
-        est = estimate(
-            params,
-            queries,
-            samples=samples,
-            sampler=sampler,
-            with_visibility=visibility,
-            backend=backend,
-            threads=threads,
-        )
-        assert np.all(np.isfinite(est.mean))
 
-    run()  # warm-up: Dr.Jit kernel compilation, Sobol nets
-    times = []
-    for _ in range(repeats):
+@dataclass(frozen=True)
+class Config:
+    backend: Backend
+    sampler: Sampler
+    visibility: bool
+    march: March
+    queries: FootprintQueries
+    threads: int
+
+    def run(self, samples: int) -> float:
+        """Seconds of one estimate() over the whole batch."""
         t0 = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        est = estimate(
+            PARAMS,
+            self.queries,
+            samples=samples,
+            sampler=self.sampler,
+            with_visibility=self.visibility,
+            march=self.march,
+            backend=self.backend,
+            threads=self.threads,
+        )
+        seconds = time.perf_counter() - t0
+        assert np.all(np.isfinite(est.mean))
+        return seconds
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--queries", type=int, default=4096, help="queries for the Dr.Jit rows")
-    ap.add_argument("--numpy-queries", type=int, default=512, help="queries for numpy rows")
+    ap.add_argument(
+        "--numpy-queries", type=int, default=512, help="queries for numpy rows (0: none)"
+    )
     ap.add_argument("--samples", type=int, default=2048)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2, help="numpy worker threads")
+    ap.add_argument(
+        "--march",
+        choices=("both", *MARCHES),
+        default="both",
+        help="visibility march of the rows with visibility (both: each, for the ratio)",
+    )
     args = ap.parse_args()
+    marches: list[March] = list(MARCHES) if args.march == "both" else [args.march]
     machine = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
+    drjit_q = paper_like_queries(args.queries)
+    configs: list[Config] = []
+    for m in marches:
+        configs.append(Config("drjit", "sobol", True, m, drjit_q, args.threads))
+    configs.append(Config("drjit", "independent", True, marches[0], drjit_q, args.threads))
+    configs.append(Config("drjit", "sobol", False, marches[0], drjit_q, args.threads))
+    if args.numpy_queries > 0:
+        numpy_q = paper_like_queries(args.numpy_queries)
+        for m in marches:
+            configs.append(Config("numpy", "sobol", True, m, numpy_q, args.threads))
+        configs.append(Config("numpy", "sobol", False, marches[0], numpy_q, args.threads))
+    for c in configs:
+        c.run(args.samples)  # warm-up: Dr.Jit kernel compilation, Sobol nets, mip-maps
+    # Rounds interleave the configurations, so a change in the machine's load falls on all.
+    times: list[list[float]] = [[] for _ in configs]
+    loads = []
+    for _ in range(args.repeats):
+        for i, c in enumerate(configs):
+            times[i].append(c.run(args.samples))
+        loads.append(os.getloadavg()[0])
     print(
-        "| backend | sampler | visibility | queries | samples/query | median s "
-        "| M samples/s | vs paper 4.96 M/s | machine | load (1 min) |"
+        "| backend | sampler | visibility | march | queries | samples/query | median s "
+        "| M samples/s | vs paper 4.96 M/s | machine |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    configs: list[tuple[Backend, Sampler, bool]] = [
-        ("drjit", "sobol", True),
-        ("drjit", "independent", True),
-        ("drjit", "sobol", False),
-        ("numpy", "sobol", True),
-        ("numpy", "sobol", False),
-    ]
-    for backend, sampler, visibility in configs:
-        count = args.queries if backend == "drjit" else args.numpy_queries
-        q = paper_like_queries(count)
-        seconds = bench(backend, sampler, q, args.samples, visibility, args.repeats, args.threads)
+    rates: dict[tuple[str, str, bool, str], float] = {}
+    for c, ts in zip(configs, times, strict=True):
+        seconds = statistics.median(ts)
+        count = len(c.queries)
         rate = count * args.samples / seconds
-        label = backend if backend == "drjit" else f"numpy ({args.threads} threads)"
+        rates[(c.backend, c.sampler, c.visibility, c.march)] = rate
+        label = c.backend if c.backend == "drjit" else f"numpy ({args.threads} threads)"
         print(
-            f"| {label} | {sampler} | {'on' if visibility else 'off'} | {count} | "
-            f"{args.samples} | {seconds:.3f} | {rate / 1e6:.2f} | {rate / PAPER_RATE:.2f}x | "
-            f"{machine} | {os.getloadavg()[0]:.1f} |",
+            f"| {label} | {c.sampler} | {'on' if c.visibility else 'off'} | "
+            f"{c.march if c.visibility else '-'} | {count} | {args.samples} | {seconds:.3f} | "
+            f"{rate / 1e6:.2f} | {rate / PAPER_RATE:.2f}x | {machine} |",
             flush=True,
+        )
+    print(f"\nload average (1 min) after each round: {', '.join(f'{x:.1f}' for x in loads)}")
+    for backend in ("drjit", "numpy"):
+        new = rates.get((backend, "sobol", True, "hierarchical"))
+        old = rates.get((backend, "sobol", True, "plain"))
+        if new and old:
+            print(f"{backend} sobol, visibility on: hierarchical / plain = {new / old:.2f}x")
+    best = rates.get(("drjit", "sobol", True, marches[0]))
+    if best:
+        minutes = PAPER_MATERIAL_SAMPLES / best / 60
+        print(
+            f"one paper-scale material (3,276,800 queries x 2,048 samples) at the "
+            f"{marches[0]} rate: {minutes:.1f} min (estimator only, extrapolated)"
         )
     print(
         f"\nreproduce: .venv/bin/python benchmarks/bench_fabric.py --queries {args.queries} "
         f"--numpy-queries {args.numpy_queries} --samples {args.samples} "
-        f"--repeats {args.repeats} --threads {args.threads}"
+        f"--repeats {args.repeats} --threads {args.threads} --march {args.march}"
     )
 
 

@@ -54,6 +54,7 @@ from materials.fabric.integrand import (
     footprint_positions,
     sample_terms,
 )
+from materials.fabric.march import MARCHES, March
 from materials.fabric.params import FabricParams
 from materials.fabric.samplers import QUERY_BLOCK, Sampler
 from materials.fabric.yarn import YarnGeometry, tables
@@ -206,6 +207,7 @@ def numpy_chunk_moments(
     with_visibility: bool,
     march_step: float,
     march_max_steps: int,
+    march: March = "hierarchical",
     threads: int,
 ) -> np.ndarray:
     """``(count, replicates, N_MOMENTS)`` for queries ``first .. first + count - 1``.
@@ -252,6 +254,7 @@ def numpy_chunk_moments(
             with_visibility=with_visibility,
             march_step=march_step,
             march_max_steps=march_max_steps,
+            march=march,
         )
         return _moments(terms, pts.shape[0], block)
 
@@ -280,6 +283,7 @@ def estimate(
     with_visibility: bool = True,
     march_step: float = MARCH_STEP,
     march_max_steps: int = MARCH_MAX_STEPS,
+    march: March = "hierarchical",
     backend: Backend = "numpy",
     threads: int = 1,
     chunk_queries: int | None = None,
@@ -307,6 +311,10 @@ def estimate(
         Include the yarn-to-yarn visibility V of Eq. 3-4 (height-field march with
         horizontal steps of ``march_step`` cells, at most ``march_max_steps`` per ray;
         ``integrand.py``); False sets V = 1.
+    march
+        ``"hierarchical"`` (default: a max mip-map over the height field skips the steps
+        it proves clear, ``march.py``) or ``"plain"`` (every step tested, the method before
+        2026-12-03); the same visibility up to float32 round-off, so the same statistics.
     backend
         ``"numpy"`` (``threads`` worker threads) or ``"drjit"`` (LLVM kernel, all cores).
     chunk_queries
@@ -325,6 +333,8 @@ def estimate(
         raise ValueError(f"march_step must be in [0.001, 1] cells, got {march_step}")
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
+    if march not in MARCHES:
+        raise ValueError(f"march must be one of {MARCHES}, got {march!r}")
     chunk_fn: ChunkFn
     if backend == "numpy":
         chunk_fn = numpy_chunk_moments
@@ -355,6 +365,7 @@ def estimate(
             with_visibility=with_visibility,
             march_step=march_step,
             march_max_steps=march_max_steps,
+            march=march,
             threads=threads,
         )
     return reduce_moments(moments, sampler, samples)

@@ -35,6 +35,7 @@ import numpy as np
 from materials.fabric import samplers
 from materials.fabric.array_ops import Array
 from materials.fabric.integrand import Kernel, footprint_positions, sample_terms
+from materials.fabric.march import March
 from materials.fabric.params import FabricParams
 from materials.fabric.yarn import YarnGeometry, tables
 
@@ -130,18 +131,19 @@ class DrJitOps:
         max_steps: int,
         lanes: tuple[Array, ...],
         flag: Array,
-        body: Callable[[float | Array, tuple[Array, ...]], Array],
+        body: Callable[[Array, tuple[Array, ...]], tuple[Array, Array]],
     ) -> Array:
         # A symbolic loop: compiled once (not unrolled); each SIMD packet leaves it as soon
         # as all its lanes are done.
-        dr, Float, UInt32 = self.dr, self.Float, self.UInt32
-        k0 = dr.zeros(UInt32, dr.width((count, flag, *lanes)))
+        dr, Float = self.dr, self.Float
+        k0 = dr.zeros(Float, dr.width((count, flag, *lanes)))
 
         def cond(k: Array, done: Array) -> Array:
-            return (Float(k) < count) & ~done
+            return (k < count) & ~done
 
         def step(k: Array, done: Array) -> tuple[Array, Array]:
-            return k + 1, done | body(Float(k), lanes)
+            hit, k_next = body(k, lanes)
+            return k_next, done | hit
 
         # (An evaluated loop with lane compaction, ``compress=True``, ran 2.5x slower here.)
         _, out = dr.while_loop((k0, flag), cond, step)
@@ -163,6 +165,7 @@ def drjit_chunk_moments(
     with_visibility: bool,
     march_step: float,
     march_max_steps: int,
+    march: March = "hierarchical",
     threads: int = 1,
 ) -> np.ndarray:
     """``(count, replicates, 15)`` moments, as ``aggregate.numpy_chunk_moments`` computes.
@@ -221,6 +224,7 @@ def drjit_chunk_moments(
         with_visibility=with_visibility,
         march_step=march_step,
         march_max_steps=march_max_steps,
+        march=march,
     )
     comps = [Float64(x) for x in terms[:4]]
     area = Float64(terms.area)

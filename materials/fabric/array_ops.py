@@ -74,14 +74,18 @@ class ArrayOps(Protocol):
         max_steps: int,
         lanes: tuple[Array, ...],
         flag: Array,
-        body: Callable[[float | Array, tuple[Array, ...]], Array],
+        body: Callable[[Array, tuple[Array, ...]], tuple[Array, Array]],
     ) -> Array:
-        """Per-element loop: ``flag |= body(k, lanes)`` for ``k = 0 .. count - 1``.
+        """Per-element loop over step indices: ``hit, k = body(k, lanes)``, ``flag |= hit``,
+        from ``k = 0`` while ``k < count``.
 
-        ``count`` (float, >= 1, at most ``max_steps``) may differ per element; an element
-        stops as soon as its ``flag`` is True. ``lanes`` are the per-element inputs the body
-        reads (broadcastable arrays); the body must read per-element data only through them,
-        so numpy can run it on the still-active elements alone.
+        ``count`` (float, >= 1, at most ``max_steps``) may differ per element; the body
+        returns the element's next step index (float, greater than ``k``: ``k + 1`` for a
+        plain march, more where a hierarchy proves the steps in between clear), so at most
+        ``max_steps`` iterations run. An element stops as soon as its ``flag`` is True.
+        ``lanes`` are the per-element inputs the body reads (broadcastable arrays); the body
+        must read per-element data only through them and ``k``, so numpy can run it on the
+        still-active elements alone.
         """
         ...
 
@@ -139,19 +143,21 @@ class NumpyOps:
         max_steps: int,
         lanes: tuple[Array, ...],
         flag: Array,
-        body: Callable[[float | Array, tuple[Array, ...]], Array],
+        body: Callable[[Array, tuple[Array, ...]], tuple[Array, Array]],
     ) -> Array:
         # Compaction: each step evaluates the body on the elements still marching only.
         shape = np.broadcast_shapes(np.shape(count), np.shape(flag), *(np.shape(a) for a in lanes))
         flat = [np.broadcast_to(a, shape).ravel() for a in (count, *lanes)]
         out = np.array(np.broadcast_to(flag, shape)).ravel()
+        k = np.zeros(out.shape, dtype=np.float32)
         live = np.flatnonzero(~out)
-        for k in range(max_steps):
-            live = live[flat[0][live] > k]
+        for _ in range(max_steps):
+            live = live[flat[0][live] > k[live]]
             if live.size == 0:
                 break
-            hit = body(float(k), tuple(a[live] for a in flat[1:]))
+            hit, k_next = body(k[live], tuple(a[live] for a in flat[1:]))
             out[live] = hit
+            k[live] = k_next
             live = live[~hit]
         return out.reshape(shape)
 

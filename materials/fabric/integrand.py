@@ -39,6 +39,12 @@ materials, 2048 samples), the defaults shift the summed components by -0.2 to -0
 average, 0.6 to 3 standard errors at N = 2048; pass a finer ``march_step`` for reference
 data. Samples whose weight is zero anyway (``<wo.n_p> <= 0`` or ``c_i = 0``) skip their
 march, and flat yarns (``h_max = 0``) skip it altogether: V = 1.
+
+The march is hierarchical by default (``march.py``): a max mip-map over the tile's height
+field proves runs of test points clear (the ray above every yarn beneath them), and the
+march jumps over them. It tests a subset of the points above and skips only points that
+cannot be blocked, so it returns the same visibility, up to float32 round-off, in fewer
+iterations; ``march="plain"`` tests every point.
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ from typing import Literal, NamedTuple
 
 from materials.fabric import shading, yarn
 from materials.fabric.array_ops import Array, ArrayOps, Vec3, dot
+from materials.fabric.march import MARCHES, March, MipTables, clear_jump, max_mip, upload
 from materials.fabric.params import FabricParams
 from materials.fabric.yarn import YarnGeometry, YarnTables
 
@@ -110,12 +117,15 @@ def visibility(
     need: Array | None = None,
     step: float = MARCH_STEP,
     max_steps: int = MARCH_MAX_STEPS,
+    mip: MipTables | None = None,
 ) -> Array:
     """Binary V(x_p, w) (1.0 visible, 0.0 blocked) by marching the height field.
 
     ``w`` must point above the macro surface (``w_z > 0``); ``(s, t)`` in tile units, ``h0``
     the surface height there. Where ``need`` is False the march is skipped and V = 1 (for
-    samples whose weight is zero anyway). See the module docstring for the method.
+    samples whose weight is zero anyway). See the module docstring for the method. With
+    ``mip`` (``march.py``'s max mip-map of this geometry) the march jumps over the test
+    points that the hierarchy proves clear: the same visibility in fewer iterations.
     """
     if geo.h_max <= 0.0:
         return ops.where(h0 > -1.0, 1.0, 1.0)
@@ -128,15 +138,40 @@ def visibility(
     # Horizontal travel per unit rise, converted from physical to tile units.
     ds = w[0] / (wz * geo.tile[0])
     dt = w[1] / (wz * geo.tile[1])
-    lanes = (s, t, h0, ds, dt, rise / ops.maximum(count, 1.0), jitter)
+    rise_step = rise / ops.maximum(count, 1.0)
 
-    def blocked_at(k: float | Array, lane: tuple[Array, ...]) -> Array:
-        s_, t_, h_, ds_, dt_, rise_step, jit = lane
-        r = rise_step * (k + 1.0 - jit)
-        hq = yarn.height(ops, geo, tab, s_ + ds_ * r, t_ + dt_ * r)
-        return hq > h_ + r + _MARCH_EPS
+    if mip is None:
+        lanes: tuple[Array, ...] = (s, t, h0, ds, dt, rise_step, jitter)
 
-    blocked = ops.march(count, max_steps, lanes, h0 < -1e30, blocked_at)
+        def plain(k: Array, lane: tuple[Array, ...]) -> tuple[Array, Array]:
+            s_, t_, h_, ds_, dt_, rs, jit = lane
+            r = rs * (k + 1.0 - jit)
+            hq = yarn.height(ops, geo, tab, s_ + ds_ * r, t_ + dt_ * r)
+            return hq > h_ + r + _MARCH_EPS, k + 1.0
+
+        blocked = ops.march(count, max_steps, lanes, h0 < -1e30, plain)
+        return ops.where(blocked, 0.0, 1.0)
+
+    big = 1e30
+    inv_ds = 1.0 / ops.maximum(ops.abs(ds), 1.0 / big)
+    inv_dt = 1.0 / ops.maximum(ops.abs(dt), 1.0 / big)
+    inv_rs = 1.0 / ops.maximum(rise_step, 1e-30)
+    lanes = (s, t, h0, ds, dt, rise_step, jitter, inv_ds, inv_dt, inv_rs)
+
+    def hierarchical(k: Array, lane: tuple[Array, ...]) -> tuple[Array, Array]:
+        s_, t_, h_, ds_, dt_, rs, jit, ids, idt, irs = lane
+        r = rs * (k + 1.0 - jit)
+        sq, tq = s_ + ds_ * r, t_ + dt_ * r
+        x, y = sq - ops.floor(sq), tq - ops.floor(tq)
+        ray = h_ + r + _MARCH_EPS
+        clear, reach = clear_jump(ops, mip, x, y, ray, ids, idt, ds_ > 0.0, dt_ > 0.0)
+        # First k whose test point lies beyond the clear texel: r_k > r + reach.
+        k_jump = ops.maximum(ops.floor((r + reach) * irs - 1.0 + jit) + 1.0, k + 1.0)
+        hq = yarn.height(ops, geo, tab, sq, tq)
+        hit = ~clear & (hq > ray)
+        return hit, ops.where(clear, k_jump, k + 1.0)
+
+    blocked = ops.march(count, max_steps, lanes, h0 < -1e30, hierarchical)
     return ops.where(blocked, 0.0, 1.0)
 
 
@@ -154,12 +189,17 @@ def sample_terms(
     with_visibility: bool = True,
     march_step: float = MARCH_STEP,
     march_max_steps: int = MARCH_MAX_STEPS,
+    march: March = "hierarchical",
 ) -> Terms:
     """Eq. 3-5 integrand at footprint samples ``(s, t)`` for light ``wi`` and view ``wo``.
 
     ``wi``, ``wo``: unit, macro frame, ``wo_z > 0``; ``wi_z < 0`` means light from below.
     ``jitter in [0, 1)`` offsets the visibility march. ``with_visibility=False`` sets V = 1.
+    ``march``: ``"hierarchical"`` (the max mip-map of ``march.py`` skips clear space) or
+    ``"plain"`` (every step tested); both give the same visibility up to float32 round-off.
     """
+    if march not in MARCHES:
+        raise ValueError(f"march must be one of {MARCHES}, got {march!r}")
     surf = yarn.surface(ops, geo, tab, s, t)
     n = surf.normal
     jac = 1.0 / n[2]  # Eq. 4: |dx_p / dp| = 1 / <n_s . n_p>
@@ -169,9 +209,21 @@ def sample_terms(
     co = ops.maximum(dot(wo, n), 0.0)
     if with_visibility:
         step, cap = march_step, march_max_steps
+        mip = upload(ops, max_mip(geo)) if march == "hierarchical" else None
         # Only samples with a non-zero weight need a march (V multiplies co and c_in).
         v_o = visibility(
-            ops, geo, tab, s, t, surf.height, wo, jitter, need=co > 0.0, step=step, max_steps=cap
+            ops,
+            geo,
+            tab,
+            s,
+            t,
+            surf.height,
+            wo,
+            jitter,
+            need=co > 0.0,
+            step=step,
+            max_steps=cap,
+            mip=mip,
         )
         wi_up = (wi[0], wi[1], ops.abs(wi[2]))
         # The same jitter for both marches: the numerator of Eq. 3 is then exactly symmetric
@@ -190,6 +242,7 @@ def sample_terms(
                 need=above & (c_in > 0.0),
                 step=step,
                 max_steps=cap,
+                mip=mip,
             ),
             1.0,
         )

@@ -75,6 +75,8 @@ _U_MIN = 1e-3
 _U_MAX = ROLL_MAX
 #: Per-cell table encoding: ``+-(length * _PACK + offset)``, + for a warp on top.
 _PACK = 128.0
+#: Public name of the packing factor (``march.py`` decodes the table too).
+PACK = _PACK
 
 
 def _lncos_coefficients(degree: int = 10) -> tuple[float, ...]:

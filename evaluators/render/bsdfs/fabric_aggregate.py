@@ -51,6 +51,7 @@ from evaluators.render.bsdfs.fabric_footprint import footprint_base
 from evaluators.render.plugins import register_vectorised_bsdf
 from materials.fabric import integrand, yarn
 from materials.fabric.array_ops import dot
+from materials.fabric.march import max_mip, upload
 from materials.fabric.params import FabricParams, params_json
 from materials.fabric.yarn import YarnGeometry, max_slope
 
@@ -115,6 +116,8 @@ def _define_class(mi: types.ModuleType) -> type:
             self.ops = DrJitOps(mi.Float, mi.UInt32)
             self.tab = yarn.tables(self.ops, self.geo)
             self.slope = max_slope(self.params)
+            # The hierarchical march of sample_terms, also in the rejection loop below.
+            self.mip = upload(self.ops, max_mip(self.geo))
 
         def estimate(self, si: Any, light: Any, active: Any = True) -> Any:
             """One-sample estimate of ``f_P`` (Eq. 8, incident cosine included), ``mi.Color3f``.
@@ -142,7 +145,7 @@ def _define_class(mi: types.ModuleType) -> type:
                 found = u[3] * a_max < area0
                 if self.visibility:
                     v_o = integrand.visibility(
-                        ops, geo, tab, s, t, surf.height, view, u[2], need=found
+                        ops, geo, tab, s, t, surf.height, view, u[2], need=found, mip=self.mip
                     )
                     found &= v_o > 0.0
                 return k + 1, found, s, t, u[2]
