@@ -17,8 +17,11 @@ server's core. The server's CPU per submission is read from /proc over the timed
 ``--baseline REV``: the same measurement, alternated round by round, against the server of
 git revision ``REV`` (its source exported to a temporary folder and put first on
 ``PYTHONPATH``; same virtual environment), so that before and after come from one run.
-``--rounds N``: rounds of (baseline, this tree). ``--profile FILE``: a ``py-spy`` profile
-(speedscope JSON) of this tree's server during its first timed burst (``pip install py-spy``).
+``--rounds N``: rounds of (baseline, this tree). ``--history N``: the store holds N earlier
+jobs (half succeeded, the rest failed or cancelled) before the burst, as a server that has
+run for a while does; the default 0 starts from an empty store. ``--profile FILE``: a
+``py-spy`` profile (speedscope JSON) of this tree's server during its first timed burst
+(``pip install py-spy``).
 
 Run: ``.venv/bin/python benchmarks/bench_submit.py [--clients 20] [--per-client 50]
 [--warmup 0] [--pin] [--baseline REV --rounds 3]``
@@ -27,9 +30,11 @@ Run: ``.venv/bin/python benchmarks/bench_submit.py [--clients 20] [--per-client 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import platform
 import shutil
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -37,6 +42,7 @@ import tarfile
 import tempfile
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
@@ -107,6 +113,23 @@ def _export(rev: str) -> Path:
     return out
 
 
+def _fill_history(db: Path, n: int) -> None:
+    """``n`` finished jobs of distinct specs in the job table, written by SQLite directly
+    (seconds, not the minutes ``n`` submissions would take)."""
+    states = ("succeeded", "failed", "succeeded", "cancelled")
+    with sqlite3.connect(db, timeout=60) as conn:
+        start = conn.execute("SELECT COALESCE(MAX(seq), 0) FROM jobs").fetchone()[0]
+        conn.executemany(
+            "INSERT INTO jobs (id, seq, kind, seed, spec_hash, spec, state, created_at, "
+            "updated_at) VALUES (?, ?, 'render', ?, ?, '{}', ?, 0, 0)",
+            (
+                (uuid.uuid4().hex, start + i + 1, i, hashlib.sha256(b"%d" % i).hexdigest(),
+                 states[i % 4])
+                for i in range(n)
+            ),
+        )  # fmt: skip
+
+
 def burst(
     a: argparse.Namespace,
     arm: str,
@@ -118,6 +141,8 @@ def burst(
     cpus = a.server_cpus if a.pin else None
     with served(http_workers=a.http_workers, env_extra=env_extra, cpus=cpus) as server:
         url, proc = server.url, server.proc
+        if a.history:
+            _fill_history(Path(server.data_dir) / "jobs.sqlite3", a.history)
         latencies: list[float] = []
         lock = threading.Lock()
         start: dict[str, float] = {}
@@ -189,6 +214,7 @@ def main() -> None:
     ap.add_argument("--client-cpus", default="0", help="CPU list of this client")
     ap.add_argument("--baseline", metavar="REV", help="also measure git revision REV's server")
     ap.add_argument("--rounds", type=int, default=1, help="rounds of (baseline, this tree)")
+    ap.add_argument("--history", type=int, default=0, help="earlier jobs in the store")
     ap.add_argument("--profile", metavar="FILE", help="py-spy profile of this tree's server")
     a = ap.parse_args()
     if a.pin:
@@ -213,7 +239,7 @@ def main() -> None:
             shutil.rmtree(old, ignore_errors=True)
     print(
         f"{a.clients} clients x {a.per_client} timed submissions, warmup {a.warmup}, "
-        f"http workers {a.http_workers}, "
+        f"http workers {a.http_workers}, {a.history} earlier jobs in the store, "
         + (f"server on CPU {a.server_cpus}, client on CPU {a.client_cpus}" if a.pin else "unpinned")
         + f", {platform.node()}, {os.cpu_count()} CPUs"
     )

@@ -74,7 +74,8 @@ def test02_succeeded_with_hash_among_many_succeeded_jobs(tmp_path: Path) -> None
     # Two matching rows cost a few hundred instructions; a walk of 2,000 rows costs tens
     # of thousands (several hundred calls).
     assert steps < 20, steps
-    assert jobs.succeeded_with_hash("h7", exclude=[found.id]).id == f"{7:032x}"  # type: ignore[union-attr]
+    older = jobs.succeeded_with_hash("h7", exclude=[found.id])
+    assert older is not None and older.id == f"{7:032x}"
 
 
 def test03_an_older_database_gains_the_seq_index(tmp_path: Path) -> None:
