@@ -14,8 +14,9 @@ Then the extrapolation for the fabric paper's dataset (Chen et al. 2024, Sec. 5.
 materials x 3.2 M queries x 2,048 samples; the ``paper`` preset's 3,276,800 queries; 165 h
 on the authors' machine) on N nodes of this machine's size, at Ray's measured rate per node,
 assuming linear scaling. What bounds that assumption is measured too: the job's own thread
-stores every shard (pickle, SHA-256, CAS write, SQLite record; the npz artifact again), so
-the driver sustains at most ``1 / (seconds per shard)`` shards per second.
+stores every shard (SHA-256, CAS write with fsync, SQLite record), so the driver sustains
+at most ``1 / (seconds per shard)`` shards per second. ``--driver-only`` measures just that,
+for the earlier path (the pickled result stored too) and the current one.
 
 Run: ``.venv/bin/python benchmarks/bench_ray.py [--queries 20480] [--shard-queries 4096]
 [--repeats 3] [--cpus 2]``
@@ -73,9 +74,13 @@ def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> d
     return stats
 
 
-def driver_seconds_per_shard(settings: Settings, shard_queries: int, samples: int) -> float:
-    """The job thread's own cost of one finished fabric shard: both store writes and the
-    shard record, for a result of the real size (random bytes: incompressible)."""
+def driver_seconds_per_shard(
+    settings: Settings, shard_queries: int, samples: int, *, twice: bool = False
+) -> float:
+    """The job thread's own cost of one finished fabric shard, for a result of the real
+    size (random bytes: incompressible): its npz artifact written to the store and the
+    shard record (``generate.fabric`` through ``map_artifact_shards``). ``twice``: the
+    earlier path, which also stored the pickled result (``map_shards``) beside the npz."""
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     job, _ = submit(
         {"kind": "generate.fabric", "seed": 1, "params": {"preset": "small", "samples": samples}},
@@ -85,13 +90,51 @@ def driver_seconds_per_shard(settings: Settings, shard_queries: int, samples: in
     # material int32, centre 2 x f32, size f32, wi/wo 3 x f32, value/stderr 4 x f32
     npz = os.urandom(shard_queries * 4 * (1 + 2 + 1 + 3 + 3 + 4 + 4))
     n = 40
+    tag = b"old" if twice else b"new"
     t0 = time.perf_counter()
     for i in range(n):
-        info = store.put_bytes(pickle.dumps({"npz": npz + i.to_bytes(4), "seconds": 1.0}))
-        jobs.record_shard(job.id, f"shard-{i:04d}", info.digest)
-        store.put_bytes(npz + i.to_bytes(4))
+        data = npz + tag + i.to_bytes(4)
+        if twice:
+            info = store.put_bytes(pickle.dumps({"npz": data, "seconds": 1.0}))
+            jobs.record_shard(job.id, f"shard-{i:04d}", info.digest)
+            store.put_bytes(data)
+        else:
+            info = store.put_bytes(data)
+            jobs.record_shard(job.id, f"shard-{i:04d}.npz", info.digest)
     jobs.close()
     return (time.perf_counter() - t0) / n
+
+
+def driver_only(args: argparse.Namespace) -> None:
+    """``--driver-only``: the job thread's cost per shard, the earlier path (stored twice)
+    and this one (once), alternated ``--repeats`` times, and the node count at which one
+    job's thread saturates at ``--node-rate`` samples/s per node."""
+    costs: dict[str, list[float]] = {"twice (before)": [], "once (now)": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Settings.from_env(dict(os.environ)).with_(data_dir=Path(tmp) / "data")
+        for _ in range(args.repeats):
+            for name, twice in (("twice (before)", True), ("once (now)", False)):
+                costs[name].append(
+                    driver_seconds_per_shard(
+                        settings, args.shard_queries, args.samples, twice=twice
+                    )
+                )
+    shard_samples = args.shard_queries * PAPER_SAMPLES
+    print(f"| shard stored | ms per {args.shard_queries}-query shard (median, range) | "
+          f"shards/s | nodes at {args.node_rate / 1e6:.0f} M samples/s each |")  # fmt: skip
+    print("| --- | --- | --- | --- |")
+    for name, v in costs.items():
+        med = statistics.median(v)
+        nodes = shard_samples / med / args.node_rate
+        print(
+            f"| {name} | {med * 1e3:.2f} ({min(v) * 1e3:.2f}-{max(v) * 1e3:.2f}) | "
+            f"{1 / med:.0f} | {nodes:.0f} |"
+        )
+    print(f"load {os.getloadavg()[0]:.1f}; {os.cpu_count()} cores")
+    print(
+        f"reproduce: .venv/bin/python benchmarks/bench_ray.py --driver-only --shard-queries "
+        f"{args.shard_queries} --repeats {args.repeats} --node-rate {args.node_rate:g}"
+    )
 
 
 def main() -> None:
@@ -102,7 +145,14 @@ def main() -> None:
     ap.add_argument("--shard-queries", type=int, default=4096)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cpus", type=int, default=2, help="pool processes = Ray CPUs")
+    ap.add_argument("--driver-only", action="store_true", help="only the job thread's cost")
+    ap.add_argument(
+        "--node-rate", type=float, default=8e6, help="samples/s per node (--driver-only)"
+    )
     args = ap.parse_args()
+    if args.driver_only:
+        driver_only(args)
+        return
     # Token auth as a deployment runs it, with a token of this run only (Ray would otherwise
     # write one under ~/.ray for a new local cluster). Set before Ray is imported.
     os.environ.setdefault("RAY_AUTH_MODE", "token")

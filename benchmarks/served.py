@@ -37,10 +37,15 @@ class Served:
 
 @contextmanager
 def served(
-    *, http_workers: int = 1, env_extra: dict[str, str] | None = None, timeout: float = 60.0
+    *,
+    http_workers: int = 1,
+    env_extra: dict[str, str] | None = None,
+    timeout: float = 60.0,
+    cpus: str | None = None,
 ) -> Iterator[Served]:
     """``matforge serve --workers 0`` until ``/api/health`` answers 200 (``SystemExit``
-    after ``timeout`` seconds); SIGTERM to its process group on exit."""
+    after ``timeout`` seconds); SIGTERM to its process group on exit. ``cpus``: a
+    ``taskset -c`` CPU list the server (and every process it starts) is pinned to."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
@@ -49,6 +54,8 @@ def served(
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as data:
         args = [exe, "serve", "--host", "127.0.0.1", "--port", str(port), "--workers", "0",
                 "--http-workers", str(http_workers), "--data-dir", data]  # fmt: skip
+        if cpus is not None:
+            args = ["taskset", "-c", cpus, *args]  # taskset execs: the pid is the server's
         proc = subprocess.Popen(
             args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             start_new_session=True,

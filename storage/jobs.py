@@ -13,6 +13,7 @@ re-queues running jobs whose lease ran out, up to ``max_attempts``, then fails t
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -32,7 +33,7 @@ from storage.job_records import (
     HeartbeatStatus,
     Job,
 )
-from storage.write_lock import write_lock
+from storage.write_lock import WriteLock, write_lock
 
 __all__ = ["FINAL_STATES", "STATES", "ArtifactRecord", "HeartbeatStatus", "Job", "JobStore"]
 
@@ -61,6 +62,7 @@ CREATE TABLE IF NOT EXISTS jobs (
 );
 CREATE INDEX IF NOT EXISTS jobs_state_seq ON jobs(state, seq);
 CREATE INDEX IF NOT EXISTS jobs_hash ON jobs(spec_hash, state);
+CREATE INDEX IF NOT EXISTS jobs_seq ON jobs(seq);
 CREATE TABLE IF NOT EXISTS artifacts (
     job_id TEXT NOT NULL REFERENCES jobs(id),
     name TEXT NOT NULL,
@@ -122,6 +124,7 @@ class JobStore(JobListing):
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._busy_ms = int(busy_timeout_s * 1000)
         self._local = threading.local()
+        self._lock: tuple[int, WriteLock] | None = None  # (pid, this process's lock)
         self._conn().executescript(_SCHEMA)
 
     # -- connections ---------------------------------------------------------------------
@@ -149,7 +152,7 @@ class JobStore(JobListing):
         # handler, whose growing sleeps (up to 100 ms) made the tail latency of concurrent
         # submissions ten times the median (storage.write_lock).
         db = self._conn()
-        with write_lock(self.path).hold():
+        with self._write_lock().hold():
             db.execute("BEGIN IMMEDIATE")
             try:
                 yield db
@@ -158,6 +161,14 @@ class JobStore(JobListing):
                 raise
             else:
                 db.execute("COMMIT")
+
+    def _write_lock(self) -> WriteLock:
+        """This process's :func:`storage.write_lock.write_lock` of the database, looked up
+        once per process (the look-up resolves the path: a few system calls per write)."""
+        pid = os.getpid()
+        if self._lock is None or self._lock[0] != pid:
+            self._lock = (pid, write_lock(self.path))
+        return self._lock[1]
 
     # -- reading -------------------------------------------------------------------------
     def _row_to_job(self, row: sqlite3.Row, with_artifacts: bool = True) -> Job:
@@ -177,11 +188,15 @@ class JobStore(JobListing):
 
     def succeeded_with_hash(self, spec_hash: str, exclude: Collection[str] = ()) -> Job | None:
         """The newest succeeded job of the spec whose canonical hash is ``spec_hash`` (what
-        resubmitting that spec would return), or ``None``; jobs in ``exclude`` are skipped."""
+        resubmitting that spec would return), or ``None``; jobs in ``exclude`` are skipped.
+
+        By the hash index: left to itself, SQLite walks ``jobs_state_seq`` (no sort needed)
+        through every succeeded job, 40 ms per call at 100,000 jobs."""
         row = (
             self._conn()
             .execute(
-                f"SELECT {_JOB_COLS} FROM jobs WHERE spec_hash=? AND state='succeeded'"
+                f"SELECT {_JOB_COLS} FROM jobs INDEXED BY jobs_hash "
+                "WHERE spec_hash=? AND state='succeeded'"
                 f"{_not_in('id', exclude)} ORDER BY seq DESC LIMIT 1",
                 (spec_hash, *exclude),
             )
@@ -317,6 +332,7 @@ class JobStore(JobListing):
                 existing = False
             if not existing:
                 job_id = uuid.uuid4().hex
+                # By the index on seq (without it: a scan of every job, 11 ms at 100,000).
                 seq = db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs").fetchone()[0]
                 db.execute(
                     "INSERT INTO jobs (id, seq, kind, name, seed, spec_hash, spec, state, "

@@ -32,8 +32,9 @@ Artifacts:
   from run to run (it holds timings); all others are byte-deterministic for a spec.
 
 Parallelism and resumption: one shard per ``shard_queries`` queries of a material, through
-``ctx.map_shards`` in batches; a shard returns its finished ``.npz`` bytes, so a crash loses
-at most the shards in flight, and memory holds one batch at a time. Progress: per material
+``ctx.map_artifact_shards`` in batches; a shard returns its finished ``.npz`` bytes, stored
+once as its artifact (which is also its shard record), so a crash loses at most the shards
+in flight, and memory holds one batch at a time. Progress: per material
 while the maps are written (0 - 0.02), per finished shard in every batch (0.02 - 0.95),
 then the preview; each report also honours a cancel.
 
@@ -87,7 +88,7 @@ from storage.formats.npz import npz_bytes
 if TYPE_CHECKING:
     from jobapi.context import JobContext
 
-#: Shards handed to the executor per ``map_shards`` call (bounds the memory held).
+#: Shards handed to the executor per ``map_artifact_shards`` call (bounds the items held).
 BATCH_SHARDS = 32
 
 #: The params model, presets and plan live in :mod:`generators.fabric.params`; they are
@@ -208,9 +209,8 @@ def _queries(task: ShardTask) -> Any:
     )  # fmt: skip
 
 
-def estimate_shard(task: ShardTask) -> dict[str, Any]:
-    """Shard function: design and estimate the queries; ``{"npz": bytes, "seconds": s}``."""
-    started = time.perf_counter()
+def estimate_shard(task: ShardTask) -> bytes:
+    """Shard function: design and estimate the queries; the shard's ``.npz`` bytes."""
     q = _queries(task)
     # Store float32 and estimate at exactly the stored values.
     centre, size = q.centre.astype(np.float32), q.size.astype(np.float32)
@@ -224,7 +224,7 @@ def estimate_shard(task: ShardTask) -> dict[str, Any]:
         replicates=REPLICATES,
         backend=task.backend,  # type: ignore[arg-type]
     )
-    data = npz_bytes(
+    return npz_bytes(
         {
             "material": np.full(task.count, task.material, dtype=np.int32),
             "center": centre,
@@ -235,7 +235,6 @@ def estimate_shard(task: ShardTask) -> dict[str, Any]:
             "stderr": est.stderr.astype(np.float32),
         }
     )
-    return {"npz": data, "seconds": time.perf_counter() - started}
 
 
 def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
@@ -291,21 +290,20 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
             }
         )
     ctx.progress(0.02, f"{len(planned)} material(s), {len(tasks)} shard(s)")
-    shard_seconds = 0.0
     for lo in range(0, len(tasks), BATCH_SHARDS):
         batch = tasks[lo : lo + BATCH_SHARDS]
         hi = lo + len(batch)
-        results = ctx.map_shards(
+        # Each shard is stored once, as its npz artifact, which is also its shard record
+        # (a re-run after a crash registers the stored shards again instead of computing
+        # them); no pickled copy of the result beside it.
+        ctx.map_artifact_shards(
             estimate_shard,
             batch,
-            keys=[f"shard-{i:04d}" for i in range(lo, hi)],
+            [f"shard-{i:04d}.npz" for i in range(lo, hi)],
+            media_type="application/x-npz",
             label="shard",
             progress_range=(0.02 + 0.93 * lo / len(tasks), 0.02 + 0.93 * hi / len(tasks)),
         )
-        for i, res in enumerate(results, start=lo):
-            ctx.put_bytes(f"shard-{i:04d}.npz", res["npz"], "application/x-npz")
-            shard_seconds += res["seconds"]
-        del results
     ctx.progress(0.95, "preview")
     first_of_pattern = [m for m in planned if m.texture_set == 0 and m.shading_set == 0]
     ctx.put_bytes(
@@ -340,7 +338,6 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
             "samples": samples,
             "seconds": round(seconds, 3),
             "samples_per_second": round(samples / max(seconds, 1e-9), 1),
-            "shard_seconds": round(shard_seconds, 3),
             "backend": cfg.backend,
             "note": "timings vary from run to run; the only non-deterministic artifact",
         },

@@ -7,7 +7,7 @@ import logging
 import re
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
+from fastapi import APIRouter, HTTPException, Query, Request, Response
 from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
@@ -17,7 +17,7 @@ from jobapi.errors import SpecError
 from service.deps import AuthDep, JobId, JobsDep, SettingsDep, StoreDep
 from service.job_columns import job_values, metric_means
 from service.job_list import JobListDep
-from service.parse_threads import off_loop
+from service.parse_threads import SMALL_BYTES, off_loop
 from service.results import job_rows
 from service.schemas import ArtifactPublic, ErrorPublic, JobListItem, JobPublic
 from service.spec_text import parse_json_text, parse_spec_text
@@ -83,13 +83,10 @@ def parse_spec_body(raw: bytes, content_type: str) -> Any:
     return parse_json_text(text, "body")
 
 
-async def spec_body(request: Request) -> Any:
-    """The parsed request body of a spec: JSON, or YAML when the content type says so.
-
-    A body that does not parse is a :class:`SpecError` (422) like any other bad spec. The
-    parsing runs in a worker thread (:func:`service.parse_threads.off_loop`), never on the
-    event loop.
-    """
+async def spec_bytes(request: Request) -> tuple[bytes, str]:
+    """The request body of a spec, unparsed, and its content type: 415 for a type that is
+    not a spec's, 413 beyond :data:`MAX_SPEC_BYTES` (from the declared length before the
+    body is read)."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if content_type not in SPEC_TYPES:
         # A cross-site form can POST text/plain without a CORS preflight: never a spec.
@@ -105,7 +102,7 @@ async def spec_body(request: Request) -> Any:
     raw = await request.body()
     if len(raw) > MAX_SPEC_BYTES:
         raise TooLargeError(_too_large(len(raw)))
-    return await off_loop(parse_spec_body, raw, content_type, size=len(raw))
+    return raw, content_type
 
 
 def _too_large(size: int) -> str:
@@ -115,7 +112,6 @@ def _too_large(size: int) -> str:
     )
 
 
-SpecBody = Annotated[Any, Depends(spec_body)]
 _ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorPublic, "description": "no such job"},
     422: {
@@ -161,7 +157,6 @@ _SPEC_422: dict[str, Any] = {
     },
 )
 async def create_job(
-    raw: SpecBody,
     request: Request,
     response: Response,
     jobs: JobsDep,
@@ -171,20 +166,37 @@ async def create_job(
     """Validate a spec and queue it (201). Every `job:`/`sha256:` reference in the params
     must exist. Resubmitting an identical spec returns the existing job (200) unless
     `"force": true`."""
-    # Validating a large spec costs CPU in C calls that hold the GIL: in the parse thread,
-    # so that one at most competes with the event loop. Queueing waits on SQLite more than
-    # it computes: in the (larger) thread pool, where submissions overlap their waits.
-    size = len(await request.body())  # read already (spec_body), kept by the request
+    raw, content_type = await spec_bytes(request)
     # The workers' Mitsuba variant, part of the identity of the kinds whose bytes depend on
     # it (resolved by `matforge serve` at start-up; else probed once per process).
     variant = settings.variant
     if variant == "auto":
         variant = await run_in_threadpool(identity_variant, settings)
-    spec = await off_loop(prepare_submission, raw, jobs, store, variant, size=size)
-    job, created = await run_in_threadpool(queue_spec, spec, jobs, store)
+    if len(raw) <= SMALL_BYTES:
+        # Every real spec: parsed, validated and queued in one trip to the thread pool.
+        # Each trip is a hand-over of the GIL and a wake-up that the scheduler may give
+        # to another process first; three of them were a third of the web process's CPU
+        # per submission, and more of its latency on a busy machine.
+        job, created = await run_in_threadpool(submit_body, raw, content_type, jobs, store, variant)
+    else:
+        # A large spec costs CPU in C calls that hold the GIL: parsed and validated in
+        # the parse thread, so that one at most competes with the event loop; queued in
+        # the (larger) thread pool, where submissions overlap their waits on SQLite.
+        parsed = await off_loop(parse_spec_body, raw, content_type, size=len(raw))
+        spec = await off_loop(prepare_submission, parsed, jobs, store, variant, size=len(raw))
+        job, created = await run_in_threadpool(queue_spec, spec, jobs, store)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/api/jobs/{job.id}"
     return job.document()
+
+
+def submit_body(
+    raw: bytes, content_type: str, jobs: JobStore, store: ArtifactStore, variant: str | None
+) -> tuple[Job, bool]:
+    """Parse, validate and queue a spec body (in a worker thread); ``(job, created)``.
+    Raises :class:`SpecError`."""
+    parsed = parse_spec_body(raw, content_type)
+    return queue_spec(prepare_submission(parsed, jobs, store, variant), jobs, store)
 
 
 @router.get("", response_model=list[JobListItem], summary="List jobs, newest first")

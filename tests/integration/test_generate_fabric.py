@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import io
 import json
-import pickle
 from typing import Any
 
 import numpy as np
@@ -128,8 +127,9 @@ def test03_recorded_shard_is_reused(settings: Settings) -> None:
     job, created = submit(spec(params), jobs, store)
     assert created
     sentinel = npz_bytes({"sentinel": np.array([7])})
-    result = {"npz": sentinel, "seconds": 0.0}
-    jobs.record_shard(job.id, "shard-0001", store.put_bytes(pickle.dumps(result)).digest)
+    # A shard is recorded under its artifact name, with the npz bytes themselves (stored
+    # once: no pickled result beside them).
+    jobs.record_shard(job.id, "shard-0001.npz", store.put_bytes(sentinel).digest)
     done = run_in_process(spec(params), settings)
     assert done.id == job.id and done.state == "succeeded", done.error
     assert read(settings, done, "shard-0001.npz") == sentinel
@@ -232,3 +232,17 @@ def test07_scene_driven_design(settings: Settings) -> None:
         assert np.all(np.isfinite(got["value"]))
     again = run_in_process(spec(params, force=True), settings)
     assert digests(again) == digests(job)
+
+
+def test07_each_shard_is_stored_once(settings: Settings) -> None:
+    """The store holds the job's artifacts and its manifest and nothing else: no pickled
+    copy of a shard's result beside its npz artifact (before, every shard was stored
+    twice). Reference: the store's own listing against the job's records."""
+    params = {**PARAMS, "patterns": ["plain"], "backend": "numpy"}
+    job = run_in_process(spec(params), settings)
+    assert job.state == "succeeded", job.error
+    store = ArtifactStore(settings.store_dir)
+    stored = {digest for digest, _ in store.iter_objects()}
+    expected = {a.digest for a in job.artifacts} | {job.manifest_digest}
+    assert stored == expected, stored - expected
+    assert sum(a.name.endswith(".npz") for a in job.artifacts) == 2  # two shards
