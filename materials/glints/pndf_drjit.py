@@ -13,6 +13,13 @@ Differences from the numpy reference, both small: a tile's footprint mass is a 2
 Gauss-Legendre product rule (the tile is at most half a standard deviation wide, so the
 rule's error is below 1e-5) instead of the 8-node quadrature, and arithmetic is float32.
 
+``lookup="paper"`` (:func:`materials.glints.footprint.paper_tiles`, the paper's descent) is
+traced as one loop over the finest tiles of the support box: each finds its coarsest
+covered ancestor (levels unrolled), the ancestor's lower-left finest tile reads it and its
+other finest tiles add nothing, and an uncovered tile reads itself. So it reads the same
+tiles as the numpy descent but does not visit fewer; its masses are exact in y (normal CDF)
+and 4-node Gauss-Legendre in x, since its tiles reach 2 standard deviations.
+
 Every argument named ``mi`` is the module of :func:`materials.backend.load_mitsuba` with a
 vectorised variant; positions are texels of the map (or example), ``q`` the query's
 projected normal.
@@ -27,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from materials.glints.footprint import FLATNESS, SUPPORT_SIGMAS
+from materials.glints.footprint import COVER_SIGMAS, FLATNESS, LOOKUPS, SUPPORT_SIGMAS
 from materials.glints.lobes import Lobes
 
 #: Gauss-Legendre nodes of the 2 x 2 rule on [-1, 1].
@@ -217,6 +224,28 @@ def lobes_pndf(
     return lobes.weight * acc
 
 
+#: Gauss-Legendre nodes and weights on [-1, 1] of the paper lookup's tile masses.
+_GL4 = tuple(tuple(float(v) for v in a) for a in np.polynomial.legendre.leggauss(4))
+
+
+def _box_mass(dr: Any, cov: Sym2, ox: Any, oy: Any, side: Any) -> Any:
+    """``int N(u; 0, cov)`` over ``[ox, ox + side] x [oy, oy + side]``: exact in y (normal
+    CDF of y given x), 4-node Gauss-Legendre in x."""
+    sx = dr.sqrt(cov.a)
+    beta = cov.b / cov.a
+    sd = dr.sqrt(dr.maximum(cov.d - beta * cov.b, 1e-30))
+    inv_sd = dr.rcp(sd) * (1.0 / math.sqrt(2.0))
+    norm = dr.rcp(sx * math.sqrt(2.0 * math.pi))
+    half = 0.5 * side
+    mass = dr.zeros(type(ox))
+    for node, weight in zip(*_GL4, strict=True):
+        x = ox + half * (1.0 + node)
+        my = beta * x
+        band = dr.erf((oy + side - my) * inv_sd) - dr.erf((oy - my) * inv_sd)
+        mass += weight * norm * dr.exp(-0.5 * x * x / cov.a) * (0.5 * band)
+    return half * mass
+
+
 def tiny_pndf(
     mi: types.ModuleType,
     maps: JitMaps,
@@ -228,12 +257,16 @@ def tiny_pndf(
     active: Any = True,
     *,
     max_items: int = 1 << 16,
+    lookup: str = "flat",
 ) -> Any:
     """The tiny-example P-NDF of a tiled example under ``transform = (A, o)``
     (:class:`~materials.glints.surface.Transform`): footprint ``N(c, cov)`` in global
     texels, query ``q`` global; the twin of :func:`materials.glints.footprint.tiny_pndf`
-    for the tiled distribution."""
+    for the tiled distribution, with its ``lookup`` rule."""
     import drjit as dr
+
+    if lookup not in LOOKUPS:
+        raise ValueError(f"lookup must be one of {LOOKUPS}, got {lookup!r}")
 
     a_mat, off = (np.asarray(x, dtype=np.float64) for x in transform)
     ai = np.linalg.inv(a_mat)
@@ -258,8 +291,13 @@ def tiny_pndf(
     lam = half_tr - dr.sqrt(dr.maximum(dr.square(0.5 * (cl.a - cl.d)) + cl.b * cl.b, 0.0))
     target = FLATNESS * dr.sqrt(dr.maximum(lam, 1e-30))
     level = dr.minimum(mi.Int32(dr.floor(dr.log2(dr.maximum(target, 1e-30)))) - 1, maps.levels - 1)
-    use_maps = mi.Bool(active) & (target >= 2.0)
-    use_lobes = mi.Bool(active) & (target < 2.0)
+    if lookup == "paper":  # footprint_pndf.paper_uses_lobes
+        small = 2.0 * COVER_SIGMAS * dr.sqrt(dr.maximum(lam, 0.0)) < 2.0
+        level = dr.zeros(mi.Int32)
+    else:
+        small = target < 2.0
+    use_maps = mi.Bool(active) & ~small
+    use_lobes = mi.Bool(active) & small
 
     from_lobes = lobes_pndf(mi, lobes, (clx, cly), cl, (qlx, qly), use_lobes, max_items=max_items)
 
@@ -291,6 +329,45 @@ def tiny_pndf(
     inv_l = cl.inverse(dr)
     norm_l = dr.rcp(2.0 * math.pi * dr.sqrt(cl.det()))
 
+    def paper_body(i: Any, acc: Any) -> tuple[Any, Any]:
+        tx = t0x + i % nx
+        ty = t0y + i // nx
+        # The coarsest covered ancestor (covered is monotone: children of a covered tile
+        # are covered), searched from the top; -1: the finest tile is not covered.
+        found = mi.Int32(-1)
+        ax, ay = mi.Int32(tx), mi.Int32(ty)
+        k2 = COVER_SIGMAS * COVER_SIGMAS
+        for m in range(maps.levels - 1, 0, -1):
+            sm = float(2 << m)
+            cx_m = mi.Int32(dr.floor(mi.Float(tx) / float(1 << m)))
+            cy_m = mi.Int32(dr.floor(mi.Float(ty) / float(1 << m)))
+            ox = mi.Float(cx_m) * sm - clx
+            oy = mi.Float(cy_m) * sm - cly
+            inside = mi.Bool(True)
+            for ex_ in (0.0, sm):
+                for ey_ in (0.0, sm):
+                    inside &= inv_l.quad(ox + ex_, oy + ey_) <= k2
+            take = (found < 0) & inside
+            found = dr.select(take, m, found)
+            ax = dr.select(take, cx_m, ax)
+            ay = dr.select(take, cy_m, ay)
+        lv_t = dr.maximum(found, 0)
+        anchor = (tx == ax * (mi.Int32(1) << lv_t)) & (ty == ay * (mi.Int32(1) << lv_t))
+        side_t = dr.exp2(mi.Float(lv_t + 1))
+        mass = _box_mass(
+            dr, cl, mi.Float(ax) * side_t - clx, mi.Float(ay) * side_t - cly, side_t
+        )
+        r_t = mi.Int32(maps.n) // mi.Int32(side_t)
+        wx = ax - r_t * mi.Int32(dr.floor(mi.Float(ax) / mi.Float(r_t)))
+        wy = ay - r_t * mi.Int32(dr.floor(mi.Float(ay) / mi.Float(r_t)))
+        read = use_maps & ((found < 0) | anchor)
+        base_t = dr.gather(mi.UInt32, maps.offsets, mi.UInt32(lv_t), read)
+        img = base_t + mi.UInt32((wy * r_t + wx) * (big_r * big_r))
+        value = dr.zeros(mi.Float)
+        for idx, w in corners:
+            value += w * dr.gather(mi.Float, maps.data, img + idx, read)
+        return i + 1, acc + dr.select(read, mass * value, 0.0)
+
     def body(i: Any, acc: Any) -> tuple[Any, Any]:
         tx = t0x + i % nx
         ty = t0y + i // nx
@@ -314,7 +391,7 @@ def tiny_pndf(
     _, acc = dr.while_loop(
         (mi.Int32(0), dr.zeros(mi.Float)),
         lambda i, acc: i < count,
-        body,
+        paper_body if lookup == "paper" else body,
         label="glint: tiles",
     )
     return det_a * dr.select(use_maps, acc, from_lobes)

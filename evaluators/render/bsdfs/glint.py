@@ -11,7 +11,8 @@ example's axes (x along dp/du, y along dp/dv: :func:`example_slopes`). ``D_P`` c
 from one of two evaluators of the same microstructure (:mod:`materials.glints.pndf_drjit`):
 
 - ``tiny_example``: the example's NDF maps at the footprint's level, or its lobes below the
-  finest tile;
+  finest tile (``lookup="flat"``); or the paper's descent over covered and partly covered
+  tiles (``lookup="paper"``);
 - ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map;
 - ``smooth_ggx``: no microstructure: a smooth anisotropic GGX NDF whose roughness
   ``(alpha_u, alpha_v)`` matches the microstructure's slopes (the cheapest rung of the glint
@@ -71,7 +72,8 @@ class GlintLayer:
     ``("dielectric", eta)``; ``alpha`` the matching GGX roughness (Smith G, sampling);
     ``fallback_texels`` the standard deviation (global texels) of the footprint used
     without ray differentials; ``alphas`` the smooth NDF's GGX ``(alpha_u, alpha_v)``
-    (smooth_ggx only).
+    (smooth_ggx only); ``lookup`` the tiny example's lookup rule (``"flat"`` or
+    ``"paper"``, :data:`materials.glints.footprint.LOOKUPS`).
     """
 
     method: str
@@ -83,6 +85,7 @@ class GlintLayer:
     alpha: float
     fallback_texels: float
     alphas: tuple[float, float] | None = None
+    lookup: str = "flat"
 
 
 _LAYERS: dict[str, tuple[GlintLayer, GlintLayer | None]] = {}
@@ -117,7 +120,8 @@ def layer_pndf(
         return lobes_pndf(mi, layer.lobes, cs, covs, q, active, max_items=MAX_ITEMS)
     assert layer.maps is not None
     return tiny_pndf(
-        mi, layer.maps, layer.lobes, layer.transform, c, cov, q, active, max_items=MAX_ITEMS
+        mi, layer.maps, layer.lobes, layer.transform, c, cov, q, active, max_items=MAX_ITEMS,
+        lookup=layer.lookup,
     )  # fmt: skip
 
 
