@@ -54,7 +54,7 @@ from evaluators.render.sources.common import inline_schema, register_material_so
 from jobapi.errors import FormatError, JobFailed
 from jobapi.params import JobRef, StrictModel
 from materials.glints.lobes import LOBE_BYTES, Lobes, make_lobes
-from materials.glints.pndf_drjit import jit_lobes, jit_maps
+from materials.glints.pndf_drjit import jit_lobes, jit_map_sampler, jit_maps
 from materials.glints.surface import Surface, export_normal_map
 from materials.microfacet import NAMED_CONDUCTORS
 from storage.formats.exr import read_exr
@@ -126,6 +126,13 @@ class GlintSpec(StrictModel):
         "descent: covered tiles at the coarsest level, partly covered finest tiles as they "
         "are, the lobes below the finest tile). Measured: 'paper' is 2.4-4.6x worse in "
         "P-NDF L1 at 1-2.5-texel footprints and equal above 4.",
+    )
+    sampling: Literal["ggx_mix", "pndf"] = Field(
+        default="ggx_mix",
+        description="How 'sample' draws directions: 'ggx_mix' (a GGX lobe of the surface's "
+        "roughness and a cosine lobe) or 'pndf' (the footprint's P-NDF itself, the paper's "
+        "lobes or the maps' tiles, 90 %, with the GGX/cosine mixture for the rest). 'pndf' "
+        "needs lookup 'flat'; smooth_ggx always uses 'ggx_mix'.",
     )
     clearcoat: CoatSpec | None = Field(default=None, description="Optional clearcoat layer.")
 
@@ -265,6 +272,7 @@ def make_layer(
     field: str,
     yan_rate: int = 1,
     lookup: str = "flat",
+    sampling: str = "ggx_mix",
 ) -> GlintLayer:
     """A :class:`GlintLayer` for ``method`` over ``surface``."""
     lobes: Lobes = data["lobes"]
@@ -291,6 +299,12 @@ def make_layer(
                 f"surface renders with method 'yan' (its Dr.Jit twin is not written yet)"
             )
         t = surface.dist.transform
+        if sampling == "pndf" and lookup != "flat":
+            raise JobFailed(
+                f"{field}.sampling: 'pndf' draws from the 'flat' lookup's P-NDF; use lookup "
+                f"'flat' or sampling 'ggx_mix'"
+            )
+        sampler = jit_map_sampler(mi, data["maps"], data["extent"]) if sampling == "pndf" else None
         return GlintLayer(
             method=method,
             lobes=jit_lobes(mi, lobes),
@@ -301,6 +315,8 @@ def make_layer(
             alpha=alpha,
             fallback_texels=fallback,
             lookup=lookup,
+            sampling=sampling,
+            sampler=sampler,
         )
     side = int(math.ceil(texels_per_uv))
     explicit = export_normal_map(surface, side, oversample=oversample)
@@ -314,6 +330,7 @@ def make_layer(
         fresnel=fresnel,
         alpha=alpha,
         fallback_texels=fallback,
+        sampling=sampling,
     )
 
 
@@ -335,7 +352,7 @@ def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
     base = make_layer(
         mi, data, surface, spec.method, ("conductor", eta, k),
         texels_per_uv=spec.texels_per_uv, oversample=spec.oversample, field="material.glint",
-        yan_rate=spec.yan_rate, lookup=spec.lookup,
+        yan_rate=spec.yan_rate, lookup=spec.lookup, sampling=spec.sampling,
     )  # fmt: skip
     coat = None
     if spec.clearcoat is not None:
