@@ -717,3 +717,256 @@ def tiny_sample(
     qx = r00 * qlx + r10 * qly + float(off[0])
     qy = r01 * qlx + r11 * qly + float(off[1])
     return qx, qy, total
+
+
+@dataclass(frozen=True)
+class JitPlacement:
+    """A stochastic distribution's table (:class:`~materials.glints.surface.Surface`'s
+    seeded instances, ``period x period`` cells of side ``spacing``) as Dr.Jit arrays, row
+    ``cy * period + cx``: jitter (cells), ``A^-1`` and ``A`` row-major, ``|det A|``."""
+
+    period: int
+    spacing: float
+    reach: float
+    n: int
+    arrays: tuple[Any, ...]  # jx, jy, i00, i01, i10, i11, a00, a01, a10, a11, det
+
+
+def jit_placement(mi: types.ModuleType, surface: Any) -> JitPlacement:
+    """Upload the table of a stochastic ``surface`` (:class:`materials.glints.surface.Surface`)."""
+    d = surface.dist
+    if d.kind != "stochastic":
+        raise ValueError("jit_placement needs a stochastic surface")
+    cols: list[list[float]] = [[] for _ in range(11)]
+    for row in surface._table:
+        for inst in row:
+            ai, a = inst.transform.inverse, inst.transform.a
+            vals = [*inst.centre, *ai.ravel(), *a.ravel(), inst.transform.density_scale]
+            for col, v in zip(cols, vals, strict=True):
+                col.append(float(v))
+    reach = 0.75 * surface.n * max(d.scale_range) + d.jitter * surface.spacing
+    return JitPlacement(
+        period=int(d.period),
+        spacing=float(surface.spacing),
+        reach=float(reach),
+        n=int(surface.n),
+        arrays=tuple(mi.Float(np.asarray(c, np.float32)) for c in cols),
+    )
+
+
+def stochastic_pndf(
+    mi: types.ModuleType,
+    maps: JitMaps,
+    lobes: JitLobes,
+    place: JitPlacement,
+    c: tuple[Any, Any],
+    cov: Sym2,
+    q: tuple[Any, Any],
+    active: Any = True,
+    *,
+    max_items: int = 1 << 16,
+) -> Any:
+    """The tiny-example P-NDF of a stochastic surface: the twin of
+    :func:`materials.glints.footprint.tiny_pndf` for ``stochastic`` distributions (the
+    ``flat`` lookup). For each instance near the footprint (a loop over table cells), the
+    footprint and query in its frame, its level by :func:`lod_level`'s rule, and its tiles
+    (or its finest tiles' lobes) that meet the support inside its square, each counted
+    when Fig. 3's rule gives the point (a tile's centre, a lobe's seed) to this instance (an
+    inner loop over the instances near that point)."""
+    import drjit as dr
+
+    n, per, sp = place.n, place.period, place.spacing
+    jx_a, jy_a, i00_a, i01_a, i10_a, i11_a, a00_a, a01_a, a10_a, a11_a, det_a = place.arrays
+    cx, cy = c
+    hx0 = SUPPORT_SIGMAS * dr.sqrt(cov.a)
+    hy0 = SUPPORT_SIGMAS * dr.sqrt(cov.d)
+    k0x = mi.Int32(dr.floor((cx - hx0 - place.reach) / sp))
+    k0y = mi.Int32(dr.floor((cy - hy0 - place.reach) / sp))
+    knx = mi.Int32(dr.floor((cx + hx0 + place.reach) / sp)) - k0x + 1
+    kny = mi.Int32(dr.floor((cy + hy0 + place.reach) / sp)) - k0y + 1
+    count = dr.select(mi.Bool(active), knx * kny, 0)
+
+    def inst(kx: Any, ky: Any, on: Any) -> tuple[Any, ...]:
+        row = mi.UInt32(_pmod(mi, dr, ky, per) * per + _pmod(mi, dr, kx, per))
+        g = [dr.gather(mi.Float, a, row, on) for a in place.arrays]
+        ox = (mi.Float(kx) + 0.5 + g[0]) * sp
+        oy = (mi.Float(ky) + 0.5 + g[1]) * sp
+        return (ox, oy, *g[2:])
+
+    def owns(px: Any, py: Any, kx: Any, ky: Any, on: Any) -> Any:
+        """Fig. 3: does instance ``(kx, ky)`` own global point ``(px, py)``?"""
+        gx, gy = dr.floor(px / sp), dr.floor(py / sp)
+        sub_x = (gx + (dr.floor((px / sp - gx) * 2.0) + 0.5) / 2.0) * sp
+        sub_y = (gy + (dr.floor((py / sp - gy) * 2.0) + 0.5) / 2.0) * sp
+        o0x = mi.Int32(dr.floor((px - place.reach) / sp))
+        o0y = mi.Int32(dr.floor((py - place.reach) / sp))
+        onx = mi.Int32(dr.floor((px + place.reach) / sp)) - o0x + 1
+        ocount = dr.select(on, onx * (mi.Int32(dr.floor((py + place.reach) / sp)) - o0y + 1), 0)
+
+        def obody(j: Any, bx: Any, by: Any, bd: Any) -> tuple[Any, ...]:
+            ox_, oy_ = o0x + j % onx, o0y + j // onx
+            ccx, ccy, i00, i01, i10, i11 = inst(ox_, oy_, on)[:6]
+            lx = i00 * (px - ccx) + i01 * (py - ccy) + 0.5 * n
+            ly = i10 * (px - ccx) + i11 * (py - ccy) + 0.5 * n
+            covers = (lx >= 0.0) & (lx < n) & (ly >= 0.0) & (ly < n)
+            d2 = dr.square(sub_x - ccx) + dr.square(sub_y - ccy)
+            take = covers & (d2 < bd)
+            return (
+                j + 1,
+                dr.select(take, ox_, bx),
+                dr.select(take, oy_, by),
+                dr.select(take, d2, bd),
+            )
+
+        _, bx, by, bd = dr.while_loop(
+            (mi.Int32(0), mi.Int32(0), mi.Int32(0), dr.full(mi.Float, float("inf"))),
+            lambda j, *rest: j < ocount, obody, label="glint: owner",
+        )  # fmt: skip
+        return on & dr.isfinite(bd) & (bx == kx) & (by == ky)
+
+    big_r = maps.resolution
+    cell = 2.0 * maps.extent / big_r
+    h2 = lobes.sigma_h**2
+    r2 = lobes.sigma_r**2
+    k2 = lobes.rate * lobes.rate
+    ux_a, uy_a, sx_a, sy_a, j00_a, j01_a, j10_a, j11_a = lobes.arrays
+
+    def body(i: Any, acc: Any) -> tuple[Any, Any]:
+        kx, ky = k0x + i % knx, k0y + i // knx
+        on = mi.Bool(active)
+        ccx, ccy, i00, i01, i10, i11, a00, a01, a10, a11, det = inst(kx, ky, on)
+        # Local frame: c_l = A^-1 (c - centre) + n / 2, Sigma_l = A^-1 Sigma A^-T, q_l = A^T q.
+        clx = i00 * (cx - ccx) + i01 * (cy - ccy) + 0.5 * n
+        cly = i10 * (cx - ccx) + i11 * (cy - ccy) + 0.5 * n
+        cl = Sym2(
+            i00 * i00 * cov.a + 2 * i00 * i01 * cov.b + i01 * i01 * cov.d,
+            i00 * i10 * cov.a + (i00 * i11 + i01 * i10) * cov.b + i01 * i11 * cov.d,
+            i10 * i10 * cov.a + 2 * i10 * i11 * cov.b + i11 * i11 * cov.d,
+        )
+        qlx = a00 * q[0] + a10 * q[1]
+        qly = a01 * q[0] + a11 * q[1]
+        hx = SUPPORT_SIGMAS * dr.sqrt(cl.a)
+        hy = SUPPORT_SIGMAS * dr.sqrt(cl.d)
+        on &= (clx + hx > 0.0) & (cly + hy > 0.0) & (clx - hx < n) & (cly - hy < n)
+        half_tr = 0.5 * (cl.a + cl.d)
+        lam = half_tr - dr.sqrt(dr.maximum(dr.square(0.5 * (cl.a - cl.d)) + cl.b * cl.b, 0.0))
+        target = FLATNESS * dr.sqrt(dr.maximum(lam, 1e-30))
+        level = dr.minimum(
+            mi.Int32(dr.floor(dr.log2(dr.maximum(target, 1e-30)))) - 1, maps.levels - 1
+        )
+        use_maps = on & (target >= 2.0)
+        lv = dr.maximum(level, 0)
+        side = dr.exp2(mi.Float(lv + 1))
+        r = mi.Int32(n) // mi.Int32(side)
+        reach = 5.0 * lobes.sigma_h
+        t0x = dr.maximum(mi.Int32(dr.floor((clx - hx - reach) / side)), 0)
+        t0y = dr.maximum(mi.Int32(dr.floor((cly - hy - reach) / side)), 0)
+        t1x = dr.minimum(mi.Int32(dr.floor((clx + hx + reach) / side)), r - 1)
+        t1y = dr.minimum(mi.Int32(dr.floor((cly + hy + reach) / side)), r - 1)
+        nx, ny = t1x - t0x + 1, t1y - t0y + 1
+        inv_l = cl.inverse(dr)
+        norm_l = dr.rcp(2.0 * math.pi * dr.sqrt(cl.det()))
+
+        def to_global(lx: Any, ly: Any) -> tuple[Any, Any]:
+            return (a00 * (lx - 0.5 * n) + a01 * (ly - 0.5 * n) + ccx,
+                    a10 * (lx - 0.5 * n) + a11 * (ly - 0.5 * n) + ccy)  # fmt: skip
+
+        # Maps: tiles of the level inside the instance's square.
+        base = dr.gather(mi.UInt32, maps.offsets, mi.UInt32(lv), use_maps)
+        px = (qlx + maps.extent) / cell - 0.5
+        py = (qly + maps.extent) / cell - 0.5
+        ix0, iy0 = mi.Int32(dr.floor(px)), mi.Int32(dr.floor(py))
+        fx, fy = px - dr.floor(px), py - dr.floor(py)
+        tcount = dr.select(use_maps & (nx > 0) & (ny > 0), dr.minimum(nx * ny, max_items), 0)
+
+        def tbody(t: Any, tacc: Any) -> tuple[Any, Any]:
+            tx, ty = t0x + t % nx, t0y + t // nx
+            ox = (mi.Float(tx) + 0.5) * side - clx
+            oy = (mi.Float(ty) + 0.5) * side - cly
+            gx_, gy_ = to_global((mi.Float(tx) + 0.5) * side, (mi.Float(ty) + 0.5) * side)
+            mine = owns(gx_, gy_, kx, ky, use_maps)
+            d = 0.5 * side * _GL2
+            mass = dr.zeros(mi.Float)
+            for sx in (-d, d):
+                for sy in (-d, d):
+                    mass += _gauss(dr, inv_l, norm_l, ox + sx, oy + sy)
+            mass *= 0.25 * side * side
+            img = base + mi.UInt32((ty * r + tx) * (big_r * big_r))
+            value = dr.zeros(mi.Float)
+            for dy in (0, 1):
+                for dx in (0, 1):
+                    ix, iy = ix0 + dx, iy0 + dy
+                    ok = mine & (ix >= 0) & (ix < big_r) & (iy >= 0) & (iy < big_r)
+                    w = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                    idx = mi.UInt32(dr.select(ok, iy * big_r + ix, 0))
+                    value += dr.select(ok, w, 0.0) * dr.gather(mi.Float, maps.data, img + idx, ok)
+            return t + 1, tacc + dr.select(mine, mass * value, 0.0)
+
+        _, from_maps = dr.while_loop(
+            (mi.Int32(0), dr.zeros(mi.Float)), lambda t, a: t < tcount, tbody,
+            label="glint: instance tiles",
+        )  # fmt: skip
+
+        # Lobes (below the finest tile): the texels of the finest tiles in the box.
+        use_lobes = on & (target < 2.0)
+        inv_p = inv_l
+        s_mat = Sym2(inv_p.a + 1.0 / h2, inv_p.b, inv_p.d + 1.0 / h2).inverse(dr)
+        ppx = inv_p.a * clx + inv_p.b * cly
+        ppy = inv_p.b * clx + inv_p.d * cly
+        bx = s_mat.a * ppx + s_mat.b * ppy
+        by = s_mat.b * ppx + s_mat.d * ppy
+        spatial = Sym2(cl.a + h2, cl.b, cl.d + h2)
+        sp_inv = spatial.inverse(dr)
+        sp_norm = dr.rcp(2.0 * math.pi * dr.sqrt(spatial.det()))
+        f0x = dr.maximum(mi.Int32(dr.floor((clx - hx - reach) / 2.0)), 0) * 2
+        f0y = dr.maximum(mi.Int32(dr.floor((cly - hy - reach) / 2.0)), 0) * 2
+        f1x = dr.minimum(mi.Int32(dr.floor((clx + hx + reach) / 2.0)), n // 2 - 1) * 2 + 1
+        f1y = dr.minimum(mi.Int32(dr.floor((cly + hy + reach) / 2.0)), n // 2 - 1) * 2 + 1
+        lnx, lny = f1x - f0x + 1, f1y - f0y + 1
+        lcount = dr.select(use_lobes & (lnx > 0) & (lny > 0), dr.minimum(lnx * lny, max_items), 0)
+
+        def lbody(t: Any, lacc: Any) -> tuple[Any, Any]:
+            tx, ty = f0x + t % lnx, f0y + t // lnx
+            base_l = mi.UInt32((ty * n + tx) * k2)
+            for j in range(k2):
+                idx = base_l + j
+                ux = dr.gather(mi.Float, ux_a, idx, use_lobes)
+                uy = dr.gather(mi.Float, uy_a, idx, use_lobes)
+                gx_, gy_ = to_global(ux, uy)
+                mine = owns(gx_, gy_, kx, ky, use_lobes)
+                g = _gauss(dr, sp_inv, sp_norm, clx - ux, cly - uy)
+                mx = s_mat.a * ux + s_mat.b * uy
+                my = s_mat.b * ux + s_mat.d * uy
+                dux = mx / h2 + bx - ux
+                duy = my / h2 + by - uy
+                j00 = dr.gather(mi.Float, j00_a, idx, use_lobes)
+                j01 = dr.gather(mi.Float, j01_a, idx, use_lobes)
+                j10 = dr.gather(mi.Float, j10_a, idx, use_lobes)
+                j11 = dr.gather(mi.Float, j11_a, idx, use_lobes)
+                mean_x = dr.gather(mi.Float, sx_a, idx, use_lobes) + j00 * dux + j01 * duy
+                mean_y = dr.gather(mi.Float, sy_a, idx, use_lobes) + j10 * dux + j11 * duy
+                t00 = j00 * s_mat.a + j01 * s_mat.b
+                t01 = j00 * s_mat.b + j01 * s_mat.d
+                t10 = j10 * s_mat.a + j11 * s_mat.b
+                t11 = j10 * s_mat.b + j11 * s_mat.d
+                ncov = Sym2(
+                    t00 * j00 + t01 * j01 + r2, t00 * j10 + t01 * j11, t10 * j10 + t11 * j11 + r2
+                )
+                ninv = ncov.inverse(dr)
+                nnorm = dr.rcp(2.0 * math.pi * dr.sqrt(ncov.det()))
+                dens = g * _gauss(dr, ninv, nnorm, qlx - mean_x, qly - mean_y)
+                lacc += dr.select(mine, dens, 0.0)
+            return t + 1, lacc
+
+        _, from_lobes = dr.while_loop(
+            (mi.Int32(0), dr.zeros(mi.Float)), lambda t, a: t < lcount, lbody,
+            label="glint: instance lobes",
+        )  # fmt: skip
+        part = dr.select(use_maps, from_maps, lobes.weight * from_lobes)
+        return i + 1, acc + dr.select(on, det * part, 0.0)
+
+    _, acc = dr.while_loop(
+        (mi.Int32(0), dr.zeros(mi.Float)), lambda i, acc: i < count, body,
+        label="glint: instances",
+    )  # fmt: skip
+    return acc

@@ -10,7 +10,8 @@ the footprint (which is the NDF per solid angle with ``int D cos_h dw = 1``), ``
 example's axes (x along dp/du, y along dp/dv: :func:`example_slopes`). ``D_P`` comes
 from one of two evaluators of the same microstructure (:mod:`materials.glints.pndf_drjit`):
 
-- ``tiny_example``: the example's NDF maps at the footprint's level, or its lobes below the
+- ``tiny_example`` (tiled or stochastic distributions): the example's NDF maps at the
+  footprint's level, or its lobes below the
   finest tile (``lookup="flat"``); or the paper's descent over covered and partly covered
   tiles (``lookup="paper"``);
 - ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map;
@@ -54,9 +55,11 @@ from materials.glints.pndf_drjit import (
     JitLobes,
     JitMaps,
     JitMapSampler,
+    JitPlacement,
     Sym2,
     lobes_pndf,
     lobes_sample,
+    stochastic_pndf,
     tiny_pndf,
     tiny_sample,
 )
@@ -89,7 +92,8 @@ class GlintLayer:
     (smooth_ggx only); ``lookup`` the tiny example's lookup rule (``"flat"`` or
     ``"paper"``, :data:`materials.glints.footprint.LOOKUPS`); ``sampling`` ``"ggx_mix"``
     or ``"pndf"`` (module docstring; read from the base layer), ``sampler`` the maps' patch
-    CDFs (``tiny_example`` with ``"pndf"`` only).
+    CDFs (``tiny_example`` with ``"pndf"`` only); ``placement`` a stochastic
+    distribution's table (``tiny_example`` on a stochastic surface; ``transform`` unused).
     """
 
     method: str
@@ -104,6 +108,7 @@ class GlintLayer:
     lookup: str = "flat"
     sampling: str = "ggx_mix"
     sampler: JitMapSampler | None = None
+    placement: JitPlacement | None = None
 
 
 _LAYERS: dict[str, tuple[GlintLayer, GlintLayer | None]] = {}
@@ -137,6 +142,10 @@ def layer_pndf(
         covs = Sym2(cov.a * (k * k), cov.b * (k * k), cov.d * (k * k))
         return lobes_pndf(mi, layer.lobes, cs, covs, q, active, max_items=MAX_ITEMS)
     assert layer.maps is not None
+    if layer.placement is not None:
+        return stochastic_pndf(
+            mi, layer.maps, layer.lobes, layer.placement, c, cov, q, active, max_items=MAX_ITEMS
+        )  # fmt: skip
     return tiny_pndf(
         mi, layer.maps, layer.lobes, layer.transform, c, cov, q, active, max_items=MAX_ITEMS,
         lookup=layer.lookup,
@@ -258,6 +267,8 @@ def _define_class(mi: types.ModuleType) -> type:
                 raise ValueError(f"glint: sampling must be one of {SAMPLINGS}")
             self.pndf_sampling = self.base.sampling == "pndf" and self.base.method != "smooth_ggx"
             if self.pndf_sampling and self.base.method == "tiny_example":
+                if self.base.placement is not None:
+                    raise ValueError("glint: sampling 'pndf' draws from tiled surfaces only")
                 if self.base.lookup != "flat" or self.base.sampler is None:
                     raise ValueError(
                         "glint: sampling 'pndf' draws from the 'flat' lookup's P-NDF and "

@@ -12,9 +12,8 @@ and distribution), or the ``surface`` given here. ``method`` picks the evaluator
 ``glint`` BSDF (:mod:`evaluators.render.bsdfs.glint`):
 
 - ``tiny_example``: the job's NDF maps and lobes, tiles chosen by ``lookup`` (``flat``, the
-  default, or ``paper``: the paper's descent; see :mod:`materials.glints.footprint`) (tiled
-  distributions; the Dr.Jit twin of
-  the stochastic distribution is not written yet, so stochastic surfaces refuse this method);
+  default, or ``paper``: the paper's descent; see :mod:`materials.glints.footprint`), on
+  tiled or stochastic surfaces (stochastic: the ``flat`` lookup and ``ggx_mix`` sampling);
 - ``yan``: the surface exported over ``[0, texels_per_uv]^2`` global texels at
   ``oversample`` texels per example texel (Fig. 9's protocol), its lobes at ``yan_rate`` x
   ``yan_rate`` seeds per exported texel (default 1; the tiny example has 2 x 2, so a
@@ -54,7 +53,7 @@ from evaluators.render.sources.common import inline_schema, register_material_so
 from jobapi.errors import FormatError, JobFailed
 from jobapi.params import JobRef, StrictModel
 from materials.glints.lobes import LOBE_BYTES, Lobes, make_lobes
-from materials.glints.pndf_drjit import jit_lobes, jit_map_sampler, jit_maps
+from materials.glints.pndf_drjit import jit_lobes, jit_map_sampler, jit_maps, jit_placement
 from materials.glints.surface import Surface, export_normal_map
 from materials.microfacet import NAMED_CONDUCTORS
 from storage.formats.exr import read_exr
@@ -292,12 +291,24 @@ def make_layer(
             fallback_texels=fallback,
             alphas=alphas,
         )
-    if method == "tiny_example":
-        if surface.dist.kind != "tiled":
+    if method == "tiny_example" and surface.dist.kind == "stochastic":
+        if lookup != "flat" or sampling != "ggx_mix":
             raise JobFailed(
-                f"{field}: the tiny-example evaluator renders tiled surfaces; a stochastic "
-                f"surface renders with method 'yan' (its Dr.Jit twin is not written yet)"
+                f"{field}: a stochastic surface renders with lookup 'flat' and sampling "
+                f"'ggx_mix' (the Dr.Jit twins of the others are written for tiled surfaces)"
             )
+        return GlintLayer(
+            method=method,
+            lobes=jit_lobes(mi, lobes),
+            maps=jit_maps(mi, data["maps"], data["extent"]),
+            transform=(np.eye(2), np.zeros(2)),
+            texel_scale=1.0,
+            fresnel=fresnel,
+            alpha=alpha,
+            fallback_texels=fallback,
+            placement=jit_placement(mi, surface),
+        )
+    if method == "tiny_example":
         t = surface.dist.transform
         if sampling == "pndf" and lookup != "flat":
             raise JobFailed(
