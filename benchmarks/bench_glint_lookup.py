@@ -22,6 +22,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.special import ndtr
@@ -87,7 +88,9 @@ def main() -> None:
                 d = tiny_pndf(ex, surf, c, np.eye(2) * sigma**2, grid, lookup=lookup)
                 err[lookup] = float(np.abs(d * cell * cell - want).sum())
 
-                def run(lookup: str = lookup) -> None:
+                def run(
+                    lookup: str = lookup, sigma: float = sigma, jm: Any = jm, jl: Any = jl
+                ) -> None:
                     full = mi.Float(np.full(n, sigma**2, np.float32))
                     cov = Sym2(full, mi.Float(np.zeros(n, np.float32)), full)
                     out = jit_tiny(
