@@ -782,7 +782,7 @@ def stochastic_pndf(
     hy0 = SUPPORT_SIGMAS * dr.sqrt(cov.d)
     k0x = mi.Int32(dr.floor((cx - hx0 - place.reach) / sp))
     k0y = mi.Int32(dr.floor((cy - hy0 - place.reach) / sp))
-    knx = mi.Int32(dr.floor((cx + hx0 + place.reach) / sp)) - k0x + 1
+    knx = dr.maximum(mi.Int32(dr.floor((cx + hx0 + place.reach) / sp)) - k0x + 1, 1)
     kny = mi.Int32(dr.floor((cy + hy0 + place.reach) / sp)) - k0y + 1
     count = dr.select(mi.Bool(active), knx * kny, 0)
 
@@ -800,8 +800,9 @@ def stochastic_pndf(
         sub_y = (gy + (dr.floor((py / sp - gy) * 2.0) + 0.5) / 2.0) * sp
         o0x = mi.Int32(dr.floor((px - place.reach) / sp))
         o0y = mi.Int32(dr.floor((py - place.reach) / sp))
-        onx = mi.Int32(dr.floor((px + place.reach) / sp)) - o0x + 1
-        ocount = dr.select(on, onx * (mi.Int32(dr.floor((py + place.reach) / sp)) - o0y + 1), 0)
+        onx = dr.maximum(mi.Int32(dr.floor((px + place.reach) / sp)) - o0x + 1, 1)
+        ony = mi.Int32(dr.floor((py + place.reach) / sp)) - o0y + 1
+        ocount = dr.select(on, onx * dr.maximum(ony, 0), 0)
 
         def obody(j: Any, bx: Any, by: Any, bd: Any) -> tuple[Any, ...]:
             ox_, oy_ = o0x + j % onx, o0y + j // onx
@@ -863,7 +864,10 @@ def stochastic_pndf(
         t0y = dr.maximum(mi.Int32(dr.floor((cly - hy - reach) / side)), 0)
         t1x = dr.minimum(mi.Int32(dr.floor((clx + hx + reach) / side)), r - 1)
         t1y = dr.minimum(mi.Int32(dr.floor((cly + hy + reach) / side)), r - 1)
+        # An empty box (the support outside the square) gives nx or ny <= 0: count 0, and
+        # the divisor clamped to 1 (a masked SIMD lane still divides; 0 would trap).
         nx, ny = t1x - t0x + 1, t1y - t0y + 1
+        nxd = dr.maximum(nx, 1)
         inv_l = cl.inverse(dr)
         norm_l = dr.rcp(2.0 * math.pi * dr.sqrt(cl.det()))
 
@@ -880,7 +884,7 @@ def stochastic_pndf(
         tcount = dr.select(use_maps & (nx > 0) & (ny > 0), dr.minimum(nx * ny, max_items), 0)
 
         def tbody(t: Any, tacc: Any) -> tuple[Any, Any]:
-            tx, ty = t0x + t % nx, t0y + t // nx
+            tx, ty = t0x + t % nxd, t0y + t // nxd
             ox = (mi.Float(tx) + 0.5) * side - clx
             oy = (mi.Float(ty) + 0.5) * side - cly
             gx_, gy_ = to_global((mi.Float(tx) + 0.5) * side, (mi.Float(ty) + 0.5) * side)
@@ -923,10 +927,11 @@ def stochastic_pndf(
         f1x = dr.minimum(mi.Int32(dr.floor((clx + hx + reach) / 2.0)), n // 2 - 1) * 2 + 1
         f1y = dr.minimum(mi.Int32(dr.floor((cly + hy + reach) / 2.0)), n // 2 - 1) * 2 + 1
         lnx, lny = f1x - f0x + 1, f1y - f0y + 1
+        lnxd = dr.maximum(lnx, 1)
         lcount = dr.select(use_lobes & (lnx > 0) & (lny > 0), dr.minimum(lnx * lny, max_items), 0)
 
         def lbody(t: Any, lacc: Any) -> tuple[Any, Any]:
-            tx, ty = f0x + t % lnx, f0y + t // lnx
+            tx, ty = f0x + t % lnxd, f0y + t // lnxd
             base_l = mi.UInt32((ty * n + tx) * k2)
             for j in range(k2):
                 idx = base_l + j
