@@ -291,13 +291,14 @@ def tiny_pndf(
     lam = half_tr - dr.sqrt(dr.maximum(dr.square(0.5 * (cl.a - cl.d)) + cl.b * cl.b, 0.0))
     target = FLATNESS * dr.sqrt(dr.maximum(lam, 1e-30))
     level = dr.minimum(mi.Int32(dr.floor(dr.log2(dr.maximum(target, 1e-30)))) - 1, maps.levels - 1)
-    if lookup == "paper":  # footprint_pndf.paper_uses_lobes
-        small = 2.0 * COVER_SIGMAS * dr.sqrt(dr.maximum(lam, 0.0)) < 2.0
+    if lookup == "paper":  # footprint.paper_uses_lobes
+        minor = 2.0 * COVER_SIGMAS * dr.sqrt(dr.maximum(lam, 0.0))
+        use_maps = mi.Bool(active) & (minor >= 2.0)
+        use_lobes = mi.Bool(active) & (minor < 2.0)
         level = dr.zeros(mi.Int32)
     else:
-        small = target < 2.0
-    use_maps = mi.Bool(active) & ~small
-    use_lobes = mi.Bool(active) & small
+        use_maps = mi.Bool(active) & (target >= 2.0)
+        use_lobes = mi.Bool(active) & (target < 2.0)
 
     from_lobes = lobes_pndf(mi, lobes, (clx, cly), cl, (qlx, qly), use_lobes, max_items=max_items)
 
@@ -738,7 +739,7 @@ def jit_placement(mi: types.ModuleType, surface: Any) -> JitPlacement:
     if d.kind != "stochastic":
         raise ValueError("jit_placement needs a stochastic surface")
     cols: list[list[float]] = [[] for _ in range(11)]
-    for row in surface._table:
+    for row in surface.table:
         for inst in row:
             ai, a = inst.transform.inverse, inst.transform.a
             vals = [*inst.centre, *ai.ravel(), *a.ravel(), inst.transform.density_scale]
