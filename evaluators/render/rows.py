@@ -61,7 +61,8 @@ def _glint_layer(
 
 
 def glint_facts(src: RowSource, glint: Mapping[str, Any]) -> dict[str, Any]:
-    """``bytes_per_material`` and config entries (``method``, ``example``) of a render's
+    """``bytes_per_material`` and config entries (``method``, ``example``; ``lookup`` and
+    ``sampling`` where not the defaults) of a render's
     ``{"glint": glint}`` material (defaults as :class:`~evaluators.render.sources.glint.
     GlintSpec`'s: tiny_example, 256 texels per uv, oversample 2, yan_rate 1)."""
     method = str(glint.get("method") or "tiny_example")
@@ -73,6 +74,12 @@ def glint_facts(src: RowSource, glint: Mapping[str, Any]) -> dict[str, Any]:
     rate_i = 1 if rate is None else int(rate)
     nbytes, size = _glint_layer(src, glint, method, texels, over_i, rate_i)
     config: dict[str, Any] = {"method": method, "example": size, "texels_per_uv": texels}
+    # The lookup rule and the sampler, only where they differ from the defaults (so that
+    # the rows of older renders keep their config).
+    for key, default in (("lookup", "flat"), ("sampling", "ggx_mix")):
+        value = glint.get(key)
+        if value is not None and value != default:
+            config[key] = str(value)
     coat = glint.get("clearcoat")
     if isinstance(coat, Mapping):
         coat_method = str(coat.get("method") or method)

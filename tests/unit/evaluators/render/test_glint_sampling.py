@@ -124,3 +124,26 @@ def test02_unbiased_and_less_spread(
     m1, e1, cv1 = weight_stats(mi, example, method, "pndf", duv, seed=2)
     assert abs(m0 - m1) < 4.0 * math.hypot(e0, e1), (m0, e0, m1, e1)
     assert cv1 < 0.5 * cv0, (cv0, cv1)
+
+
+class _NoSources:
+    """A row source that knows no jobs (the layer's bytes come out unknown)."""
+
+    def source(self, ref: str) -> None:
+        return None
+
+
+def test03_rows_name_non_default_lookup_and_sampling() -> None:
+    """Result rows carry ``lookup`` and ``sampling`` only where they differ from the
+    defaults, so rows of older renders keep their config."""
+    from evaluators.render.rows import glint_facts
+
+    old = glint_facts(_NoSources(), {"data": "job:x"})  # type: ignore[arg-type]
+    assert "lookup" not in old["config"] and "sampling" not in old["config"]
+    same = glint_facts(_NoSources(), {"data": "job:x", "lookup": "flat"})  # type: ignore[arg-type]
+    assert same["config"] == old["config"]
+    new = glint_facts(
+        _NoSources(),  # type: ignore[arg-type]
+        {"data": "job:x", "lookup": "paper", "sampling": "pndf"},
+    )
+    assert new["config"]["lookup"] == "paper" and new["config"]["sampling"] == "pndf"
