@@ -23,6 +23,18 @@ weight is its exact mass), so the descent settles on one level per footprint
 top level when the footprint is wide, the lobes when it is below the finest tile. Transforms
 map the query into the instance's frame (:mod:`materials.glints.surface`).
 
+**The paper's lookup rule** (``lookup="paper"``, :func:`paper_tiles`): the descent of
+Sec. 6.3 as written. Starting from the top level (one tile per example), a tile the pixel
+covers entirely is read at that level; a partly covered one is split into its four
+children, down to the finest level, where partly covered tiles are read as they are;
+tiles outside the footprint's support are dropped. With Heckbert's Gaussian, "covered"
+means that the tile's four corners lie within :data:`COVER_SIGMAS` standard deviations
+(Mahalanobis) of the centre: at 1, the ellipse inscribed in the pixel's parallelogram
+(the filter's sigma is half a pixel). Each tile read weighs its exact footprint mass.
+When the footprint is smaller than the finest tile (its 1-sigma ellipse's minor diameter
+``2 COVER_SIGMAS sigma_min`` below the tile side, 2 texels), the lobes are summed by Eq. 1.
+The default rule (``lookup="flat"``, :func:`lod_level`) is the one above.
+
 **Reference** (Yan et al. 2016): Eq. 1 summed over every lobe of an explicit normal map
 near the footprint.
 """
@@ -47,6 +59,12 @@ SUPPORT_SIGMAS = 3.5
 #: A tile counts as whole only when its side is at most this many of the footprint's
 #: smallest standard deviations (module docstring).
 FLATNESS = 0.5
+#: The lookup rules of the tiny-example evaluation: ``flat`` (:func:`lod_level`, the
+#: default) and ``paper`` (:func:`paper_tiles`).
+LOOKUPS = ("flat", "paper")
+#: ``paper``: a tile is covered when its corners lie within this many standard deviations of
+#: the footprint's centre (1: the ellipse inscribed in the pixel's parallelogram).
+COVER_SIGMAS = 1.0
 
 
 def heckbert_covariance(
@@ -129,6 +147,66 @@ def lod_level(ex: TinyExample, cov: np.ndarray) -> int:
     return min(int(math.floor(math.log2(target))) - 1, len(ex.maps) - 1)
 
 
+def paper_uses_lobes(cov: np.ndarray) -> bool:
+    """``paper``: the footprint is smaller than the finest tile (side 2 texels): its
+    covered ellipse's minor diameter ``2 COVER_SIGMAS sigma_min`` is below 2."""
+    sigma_min = math.sqrt(max(float(np.linalg.eigvalsh(cov)[0]), 1e-300))
+    return 2.0 * COVER_SIGMAS * sigma_min < 2.0
+
+
+def _covered(c: np.ndarray, inv: np.ndarray, lo: np.ndarray, side: float) -> bool:
+    d = lo + side * np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]) - c
+    return bool(np.all(np.einsum("ka,ab,kb->k", d, inv, d) <= COVER_SIGMAS**2))
+
+
+def paper_tiles(
+    ex: TinyExample, c: np.ndarray, cov: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray
+) -> list[tuple[int, int, int]]:
+    """The paper's descent (module docstring) over one instance (the square ``[0, n)^2``):
+    ``(level, tx, ty)`` of every tile read, for a footprint ``N(c, cov)`` whose support box
+    is ``[lo_b, hi_b]``."""
+    inv = np.linalg.inv(cov)
+    top = len(ex.maps) - 1
+    side = 2 << top
+    r = len(ex.maps[top])
+    t0 = np.maximum(np.floor(lo_b / side).astype(int), 0)
+    t1 = np.minimum(np.floor(hi_b / side).astype(int), r - 1)
+    stack = [(top, tx, ty) for ty in range(t0[1], t1[1] + 1) for tx in range(t0[0], t1[0] + 1)]
+    out: list[tuple[int, int, int]] = []
+    while stack:
+        level, tx, ty = stack.pop()
+        side = 2 << level
+        lo = np.array([tx, ty], dtype=np.float64) * side
+        if np.any(lo > hi_b) or np.any(lo + side < lo_b):
+            continue
+        if level == 0 or _covered(c, inv, lo, side):
+            out.append((level, tx, ty))
+            continue
+        for dy in (0, 1):
+            for dx in (0, 1):
+                stack.append((level - 1, 2 * tx + dx, 2 * ty + dy))
+    return out
+
+
+def _paper_pndf(
+    ex: TinyExample,
+    c: np.ndarray,
+    cov: np.ndarray,
+    s_local: np.ndarray,
+    lo_b: np.ndarray,
+    hi_b: np.ndarray,
+    owned: Callable[[np.ndarray], np.ndarray] | None,
+) -> np.ndarray:
+    out = np.zeros(len(s_local))
+    for level, tx, ty in paper_tiles(ex, c, cov, lo_b, hi_b):
+        side = 2 << level
+        lo = np.array([tx, ty], dtype=np.float64) * side
+        if owned is not None and not owned((lo + 0.5 * side)[None])[0]:
+            continue
+        out += box_mass(c, cov, lo, lo + side) * ex.lookup(level, tx, ty, s_local)
+    return out
+
+
 def instance_pndf(
     ex: TinyExample,
     c: np.ndarray,
@@ -136,6 +214,7 @@ def instance_pndf(
     s_local: np.ndarray,
     *,
     owned: Callable[[np.ndarray], np.ndarray] | None = None,
+    lookup: str = "flat",
 ) -> np.ndarray:
     """One instance's share of the P-NDF, in its local frame: footprint ``N(c, cov)`` in
     example texels (the instance's square is ``[0, n)^2``), queries ``s_local`` ``(M, 2)``.
@@ -144,12 +223,20 @@ def instance_pndf(
     contributes its exact footprint mass times its NDF image; at level -1 the lobes of the
     finest tiles there are summed by Eq. 1. ``owned(points)`` (optional) says which local
     points the instance owns (Fig. 3's occlusion): a tile counts when its centre is owned, a
-    lobe when its seed is. Returns ``(M,)`` densities.
+    lobe when its seed is. ``lookup`` ``"paper"``: the tiles of :func:`paper_tiles` instead
+    of one level (the lobes when :func:`paper_uses_lobes`). Returns ``(M,)`` densities.
     """
+    if lookup not in LOOKUPS:
+        raise ValueError(f"lookup must be one of {LOOKUPS}, got {lookup!r}")
     lo_b, hi_b = _bbox(c, cov)
     # Lobes reach 5 sigma_h beyond their seeds: tiles that near the support still count.
     lo_b, hi_b = lo_b - 5 * ex.lobes.sigma_h, hi_b + 5 * ex.lobes.sigma_h
-    level = lod_level(ex, cov)
+    if lookup == "paper":
+        if not paper_uses_lobes(cov):
+            return _paper_pndf(ex, c, cov, s_local, lo_b, hi_b, owned)
+        level = -1
+    else:
+        level = lod_level(ex, cov)
     side = 2 << max(level, 0)
     r = ex.n // side
     t0 = np.maximum(np.floor(lo_b / side).astype(int), 0)
@@ -179,10 +266,17 @@ def _tiled_copies(lo: np.ndarray, hi: np.ndarray, n: int) -> list[tuple[int, int
 
 
 def tiny_pndf(
-    ex: TinyExample, surface: Surface, centre: np.ndarray, cov: np.ndarray, s: np.ndarray
+    ex: TinyExample,
+    surface: Surface,
+    centre: np.ndarray,
+    cov: np.ndarray,
+    s: np.ndarray,
+    *,
+    lookup: str = "flat",
 ) -> np.ndarray:
     """The tiny-example P-NDF of ``surface`` (whose example ``ex`` describes) at global
-    projected normals ``s`` ``(M, 2)``, footprint ``N(centre, cov)`` in global texels."""
+    projected normals ``s`` ``(M, 2)``, footprint ``N(centre, cov)`` in global texels;
+    ``lookup`` the rule (:data:`LOOKUPS`, module docstring)."""
     centre = np.asarray(centre, dtype=np.float64)
     cov = np.asarray(cov, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
@@ -195,12 +289,12 @@ def tiny_pndf(
         lo, hi = _bbox(c_l, cov_l)
         out = np.zeros(len(s))
         for kx, ky in _tiled_copies(lo, hi, n):
-            out += instance_pndf(ex, c_l - np.array([kx, ky]) * n, cov_l, s_l)
+            out += instance_pndf(ex, c_l - np.array([kx, ky]) * n, cov_l, s_l, lookup=lookup)
         return t.density_scale * out
     lo, hi = _bbox(centre, cov)
     out = np.zeros(len(s))
     for inst in surface.instances_near(lo, hi):
-        out += _stochastic_instance(ex, surface, inst, centre, cov, s)
+        out += _stochastic_instance(ex, surface, inst, centre, cov, s, lookup)
     return out
 
 
@@ -211,6 +305,7 @@ def _stochastic_instance(
     centre: np.ndarray,
     cov: np.ndarray,
     s: np.ndarray,
+    lookup: str = "flat",
 ) -> np.ndarray:
     t: Transform = inst.transform
     ainv = t.inverse
@@ -228,7 +323,8 @@ def _stochastic_instance(
                 mask |= m
         return mask
 
-    return t.density_scale * instance_pndf(ex, c_l, cov_l, t.slopes_to_local(s), owned=owned)
+    s_l = t.slopes_to_local(s)
+    return t.density_scale * instance_pndf(ex, c_l, cov_l, s_l, owned=owned, lookup=lookup)
 
 
 def yan_pndf(lobes: Lobes, centre: np.ndarray, cov: np.ndarray, s: np.ndarray) -> np.ndarray:

@@ -159,6 +159,13 @@ class Surface:
             table.append(row)
         return table
 
+    @property
+    def table(self) -> list[list[Instance]]:
+        """The stochastic table: ``period x period`` instances, centres as jitter in cells
+        relative to the cell centre (what :func:`materials.glints.pndf_drjit.jit_placement`
+        uploads)."""
+        return self._table
+
     def _cell_instance(self, cx: int, cy: int) -> Instance:
         p = self.dist.period
         proto = self._table[cy % p][cx % p]

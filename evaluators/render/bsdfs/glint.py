@@ -10,8 +10,10 @@ the footprint (which is the NDF per solid angle with ``int D cos_h dw = 1``), ``
 example's axes (x along dp/du, y along dp/dv: :func:`example_slopes`). ``D_P`` comes
 from one of two evaluators of the same microstructure (:mod:`materials.glints.pndf_drjit`):
 
-- ``tiny_example``: the example's NDF maps at the footprint's level, or its lobes below the
-  finest tile;
+- ``tiny_example`` (tiled or stochastic distributions): the example's NDF maps at the
+  footprint's level, or its lobes below the
+  finest tile (``lookup="flat"``); or the paper's descent over covered and partly covered
+  tiles (``lookup="paper"``);
 - ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map;
 - ``smooth_ggx``: no microstructure: a smooth anisotropic GGX NDF whose roughness
   ``(alpha_u, alpha_v)`` matches the microstructure's slopes (the cheapest rung of the glint
@@ -49,7 +51,18 @@ import numpy as np
 from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
 from evaluators.render.plugins import register_vectorised_bsdf
 from materials.glints.footprint import PIXEL_SIGMA
-from materials.glints.pndf_drjit import JitLobes, JitMaps, Sym2, lobes_pndf, tiny_pndf
+from materials.glints.pndf_drjit import (
+    JitLobes,
+    JitMaps,
+    JitMapSampler,
+    JitPlacement,
+    Sym2,
+    lobes_pndf,
+    lobes_sample,
+    stochastic_pndf,
+    tiny_pndf,
+    tiny_sample,
+)
 
 #: The plugin name.
 GLINT_BSDF_NAME = "glint"
@@ -57,6 +70,11 @@ GLINT_BSDF_NAME = "glint"
 GGX_WEIGHT = 0.9
 #: Most texels (``yan``) or tiles (``tiny_example``) one evaluation visits.
 MAX_ITEMS = 1 << 16
+#: ``sampling="pndf"``: probability that ``sample`` draws from the P-NDF itself (the rest
+#: goes to the GGX/cosine mixture, which keeps the density positive where the P-NDF is 0).
+PNDF_WEIGHT = 0.9
+#: The sampling strategies.
+SAMPLINGS = ("ggx_mix", "pndf")
 
 
 @dataclass(frozen=True)
@@ -71,7 +89,11 @@ class GlintLayer:
     ``("dielectric", eta)``; ``alpha`` the matching GGX roughness (Smith G, sampling);
     ``fallback_texels`` the standard deviation (global texels) of the footprint used
     without ray differentials; ``alphas`` the smooth NDF's GGX ``(alpha_u, alpha_v)``
-    (smooth_ggx only).
+    (smooth_ggx only); ``lookup`` the tiny example's lookup rule (``"flat"`` or
+    ``"paper"``, :data:`materials.glints.footprint.LOOKUPS`); ``sampling`` ``"ggx_mix"``
+    or ``"pndf"`` (module docstring; read from the base layer), ``sampler`` the maps' patch
+    CDFs (``tiny_example`` with ``"pndf"`` only); ``placement`` a stochastic
+    distribution's table (``tiny_example`` on a stochastic surface; ``transform`` unused).
     """
 
     method: str
@@ -83,6 +105,10 @@ class GlintLayer:
     alpha: float
     fallback_texels: float
     alphas: tuple[float, float] | None = None
+    lookup: str = "flat"
+    sampling: str = "ggx_mix"
+    sampler: JitMapSampler | None = None
+    placement: JitPlacement | None = None
 
 
 _LAYERS: dict[str, tuple[GlintLayer, GlintLayer | None]] = {}
@@ -116,9 +142,61 @@ def layer_pndf(
         covs = Sym2(cov.a * (k * k), cov.b * (k * k), cov.d * (k * k))
         return lobes_pndf(mi, layer.lobes, cs, covs, q, active, max_items=MAX_ITEMS)
     assert layer.maps is not None
+    if layer.placement is not None:
+        return stochastic_pndf(
+            mi, layer.maps, layer.lobes, layer.placement, c, cov, q, active, max_items=MAX_ITEMS
+        )  # fmt: skip
     return tiny_pndf(
-        mi, layer.maps, layer.lobes, layer.transform, c, cov, q, active, max_items=MAX_ITEMS
+        mi, layer.maps, layer.lobes, layer.transform, c, cov, q, active, max_items=MAX_ITEMS,
+        lookup=layer.lookup,
     )  # fmt: skip
+
+
+def layer_sample(
+    mi: types.ModuleType,
+    layer: GlintLayer,
+    c: tuple[Any, Any],
+    cov: Sym2,
+    u1: Any,
+    u2: tuple[Any, Any],
+    active: Any,
+    *,
+    total_only: bool = False,
+) -> tuple[Any, Any, Any]:
+    """A projected normal drawn from ``layer``'s P-NDF for a footprint ``N(c, cov)`` in
+    global texels, and the P-NDF's integral (:func:`~materials.glints.pndf_drjit.lobes_sample`,
+    :func:`~materials.glints.pndf_drjit.tiny_sample`)."""
+    assert layer.lobes is not None
+    k = layer.texel_scale
+    if layer.method == "yan":
+        cs = (c[0] * k, c[1] * k)
+        covs = Sym2(cov.a * (k * k), cov.b * (k * k), cov.d * (k * k))
+        return lobes_sample(
+            mi, layer.lobes, cs, covs, u1, u2, active, max_items=MAX_ITEMS, total_only=total_only
+        )  # fmt: skip
+    assert layer.maps is not None and layer.sampler is not None
+    return tiny_sample(
+        mi, layer.maps, layer.sampler, layer.lobes, layer.transform, c, cov, u1, u2, active,
+        max_items=MAX_ITEMS, total_only=total_only,
+    )  # fmt: skip
+
+
+def local_of_slopes(mi: types.ModuleType, si: Any, sx: Any, sy: Any) -> Any:
+    """The local unit half vector whose :func:`example_slopes` are ``(sx, sy)`` (its
+    inverse; ``z = sqrt(1 - |s|^2)``, 0 outside the unit disc)."""
+    import drjit as dr
+
+    du = si.to_local(si.dp_du)
+    dv = si.to_local(si.dp_dv)
+    norm = dr.sqrt(du.x * du.x + du.y * du.y)
+    ok = norm > 1e-12
+    inv = dr.select(ok, 1.0 / dr.maximum(norm, 1e-30), 0.0)
+    tx, ty = du.x * inv, du.y * inv
+    side = dr.select(tx * dv.y - ty * dv.x < 0.0, -1.0, 1.0)
+    hx = dr.select(ok, tx * sx - side * ty * sy, sx)
+    hy = dr.select(ok, ty * sx + side * tx * sy, sy)
+    hz = dr.sqrt(dr.maximum(1.0 - hx * hx - hy * hy, 0.0))
+    return mi.Vector3f(hx, hy, hz)
 
 
 def example_slopes(mi: types.ModuleType, si: Any, h: Any) -> tuple[Any, Any]:
@@ -185,6 +263,17 @@ def _define_class(mi: types.ModuleType) -> type:
             if not (math.isfinite(self.texels_per_uv) and self.texels_per_uv > 0):
                 raise ValueError("glint: texels_per_uv must be > 0")
             self.sampling = MixtureSampling(self.base.alpha, GGX_WEIGHT)
+            if self.base.sampling not in SAMPLINGS:
+                raise ValueError(f"glint: sampling must be one of {SAMPLINGS}")
+            self.pndf_sampling = self.base.sampling == "pndf" and self.base.method != "smooth_ggx"
+            if self.pndf_sampling and self.base.method == "tiny_example":
+                if self.base.placement is not None:
+                    raise ValueError("glint: sampling 'pndf' draws from tiled surfaces only")
+                if self.base.lookup != "flat" or self.base.sampler is None:
+                    raise ValueError(
+                        "glint: sampling 'pndf' draws from the 'flat' lookup's P-NDF and "
+                        "needs the maps' sampler (jit_map_sampler)"
+                    )
             self.m_flags = flags
             self.m_components = [flags]
 
@@ -202,7 +291,10 @@ def _define_class(mi: types.ModuleType) -> type:
             cov = Sym2(dr.select(none, f2, a), dr.select(none, 0.0, b), dr.select(none, f2, d))
             return (cx, cy), cov
 
-        def _lobe(self, layer: GlintLayer, si: Any, wi: Any, wo: Any, h: Any, active: Any) -> Any:
+        def _lobe(
+            self, layer: GlintLayer, si: Any, wi: Any, wo: Any, h: Any, active: Any
+        ) -> tuple[Any, Any]:
+            """``(f, D)``: the layer's BRDF and its NDF value at ``h``."""
             ggx = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, layer.alpha, False)
             if layer.alphas is not None:  # smooth_ggx: the NDF alone differs, not G or F
                 smooth = mi.MicrofacetDistribution(
@@ -215,21 +307,53 @@ def _define_class(mi: types.ModuleType) -> type:
             g = ggx.G(wi, wo, h)
             cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
             f = _fresnel(mi, layer.fresnel, cos_d)
-            return f * (d * g / (4.0 * wi.z * wo.z))
+            return f * (d * g / (4.0 * wi.z * wo.z)), d
 
         def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
             raise NotImplementedError  # glints need the interaction (footprint): see eval
 
-        def _value(self, si: Any, wo: Any, active: Any) -> Any:
+        def _value_d(self, si: Any, wo: Any, active: Any) -> tuple[Any, Any]:
+            """The BRDF at ``wo`` and the base layer's NDF at the half vector."""
             wi = si.wi
             active = active & (wi.z > 0.0) & (wo.z > 0.0)
             h = dr.normalize(wi + wo)
-            value = self._lobe(self.base, si, wi, wo, h, active)
+            value, d = self._lobe(self.base, si, wi, wo, h, active)
             if self.coat is not None:
                 cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
                 f_c = mi.fresnel(cos_d, float(self.coat.fresnel[1]))[0]
-                value = value * (1.0 - f_c) + self._lobe(self.coat, si, wi, wo, h, active)
-            return dr.select(active, value, 0.0)
+                value = value * (1.0 - f_c) + self._lobe(self.coat, si, wi, wo, h, active)[0]
+            return dr.select(active, value, 0.0), d
+
+        def _value(self, si: Any, wo: Any, active: Any) -> Any:
+            return self._value_d(si, wo, active)[0]
+
+        def _pdf_of(self, si: Any, wo: Any, d: Any, total: Any, active: Any) -> Any:
+            """``sampling="pndf"``: the mixture's density at ``wo``, given the base NDF
+            ``d`` at the half vector and the P-NDF's integral ``total``: ``D cos_h / total``
+            per solid angle of ``h``, times the reflection Jacobian ``1 / (4 wo.h)``."""
+            wi = si.wi
+            h = dr.normalize(wi + wo)
+            dot_oh = dr.dot(wo, h)
+            ok = active & (wi.z > 0.0) & (wo.z > 0.0) & (dot_oh > 0.0) & (total > 0.0)
+            p_d = dr.select(
+                ok, d * h.z / (dr.maximum(total, 1e-30) * 4.0 * dr.maximum(dot_oh, 1e-30)), 0.0
+            )
+            p_mix = self.sampling.pdf(mi, wi, wo, active)
+            return PNDF_WEIGHT * dr.maximum(p_d, 0.0) + (1.0 - PNDF_WEIGHT) * p_mix
+
+        def _total(self, si: Any, active: Any) -> Any:
+            c, cov = self._footprint(si, self.base.fallback_texels)
+            zero = dr.zeros(mi.Float)
+            return layer_sample(
+                mi, self.base, c, cov, zero, (zero, zero), active, total_only=True
+            )[2]  # fmt: skip
+
+        def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+            active = self.enabled(ctx, active)
+            if not self.pndf_sampling:
+                return self._pdf(si.wi, wo, active)
+            _, d = self._value_d(si, wo, active)
+            return self._pdf_of(si, wo, d, self._total(si, active), active)
 
         # The footprint lives in ``si``, so eval / eval_pdf / sample are written here
         # rather than through the base class's ``brdf(ctx, wi, wo)``.
@@ -239,19 +363,55 @@ def _define_class(mi: types.ModuleType) -> type:
 
         def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             active = self.enabled(ctx, active)
-            value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
-            return value, self._pdf(si.wi, wo, active)
+            if not self.pndf_sampling:
+                value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
+                return value, self._pdf(si.wi, wo, active)
+            value, d = self._value_d(si, wo, active)
+            pdf = self._pdf_of(si, wo, d, self._total(si, active), active)
+            return value * dr.maximum(wo.z, 0.0), pdf
 
         def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
             from evaluators.render.bsdfs.common import sample_record
 
             active = self.enabled(ctx, active) & (si.wi.z > 0.0)
+            if self.pndf_sampling:
+                return self._sample_pndf(si, sample1, sample2, active, sample_record)
             wo = self.sampling.sample(mi, si.wi, sample1, sample2)
             pdf = self._pdf(si.wi, wo, active)
             active &= pdf > 0.0
             value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
             bs = sample_record(mi, wo, pdf)
             return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
+
+        def _sample_pndf(
+            self, si: Any, sample1: Any, sample2: Any, active: Any, record: Any
+        ) -> Any:
+            """``sampling="pndf"``: with probability :data:`PNDF_WEIGHT` a half vector from
+            the base layer's P-NDF (its lobes or tiles, then the Gaussian or the bilinear
+            patch), reflected; otherwise the GGX/cosine mixture (``sample1`` rescaled)."""
+            wi = si.wi
+            from_d = sample1 < PNDF_WEIGHT
+            u1 = dr.select(
+                from_d, sample1 / PNDF_WEIGHT, (sample1 - PNDF_WEIGHT) / (1.0 - PNDF_WEIGHT)
+            )
+            c, cov = self._footprint(si, self.base.fallback_texels)
+            sx, sy, total = layer_sample(
+                mi, self.base, c, cov, u1, (sample2.x, sample2.y), active & from_d
+            )
+            inside = sx * sx + sy * sy < 1.0
+            h = local_of_slopes(mi, si, sx, sy)
+            wo_d = mi.reflect(wi, h)
+            wo_m = self.sampling.sample(mi, wi, u1, sample2)
+            wo = dr.select(from_d, wo_d, wo_m)
+            drawn = active & (~from_d | (inside & (total > 0.0) & (dr.dot(wi, h) > 0.0)))
+            value, d = self._value_d(si, wo, drawn)
+            # The P-NDF's integral at this footprint, also for mixture draws.
+            total = dr.select(from_d, total, self._total(si, drawn & ~from_d))
+            pdf = self._pdf_of(si, wo, d, total, drawn)
+            drawn &= pdf > 0.0
+            value = value * dr.maximum(wo.z, 0.0)
+            bs = record(mi, wo, pdf)
+            return bs, dr.select(drawn, value / dr.maximum(pdf, 1e-30), 0.0)
 
         def to_string(self) -> str:
             coat = "" if self.coat is None else f", clearcoat {self.coat.method}"
