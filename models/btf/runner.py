@@ -95,7 +95,9 @@ def _fit_network(
     if params.distill is not None:
         d = params.distill
         teacher = load_teacher(d.teacher, ctx, (h, w)).to(device)
-        distill = Distillation(teacher, sigma=d.sigma, lambda1=d.lambda1, lambda2=d.lambda2)
+        distill = Distillation(
+            teacher, sigma=d.sigma, lambda1=d.lambda1, lambda2=d.lambda2, hint=d.hint
+        )
     epochs = int(params.value("epochs"))
 
     def report(step: int, n: int, train_l1: float, test_l1: float) -> None:
