@@ -157,8 +157,8 @@ def main() -> None:
         ]))  # fmt: skip
     print()
     print("| model | fused ns / texel (wall) | kernel ns / texel | compile s | fp16 storage: "
-          "wall | fp16 storage: kernel | torch eager ns / texel | fused vs torch | NeuMIP-25 / this: "
-          "kernel (fp32, fp16 storage) | storage MB |")  # fmt: skip
+          "wall | fp16 storage: kernel | torch eager ns / texel | fused vs torch | "
+          "NeuMIP-25 / this: kernel (fp32, fp16 storage) | storage MB |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|")
     for label, ns, kns, comp, ns16, kns16, tns, size in rows:
         print(f"| {label} | {ns:.2f} | {kns:.2f} | {comp:.2f} | {ns16:.2f} | {kns16:.2f} | "
