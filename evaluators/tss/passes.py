@@ -236,7 +236,8 @@ class Plane:
         centre = mi.Point2f(gu * s, gv * s)
         for k, (pos, _) in enumerate(self.lights):
             wi, _ = self._toward(px, py, pos)
-            outs = self.fused.eval_block(centre, uvs, mi.Vector3f(*wi), wo_v)
+            student: Any = self.fused  # amortises(): a FusedStudent
+            outs = student.eval_block(centre, uvs, mi.Vector3f(*wi), wo_v)
             for t, rgb in enumerate(outs):
                 w = factors[t][k]
                 acc[t] = [dr.fma(rgb[c], w[c], acc[t][c]) for c in range(3)]

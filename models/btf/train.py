@@ -105,13 +105,24 @@ def hint_loss(student: torch.Tensor, target: torch.Tensor, form: str = "mse") ->
     raise ValueError(f"hint {form!r}: use one of {', '.join(HINTS)}")
 
 
+class _Maps(nn.Module):
+    def __init__(self, teacher_width: int, student_width: int, gen: torch.Generator) -> None:
+        super().__init__()
+        self.t1 = nn.Linear(teacher_width, student_width, bias=False)
+        self.t2 = nn.Linear(teacher_width, student_width, bias=False)
+        bound = 1.0 / math.sqrt(teacher_width)
+        with torch.no_grad():
+            self.t1.weight.uniform_(-bound, bound, generator=gen)
+            self.t2.weight.uniform_(-bound, bound, generator=gen)
+
+
 def eq5_terms(
     pred: torch.Tensor,
     target: torch.Tensor,
     taps: list[torch.Tensor],
     y_t: torch.Tensor,
     t_hidden: list[torch.Tensor],
-    maps: nn.Module,
+    maps: _Maps,
     distill: Distillation,
 ) -> dict[str, torch.Tensor]:
     """Eq. 5's four terms, each with its weight: ``l1`` (to the ground truth),
@@ -207,17 +218,6 @@ def slice_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> np.ndarra
         err = float(torch.abs(pred - torch.from_numpy(rgb).to(dev).reshape(-1, 3)).sum())
         out[where[i]] = err / rgb.size
     return out
-
-
-class _Maps(nn.Module):
-    def __init__(self, teacher_width: int, student_width: int, gen: torch.Generator) -> None:
-        super().__init__()
-        self.t1 = nn.Linear(teacher_width, student_width, bias=False)
-        self.t2 = nn.Linear(teacher_width, student_width, bias=False)
-        bound = 1.0 / math.sqrt(teacher_width)
-        with torch.no_grad():
-            self.t1.weight.uniform_(-bound, bound, generator=gen)
-            self.t2.weight.uniform_(-bound, bound, generator=gen)
 
 
 def fit(
