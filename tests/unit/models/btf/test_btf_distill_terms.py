@@ -109,3 +109,20 @@ def test_standardised_hint_is_scale_invariant_and_two_one_minus_r() -> None:
         hint_loss(ta, tb, "cosine")
     with pytest.raises(ValueError, match="hint"):
         Distillation(torch.nn.Linear(1, 1), hint="cosine")
+
+
+def test_default_hint_keeps_the_canonical_spec() -> None:
+    """A spec written before ``hint`` existed keeps its canonical params (and so its hash):
+    the default is left out of the dump; the other form is kept."""
+    from models.btf.kind import TrainBtfParams
+
+    base = {"data": "job:" + "a" * 32, "model": "c2f", "distill": {"teacher": "job:" + "b" * 32}}
+    old = TrainBtfParams.model_validate(base).model_dump(mode="json")
+    assert old["distill"] == {"teacher": "job:" + "b" * 32, "sigma": 0.1, "lambda1": 0.1,
+                              "lambda2": 0.1}  # fmt: skip
+    same = {**base, "distill": {**base["distill"], "hint": "mse"}}  # type: ignore[dict-item]
+    assert TrainBtfParams.model_validate(same).model_dump(mode="json") == old
+    new = {**base, "distill": {**base["distill"], "hint": "standardised"}}  # type: ignore[dict-item]
+    assert TrainBtfParams.model_validate(new).model_dump(mode="json")["distill"]["hint"] == (
+        "standardised"
+    )
