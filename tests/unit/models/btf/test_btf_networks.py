@@ -163,8 +163,9 @@ def test07_half_precision_textures(mi: types.ModuleType) -> None:
 def test_network_sizes_against_the_paper() -> None:
     """The networks' own sizes, counted layer by layer by hand (float32): the student
     (16 -> 8, 8 -> 8, 16 -> 8, 8 -> 3, weights and biases) 371 floats = 1,484 B against
-    Table 1's 1.6 KB; NeuMIP-25 (11 -> 25, 25 -> 25 twice, 25 -> 3) 1,678 floats = 6,712 B
-    against 6.6 KB. The 400^2 totals (6.24 MB, 4.49 MB) match Table 1 because the texture
+    Table 1's 1.6 KB (25-40 floats fewer: not explained by the paper's text); NeuMIP-25
+    (11 -> 25, 25 -> 25 twice, 25 -> 3) 1,678 floats = 6,712 B = 6.55 KiB, the paper's
+    6.6 KB. The 400^2 totals (6.24 MB, 4.49 MB) match Table 1 because the texture
     channels (7 coarse + 8 fine; 7) were chosen so that they do: by construction."""
     from models.btf.networks import Architecture, build_network
 
