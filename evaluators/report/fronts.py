@@ -17,7 +17,12 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
   then the spread over jobs.
 - *Claims*: ``{"a", "b", "metric", "relation"}`` compare two candidates' mean error over
   every whole-set row of that metric (optionally one dataset); each comes back with
-  ``holds`` true / false and the numbers, or ``null`` with ``why``.
+  ``holds`` true / false and the numbers, or ``null`` with ``why``. The seed spread decides:
+  where both candidates have rows from at least two jobs (seeds), each job's mean is one
+  repeat, and a claim whose two ranges of per-job means (min..max) overlap is *not
+  resolved* (``holds: null``, ``resolved: false``): its difference is inside the spread.
+  With one job on a side there is no spread to judge by; the verdict is the means' and
+  ``resolved`` is ``null`` ("one seed" in ``why``).
 """
 
 from __future__ import annotations
@@ -188,22 +193,48 @@ def check_claim(rows: Sequence[ResultRow], claim: Mapping[str, Any]) -> dict[str
             and (dataset is None or r.dataset == dataset)
         ]
 
+    def per_job(cand: str) -> list[float]:
+        by: dict[str, list[float]] = defaultdict(list)
+        for r in rows:
+            if (
+                r.candidate == cand
+                and r.metric == metric
+                and whole_set(r)
+                and (dataset is None or r.dataset == dataset)
+            ):
+                by[r.job].append(r.value)
+        return [statistics.fmean(v) for v in by.values()]
+
     va, vb = values(a), values(b)
     missing = [c for c, v in ((a, va), (b, vb)) if not v]
     if missing:
         return {**out, "holds": None, "why": f"no {metric} rows of {', '.join(missing)}"}
     ma, mb = statistics.fmean(va), statistics.fmean(vb)
-    holds = ma < mb if rel == "<" else ma <= mb
-    why = (
-        f"{a}: {ma:.4g} (mean of {len(va)}) {'' if holds else 'not '}{rel} "
-        f"{b}: {mb:.4g} (mean of {len(vb)})"
-    )
-    return {
-        **out,
-        "holds": holds,
-        "why": why,
+    ja, jb = per_job(a), per_job(b)
+    numbers = {
         "a_mean": ma,
         "b_mean": mb,
         "a_n": len(va),
         "b_n": len(vb),
+        "a_seeds": len(ja),
+        "b_seeds": len(jb),
+        "a_range": [min(ja), max(ja)],
+        "b_range": [min(jb), max(jb)],
     }
+    holds: bool | None = ma < mb if rel == "<" else ma <= mb
+    resolved: bool | None = None
+    spread_note = "; one seed on a side: no spread to judge by"
+    if len(ja) >= 2 and len(jb) >= 2:
+        resolved = max(ja) < min(jb) or min(ja) > max(jb)
+        spread_note = (
+            f"; seed ranges {min(ja):.4g}..{max(ja):.4g} and {min(jb):.4g}..{max(jb):.4g}"
+            + ("" if resolved else " overlap: not resolved")
+        )
+        if not resolved:
+            holds = None
+    verb = "?" if holds is None else "" if holds else "not "
+    why = (
+        f"{a}: {ma:.4g} (mean of {len(va)}) {verb}{rel} "
+        f"{b}: {mb:.4g} (mean of {len(vb)}){spread_note}"
+    )
+    return {**out, "holds": holds, "resolved": resolved, "why": why, **numbers}

@@ -13,6 +13,11 @@ Radiance-texture resolutions: ``R x R`` texels over the whole plane. Texel-match
 :meth:`FusedBtf.shade_texture` (``texture_pass`` ``amortised``: the student's coarse MLP
 once per 2 x 2 block); any other ``R`` evaluates :meth:`FusedBtf.eval` at the ``R x R``
 texel centres (neural features bilinear), as does ``texture_pass`` ``per_texel``.
+``texture_pass`` ``amortised_all`` runs the student's 2 x 2 amortisation at every even ``R``
+(the coarse MLP once per 2 x 2 block of the radiance texture, at the block centre's
+directions; :meth:`evaluators.tss.passes.Plane.amortises`), so a table of several ``R``
+compares one pass; ``amortised`` (the default, kept so earlier specs give the same bytes)
+amortises only where texel-matched.
 
 ==================  ========================================================================
 artifact            content
@@ -220,7 +225,8 @@ def run_evaluate_tss(params: TssParams, ctx: JobContext) -> None:
         ctx.progress(0.05 + 0.85 * fraction, message)
 
     sim = simulate(plane, path, resolutions, params.intervals, (int(size[0]), int(size[1])),
-                   amortised=params.texture_pass == "amortised", ppd=params.flip_ppd,
+                   amortised=params.texture_pass != "per_texel",
+                   everywhere=params.texture_pass == "amortised_all", ppd=params.flip_ppd,
                    progress=progress)  # fmt: skip
     metrics = metrics_document(params, model, sim, path.motion())
     timing = timing_document(sim, plane.dr.thread_count())

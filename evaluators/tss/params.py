@@ -166,7 +166,7 @@ class TssParams(StrictModel):
     ``lights``        list of lights     three        point lights {position, intensity}
     ``uv_scale``      int                2            repeats of the model's patch per side
     ``path``          PathSpec           see there    seeded head motion, camera
-    ``texture_pass``  amortised | ...    amortised    the 2x2 coarse amortisation or per texel
+    ``texture_pass``  amortised | ...    amortised    2x2 coarse amortisation (_all: every R)
     ``flip_ppd``      float              67.0         FLIP's pixels per degree
     ``preset``        small | paper      small        defaults of the fields above
     ================  =================  ===========  ===========================================
@@ -219,12 +219,14 @@ class TssParams(StrictModel):
     path: PathSpec = Field(
         default=PathSpec(), description="Camera and seeded head motion (see PathSpec)."
     )
-    texture_pass: Literal["amortised", "per_texel"] = Field(
+    texture_pass: Literal["amortised", "amortised_all", "per_texel"] = Field(
         default="amortised",
         description="'amortised': the paper's pass (FusedBtf.shade_texture: the student's "
         "coarse MLP once per 2x2 block, at the block centre's directions) where the texture "
-        "is texel-matched (R = model resolution x uv_scale), else per texel; 'per_texel': "
-        "every texel evaluated alone (FusedBtf.eval at its centre, exact directions).",
+        "is texel-matched (R = model resolution x uv_scale), else per texel; "
+        "'amortised_all': the student's 2x2 amortisation at every even R (the coarse MLP "
+        "once per 2x2 block of the radiance texture); 'per_texel': every texel evaluated "
+        "alone (FusedBtf.eval at its centre, exact directions).",
     )
     flip_ppd: float = Field(
         default=DEFAULT_PPD, gt=0.0, le=1000.0,

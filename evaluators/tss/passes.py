@@ -71,6 +71,20 @@ class Plane:
         return Camera(vec(eye), vec(basis[0]), vec(basis[1]), vec(basis[2]),
                       dr.opaque(mi.Float, float(tan_half)))  # fmt: skip
 
+    def amortises(self, resolution: int, everywhere: bool) -> bool:
+        """Whether the amortised pass runs at ``resolution``: texel-matched, or (with
+        ``everywhere``) any even resolution for the student, through
+        :meth:`FusedStudent.eval_block <models.btf.fused.FusedStudent.eval_block>`."""
+        if self.texel_matched(resolution):
+            return True
+        f = self.fused
+        return (
+            everywhere
+            and getattr(f, "amortisable", True)
+            and getattr(f, "kind", None) == "c2f"
+            and resolution % 2 == 0
+        )
+
     def texel_matched(self, resolution: int) -> bool:
         """Whether an ``R x R`` radiance texture puts one texel on each neural texel."""
         f = self.fused
@@ -133,11 +147,17 @@ class Plane:
         return hit, u, v
 
     # -- the passes ----------------------------------------------------------------------
-    def shade(self, resolution: int, cam: Camera, *, amortised: bool) -> list[Any]:
+    def shade(
+        self, resolution: int, cam: Camera, *, amortised: bool, everywhere: bool = False
+    ) -> list[Any]:
         """The radiance texture, ``R x R`` row-major, for the eye of ``cam``. ``amortised``
-        and texel-matched: :meth:`FusedBtf.shade_texture` per patch repeat; else per texel."""
+        and texel-matched: :meth:`FusedBtf.shade_texture` per patch repeat; ``amortised``
+        and ``everywhere`` at another even ``R`` (the student): the 2 x 2 blocks of the
+        radiance texture (:meth:`_shade_any_blocks`); else per texel."""
         if amortised and self.texel_matched(resolution):
             return self._shade_blocks(cam)
+        if amortised and self.amortises(resolution, everywhere):
+            return self._shade_any_blocks(resolution, cam)
         dr, mi = self.dr, self.mi
         r = int(resolution)
         idx = dr.arange(mi.UInt32, r * r)
@@ -188,6 +208,44 @@ class Plane:
                     index = mi.UInt32(tj) * r + mi.UInt32(ti)
                     for c in range(3):
                         dr.scatter(out[c], rgb[c], index)
+        return out
+
+    def _shade_any_blocks(self, resolution: int, cam: Camera) -> list[Any]:
+        """The student's amortised pass at any even ``R``: one lane per 2 x 2 block of the
+        radiance texture, the coarse MLP once at the block's centre (its directions, and the
+        coarse texel holding it), the fine MLP at each of the four texel centres; the light
+        factors ``I / r^2`` per texel (as :meth:`_shade_blocks`)."""
+        dr, mi, s = self.dr, self.mi, self.uv_scale
+        r = int(resolution)
+        half = r // 2
+        lane = dr.arange(mi.UInt32, half * half)
+        bj, bi = lane // half, lane % half
+        gu, gv = mi.Float(2 * bi + 1) / r, mi.Float(2 * bj + 1) / r
+        px, py = self._point(gu, gv)
+        wo, _ = self._toward(px, py, cam.eye)
+        wo_v = mi.Vector3f(*wo)
+        texels = [(2 * bj + dy, 2 * bi + dx) for dy, dx in BLOCK_TEXELS]
+        uvs, factors = [], []
+        for tj, ti in texels:
+            tu, tv = (mi.Float(ti) + 0.5) / r, (mi.Float(tj) + 0.5) / r
+            uvs.append(mi.Point2f(tu * s, tv * s))
+            qx, qy = self._point(tu, tv)
+            wo_t, _ = self._toward(qx, qy, cam.eye)
+            factors.append([w for _, w in self._weights(qx, qy, wo_t[2])])
+        acc = [[mi.Float(0.0)] * 3 for _ in texels]
+        centre = mi.Point2f(gu * s, gv * s)
+        for k, (pos, _) in enumerate(self.lights):
+            wi, _ = self._toward(px, py, pos)
+            student: Any = self.fused  # amortises(): a FusedStudent
+            outs = student.eval_block(centre, uvs, mi.Vector3f(*wi), wo_v)
+            for t, rgb in enumerate(outs):
+                w = factors[t][k]
+                acc[t] = [dr.fma(rgb[c], w[c], acc[t][c]) for c in range(3)]
+        out = [dr.zeros(mi.Float, r * r) for _ in range(3)]
+        for (tj, ti), rgb in zip(texels, acc, strict=True):
+            index = mi.UInt32(tj) * r + mi.UInt32(ti)
+            for c in range(3):
+                dr.scatter(out[c], rgb[c], index)
         return out
 
     def lookup(self, texture: Sequence[Any], resolution: int, cam: Camera, size: tuple[int, int]

@@ -143,6 +143,7 @@ def simulate(
     size: tuple[int, int],
     *,
     amortised: bool = True,
+    everywhere: bool = False,
     ppd: float,
     on_frame: FrameHook | None = None,
     progress: Callable[[float, str], None] | None = None,
@@ -168,7 +169,9 @@ def simulate(
         c0 = cam(0)
         clock.run(partial(plane.reference, c0, size))
         for r in resolutions:
-            tex, _, _ = clock.run(partial(plane.shade, r, c0, amortised=amortised))
+            tex, _, _ = clock.run(
+                partial(plane.shade, r, c0, amortised=amortised, everywhere=everywhere)
+            )
             clock.run(partial(plane.lookup, tex, r, c0, size))
         textures: dict[int, dict[int, list[Any]]] = {r: {} for r in resolutions}
         for k in range(frames):
@@ -185,7 +188,9 @@ def simulate(
             shown: dict[tuple[int, int], np.ndarray] = {}
             for r in resolutions:
                 if any(k % (n + 1) == 0 for n in intervals):
-                    tex, wall, kern = clock.run(partial(plane.shade, r, ck, amortised=amortised))
+                    tex, wall, kern = clock.run(
+                        partial(plane.shade, r, ck, amortised=amortised, everywhere=everywhere)
+                    )
                     timings.shade[r].append((wall, kern))
                     textures[r][k] = tex
                 source = {n: k - k % (n + 1) for n in intervals}
@@ -227,5 +232,5 @@ def simulate(
         series=series,
         timings=timings,
         figure=figure,
-        amortised={r: amortised and plane.texel_matched(r) for r in resolutions},
+        amortised={r: amortised and plane.amortises(r, everywhere) for r in resolutions},
     )

@@ -73,8 +73,11 @@ class FusedBtf:
 
     def __init__(self, model: PortableBtf, mi: types.ModuleType, *, half: bool = False) -> None:
         """``half``: keep the textures (neural features, Lafortune parameters) in float16
-        and widen them to float32 in the kernel, as the paper's half-precision inference
-        stores them; the arithmetic stays float32."""
+        and widen them to float32 in the kernel. This is half-precision *storage* only: the
+        MLPs' arithmetic stays float32 (the paper's inference computes in half precision
+        too; Dr.Jit's LLVM backend has ``Float16`` arrays but no half-precision fused MLP
+        here, so that part is not modelled). What it buys on this CPU is memory traffic:
+        half the bytes per texture fetch."""
         import drjit as dr
 
         self.model = model
@@ -253,6 +256,29 @@ class FusedStudent(FusedBtf):
         z = self._coarse_z(self._gather(ct, bj * ct.w + bi), wi, wo)
         fine = self._bilinear(self.fine_tex, u, v)
         return self._out(fused_mlp(self.fine, [*z, *fine]))
+
+    def eval_block(self, centre: Any, texels: list[Any], wi: Any, wo: Any) -> list[Any]:
+        """The 2 x 2 amortisation at arbitrary texture coordinates (a radiance texture of any
+        resolution): ``z_c`` once, from the coarse texel holding ``centre`` (``Point2f``,
+        periodic) with the directions ``wi``, ``wo`` (``Vector3f``, taken at the centre), and
+        the fine MLP at each of ``texels`` (``Point2f`` each, fine texture bilinear), as
+        :meth:`eval` would evaluate them but for the shared ``z_c``. Returns one ``Color3f``
+        per texel."""
+        dr, mi = self.dr, self.mi
+        ct = self.coarse_tex
+        u = centre[0] - dr.floor(centre[0])
+        v = centre[1] - dr.floor(centre[1])
+        bi = dr.minimum(mi.UInt32(u * ct.w), ct.w - 1)
+        bj = dr.minimum(mi.UInt32(v * ct.h), ct.h - 1)
+        z = self._coarse_z(self._gather(ct, bj * ct.w + bi), [wi[0], wi[1], wi[2]],
+                           [wo[0], wo[1], wo[2]])  # fmt: skip
+        out = []
+        for t in texels:
+            tu, tv = t[0] - dr.floor(t[0]), t[1] - dr.floor(t[1])
+            out.append(
+                self._out(fused_mlp(self.fine, [*z, *self._bilinear(self.fine_tex, tu, tv)]))
+            )
+        return out
 
     def _shade(self, wi: list[Any], wo: list[Any]) -> list[Any]:
         z = self._coarse_z(self._wide(self.coarse_tex.channels), wi, wo)

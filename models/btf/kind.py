@@ -20,9 +20,9 @@ over the training and held-out slices, and the storage); ``curves.json`` and
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, StrictModel, device_field
@@ -71,6 +71,22 @@ class DistillSpec(StrictModel):
     sigma: float = Field(default=0.1, ge=0.0, le=10.0, description="Weight of L1(y_s, y_t).")
     lambda1: float = Field(default=0.1, ge=0.0, le=10.0, description="Weight of the 1st tap.")
     lambda2: float = Field(default=0.1, ge=0.0, le=10.0, description="Weight of the 2nd tap.")
+    hint: Literal["mse", "standardised"] = Field(
+        default="mse",
+        description="Form of the two feature-hint terms: 'mse' (the mean squared error, "
+        "the default, the form earlier specs ran with) or 'standardised' (each feature "
+        "standardised over the slice before the squared error: scale-invariant and of order "
+        "1, so lambda weighs it against L1; see models.btf.train).",
+    )
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # The default hint is left out, so a spec written before the field existed keeps
+        # its canonical form and its hash (and its bytes: 'mse' is what it ran with).
+        data: dict[str, Any] = handler(self)
+        if data.get("hint") == "mse":
+            del data["hint"]
+        return data
 
 
 class TrainBtfParams(StrictModel):

@@ -11,12 +11,17 @@ between centres.
 with one neural texture at the finest level (no pyramid). Inputs: 7 texture channels and
 the directions' projections ``wi.xy, wo.xy``; three hidden ReLU layers of ``width``
 (25; 128 for the "NeuMIP Max" teacher; 8 for the same-capacity variant of Fig. 8); linear
-RGB out. At 400^2 texels it stores 7 x 4 bytes per texel plus 1.7 K weights: 4.49 MB, the
-4.48 MB of the paper's Table 1.
+RGB out. At 400^2 texels it stores 7 x 4 bytes per texel plus 1,678 weights (6,712 B; the
+paper gives 6.6 KB): 4.49 MB, the 4.48 MB of the paper's Table 1.
 
 **Coarse-to-fine student** (Sec. 4.1): a coarse texture ``U_c`` of 7 channels at half
 resolution (one texel per 2 x 2 block, centred on the block's centre ``u_c``) and a fine
-texture ``U_f`` of 8 channels at full resolution: 6.24 MB at 400^2, Table 1's figure.
+texture ``U_f`` of 8 channels at full resolution: 6.24 MB at 400^2, Table 1's figure. That
+match is by construction: the paper gives the totals, not the channel counts, and 7 and 8
+were solved from Table 1's 6.24 MB (and NeuMIP's 7 from its 4.48 MB). The networks' own
+sizes are an independent check: NeuMIP-25's 6,712 B is the paper's 6.6 KB (6.55 KiB); the
+student's 371 weights, 1,484 B (1.45 KiB), are 25-40 floats under the paper's 1.6 KB, a
+difference its text does not explain (``tests/unit/models/btf/test_btf_networks.py``).
 
 - Eq. 3: ``z_c = M_c(wi, wo, h, U_c(u_c))``, ``M_c``: 16 -> 8 -> 8, ReLU after both;
 - Eq. 4: ``BTF(u_k) = M_f(z_c, U_f(u_k))``, ``M_f``: 16 -> 8 -> 3, ReLU, linear out;

@@ -1,7 +1,8 @@
 """Result rows of ``train.btf`` (:mod:`jobapi.rows`): the model's L1 errors of
 ``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
 storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
-the decoder's. Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest)."""
+the decoder's. Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest,
+and fine_detail: the paper's Fig. 15 failure, the detail within 2 x 2 blocks)."""
 
 from __future__ import annotations
 

@@ -22,7 +22,13 @@ from jobapi.errors import JobFailed
 from jobapi.params import job_id_of
 from materials.btf.lafortune import PARAMS_PER_TEXEL, initial_params
 from models.brdf.train import deterministic_torch
-from models.btf.cases import case_errors, predicted_slice_l1, slice_mean_abs
+from models.btf.cases import (
+    case_errors,
+    detail_slices,
+    fine_detail_error,
+    predicted_slice_l1,
+    slice_mean_abs,
+)
 from models.btf.data import BtfDataset
 from models.btf.lafortune import fit_lafortune
 from models.btf.networks import Architecture, build_network
@@ -95,7 +101,9 @@ def _fit_network(
     if params.distill is not None:
         d = params.distill
         teacher = load_teacher(d.teacher, ctx, (h, w)).to(device)
-        distill = Distillation(teacher, sigma=d.sigma, lambda1=d.lambda1, lambda2=d.lambda2)
+        distill = Distillation(
+            teacher, sigma=d.sigma, lambda1=d.lambda1, lambda2=d.lambda2, hint=d.hint
+        )
     epochs = params.effective().epochs
 
     def report(step: int, n: int, train_l1: float, test_l1: float) -> None:
@@ -210,11 +218,13 @@ def train_and_report(params: TrainBtfParams, ctx: JobContext) -> None:
         "slices": {"total": n_all, "train": int(len(train)), "heldout": int(len(test))},
         "storage": {k: storage[k] for k in ("texture_bytes", "network_bytes", "total_bytes")},
         "storage_at_400": _storage_at(model, (400, 400)),
-        "cases": case_errors(data.wi, data.wo, per_slice, slice_scale),
+        "cases": case_errors(data.wi, data.wo, per_slice, slice_scale)
+        + [fine_detail_error(model.slice, data, detail_slices(len(data), test))],
         "definition": "l1: mean absolute error over every slice, texel and channel of the "
         "BTF (Table 1), in BTF units (1/sr); l1_train / l1_heldout over those slices only; "
         "cases: the same over the slices of each failure case (models.btf.cases), "
-        "relative_l1 over their own mean |BTF|",
+        "relative_l1 over their own mean |BTF|; fine_detail: the error of the detail "
+        "within 2 x 2 blocks (the paper's Fig. 15 failure) over the held-out slices",
     }
     ctx.progress(P_SCORED, "writing artifacts")
     ctx.put_json("model.json", model.doc)

@@ -16,8 +16,25 @@ epoch (on the training L1 when nothing is held out) -- or every ``plateau_steps`
 T_1 z_t1) + lambda_2 L2(z_s2, T_2 z_t2)``, the teacher (a trained NeuMIP Max) frozen and
 evaluated at the same texture points; ``T_1``, ``T_2`` learned linear maps (no bias,
 teacher width -> student width) trained with the student. Taps: the student's ``z_c`` and
-fine hidden layer, the teacher's second and third hidden layers. ``L2`` is the mean
-squared error.
+fine hidden layer, the teacher's second and third hidden layers.
+
+**The hint terms** (``L2`` above, :func:`hint_loss`), two forms (``Distillation.hint``):
+
+- ``"mse"`` (the default, the form of every earlier spec, whose bytes it keeps): the mean
+  squared error. Its size is that of the features: the student's are about 0.1, so at
+  ``lambda = 0.1`` the two hints carried 0.5 % and 0.3 % of the ground-truth L1 term's
+  gradient on the student's weights, and ``z_s = T z_t`` is degenerate in scale: with ReLU
+  networks the student can shrink ``z_c`` (and grow the next layer's weights) while ``T``
+  shrinks with it, which lowers the hint to zero without matching anything (``z_c``'s RMS
+  halved under distillation).
+- ``"standardised"``: each feature (column) of both sides standardised over the slice's
+  texels (zero mean, unit variance, :data:`HINT_EPS` added to the variance) before the mean
+  squared error; per feature that is ``2 (1 - r)``, ``r`` the correlation of the student's
+  feature with its mapped teacher feature. It is invariant to the scale (and offset) of
+  either side, so shrinking cannot lower it, and it is of order 1 whatever the features'
+  size, so ``lambda`` weighs it against L1 directly. Chosen over dividing by the teacher
+  features' variance because that variance is fixed while ``T`` is learned: ``T`` and the
+  student could still shrink together.
 
 Stability: a non-finite loss fails the job naming the epoch and step. Determinism: run in
 :func:`models.brdf.train.deterministic_torch`; the slice order comes from a numpy
@@ -43,19 +60,81 @@ from models.btf.networks import slice_forward
 BETAS, EPS = (0.9, 0.999), 1e-8
 LR, MIN_LR, PLATEAU_FACTOR, PLATEAU_THRESHOLD = 5e-4, 1e-7, 0.5, 1e-4
 
+#: The forms of Eq. 5's hint terms (see the module docstring); the first is the default.
+HINTS = ("mse", "standardised")
+#: Added to each feature's variance in the standardised hint (features are about 0.1, so
+#: variances about 1e-2): bounds the gain on a nearly constant (dead ReLU) feature at 1e3.
+HINT_EPS = 1e-6
+
 #: ``on_progress(step, steps, train_l1, test_l1)`` at each check; may raise (e.g. to cancel).
 ProgressFn = Callable[[int, int, float, float], None]
 
 
 @dataclass(frozen=True)
 class Distillation:
-    """A frozen ``teacher`` and the weights of Eq. 5 (0.1 each in the paper)."""
+    """A frozen ``teacher``, the weights of Eq. 5 (0.1 each in the paper) and the form of
+    its hint terms (:data:`HINTS`)."""
 
     teacher: nn.Module
     sigma: float = 0.1
     lambda1: float = 0.1
     lambda2: float = 0.1
     taps: tuple[int, int] = (1, 2)
+    hint: str = "mse"
+
+    def __post_init__(self) -> None:
+        if self.hint not in HINTS:
+            raise ValueError(f"hint {self.hint!r}: use one of {', '.join(HINTS)}")
+
+
+def _standardise(z: torch.Tensor) -> torch.Tensor:
+    mean = z.mean(dim=0, keepdim=True)
+    var = z.var(dim=0, unbiased=False, keepdim=True)
+    return (z - mean) / torch.sqrt(var + HINT_EPS)
+
+
+def hint_loss(student: torch.Tensor, target: torch.Tensor, form: str = "mse") -> torch.Tensor:
+    """One hint term of Eq. 5 between the student's features ``(N, C)`` and the mapped
+    teacher features ``(N, C)`` (``T z_t``), rows the slice's texels: the mean squared
+    error (``"mse"``), or that of both sides standardised per feature (``"standardised"``;
+    see the module docstring)."""
+    if form == "mse":
+        return torch.mean((student - target) ** 2)
+    if form == "standardised":
+        return torch.mean((_standardise(student) - _standardise(target)) ** 2)
+    raise ValueError(f"hint {form!r}: use one of {', '.join(HINTS)}")
+
+
+class _Maps(nn.Module):
+    def __init__(self, teacher_width: int, student_width: int, gen: torch.Generator) -> None:
+        super().__init__()
+        self.t1 = nn.Linear(teacher_width, student_width, bias=False)
+        self.t2 = nn.Linear(teacher_width, student_width, bias=False)
+        bound = 1.0 / math.sqrt(teacher_width)
+        with torch.no_grad():
+            self.t1.weight.uniform_(-bound, bound, generator=gen)
+            self.t2.weight.uniform_(-bound, bound, generator=gen)
+
+
+def eq5_terms(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    taps: list[torch.Tensor],
+    y_t: torch.Tensor,
+    t_hidden: list[torch.Tensor],
+    maps: _Maps,
+    distill: Distillation,
+) -> dict[str, torch.Tensor]:
+    """Eq. 5's four terms, each with its weight: ``l1`` (to the ground truth),
+    ``teacher_l1`` (``sigma L1(y_s, y_t)``), ``hint1`` and ``hint2`` (``lambda_i`` times
+    :func:`hint_loss`); the loss is their sum."""
+    a, b = distill.taps
+    return {
+        "l1": torch.mean(torch.abs(pred - target)),
+        "teacher_l1": distill.sigma * torch.mean(torch.abs(pred - y_t)),
+        "hint1": distill.lambda1 * hint_loss(taps[0], maps.t1(t_hidden[a]), distill.hint),
+        "hint2": distill.lambda2 * hint_loss(taps[1], maps.t2(t_hidden[b]), distill.hint),
+    }
 
 
 @dataclass(frozen=True)
@@ -141,17 +220,6 @@ def slice_l1(net: nn.Module, data: BtfDataset, indices: np.ndarray) -> np.ndarra
     return out
 
 
-class _Maps(nn.Module):
-    def __init__(self, teacher_width: int, student_width: int, gen: torch.Generator) -> None:
-        super().__init__()
-        self.t1 = nn.Linear(teacher_width, student_width, bias=False)
-        self.t2 = nn.Linear(teacher_width, student_width, bias=False)
-        bound = 1.0 / math.sqrt(teacher_width)
-        with torch.no_grad():
-            self.t1.weight.uniform_(-bound, bound, generator=gen)
-            self.t2.weight.uniform_(-bound, bound, generator=gen)
-
-
 def fit(
     net: nn.Module,
     data: BtfDataset,
@@ -164,10 +232,14 @@ def fit(
     distill: Distillation | None = None,
     on_progress: ProgressFn | None = None,
     on_curves: Callable[[Curves], object] | None = None,
+    on_terms: Callable[[dict[str, float]], object] | None = None,
 ) -> Curves:
     """Train ``net`` on the slices ``train`` for ``cfg.epochs`` epochs (see the module
     docstring); returns the curves. ``on_curves(curves)`` is called at each check (the
-    live chart)."""
+    live chart). ``on_terms`` (distillation only; an instrument, it costs four extra
+    backward passes a step and changes nothing else): called each step with the norm of
+    each Eq. 5 term's gradient on the student's network weights (textures excluded), by
+    the names of :func:`eq5_terms`."""
     started = time.perf_counter()
     dev = _device(net)  # the data follow the network (models.device.pick_device)
     params = list(net.parameters())
@@ -205,13 +277,10 @@ def fit(
                 with torch.no_grad():
                     y_t, t_hidden = slice_forward(distill.teacher, wi, wo, _student_grid(net, gen))
                 gen.set_state(after)
-                a, b = distill.taps
-                loss = (
-                    l1
-                    + distill.sigma * torch.mean(torch.abs(pred - y_t))
-                    + distill.lambda1 * torch.mean((taps[0] - maps.t1(t_hidden[a])) ** 2)
-                    + distill.lambda2 * torch.mean((taps[1] - maps.t2(t_hidden[b])) ** 2)
-                )
+                terms = eq5_terms(pred, target, taps, y_t, t_hidden, maps, distill)
+                loss = l1 + terms["teacher_l1"] + terms["hint1"] + terms["hint2"]
+                if on_terms is not None:
+                    on_terms(term_gradients(net, terms))
             if not torch.isfinite(loss):
                 raise JobFailed(f"training diverged: non-finite loss at epoch {epoch}, slice {i}")
             opt.zero_grad(set_to_none=True)
@@ -244,6 +313,17 @@ def fit(
     net.eval()
     curves.seconds = time.perf_counter() - started
     return curves
+
+
+def term_gradients(net: nn.Module, terms: dict[str, torch.Tensor]) -> dict[str, float]:
+    """The L2 norm of each term's gradient on ``net``'s network weights (every parameter
+    but the neural textures); a term that does not reach a weight contributes zero there."""
+    weights = [p for n, p in net.named_parameters() if "texture" not in n]
+    out = {}
+    for name, term in terms.items():
+        grads = torch.autograd.grad(term, weights, retain_graph=True, allow_unused=True)
+        out[name] = math.sqrt(sum(float((g.detach() ** 2).sum()) for g in grads if g is not None))
+    return out
 
 
 def _width(net: nn.Module) -> int:

@@ -63,9 +63,12 @@ def test01_lafortune_is_exact_on_lambertian(flat) -> None:
     # 12 degrees): light = view = normal and the two 60-degree lights' mirror pair. The
     # cases cover every slice, and the exact Lambertian fit is exact in each of them.
     cases = {c["case"]: c for c in m["cases"]}
-    assert list(cases) == ["shadowing", "specular", "rest"]
+    assert list(cases) == ["shadowing", "specular", "rest", "fine_detail"]
     assert cases["shadowing"]["slices"] == 12 and cases["specular"]["slices"] == 3
     assert cases["rest"]["slices"] == 36 - 12 - 1  # the mirror pair is also shadowing
+    # a flat plane has no detail within 2 x 2 blocks: no relative figure, a tiny L1
+    detail = cases.pop("fine_detail")
+    assert detail["relative_l1"] is None and detail["l1"] < 1e-3 * m["mean_abs_btf"]
     assert all(c["relative_l1"] < 1e-3 for c in cases.values()), cases
     from jobapi.kinds import registered
     from jobapi.row_sources import StoreSource

@@ -301,3 +301,34 @@ def test06_model_must_be_a_train_btf_job(trained: Trained) -> None:
             trained.settings,
         )
     assert any("model" in loc for loc, _ in err.value.errors)
+
+
+def test07_amortised_at_every_resolution(trained: Trained, mi: types.ModuleType) -> None:
+    """``amortised_all``: the student's 2 x 2 amortisation at any even R. At the
+    texel-matched R its block pass (gathers, bilinear fine features at the texel centres)
+    equals the contiguous :meth:`FusedBtf.shade_texture` pass, which test02 checks against
+    numpy, to 1e-5 of the peak; at an unmatched R it runs (``pass`` amortised) and stays
+    close to the per-texel pass of the same R (only ``z_c`` is shared per block: FLIP <
+    0.02 on the 1:1 top-down view, as test03's bound for the matched pass)."""
+    params = params_of(trained, uv_scale=2, lights=[{"position": [0.3, 0.2, 1.0],
+                                                     "intensity": 2.0}])  # fmt: skip
+    plane = Plane(FusedBtf(trained.portable, mi), params.lights, params.uv_scale)
+    eye = np.array([0.2, -0.4, 0.9])
+    cam = plane.camera(eye, np.eye(3), 0.5)
+    matched = np.stack([np.asarray(c) for c in plane.shade(32, cam, amortised=True)])
+    blocks = np.stack([np.asarray(c) for c in plane._shade_any_blocks(32, cam)])
+    assert np.abs(blocks - matched).max() <= 1e-5 * matched.max()
+    assert plane.amortises(24, True) and not plane.amortises(24, False)
+    assert not plane.amortises(25, True)  # an odd R has no 2 x 2 blocks
+    fov = math.degrees(2 * math.atan(0.5 / 1.2))
+    path = {**STATIC, "elevation_deg": 90.0, "distance_m": 1.2, "fov_deg": fov}
+    flips = {}
+    for tp in ("per_texel", "amortised_all"):
+        p = params_of(trained, frames=1, intervals=[0], image=[24, 24], path=path, texture_pass=tp)
+        path_ = camera_path(p.path, 1, np.random.default_rng(0))
+        pl = Plane(FusedBtf(trained.portable, mi), p.lights, p.uv_scale)
+        sim = simulate(pl, path_, [24], [0], (24, 24), amortised=tp != "per_texel",
+                       everywhere=tp == "amortised_all", ppd=p.flip_ppd)  # fmt: skip
+        assert sim.amortised == {24: tp == "amortised_all"}
+        flips[tp] = sim.series[(24, 0)].flip[0]
+    assert flips["per_texel"] < 1e-4 and flips["per_texel"] < flips["amortised_all"] < 0.02

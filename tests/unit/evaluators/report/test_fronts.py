@@ -174,3 +174,44 @@ def test05_points_name_their_runtime_and_mixed_panels_say_so() -> None:
         "mine": "onnxruntime",
     }
     assert lad["chosen"] == "hybrid 32x3"
+
+
+def test06_claims_inside_the_seed_spread_are_not_resolved() -> None:
+    """Hand-built seed ranges: a claim holds or fails only where the two candidates' ranges
+    of per-job means do not overlap; overlapping ranges give ``holds: None`` even where the
+    means differ; one job on a side keeps the means' verdict, marked unresolvable."""
+
+    def rows_of(values: dict[str, list[float]]) -> list[ResultRow]:
+        n = itertools.count()
+        return [
+            brdf_row(f"{next(n):032x}", cand, v, 1.0) for cand, vs in values.items() for v in vs
+        ]
+
+    # means 0.20 and 0.22 differ, but 0.15..0.25 and 0.21..0.23 overlap
+    inside = check_claim(
+        rows_of({"a": [0.15, 0.20, 0.25], "b": [0.21, 0.22, 0.23]}),
+        {"a": "a", "b": "b", "metric": "smape"},
+    )
+    assert inside["holds"] is None and inside["resolved"] is False
+    assert "not resolved" in inside["why"] and inside["a_seeds"] == 3
+    assert inside["a_range"] == [0.15, 0.25] and inside["a_mean"] == pytest.approx(0.20)
+    # disjoint ranges: the verdict stands, both ways
+    apart = rows_of({"a": [0.10, 0.12, 0.11], "b": [0.13, 0.15, 0.14]})
+    ok = check_claim(apart, {"a": "a", "b": "b", "metric": "smape"})
+    assert ok["holds"] is True and ok["resolved"] is True
+    bad = check_claim(apart, {"a": "b", "b": "a", "metric": "smape"})
+    assert bad["holds"] is False and bad["resolved"] is True
+    # touching ranges (max of one = min of the other) overlap
+    touch = check_claim(
+        rows_of({"a": [0.10, 0.13], "b": [0.13, 0.15]}), {"a": "a", "b": "b", "metric": "smape"}
+    )
+    assert touch["holds"] is None
+    # one seed on a side: the means decide, flagged as having no spread
+    single = check_claim(
+        rows_of({"a": [0.10], "b": [0.13, 0.15]}), {"a": "a", "b": "b", "metric": "smape"}
+    )
+    assert single["holds"] is True and single["resolved"] is None and "one seed" in single["why"]
+    # several rows of one job are one repeat (their mean), not several seeds
+    one_job = [brdf_row("f" * 32, "a", v, 1.0) for v in (0.1, 0.3)]
+    many = one_job + rows_of({"b": [0.25, 0.26]})
+    assert check_claim(many, {"a": "a", "b": "b", "metric": "smape"})["a_seeds"] == 1

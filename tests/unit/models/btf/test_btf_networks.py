@@ -149,7 +149,8 @@ def test06_fused_lafortune_equals_numpy(mi: types.ModuleType) -> None:
 
 
 def test07_half_precision_textures(mi: types.ModuleType) -> None:
-    """float16 textures (the paper's half-precision inference) change the result only by
+    """float16 texture storage (arithmetic stays float32: storage only, not the paper's
+    half-precision inference) changes the result only by
     the textures' rounding: the same model with its textures rounded to float16 in numpy."""
     port = _portable(_net("c2f", 8, seed=5))
     rounded = {k: v.astype(np.float16).astype(np.float32) for k, v in port.textures.items()}
@@ -157,3 +158,23 @@ def test07_half_precision_textures(mi: types.ModuleType) -> None:
     wi, wo = to_vector(25, 80), to_vector(55, 300)
     np.testing.assert_allclose(FusedBtf(port, mi, half=True).slice(wi, wo), ref.slice(wi, wo),
                                rtol=1e-5, atol=1e-6)  # fmt: skip
+
+
+def test_network_sizes_against_the_paper() -> None:
+    """The networks' own sizes, counted layer by layer by hand (float32): the student
+    (16 -> 8, 8 -> 8, 16 -> 8, 8 -> 3, weights and biases) 371 floats = 1,484 B against
+    Table 1's 1.6 KB (25-40 floats fewer: not explained by the paper's text); NeuMIP-25
+    (11 -> 25, 25 -> 25 twice, 25 -> 3) 1,678 floats = 6,712 B = 6.55 KiB, the paper's
+    6.6 KB. The 400^2 totals (6.24 MB, 4.49 MB) match Table 1 because the texture
+    channels (7 coarse + 8 fine; 7) were chosen so that they do: by construction."""
+    from models.btf.networks import Architecture, build_network
+
+    c2f = build_network(Architecture("c2f", 8, (400, 400)), 0)
+    neumip = build_network(Architecture("neumip", 25, (400, 400)), 0)
+    hand_c2f = ((7 + 9) * 8 + 8) + (8 * 8 + 8) + ((8 + 8) * 8 + 8) + (8 * 3 + 3)
+    hand_neumip = (11 * 25 + 25) + 2 * (25 * 25 + 25) + (25 * 3 + 3)
+    assert (hand_c2f, hand_neumip) == (371, 1678)
+    assert c2f.network_bytes() == 4 * hand_c2f == 1484  # type: ignore[operator]
+    assert neumip.network_bytes() == 4 * hand_neumip == 6712  # type: ignore[operator]
+    assert c2f.texture_bytes() == (7 * 200 * 200 + 8 * 400 * 400) * 4 == 6_240_000  # type: ignore[operator]
+    assert neumip.texture_bytes() == 7 * 400 * 400 * 4 == 4_480_000  # type: ignore[operator]
