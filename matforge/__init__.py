@@ -9,12 +9,20 @@ This package is small and stable; everything else (``service``, ``generators``,
   (:class:`SpecError`, :class:`JobFailed`, :class:`ServerUnreachable`, ...);
 - :func:`run`: one job in this process, no server;
 - :mod:`matforge.datasets`: dataset jobs as typed readers with ``.numpy()`` and
-  ``.torch_dataset(...)``.
+  ``.torch_dataset(...)``;
+- :mod:`matforge.export`: your own PyTorch BRDF or BTF network as a matforge MLP file
+  (``matforge.mlp-brdf/1``, ``matforge.mlp-btf/1``), rendered by the fused kernel;
+- :mod:`matforge.export_onnx`: any PyTorch material model as an ONNX file with the
+  documented signature, evaluated with onnxruntime.
 
-``import matforge`` imports neither torch nor Mitsuba.
+``import matforge`` imports neither torch nor Mitsuba; ``matforge.export`` and
+``matforge.export_onnx`` are imported on first use (``matforge.export.brdf_mlp``), and
+import torch (and onnx) only when a helper converts a module.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 from jobapi.version import __version__
 from matforge import datasets
@@ -29,6 +37,23 @@ from matforge.client import (
 )
 from matforge.run import run
 
+#: Submodules imported on first attribute access (PEP 562), so that ``import matforge``
+#: stays light.
+_LAZY = ("export", "export_onnx")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return importlib.import_module(f"matforge.{name}")
+    raise AttributeError(f"module 'matforge' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
 __all__ = [
     "BadInput",
     "Client",
@@ -39,5 +64,7 @@ __all__ = [
     "SpecError",
     "__version__",
     "datasets",
+    "export",
+    "export_onnx",
     "run",
 ]

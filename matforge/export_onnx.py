@@ -85,3 +85,6 @@ def btf_onnx(module: Any, path: Path | str, *, opset: int = OPSET) -> Path:
     """Export a BTF ``module(uv, wi, wo) -> rgb`` (``uv`` ``(N, 2)``, directions ``(N, 3)``)
     to ``path``; returns the path. Raises as :func:`brdf_onnx`."""
     return _export(module, path, ("uv", "wi", "wo"), "btf", opset)
+
+
+__all__ = ["brdf_onnx", "btf_onnx"]

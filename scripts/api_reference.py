@@ -2,7 +2,8 @@
 
 Run: ``.venv/bin/python scripts/api_reference.py --write`` (without ``--write`` it prints
 the page); ``tests/unit/matforge/test_api_reference.py`` fails when the page is stale.
-Documented: every name in ``matforge.__all__`` and ``matforge.datasets.__all__``; for a
+Documented: every name in ``matforge.__all__``, ``matforge.datasets.__all__``,
+``matforge.export.__all__`` and ``matforge.export_onnx.__all__``; for a
 class, its public methods and properties defined in matforge (or, for ``Client``, in the
 REST client it extends).
 """
@@ -88,11 +89,16 @@ def page() -> str:
         _doc(matforge),
         "",
     ]
-    for name in sorted(n for n in matforge.__all__ if n not in ("__version__", "datasets")):
+    modules = ("__version__", "datasets", "export", "export_onnx")
+    for name in sorted(n for n in matforge.__all__ if n not in modules):
         lines += _entry(f"matforge.{name}", getattr(matforge, name))
     lines += ["## `matforge.datasets`", "", _doc(matforge.datasets), ""]
     for name in sorted(n for n in matforge.datasets.__all__ if n != "READERS"):
         lines += _entry(f"matforge.datasets.{name}", getattr(matforge.datasets, name))
+    for mod in (matforge.export, matforge.export_onnx):
+        lines += [f"## `{mod.__name__}`", "", _doc(mod), ""]
+        for name in sorted(mod.__all__):
+            lines += _entry(f"{mod.__name__}.{name}", getattr(mod, name))
     return "\n".join(lines).rstrip() + "\n"
 
 

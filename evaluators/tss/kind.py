@@ -129,7 +129,7 @@ def metrics_document(params: TssParams, model: PortableBtf | Any, sim: Simulatio
             "external": None
             if isinstance(params.model, str)
             else params.model.external.model_dump(mode="json", exclude_none=True),
-            "runtime": "drjit-fused",
+            "runtime": str(getattr(model, "runtime", "drjit-fused")),
             "model": model.model,
             "kind": model.kind,
             "resolution": [h, w],
@@ -179,7 +179,8 @@ def timing_document(sim: Simulation, threads: int) -> dict[str, Any]:
         "environment": environment(threads),
         "units": {
             "seconds_per_frame": "median shading-pass kernel seconds / (N + 1) + median "
-            "lookup-pass kernel seconds (Dr.Jit kernel history; warm-up excluded)",
+            "lookup-pass kernel seconds (Dr.Jit kernel history, plus the seconds inside "
+            "onnxruntime for an ONNX model; warm-up excluded)",
             "relative_cost": "seconds_per_frame / median screen-space pass kernel seconds",
             "wall_*": "the same from wall time: tracing + launch + sync (dr.sync_thread)",
         },

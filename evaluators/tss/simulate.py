@@ -17,8 +17,10 @@ Cost (the analogue of Table 2's FPS): each pass is timed around ``dr.eval`` and
 untimed warm-up of every pass that compiles its kernel (cameras are opaque values, so the
 kernels are reused). Both the wall time (tracing the Python code, launching, waiting) and the
 kernels' own execution time (Dr.Jit's kernel history: what a renderer pays per pass) are
-kept. Seconds per frame = median shading pass / (N + 1) + median lookup pass, and relative
-cost = that / median screen-space pass.
+kept. A model that runs in another runtime (an ONNX BTF: onnxruntime, called from the
+pass) adds the seconds spent inside that runtime to the pass's kernel seconds. Seconds per
+frame = median shading pass / (N + 1) + median lookup pass, and relative cost = that /
+median screen-space pass.
 """
 
 from __future__ import annotations
@@ -118,21 +120,26 @@ def figure_choice(intervals: Sequence[int], frames: int) -> tuple[int, int]:
 
 
 class _Clock:
-    """Times Dr.Jit passes: wall seconds and the JIT kernels' execution seconds."""
+    """Times Dr.Jit passes: wall seconds and the JIT kernels' execution seconds, plus the
+    seconds ``outside()`` reports for the pass (a model evaluated by another runtime, such
+    as onnxruntime, called from the pass: its execution is the model's kernel time)."""
 
-    def __init__(self, dr: Any) -> None:
+    def __init__(self, dr: Any, outside: Callable[[], float] | None = None) -> None:
         self.dr = dr
+        self.outside = outside
 
     def run(self, build: Callable[[], list[Any]]) -> tuple[list[Any], float, float]:
         dr = self.dr
         dr.kernel_history_clear()
+        before = self.outside() if self.outside is not None else 0.0
         start = time.perf_counter()
         outs = build()
         dr.eval(outs)
         dr.sync_thread()
         wall = time.perf_counter() - start
         hist = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
-        return outs, wall, sum(k["execution_time"] for k in hist) * 1e-3
+        extra = self.outside() - before if self.outside is not None else 0.0
+        return outs, wall, sum(k["execution_time"] for k in hist) * 1e-3 + extra
 
 
 def simulate(
@@ -163,7 +170,7 @@ def simulate(
 
     flag = dr.flag(dr.JitFlag.KernelHistory)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
-    clock = _Clock(dr)
+    clock = _Clock(dr, getattr(plane.fused, "outside_seconds", None))
     try:
         # Warm-up: every kernel compiled once, untimed.
         c0 = cam(0)

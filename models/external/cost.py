@@ -13,7 +13,15 @@ square from the same seed), the median of :data:`COST_REPEATS` runs after one wa
 - any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
   is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
 
-``ns_per_eval`` = that time / batch; ``bytes_per_network`` = the model's ``param_bytes``.
+``ns_per_eval`` = that time / batch. Bytes, float32 counted as 4, by one rule for every
+model, a user's or a built-in one (:func:`model_bytes`): ``bytes_total`` is everything needed
+to render it (networks, latent textures, analytic parameters); a BTF's ``bytes_per_material``
+is its latent textures (the per-material part) and ``bytes_per_network`` the rest (the
+networks' weights and biases), as ``train.btf``'s ``storage`` counts them; a BRDF's
+``bytes_per_network`` is all of its parameters (one file is one material and its network).
+An ONNX graph does not say which initialisers are textures, so an ONNX model's
+``bytes_per_network`` is all of its floating-point initialisers (= ``bytes_total``) and its
+``bytes_per_material`` is not given.
 The document (the measurement ``cost`` in a ``score`` job's manifest, :data:`COST_FORMAT`:
 not an artifact, since timings vary) names the ``runtime``
 and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
@@ -81,11 +89,22 @@ def measure_cost(
         "format": COST_FORMAT,
         "ns_per_eval": round(seconds / batch * 1e9, 3),
         "runtime": runtime,
-        "bytes_per_network": int(model.param_bytes),
+        **model_bytes(model),
         "method": method,
         "batch": batch,
         "repeats": repeats,
     }
+
+
+def model_bytes(model: ExternalModel) -> dict[str, int | None]:
+    """``{"bytes_total", "bytes_per_network", "bytes_per_material"}`` of a user's model by
+    the rule of the module docstring."""
+    total = int(model.param_bytes)
+    textures = getattr(model, "texture_bytes", None)
+    if model.kind != "btf" or textures is None:  # a BRDF, or ONNX: no split
+        return {"bytes_total": total, "bytes_per_network": total, "bytes_per_material": None}
+    return {"bytes_total": total, "bytes_per_network": total - int(textures),
+            "bytes_per_material": int(textures)}  # fmt: skip
 
 
 #: How a fused kernel is timed.
@@ -123,8 +142,9 @@ def measure_builtin_btf(
 ) -> dict[str, Any]:
     """The cost document of a ``train.btf`` model (:class:`models.btf.portable.PortableBtf`)
     on the same batch as :func:`measure_cost`: its fused kernel
-    (:meth:`models.btf.fused.FusedBtf.eval`, what ``btf_model`` renders with), bytes per
-    material its textures', per network its decoder's (``storage`` of its model.json)."""
+    (:meth:`models.btf.fused.FusedBtf.eval`, what ``btf_model`` renders with); bytes by the
+    rule of the module docstring, from ``storage`` of its model.json: per material its
+    textures', per network every network's weights and biases, in all both."""
     from models.btf.fused import FusedBtf
 
     seconds = fused_seconds(lambda mi: FusedBtf(model, mi).eval, "btf", batch, repeats,
@@ -134,6 +154,7 @@ def measure_builtin_btf(
         "format": COST_FORMAT,
         "ns_per_eval": round(seconds / batch * 1e9, 3),
         "runtime": FUSED,
+        "bytes_total": storage.get("total_bytes"),
         "bytes_per_material": storage.get("texture_bytes"),
         "bytes_per_network": storage.get("network_bytes"),
         "method": FUSED_METHOD,

@@ -134,8 +134,20 @@ class MlpMaterial:
 
     @property
     def param_bytes(self) -> int:
-        """Bytes of all parameters at float32 (weights, biases, textures, analytic part)."""
+        """Bytes of all parameters at float32 (weights, biases, textures, analytic part):
+        everything needed to render it."""
         return 4 * self.doc.param_count
+
+    @property
+    def texture_bytes(self) -> int:
+        """Bytes of the latent textures at float32 (0 without textures)."""
+        return 4 * int(sum(t.size for t in self.doc.textures))
+
+    @property
+    def network_bytes(self) -> int:
+        """Bytes of everything but the latent textures: the network's weights and biases
+        (and the analytic part's parameters)."""
+        return self.param_bytes - self.texture_bytes
 
     def features(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None) -> np.ndarray:
         """``(N, n_inputs)`` float64 network inputs (step 1 of the module docstring)."""

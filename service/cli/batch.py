@@ -11,12 +11,14 @@ A batch file is JSON or YAML::
     defaults: {seed: 3}      # optional: top-level fields a step's spec lacks
                              # (seed, force, timeout_seconds)
 
-Variables: a top-level ``vars: {name: default}`` (string or ``null`` defaults) declares
-parameters of the recipe; anywhere in a spec the whole string ``var:<name>`` becomes its
-value, given on the command line (``matforge batch FILE --var model=sha256:...``) or the
-default. A variable without a value, an unknown ``var:`` name or an undeclared ``--var`` is
-an error naming it. (The recipes ``scripts/external_brdf.yaml`` and
-``scripts/external_btf.yaml`` take the user's model this way.)
+Variables: a top-level ``vars: {name: default}`` (string, integer or ``null`` defaults)
+declares parameters of the recipe; anywhere in a spec the whole string ``var:<name>``
+becomes its value, given on the command line (``matforge batch FILE --var model=sha256:...``)
+or the default. A variable with an integer default is an integer: its ``--var`` value must
+be one (``--var resolution=16``). A variable without a value, an unknown ``var:`` name, an
+undeclared ``--var`` or a non-integer value of an integer variable is an error naming it.
+(The recipes ``scripts/external_brdf.yaml`` and ``scripts/external_btf.yaml`` take the
+user's model this way, and ``external_btf.yaml`` its sizes.)
 
 A top-level list of steps is accepted as well. ``spec`` is a spec mapping, or the path of a
 spec file relative to the batch file. Anywhere in a spec, the string
@@ -37,7 +39,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -195,15 +197,19 @@ def _step_spec(
 VAR_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}\Z")
 
 
-def _variables(doc: Any, given: dict[str, str], source: str) -> dict[str, str]:
+def _variables(doc: Any, given: dict[str, str], source: str) -> dict[str, str | int]:
     """The values of the batch's ``vars`` (see the module docstring)."""
     declared = doc.get("vars") if isinstance(doc, dict) else None
     declared = {} if declared is None else declared
     if not isinstance(declared, dict) or not all(
-        isinstance(k, str) and VAR_NAME.match(k) and (v is None or isinstance(v, str))
+        isinstance(k, str)
+        and VAR_NAME.match(k)
+        and (v is None or isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool)))
         for k, v in declared.items()
     ):
-        raise BatchError([f"{source}: vars: must map names to string defaults (or null)"])
+        raise BatchError(
+            [f"{source}: vars: must map names to string or integer defaults (or null)"]
+        )
     unknown = sorted(set(given) - set(declared))
     if unknown:
         known = ", ".join(sorted(declared)) or "none"
@@ -213,10 +219,23 @@ def _variables(doc: Any, given: dict[str, str], source: str) -> dict[str, str]:
     missing = sorted(k for k, v in values.items() if v is None)
     if missing:
         raise BatchError([f"{source}: vars.{missing[0]}: no value; give --var {missing[0]}=VALUE"])
-    return {k: str(v) for k, v in values.items()}
+    out: dict[str, str | int] = {}
+    for k, v in values.items():
+        if isinstance(declared[k], int) and not isinstance(v, int):
+            try:
+                v = int(str(v), 10)
+            except ValueError:
+                raise BatchError(
+                    [f"{source}: --var {k}={v}: {k} is an integer variable (its default is "
+                     f"{declared[k]})"]
+                ) from None  # fmt: skip
+        out[k] = v if isinstance(v, int) else str(v)
+    return out
 
 
-def substitute_vars(obj: Any, values: dict[str, str], where: str, problems: list[str]) -> Any:
+def substitute_vars(
+    obj: Any, values: Mapping[str, str | int], where: str, problems: list[str]
+) -> Any:
     """A copy of ``obj`` with every string ``var:<name>`` replaced by its value (an unknown
     name is a problem, named with ``where``)."""
     if isinstance(obj, str):

@@ -218,3 +218,19 @@ def test02_neural_btf_through_the_recipe(
     assert all(p["cost"] > 0 for p in points.values())
     select = json.loads(artifact(conf, steps["select"], "select.json"))
     assert {r["candidate"] for r in select["ladders"][0]["rungs"]} == set(points)
+
+    # Bytes by one rule for the user's model and the built-ins: per material the latent
+    # textures, per network every weight and bias, in all both (counted here from the torch
+    # module and from each built-in's model.json).
+    manifest = json.loads(ArtifactStore(conf.store_dir).read(steps["scores"].manifest_digest))
+    cost = manifest["timings"]["measured"]["cost"]["candidates"]
+    assert cost["mine"]["bytes_per_material"] == 4 * tex.numel()
+    assert cost["mine"]["bytes_per_network"] == 4 * sum(p.numel() for p in net.parameters())
+    for label in ("lafortune", "neumip"):
+        doc = json.loads(artifact(conf, steps[label], "model.json"))
+        layers = doc["layers"].values()
+        floats = sum(np.size(v["weight"]) + np.size(v["bias"]) for v in layers)
+        assert cost[label]["bytes_per_network"] == 4 * floats
+    for label in ("mine", "lafortune", "neumip"):
+        c = cost[label]
+        assert c["bytes_total"] == c["bytes_per_network"] + c["bytes_per_material"], label

@@ -22,21 +22,25 @@ Evaluation
     ``(uv * uv_scale, wi = light = wo, wo = view = si.wi)`` as it is (foreshortening
     included; frame and mirroring as :mod:`.btf_common`).
 Sampling
-    Cosine-weighted hemisphere sampling (``pdf = cos / pi``) for both kinds: the signature
-    gives no lobe to sample, and cosine needs no model evaluation. A glossy model converges
-    more slowly than with the GGX mixture of the built-in models, but without bias.
+    Cosine-weighted hemisphere sampling (``pdf = cos / pi``) by default for both kinds: the
+    signature gives no lobe to sample, and cosine needs no model evaluation. A glossy model
+    converges more slowly than with the GGX mixture of the built-in models, but without
+    bias. A BRDF may name a GGX lobe to sample (``alpha``, ``specular_weight``: the material's
+    ``sampling``): the mixture of :class:`.common.MixtureSampling`, the built-in models' MIS.
 Frame and sides
     Local shading frame, z up, one-sided: 0 (value and pdf) below either horizon.
 
-==============  ======  =======  =====================================================
-parameter       type    default  meaning
-==============  ======  =======  =====================================================
-``filename``    string  --       the ``.onnx`` file
-``kind``        string  --       ``brdf`` or ``btf`` (the signature it must follow)
-``threads``     int     2        onnxruntime intra-op threads
-``uv_scale_u``  float   1        (BTF) patch repeats per unit of u
-``uv_scale_v``  float   1        (BTF) patch repeats per unit of v
-==============  ======  =======  =====================================================
+====================  ======  =======  ===============================================
+parameter             type    default  meaning
+====================  ======  =======  ===============================================
+``filename``          string  --       the ``.onnx`` file
+``kind``              string  --       ``brdf`` or ``btf`` (the signature it must follow)
+``threads``           int     2        onnxruntime intra-op threads
+``alpha``             float   1        (BRDF) GGX roughness of the sampled lobe
+``specular_weight``   float   0        (BRDF) probability of sampling the GGX lobe
+``uv_scale_u``        float   1        (BTF) patch repeats per unit of u
+``uv_scale_v``        float   1        (BTF) patch repeats per unit of v
+====================  ======  =======  ===============================================
 """
 
 from __future__ import annotations
@@ -96,6 +100,12 @@ def external_onnx_plugin(
     out: dict[str, Any] = {"type": EXTERNAL_ONNX_NAME, "filename": str(path), "kind": kind}
     if "threads" in value:
         out["threads"] = int(value["threads"])
+    sampling = value.get("sampling")
+    if sampling is not None:
+        if kind != "brdf":
+            raise ValueError("sampling applies to a BRDF model only")
+        out["alpha"] = float(sampling["alpha"])
+        out["specular_weight"] = float(sampling["specular_weight"])
     scale = value.get("uv_scale")
     if scale is not None:
         if kind != "btf":
@@ -174,13 +184,20 @@ def _define_class(mi: types.ModuleType) -> type:
     flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
 
     class OnnxBrdf(mixture_reflector_base(mi)):  # type: ignore[misc]
-        """An ONNX BRDF (``kind = brdf``), cosine-sampled."""
+        """An ONNX BRDF (``kind = brdf``), cosine-sampled or with a GGX lobe (MIS)."""
 
         def __init__(self, props: Any, model: OnnxMaterial) -> None:
             super().__init__(props)
             self.model = model
             self.symbolic_calls = 0
-            self.sampling = MixtureSampling(1.0, 0.0)  # cosine only
+            alpha = float(props.get("alpha", 1.0))
+            weight = float(props.get("specular_weight", 0.0))
+            if not (0.0 < alpha <= 1.0 and 0.0 <= weight < 1.0):
+                raise ValueError(
+                    f"external_onnx: alpha must lie in (0, 1] and specular_weight in [0, 1), "
+                    f"got {alpha} and {weight}"
+                )
+            self.sampling = MixtureSampling(alpha, weight)  # weight 0: cosine only
             self.m_flags = flags
             self.m_components = [flags]
             _LIVE.add(self)

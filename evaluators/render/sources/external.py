@@ -36,6 +36,15 @@ if TYPE_CHECKING:
 FIELD = "material.external"
 
 
+class GgxSampling(StrictModel):
+    """Importance sampling of an ONNX BRDF: a GGX lobe mixed with the cosine lobe."""
+
+    alpha: float = Field(gt=0.0, le=1.0, description="GGX roughness of the sampled lobe.")
+    specular_weight: float = Field(
+        ge=0.0, lt=1.0, description="Probability of sampling the GGX lobe (else cosine)."
+    )
+
+
 class ExternalSpec(StrictModel):
     """The value of an ``external`` material."""
 
@@ -48,11 +57,19 @@ class ExternalSpec(StrictModel):
         "the file."
     )
     uv_scale: UvScale | None = Field(default=None, description="BTF only: " + UV_SCALE_DESCRIPTION)
+    sampling: GgxSampling | None = Field(
+        default=None,
+        description="ONNX BRDF only: {alpha, specular_weight}, a GGX lobe sampled with that "
+        "probability beside the cosine lobe (MIS); default cosine only. An MLP file samples "
+        "its own analytic part's lobe.",
+    )
 
     @model_validator(mode="after")
     def _btf_only(self) -> ExternalSpec:
         if self.uv_scale is not None and self.kind != "btf":
             raise ValueError("uv_scale: applies to kind 'btf' only")
+        if self.sampling is not None and self.kind != "brdf":
+            raise ValueError("sampling: applies to kind 'brdf' only")
         return self
 
 
@@ -89,6 +106,11 @@ def resolve_external(raw: dict[str, Any], ctx: JobContext, mi: types.ModuleType)
             return external_onnx_plugin(path, dict(raw), ctx, mi)
         except ValueError as exc:  # a wrong signature or kind, named by the plugin
             raise JobFailed(f"{FIELD}.model: {exc}") from None
+    if value.sampling is not None:
+        raise JobFailed(
+            f"{FIELD}.sampling: {value.model} is an MLP file, which samples its own analytic "
+            "part's lobe; sampling applies to ONNX BRDFs"
+        )
     try:
         material = read_mlp(path)
     except ValueError as exc:

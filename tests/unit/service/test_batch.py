@@ -534,3 +534,23 @@ def test32_parse_vars() -> None:
     for bad in ("model", "=v"):
         with pytest.raises(BatchError, match=f"--var {bad}: expected NAME=VALUE"):
             parse_vars([bad])
+
+
+def test33_integer_vars() -> None:
+    """A variable with an integer default is an integer (a spec's size field): ``--var``
+    gives it as text, the spec gets the number; a non-integer value, a float or a boolean
+    default is refused, naming it."""
+    doc = {
+        "vars": {"res": 32, "name": "x"},
+        "steps": [{"name": "a", "spec": {"kind": "render", "params": {
+            "scene": "var:name", "spp": "var:res"}}}],
+    }  # fmt: skip
+    params = parse_batch(doc, validate=fake_validate).steps[0].spec["params"]
+    assert params == {"scene": "x", "spp": 32}
+    given = parse_batch(doc, validate=fake_validate, variables={"res": "16", "name": "7"})
+    assert given.steps[0].spec["params"] == {"scene": "7", "spp": 16}  # a string var stays text
+    with pytest.raises(BatchError, match=r"--var res=1.5: res is an integer variable"):
+        parse_batch(doc, validate=fake_validate, variables={"res": "1.5"})
+    for default in (1.5, True):
+        with pytest.raises(BatchError, match=r"vars: must map names to string or integer"):
+            parse_batch({**doc, "vars": {"res": default}}, validate=fake_validate)
