@@ -4,8 +4,9 @@ compare view, taken in headless Chromium from small jobs run here.
 Run: ``.venv/bin/python scripts/screenshots.py`` (about 3 minutes on 2 cores). It runs the
 smoke job of every built-in kind that has smoke params (inputs first, as the browser tests
 make them; renders a little larger, so that their pictures are worth looking at), an
-``import.btf`` of a folder of slice images written from a small ``generate.btf`` job, and
-three renders of different materials for the compare view, into a temporary data directory;
+``import.btf`` of a folder of slice images written from a small ``generate.btf`` job,
+three renders of different materials and a batch of two training runs for the compare
+view, into a temporary data directory;
 serves the dashboard there (no workers); and writes 1280-px-wide PNGs, reduced to 256
 colours, to ``docs/screenshots/`` (``docs/compare-view.png`` too) and the page that shows
 them, ``docs/screenshots.md``. Needs Debian's ``/usr/bin/chromium`` (``make setup``).
@@ -112,6 +113,29 @@ def compare_score(settings: Settings) -> Job:
     return run_in_process(
         {"kind": "score", "name": "gold: noise and roughness", "params": params}, settings
     )
+
+
+#: The batch of the methods-table screenshot: two widths of the smoke ``train.brdf`` run.
+WIDTHS_BATCH = "brdf widths"
+
+
+def width_runs(settings: Settings, runs: Runs) -> list[Job]:
+    """Two ``train.brdf`` runs (16 and 32 wide) on the smoke MERL dataset, one batch
+    (:data:`WIDTHS_BATCH`), for the compare view's method x metric table."""
+    merl = runs.job("generate.merl")
+    smoke = dict(kinds.get_kind("train.brdf").smoke)
+    return [
+        run_in_process(
+            {
+                "kind": "train.brdf",
+                "name": f"width {w}",
+                "batch": WIDTHS_BATCH,
+                "params": {**smoke, "dataset": f"job:{merl.id}", "width": w},
+            },
+            settings,
+        )
+        for w in (16, 32)
+    ]
 
 
 #: The ``generate.btf`` job whose slices ``import.btf`` reads back for its screenshot (that
@@ -276,9 +300,10 @@ def main(argv: list[str] | None = None) -> int:
         score = compare_score(settings)
         started = time.monotonic()
         extra = {"import.btf": import_btf(settings, Path(tmp))}  # kinds without smoke params
+        widths = width_runs(settings, runs)
         print(f"  import.btf: {extra['import.btf'].state} in {time.monotonic() - started:.1f} s")
         failed = {n: j.error for n, j in runs.done.items() if j.state != "succeeded"}
-        failed |= {j.name or j.id: j.error for j in [*renders, score, *extra.values()]
+        failed |= {j.name or j.id: j.error for j in [*renders, score, *extra.values(), *widths]
                    if j.state != "succeeded"}  # fmt: skip
         if failed:
             print(f"jobs failed: {failed}", file=sys.stderr)
@@ -359,6 +384,20 @@ def main(argv: list[str] | None = None) -> int:
                         "one colour bar.",
                     )
                 )
+            batch = WIDTHS_BATCH.replace(" ", "+")
+            shoot(pg, f"{url}/compare?batch={batch}", out / "compare-batch-methods.png")
+            shots.append(
+                (
+                    "The compare view: a batch's methods",
+                    "screenshots/compare-batch-methods.png",
+                    "A batch of two training runs (16 and 32 wide; the 16-wide one is the "
+                    "smoke run, reused: a reused job joins the batch that asked for it): their "
+                    "curves, and the batch's method x metric table, as `matforge results "
+                    "--pivot` prints it "
+                    "(each metric's mean ± spread, each cost's median, the best per column "
+                    "marked).",
+                )
+            )
             browser.close()
     if args.out is None:
         (ROOT / "docs" / "compare-view.png").write_bytes(compare.read_bytes())
