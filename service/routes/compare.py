@@ -11,9 +11,11 @@ cursor the page reads every panel's pixel value (``/api/artifacts/{digest}/pixel
 values of EXRs, a FLIP map's error). The view, mode, zoom, exposure and A/B choice are
 kept in the address, so a view can be shared. Jobs with ``curves.json`` (training runs)
 get their curves overlaid in one chart, a series at a time; jobs with ``pareto.json``
-(reports) their panels, a panel (error against cost) at a time. The server gathers the
-jobs, their pictures with roles and their charts; ``static/js/compare_pictures.js`` and
-``static/js/compare.js`` do the rest.
+(reports) their panels, a panel (error against cost) at a time. A batch gets its method x
+metric table (nerfbaselines style, the one ``matforge results --pivot`` prints): a row per
+method over the rows of all its jobs, mean metrics and costs, the best per column marked.
+The server gathers the jobs, their pictures with roles, their charts and the table;
+``static/js/compare_pictures.js`` and ``static/js/compare.js`` do the rest.
 """
 
 from __future__ import annotations
@@ -26,8 +28,11 @@ from fastapi.responses import HTMLResponse
 
 from jobapi.errors import SpecError
 from service import compare_pictures  # a module: it imports routes.dashboard
-from service.deps import JOB_ID_PATTERN, JobsDep, PageAuth, set_token_cookie
-from service.routes.dashboard import templates
+from service.deps import JOB_ID_PATTERN, JobsDep, PageAuth, StoreDep, set_token_cookie
+from service.results import MAX_JOBS as MAX_ROW_JOBS
+from service.results import in_given_order, job_rows
+from service.routes.dashboard import methods_view, templates
+from storage.artifacts import ArtifactStore
 from storage.job_queries import resolve_job_id
 from storage.jobs import Job, JobStore
 
@@ -74,17 +79,40 @@ def panel(job: Job, jobs: JobStore) -> dict[str, Any]:
     }
 
 
+def batch_methods(jobs: JobStore, store: ArtifactStore, batch: str) -> dict[str, Any] | None:
+    """The batch's method x metric table (:func:`service.routes.dashboard.methods_view`,
+    the table ``matforge results --pivot`` prints for the batch's file): the result rows of
+    every succeeded job of the batch (not only the panels shown), oldest first, each row's
+    ``step`` its job's name, a step's candidates in the order its spec gives them."""
+    found = jobs.list_jobs(state="succeeded", limit=MAX_ROW_JOBS, batch=batch, sort="created")
+    rows: list[dict[str, Any]] = []
+    for listed in found:
+        job = jobs.get(listed.id)  # with artifacts
+        got = job_rows(job, jobs, store)
+        if job.name:
+            got = [r.with_(step=job.name) for r in got]
+        rows += [r.document() for r in in_given_order(got, job.spec)]
+    return methods_view(rows)
+
+
 @router.get("/compare", response_class=HTMLResponse)
 def compare_page(
     request: Request,
     cookie_token: PageAuth,
     jobs: JobsDep,
+    store: StoreDep,
     ids: Annotated[str | None, Query(alias="jobs", max_length=800)] = None,
     batch: Annotated[str | None, Query(max_length=200)] = None,
 ) -> Response:
     """Several jobs' pictures side by side (see the module docstring)."""
     panels = [panel(j, jobs) for j in _jobs(jobs, ids, batch)]
-    context = {"panels": panels, "views": compare_pictures.compare_views(panels), "batch": batch}
+    methods = batch_methods(jobs, store, batch) if batch and not ids else None
+    context = {
+        "panels": panels,
+        "views": compare_pictures.compare_views(panels),
+        "batch": batch,
+        "methods": methods,
+    }
     response = templates.TemplateResponse(request, "compare.html", context)
     set_token_cookie(response, cookie_token, request)
     return response

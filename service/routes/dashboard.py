@@ -243,20 +243,16 @@ def _pivot_cell(col: dict[str, Any], got: dict[str, Any] | None) -> str:
     return text + (f" \u00b1 {got['std']:.2g}" if got.get("std") is not None else "")
 
 
-def methods_table(job: Job, store: ArtifactStore) -> dict[str, Any] | None:
+def methods_view(rows: list[Any], by: str = "candidate") -> dict[str, Any] | None:
     """The method x metric table (:func:`service.results_pivot.pivot`, as ``matforge
-    results --pivot`` prints it) of the result rows in the job's ``rows.json``: a row per
-    method, each metric's mean ± spread and each cost's median, the best per column;
-    ``None`` when the job has no such rows or a single method."""
+    results --pivot`` prints it) of tidy result rows, ready for the ``_methods.html``
+    partial: a row per method, each metric's mean ± spread and each cost's median, the best
+    per column; ``None`` when the rows are not a list of rows or name a single method."""
     from service.results_pivot import pivot
 
-    record = next((a for a in job.artifacts if a.name == ROWS_ARTIFACT), None)
-    rows = read_json(store, record.digest) if record is not None else None
-    if isinstance(rows, dict):
-        rows = rows.get("rows")
     if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
         return None
-    doc = pivot(rows)
+    doc = pivot(rows, by)
     if len(doc["methods"]) < 2 or not doc["columns"]:
         return None
     return {
@@ -271,6 +267,16 @@ def methods_table(job: Job, store: ArtifactStore) -> dict[str, Any] | None:
             for m in doc["methods"]
         ],
     }
+
+
+def methods_table(job: Job, store: ArtifactStore) -> dict[str, Any] | None:
+    """:func:`methods_view` of the result rows in the job's ``rows.json`` (a report's
+    inputs); ``None`` when the job has no such rows or a single method."""
+    record = next((a for a in job.artifacts if a.name == ROWS_ARTIFACT), None)
+    rows = read_json(store, record.digest) if record is not None else None
+    if isinstance(rows, dict):
+        rows = rows.get("rows")
+    return methods_view(rows) if isinstance(rows, list) else None
 
 
 def job_view(job: Job, store: ArtifactStore, jobs: JobStore | None = None) -> dict[str, Any]:

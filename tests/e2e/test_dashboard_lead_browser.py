@@ -21,7 +21,7 @@ from service import kinds
 from service.compare_pictures import job_pictures
 from service.routes.dashboard import picture_views
 from service.settings import Settings
-from storage.jobs import JobStore
+from storage.jobs import Job, JobStore
 from tests.unit.service.test_dashboard_pictures import NO_LEAD
 
 from .harness import dashboard_server
@@ -86,8 +86,13 @@ def test_lead_picture_first_on_the_job_page_and_in_compare(
     prepared: dict[str, Any],
     kind: str,
 ) -> None:
-    pg = page
-    job = prepared["jobs"][kind]
+    check_lead(page, server, prepared["jobs"][kind], prepared["db"])
+
+
+def check_lead(pg: Any, server: str, job: Job, db: JobStore) -> None:
+    """The job page shows ``job``'s lead picture first, at full size, and the compare view
+    of ``job`` its main pictures, none missing (the assertions of the test above)."""
+    kind = job.kind
     views = [v for v in picture_views(job.artifacts, kind) if v["group"] != "flip"]
     pg.goto(f"{server}/jobs/{job.id}?token={TOKEN}")
     if views:
@@ -118,7 +123,7 @@ def test_lead_picture_first_on_the_job_page_and_in_compare(
                 assert img.evaluate("i => getComputedStyle(i).imageRendering") == "pixelated"
     pg.screenshot(path=str(SHOTS / f"matforge-lead-{kind.replace('.', '-')}.png"), full_page=True)
     # the compare view's main pictures: the lead (or a score's inputs), none missing
-    main = job_pictures(job, prepared["db"])["main"]
+    main = job_pictures(job, db)["main"]
     pg.goto(f"{server}/compare?jobs={job.id}&token={TOKEN}")
     assert pg.locator(".compare-panel").count() == len(main) >= 1, (kind, main)
     _loaded(pg, ".viewport img")

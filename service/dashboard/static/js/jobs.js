@@ -251,7 +251,10 @@
         only.addEventListener("click", () => { batch = label; refilter(); });
         const compare = MF.el("a", { class: "btn btn-small", text: "compare this batch",
                                      href: `/compare?batch=${encodeURIComponent(label)}` });
-        head.append(" ", only, " ", compare);
+        const methods = MF.el("a", { class: "btn btn-small", text: "methods table",
+                                     title: "a row per method: mean metrics and costs, the best marked",
+                                     href: `/compare?batch=${encodeURIComponent(label)}#c-methods` });
+        head.append(" ", only, " ", compare, " ", methods);
       }
       rows.push(MF.el("tr", { class: "group", "data-batch": label }, head), ...members.map(row));
     }

@@ -1,0 +1,143 @@
+"""A batch's method x metric table in its compare view, in headless Chromium (nerfbaselines
+style, as ``matforge results --pivot`` prints it for the batch): a batch of a
+``generate.merl`` and two ``train.brdf`` runs of different widths (16 and 32) shows on
+``/compare?batch=`` a row per method, each metric's mean and each cost's median, and the
+best of each column marked.
+
+The reference is the batch's jobs' own result rows (:func:`service.results.job_rows`, what
+``GET /api/results`` answers), grouped and averaged here with plain Python (not with
+:mod:`service.results_pivot`). Screenshot: ``/tmp/matforge-dashboard-batch-methods.png``.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service import kinds
+from service.results import job_rows
+from service.settings import Settings
+from service.submission import run_in_process
+from storage.artifacts import ArtifactStore
+from storage.jobs import Job, JobStore
+
+from .harness import dashboard_server
+from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
+]
+
+BATCH = "widths"
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    kinds.load_builtin()
+    data = Path(tmp_path_factory.mktemp("dashboard-batch-methods")) / "data"
+    (data / "scratch").mkdir(parents=True)
+    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+
+    def run(spec: dict[str, Any]) -> Job:
+        job = run_in_process({**spec, "batch": BATCH}, settings)
+        assert job.state == "succeeded", job.error
+        return job
+
+    merl = run({"kind": "generate.merl", "name": "data",
+                "params": kinds.get_kind("generate.merl").smoke})  # fmt: skip
+    smoke = dict(kinds.get_kind("train.brdf").smoke)
+    trained = [
+        run({"kind": "train.brdf", "name": f"w{w}",
+             "params": {**smoke, "dataset": f"job:{merl.id}", "width": w}})
+        for w in (16, 32)
+    ]  # fmt: skip
+    store = ArtifactStore(settings.store_dir)
+    queue = JobStore(settings.db_path)
+    rows = []
+    for job in (merl, *trained):  # a row's method: its candidate, else its job's (step) name
+        for r in job_rows(queue.get(job.id), queue, store):
+            rows.append({**r.document(), "method": r.candidate or job.name})
+    yield {"data": data, "rows": rows}
+
+
+@pytest.fixture(scope="module")
+def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    log_dir = tmp_path_factory.mktemp("server-log")
+    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
+    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
+        yield url
+
+
+def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, Any]) -> None:  # noqa: F811
+    pg = page
+    rows: list[dict[str, Any]] = prepared["rows"]
+    # the reference, by hand: each method's values of each metric and its train_seconds
+    values: dict[tuple[str, str], list[float]] = {}
+    lower: dict[str, bool | None] = {}
+    train_s: dict[str, list[float]] = {}
+    for r in rows:
+        values.setdefault((r["method"], r["metric"]), []).append(r["value"])
+        lower.setdefault(r["metric"], r["lower_is_better"])
+        if r.get("train_seconds") is not None and r["metric"] != "train_seconds":
+            train_s.setdefault(r["method"], []).append(r["train_seconds"])
+    methods = list(dict.fromkeys(m for m, _ in values))
+    # each run's own model (16 and 32 wide), and what both runs also fit (a shared baseline)
+    candidates = [m for m in methods if m.startswith(("hybrid 16x", "hybrid 32x"))]
+    assert len(candidates) == 2 and len(methods) >= 3, methods
+    means = {key: statistics.fmean(v) for key, v in values.items()}
+    assert lower.get("smape") is True, lower
+
+    pg.goto(f"{server}/compare?batch={BATCH}&token={TOKEN}")
+    table = pg.locator("#c-methods #methods-table")
+    table.wait_for()
+    heads = table.locator("thead th").evaluate_all("ths => ths.map(t => t.dataset.column || '')")
+    shown = table.locator("tbody tr").evaluate_all(
+        "trs => trs.map(tr => [tr.dataset.method, [...tr.cells].map(c => c.textContent),"
+        " [...tr.cells].map(c => c.classList.contains('best'))])"
+    )
+    by_method = {m: (cells, best) for m, cells, best in shown}
+    assert list(by_method) == methods, (list(by_method), methods)
+    assert "train_seconds" in heads, heads
+    checked = 0
+    for metric, lib in lower.items():
+        col = heads.index(metric)
+        having = {m: means[(m, metric)] for m in methods if (m, metric) in means}
+        target = (min if lib else max)(having.values()) if lib is not None else None
+        for method, (cells, best) in by_method.items():
+            if method not in having:
+                assert cells[col] == "", (metric, method, cells)
+                continue
+            # 4 significant digits shown: a relative 1e-3 covers the rounding
+            got = float(cells[col].split(" ")[0])
+            assert got == pytest.approx(having[method], rel=1e-3), (metric, method, cells)
+            marked = len(having) > 1 and target is not None and having[method] == target
+            assert best[col] == marked, (metric, method, cells, best)
+            checked += 1
+    assert checked >= 4, (checked, heads)  # at least two metrics of both candidates
+    col = heads.index("train_seconds")
+    assert set(candidates) <= set(train_s), train_s
+    for method, seconds in train_s.items():  # a run's own cost; a baseline's: the median
+        cells, _ = by_method[method]
+        want = statistics.median(seconds)
+        assert float(cells[col]) == pytest.approx(want, rel=1e-3), (method, cells)
+    # the pictures of the batch are still there, above the table
+    pg.locator("#compare-grid figure").first.wait_for()
+    pg.locator("#c-methods").scroll_into_view_if_needed()
+    pg.screenshot(path=str(SHOTS / "matforge-dashboard-batch-methods.png"), full_page=True)
+    assert pg.problems == [], pg.problems
+
+
+def test_the_batch_group_links_to_its_table(page: Any, server: str) -> None:  # noqa: F811
+    pg = page
+    pg.goto(f"{server}/?group=1&token={TOKEN}")
+    link = pg.locator(f'tr.group[data-batch="{BATCH}"] a:text-is("methods table")')
+    link.wait_for()
+    link.click()
+    pg.wait_for_url(f"**/compare?batch={BATCH}#c-methods")
+    assert pg.locator("#c-methods #methods-table tbody tr").count() >= 3
+    assert pg.problems == [], pg.problems
