@@ -39,14 +39,19 @@ PAPER_SAMPLES = 2048
 
 
 def run_job(settings: Settings, params: dict[str, Any], force: bool) -> dict[str, Any]:
-    """Run one job; its stats.json."""
+    """Run one job; its stats.json with its manifest's throughput
+    (``timings.measured.throughput``: ``seconds``, ``samples_per_second``)."""
     job = run_in_process(
         {"kind": "generate.fabric", "seed": 0, "params": params, "force": force}, settings
     )
     if job.state != "succeeded":
         raise SystemExit(f"job {job.id} {job.state}: {job.error}")
+    store = ArtifactStore(settings.store_dir)
     (digest,) = [a.digest for a in job.artifacts if a.name == "stats.json"]
-    return json.loads(ArtifactStore(settings.store_dir).read(digest))
+    stats: dict[str, Any] = json.loads(store.read(digest))
+    assert job.manifest_digest is not None
+    stats.update(json.loads(store.read(job.manifest_digest))["timings"]["measured"]["throughput"])
+    return stats
 
 
 def main() -> None:

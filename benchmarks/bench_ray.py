@@ -55,7 +55,8 @@ NODES = (1, 32, 128)
 
 
 def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> dict[str, Any]:
-    """Queue, claim and run one ``generate.fabric`` job with ``executor``; its stats.json."""
+    """Queue, claim and run one ``generate.fabric`` job with ``executor``; its stats.json
+    with its manifest's executor and throughput (``timings.measured.throughput``)."""
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     job, _ = submit(
         {"kind": "generate.fabric", "seed": 0, "params": params, "force": True}, jobs, store
@@ -69,7 +70,9 @@ def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> d
     (digest,) = [a.digest for a in done.artifacts if a.name == "stats.json"]
     stats = json.loads(store.read(digest))
     assert done.manifest_digest is not None
-    stats["executor"] = json.loads(store.read(done.manifest_digest))["executor"]
+    manifest = json.loads(store.read(done.manifest_digest))
+    stats["executor"] = manifest["executor"]
+    stats.update(manifest["timings"]["measured"]["throughput"])
     jobs.close()
     return stats
 
