@@ -2,7 +2,8 @@
 
 Runs the real job path (``service.submission.run_in_process``: spec validation, the local
 process pool of ``MATFORGE_POOL_PROCESSES`` workers, shards, the artifact store) on a
-temporary data directory, reads the job's ``stats.json`` (samples, wall seconds) and
+temporary data directory, reads the job's ``stats.json`` (samples) and its manifest's
+``timings.measured.throughput`` (wall seconds, samples per second) and
 extrapolates linearly to the paper's per-material budget: Chen et al. 2024, Sec. 5.1, about
 3.2 M queries x 2,048 samples per material in 22 minutes (4.96 M samples/s); the ``paper``
 preset's 3,276,800 queries. The extrapolation assumes the cost per query is the same over the

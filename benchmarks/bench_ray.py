@@ -7,7 +7,8 @@ local Ray of ``--cpus`` CPUs (``MATFORGE_EXECUTOR=ray``, one node, token auth, n
 dashboard). Each backend first runs one small warm-up job (process start, imports, Dr.Jit's
 kernel compilation), then ``--repeats`` timed jobs of the same spec (``force``), the two
 backends interleaved so that the load of this shared machine falls on both alike. A job's
-throughput is its samples over its wall time (``stats.json``, overheads included); the rows
+throughput is its samples over its wall time (the manifest's ``timings.measured.throughput``,
+overheads included); the rows
 give the median and the range, and the Ray/pool ratio of the medians (the goal is >= 0.9x).
 
 Then the extrapolation for the fabric paper's dataset (Chen et al. 2024, Sec. 5.1: 465

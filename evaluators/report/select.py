@@ -31,9 +31,10 @@ reference with ``spp`` and ``render_seconds`` (and the model cost, if chosen by 
 
 Same spec, same bytes, with one declared exception (``timing_artifacts``): in the scene
 mode the job times its own renders, and the rungs' ``render_seconds`` and
-``frame_seconds`` are its product (the cost the ladder is ranked and chosen by), so
-``select.json`` and ``select.png`` vary between runs (with ``cost: spp`` only in the
-seconds they list). The rendered images and FLIP maps do not. In the ``runs`` mode the
+``frame_seconds`` are its product (listed per rung, and the cost the ladder may be ranked
+and chosen by), so ``select.json`` varies between runs, and so does ``select.png`` when
+``cost`` is one of those times (by ``spp`` or a model's cost the choice and the plot do
+not). The rendered images and FLIP maps do not. In the ``runs`` mode the
 costs are the input jobs' rows: the same input jobs give the same bytes.
 """
 
@@ -327,12 +328,20 @@ def _renders(params: SelectParams) -> bool:
     return bool(params.scene_mode)
 
 
+#: Scene-mode costs that the job times itself.
+TIMED_COSTS = ("frame_seconds", "render_seconds")
+
+
 def _timed(params: SelectParams) -> tuple[str, ...]:
-    """The artifacts that hold timings the job measured itself: in scene mode, the rungs'
-    ``render_seconds`` and ``frame_seconds`` (the cost they are ranked and chosen by, so the
-    choice itself may vary between runs) in ``select.json`` and its plot. A ``runs`` choice
-    reads its input jobs' rows: the same input jobs give the same bytes."""
-    return ("select.json", "select.png") if params.scene_mode else ()
+    """The artifacts that hold timings the job measured itself: in the scene mode
+    ``select.json`` (every rung's ``render_seconds`` and ``frame_seconds``), and its plot
+    when the ladder is ranked, labelled and chosen by one of them (``cost:
+    render_seconds`` or ``frame_seconds``; by ``spp`` or a model's cost the plot is the same
+    bytes). A ``runs`` choice reads its input jobs' rows: the same input jobs give the same
+    bytes."""
+    if not params.scene_mode:
+        return ()
+    return ("select.json", "select.png") if params.cost in TIMED_COSTS else ("select.json",)
 
 
 register(
