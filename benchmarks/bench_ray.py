@@ -7,7 +7,8 @@ local Ray of ``--cpus`` CPUs (``MATFORGE_EXECUTOR=ray``, one node, token auth, n
 dashboard). Each backend first runs one small warm-up job (process start, imports, Dr.Jit's
 kernel compilation), then ``--repeats`` timed jobs of the same spec (``force``), the two
 backends interleaved so that the load of this shared machine falls on both alike. A job's
-throughput is its samples over its wall time (``stats.json``, overheads included); the rows
+throughput is its samples over its wall time (the manifest's ``timings.measured.throughput``,
+overheads included); the rows
 give the median and the range, and the Ray/pool ratio of the medians (the goal is >= 0.9x).
 
 Then the extrapolation for the fabric paper's dataset (Chen et al. 2024, Sec. 5.1: 465
@@ -55,7 +56,8 @@ NODES = (1, 32, 128)
 
 
 def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> dict[str, Any]:
-    """Queue, claim and run one ``generate.fabric`` job with ``executor``; its stats.json."""
+    """Queue, claim and run one ``generate.fabric`` job with ``executor``; its stats.json
+    with its manifest's executor and throughput (``timings.measured.throughput``)."""
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     job, _ = submit(
         {"kind": "generate.fabric", "seed": 0, "params": params, "force": True}, jobs, store
@@ -69,7 +71,9 @@ def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> d
     (digest,) = [a.digest for a in done.artifacts if a.name == "stats.json"]
     stats = json.loads(store.read(digest))
     assert done.manifest_digest is not None
-    stats["executor"] = json.loads(store.read(done.manifest_digest))["executor"]
+    manifest = json.loads(store.read(done.manifest_digest))
+    stats["executor"] = manifest["executor"]
+    stats.update(manifest["timings"]["measured"]["throughput"])
     jobs.close()
     return stats
 

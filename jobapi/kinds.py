@@ -105,6 +105,12 @@ class Kind:
             (:mod:`jobapi.documents`): ``put_json`` validates each against its type, readers
             parse it with :func:`jobapi.documents.read_typed`, the kinds reference lists
             its fields.
+        timing_artifacts: the artifacts whose product is a timing (``fnmatch`` patterns), or
+            ``params -> patterns`` when it depends on the spec: the one exception to "same
+            spec, same bytes" (a kind whose figure plots what it timed, e.g. an error
+            against the measured frame cost). Every other timing goes to the manifest
+            (:meth:`jobapi.context.JobContext.measure`); the registry's determinism test
+            compares every artifact of two runs of a spec but these.
     """
 
     name: str
@@ -122,11 +128,19 @@ class Kind:
     report: ReportFacts | None = None
     variant_bytes: bool | Callable[[Any], bool] = False
     documents: Mapping[str, type] = field(default_factory=dict)
+    timing_artifacts: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
 
     def bytes_depend_on_variant(self, params: BaseModel) -> bool:
         """:attr:`variant_bytes` for these (validated) params."""
         rule = self.variant_bytes
         return bool(rule(params) if callable(rule) else rule)
+
+    def is_timing_artifact(self, artifact: str, params: BaseModel) -> bool:
+        """Whether ``artifact`` is one of :attr:`timing_artifacts` for these (validated)
+        params: its bytes vary between runs of the same spec."""
+        rule = self.timing_artifacts
+        patterns = rule(params) if callable(rule) else rule
+        return any(fnmatch.fnmatchcase(artifact, p) for p in patterns)
 
     def figure(self, artifact: str) -> Figure | None:
         """The first of :attr:`figures` whose pattern matches an artifact name, if any."""

@@ -8,14 +8,32 @@ Run: ``.venv/bin/python scripts/kinds_table.py --write`` to rewrite the part of
 
 from __future__ import annotations
 
+import inspect
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from jobapi.documents import document_fields
+from jobapi.kinds import Kind
 from service import kinds
 from service.kind_docs import param_rows
+
+
+def timing_line(kind: Kind) -> str:
+    """What the kind declares as timing artifacts (:attr:`jobapi.kinds.Kind.timing_artifacts`),
+    the exception to "same spec, same bytes", or ``""``."""
+    rule = kind.timing_artifacts
+    if not rule:
+        return ""
+    head = (
+        "Timing artifacts (their bytes vary between runs of a spec; "
+        "[Determinism](../concepts.md#determinism)): "
+    )
+    if callable(rule):
+        doc = " ".join((inspect.getdoc(rule) or "they depend on the params").split())
+        return head + doc
+    return head + ", ".join(f"`{a}`" for a in rule) + "."
 
 
 def kinds_markdown() -> str:
@@ -27,6 +45,8 @@ def kinds_markdown() -> str:
     for kind in sorted(builtin, key=lambda k: k.name):
         arts = ", ".join(f"`{a}`" for a in kind.artifacts) or "(see below)"
         lines.append(f"### `{kind.name}`\n\n{kind.description}\n\nArtifacts: {arts}\n")
+        if timed := timing_line(kind):
+            lines.append(timed + "\n")
         if kind.layout:
             lines.append(kind.layout.strip() + "\n")
         lines.append("| param | type | default | description |")

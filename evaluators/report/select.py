@@ -28,6 +28,14 @@ rung highlighted); in the scene mode also ``rung_<name>.exr`` / ``.png`` per run
 reference, ``reference.exr`` / ``.png``. Result rows (``GET /api/results``,
 ``report.pareto``): in the scene mode one per rung, its metric against the rendered
 reference with ``spp`` and ``render_seconds`` (and the model cost, if chosen by one).
+
+Same spec, same bytes, with one declared exception (``timing_artifacts``): in the scene
+mode the job times its own renders, and the rungs' ``render_seconds`` and
+``frame_seconds`` are its product (listed per rung, and the cost the ladder may be ranked
+and chosen by), so ``select.json`` varies between runs, and so does ``select.png`` when
+``cost`` is one of those times (by ``spp`` or a model's cost the choice and the plot do
+not). The rendered images and FLIP maps do not. In the ``runs`` mode the
+costs are the input jobs' rows: the same input jobs give the same bytes.
 """
 
 from __future__ import annotations
@@ -77,9 +85,10 @@ class SelectRung(TypedDict):
     spp: NotRequired[int]
     """Scene mode: samples per pixel of its render."""
     render_seconds: NotRequired[float]
-    """Scene mode: its render's wall seconds (scene load and passes)."""
+    """Scene mode: its render's wall seconds (scene load and passes); a timing, so
+    ``select.json`` is a timing artifact in the scene mode (varies between runs)."""
     frame_seconds: NotRequired[float]
-    """Scene mode: its frame time with compiled kernels."""
+    """Scene mode: its frame time with compiled kernels (a timing, as ``render_seconds``)."""
     integrator: NotRequired[str]
     """Scene mode: the integrator it rendered with."""
     material: NotRequired[dict[str, Any]]
@@ -319,6 +328,22 @@ def _renders(params: SelectParams) -> bool:
     return bool(params.scene_mode)
 
 
+#: Scene-mode costs that the job times itself.
+TIMED_COSTS = ("frame_seconds", "render_seconds")
+
+
+def _timed(params: SelectParams) -> tuple[str, ...]:
+    """The artifacts that hold timings the job measured itself: in the scene mode
+    ``select.json`` (every rung's ``render_seconds`` and ``frame_seconds``), and its plot
+    when the ladder is ranked, labelled and chosen by one of them (``cost:
+    render_seconds`` or ``frame_seconds``; by ``spp`` or a model's cost the plot is the same
+    bytes). A ``runs`` choice reads its input jobs' rows: the same input jobs give the same
+    bytes."""
+    if not params.scene_mode:
+        return ()
+    return ("select.json", "select.png") if params.cost in TIMED_COSTS else ("select.json",)
+
+
 register(
     Kind(
         name="select",
@@ -330,6 +355,7 @@ register(
         "job's executor) and scoring each against the reference: per reference, the ladder "
         "of rungs by cost, which meet the target, and the one chosen.",
         artifacts=("select.json", "select.png"),
+        timing_artifacts=_timed,
         documents={"select.json": SelectDocument},
         smoke={
             "runs": ["step:train.brdf"],

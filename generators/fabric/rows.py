@@ -1,5 +1,7 @@
-"""Result rows of ``generate.fabric`` (:mod:`jobapi.rows`): the Monte Carlo throughput of
-``stats.json`` (samples per second, and the seconds it took)."""
+"""Result rows of ``generate.fabric`` (:mod:`jobapi.rows`): the Monte Carlo throughput
+(samples per second, and the seconds it took) of the job's manifest,
+``timings.measured.throughput``, or of ``stats.json`` for a job made before timings moved
+to the manifest."""
 
 from __future__ import annotations
 
@@ -9,10 +11,14 @@ from jobapi.rows import ResultRow, RowSource, base_row, number
 
 
 def fabric_stats_rows(src: RowSource) -> list[ResultRow]:
-    """``generate.fabric``: ``samples_per_second`` and ``seconds`` of ``stats.json``."""
+    """``generate.fabric``: ``samples_per_second`` and ``seconds`` of the manifest's
+    ``timings.measured.throughput`` (older jobs: of ``stats.json``), its ``backend`` from
+    ``stats.json``."""
     doc = src.read("stats.json")
     if not isinstance(doc, Mapping):
         return []
+    timed = src.job.measured.get("throughput")
+    times = timed if isinstance(timed, Mapping) else doc
     return [
         base_row(
             src,
@@ -22,5 +28,5 @@ def fabric_stats_rows(src: RowSource) -> list[ResultRow]:
             lower_is_better=k == "seconds",
         )
         for k in ("samples_per_second", "seconds")
-        if (v := number(doc.get(k))) is not None
+        if (v := number(times.get(k))) is not None
     ]

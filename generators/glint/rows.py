@@ -1,5 +1,7 @@
 """Result rows of ``generate.glint`` (:mod:`jobapi.rows`): the tiny example's bytes, the
-reference's, their ratio and the precompute seconds, each row costed with the example's own
+reference's, their ratio and the precompute seconds (the manifest's
+``timings.measured.precompute_seconds``, or ``stats.json``'s for a job made before timings
+moved to the manifest), each row costed with the example's own
 bytes (``bytes_per_material``: its NDF maps and lobes) and its size and NDF resolution in
 ``config``."""
 
@@ -21,7 +23,10 @@ def glint_rows(summary: Summary) -> RowsHook:
         if table is None:
             return []
         out: list[ResultRow] = []
+        timed = number(src.job.measured.get("precompute_seconds"))
         for label, row in table.rows.items():
+            if timed is not None:
+                row = {**row, "precompute_seconds": timed}
             config = {k: row[k] for k in described if number(row.get(k)) is not None}
             nbytes = number(row.get("bytes"))
             out += [

@@ -37,7 +37,8 @@ class GlintExample(DatasetReader):
     lobes
         The lobe arrays by name.
     stats
-        ``stats.json`` (sizes, bytes, precompute seconds).
+        ``stats.json`` (sizes, bytes; the precompute seconds only in a job made before
+        timings moved to the manifest, ``timings.measured.precompute_seconds``).
     """
 
     KINDS = ("generate.glint",)

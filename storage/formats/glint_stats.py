@@ -71,8 +71,10 @@ class GlintStats(TypedDict):
     """e: the NDF images cover projected normals in [-e, e]^2."""
     lobes: int
     """4D Gaussian lobes of the example."""
-    precompute_seconds: float
-    """Time of the lobes and NDF maps (a timing: varies between runs)."""
+    precompute_seconds: NotRequired[float]
+    """Time of the lobes and NDF maps, in jobs made before timings moved to the job's
+    manifest (now ``timings.measured.precompute_seconds``, not here: timings vary between
+    runs, and artifacts are the same bytes for the same spec)."""
     bytes: GlintBytes
     """Memory of the example's data."""
     reference: GlintReference
@@ -80,4 +82,4 @@ class GlintStats(TypedDict):
     memory_ratio: float
     """``bytes.total / reference.bytes``."""
     note: str
-    """What varies between runs."""
+    """Where the timing is."""

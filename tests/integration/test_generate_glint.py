@@ -25,6 +25,7 @@ from storage.artifacts import ArtifactStore
 from storage.errors import FormatError
 from storage.formats.exr import exr_bytes
 from storage.jobs import Job, JobStore
+from tests.helpers.manifests import measured
 
 SPEC = {
     "kind": "generate.glint",
@@ -73,6 +74,9 @@ def test01_contract_spec(settings: Settings) -> None:
     assert stats["bytes"]["total"] == stats["bytes"]["ndf_maps"] + stats["bytes"]["lobes"]
     assert stats["bytes"]["ndf_maps"] == sum(nd[k].nbytes for k in levels)
     assert 0 < stats["memory_ratio"] < 0.05
+    # The precompute time is a timing: in the manifest, not in stats.json.
+    assert "precompute_seconds" not in stats
+    assert measured(settings, job)["precompute_seconds"] > 0
     assert art(settings, job, "preview.png")[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -80,7 +84,7 @@ def test02_deterministic(settings: Settings) -> None:
     a = run_in_process(SPEC, settings)
     b = run_in_process({**SPEC, "force": True}, settings)
     assert a.id != b.id
-    for name in ("example.exr", "ndf.npz", "lobes.npz", "preview.png"):
+    for name in ("example.exr", "ndf.npz", "lobes.npz", "preview.png", "stats.json"):
         assert art(settings, a, name) == art(settings, b, name), name
 
 
@@ -171,6 +175,10 @@ def test06_rest_submission_and_summary(settings: Settings) -> None:
         finally:
             jobs.close()
         assert row["memory_ratio"] == stats["memory_ratio"]  # the same stored value
+        assert "precompute_seconds" not in row  # a timing: the manifest's, in the rows
+        rows = client.get("/api/results", params={"kind": "generate.glint"}).json()
+        (timed,) = [r for r in rows if r["job"] == job_id and r["metric"] == "precompute_seconds"]
+        assert timed["value"] > 0
 
 
 def test05_crop_is_the_examples_own_texels(settings: Settings, tmp_path: Path) -> None:

@@ -6,6 +6,11 @@ A kind whose inputs are other jobs (``score``, ``train.*``, ``report.*``) names 
 smoke params as ``step:<kind>`` (the whole job) or ``step:<kind>/<artifact>``: the smoke run
 of that kind, made first (once per module) and substituted as ``job:<id>[/<artifact>]``.
 A kind that cannot have smoke params must be listed in :data:`NO_SMOKE` with the reason.
+
+Same spec, same bytes (CONTRACT.md, "Job spec"): each smoke spec is run a second time
+(``force``, the same resolved spec, so the same input jobs) and every artifact's digest must
+equal the first run's, except those its kind declares as timings
+(:attr:`jobapi.kinds.Kind.timing_artifacts`); timings belong in the manifest.
 """
 
 from __future__ import annotations
@@ -43,6 +48,8 @@ class SmokeRuns:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.done: dict[str, Job] = {}
+        #: The spec each smoke job ran, its ``step:`` refs resolved.
+        self.specs: dict[str, dict[str, Any]] = {}
 
     def job(self, name: str, chain: tuple[str, ...] = ()) -> Job:
         if name in chain:
@@ -59,6 +66,7 @@ class SmokeRuns:
 
             params: dict[str, Any] = substitute_refs(kind.smoke, resolve)
             spec = {"kind": name, "seed": 0, "params": params}
+            self.specs[name] = spec
             self.done[name] = run_in_process(spec, self.settings)
         return self.done[name]
 
@@ -103,3 +111,26 @@ def test01_smoke(kind: Kind, smoke: SmokeRuns) -> None:
         assert table is not None, f"{kind.name}: the summary hook found no table"
         assert table["labels"] and table["names"], table
         assert all(set(row) <= set(table["names"]) for row in table["rows"].values())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", [k for k in KINDS if k.smoke], ids=lambda k: k.name)
+def test02_same_spec_same_bytes(kind: Kind, smoke: SmokeRuns) -> None:
+    """The oracle is the first run itself: a forced second run of the same spec (same
+    params, seed and input jobs) must store the same bytes for every artifact but the kind's
+    declared timing artifacts. A timing written into any other artifact fails here."""
+    first = smoke.job(kind.name)
+    assert first.state == "succeeded", first.error
+    again = run_in_process({**smoke.specs[kind.name], "force": True}, smoke.settings)
+    assert again.state == "succeeded", again.error
+    assert again.id != first.id, "force must run the spec again, not return the first job"
+    params = kind.params.model_validate(smoke.specs[kind.name]["params"])
+    before = {a.name: a.digest for a in first.artifacts}
+    after = {a.name: a.digest for a in again.artifacts}
+    assert sorted(before) == sorted(after), kind.name
+    timings = {n for n in before if kind.is_timing_artifact(n, params)}
+    differ = sorted(n for n in before if n not in timings and before[n] != after[n])
+    assert not differ, (
+        f"{kind.name}: same spec, other bytes in {differ} (a timing belongs in the manifest, "
+        "ctx.measure, or in Kind.timing_artifacts if it is the kind's product)"
+    )

@@ -149,6 +149,22 @@ def test02_same_spec_same_values(inline: Settings, tmp_path: Path) -> None:
     assert untimed(first) == untimed(again)
     for name in ("reference.exr", "rung_diffuse.exr", "rung_rough1.exr", "rung_rough16.exr"):
         assert art(inline, first, name) == art(inline, again, name), name
+    # Every artifact but the declared timing ones (select.json; cost spp: not select.png)
+    # is the same bytes.
+    kind = kinds.get_kind("select")
+    params = kind.params.model_validate(SPEC["params"])
+    assert kind.is_timing_artifact("select.json", params)
+    assert not kind.is_timing_artifact("select.png", params)  # ranked by spp
+    timed = kind.is_timing_artifact(
+        "select.png", params.model_copy(update={"cost": "frame_seconds"})
+    )
+    assert timed
+    same = {
+        a.name: a.digest for a in first.artifacts if not kind.is_timing_artifact(a.name, params)
+    }
+    assert same == {
+        a.name: a.digest for a in again.artifacts if not kind.is_timing_artifact(a.name, params)
+    }
 
     # The same reference given as an image ref: the same rung image, the same value.
     by_ref = spec_with(

@@ -272,6 +272,16 @@ def test07_generators_measure_their_output() -> None:
     # Every row costed with the example's own bytes, its size in config.
     assert {r.bytes_per_material for r in rows.values()} == {4096}
     assert rows["bytes"].config == {"size": 16, "levels": 4, "ndf_resolution": 32, "lobes": 1024}
+    # Since timings moved to the manifest, stats.json has no precompute_seconds: the row
+    # reads timings.measured.precompute_seconds (above: an older job's stats.json has it).
+    del glint["precompute_seconds"]
+    timed = FakeSource("generate.glint", {}, {"stats.json": glint},
+                       measured={"precompute_seconds": 0.25})  # fmt: skip
+    rows = by_metric(rows_of(timed))
+    assert rows["precompute_seconds"].value == 0.25 and rows["bytes"].value == 4096
+    assert "precompute_seconds" not in by_metric(
+        rows_of(FakeSource("generate.glint", {}, {"stats.json": glint}))
+    )
     # A stats.json of another shape is not read (no guessing from a partial document).
     partial = {"example": {"size": 16}, "bytes": {"total": 4096}}
     assert rows_of(FakeSource("generate.glint", {}, {"stats.json": partial})) == []
@@ -305,6 +315,17 @@ def test07_generators_measure_their_output() -> None:
     rows = by_metric(rows_of(FakeSource("generate.fabric", {}, {"stats.json": stats})))
     assert rows["samples_per_second"].lower_is_better is False
     assert rows["seconds"].value == 3.0 and rows["seconds"].candidate == "drjit"
+    # A job made since timings moved to the manifest: stats.json has the counts and the
+    # backend, timings.measured.throughput the times.
+    counts = {"samples": 24_000_000, "backend": "numpy"}
+    throughput = {"seconds": 2.0, "samples_per_second": 1.2e7}
+    src = FakeSource("generate.fabric", {}, {"stats.json": counts},
+                     measured={"throughput": throughput})  # fmt: skip
+    rows = by_metric(rows_of(src))
+    assert {k: (r.value, r.candidate) for k, r in rows.items()} == {
+        "samples_per_second": (1.2e7, "numpy"),
+        "seconds": (2.0, "numpy"),
+    }
 
 
 def test08_glint_renders_carry_their_memory() -> None:
