@@ -9,6 +9,8 @@ export DRJIT_LIBLLVM_PATH ?= $(LIBLLVM)
 HOST ?= 127.0.0.1
 PORT ?= 8000
 DATA ?= ./matforge-data
+# The quick benchmarks `make bench` runs (one command a line).
+BENCH_LIST ?= benchmarks/quick.txt
 # torch build: cpu (default: the +cpu wheel, from the configured index or else PyTorch's CPU
 # index) or cuda (PyPI's default CUDA build, several GB): `make setup TORCH=cuda`.
 TORCH ?= cpu
@@ -23,7 +25,7 @@ else
 $(error TORCH must be cpu or cuda, not $(TORCH))
 endif
 
-.PHONY: setup system-deps demo test test-fast docs lint typecheck bench clean serve check-wheel
+.PHONY: setup system-deps demo test test-fast docs lint typecheck bench bench-all clean serve check-wheel
 
 setup: $(STAMP)
 
@@ -88,8 +90,17 @@ demo: setup
 serve: setup
 	$(VENV)/bin/matforge serve --host $(HOST) --port $(PORT) --data-dir $(DATA)
 
+# The quick benchmarks of benchmarks/quick.txt, small arguments, a few minutes in all: stops
+# at the first that fails. `make bench-all` runs every benchmark at its defaults (hours),
+# also stopping at the first failure.
 bench: setup
-	for b in benchmarks/bench_*.py; do $(PY) $$b; done
+	@set -e; grep -v -e '^#' -e '^[[:space:]]*$$' $(BENCH_LIST) | while read -r script args; do \
+		echo "== benchmarks/$$script $$args"; \
+		$(PY) benchmarks/$$script $$args < /dev/null; \
+	done
+
+bench-all: setup
+	@set -e; for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b < /dev/null; done
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache

@@ -48,6 +48,7 @@ from storage.formats.exr import exr_bytes, read_exr
 from storage.formats.png import write_png
 
 if TYPE_CHECKING:
+    from evaluators.report.select import SelectLadder
     from evaluators.report.select_params import Rung, SelectParams
     from jobapi.context import JobContext
     from storage.job_records import Job
@@ -313,12 +314,41 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
     """Render, score and choose; writes the rung images and returns ``select.json``'s
     document less the chart (the caller, :func:`evaluators.report.select.run_select`,
     writes it and the chart)."""
-    from evaluators.report.select import ladders
     from jobapi.rows import lower_is_better
-    from materials.backend import load_mitsuba
 
     assert params.scene is not None and params.reference is not None and params.ladder
     scene = params.scene.model_dump(mode="json", exclude={"material"})
+    tasks = rung_tasks(params, scene, ctx)
+    results = ctx.map_shards(
+        render_rung,
+        tasks,
+        keys=[f"render-{t.name}" for t in tasks],
+        label="render",
+        progress_range=(0.02, 0.9),
+    )
+    by_name = dict(zip([t.name for t in tasks], results, strict=True))
+    reference, dataset = reference_image(params, by_name, ctx)
+    points = score_rungs(params, reference, by_name, ctx)
+    lower = lower_is_better(params.metric) is not False
+    return {
+        "mode": "scene",
+        "scene": scene,
+        "reference": params.reference
+        if isinstance(params.reference, str)
+        else params.reference.model_dump(mode="json"),
+        "ladder": [r.model_dump(mode="json") for r in params.ladder],
+        "lower_is_better": lower,
+        "ladders": [choose(params, dataset, points, lower)],
+    }
+
+
+def rung_tasks(params: SelectParams, scene: dict[str, Any], ctx: JobContext) -> list[RungTask]:
+    """One render shard per rung, and one for the reference when it is a material to
+    render: each material resolved here (failing a bad one before any render is queued,
+    naming ``reference`` or ``ladder.<i>``), with what its resolver read recorded."""
+    from materials.backend import load_mitsuba
+
+    assert params.scene is not None and params.reference is not None and params.ladder
     renders: list[tuple[str, dict[str, Any]]] = []
     if not isinstance(params.reference, str):
         ref = params.reference
@@ -343,17 +373,16 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
         # Seeds per rung name: a rung renders the same image wherever it sits in the ladder.
         seeds = tuple(ctx.sub_seed(f"select/{name}/pass/{k}") for k in range(n_passes))
         tasks.append(RungTask(name=name, render=spec, seeds=seeds, record=recorder.record))
+    return tasks
 
-    results = ctx.map_shards(
-        render_rung,
-        tasks,
-        keys=[f"render-{t.name}" for t in tasks],
-        label="render",
-        progress_range=(0.02, 0.9),
-    )
-    by_name = dict(zip([t.name for t in tasks], results, strict=True))
 
-    dataset = params.reference if isinstance(params.reference, str) else ""
+def reference_image(
+    params: SelectParams, by_name: dict[str, dict[str, Any]], ctx: JobContext
+) -> tuple[np.ndarray, str]:
+    """The reference image (RGB, float32) and the ladder's dataset: the image ref as given,
+    or the rendered reference, written as ``reference.exr``/``.png`` and named by its
+    content."""
+    assert params.scene is not None and params.reference is not None
     if isinstance(params.reference, str):
         try:
             reference = read_exr(ctx.resolve(params.reference), params.reference)
@@ -364,15 +393,45 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
                 f"reference: size {reference.shape[1]}x{reference.shape[0]} differs from the "
                 f"scene's {params.scene.resolution[0]}x{params.scene.resolution[1]}"
             )
-        reference = np.asarray(reference[..., :3], dtype=np.float32)
-    else:
-        reference = by_name[REFERENCE]["image"]
-        rec = ctx.put_bytes("reference.exr", exr_bytes(reference), "image/x-exr")
-        # The ladder's dataset is the reference image by content: the same for the same
-        # render, and distinct from any other select's reference in report.pareto.
-        dataset = f"sha256:{rec.digest}"
-        ctx.put_bytes("reference.png", write_png(None, tonemap(reference)), "image/png")
+        return np.asarray(reference[..., :3], dtype=np.float32), params.reference
+    reference = by_name[REFERENCE]["image"]
+    rec = ctx.put_bytes("reference.exr", exr_bytes(reference), "image/x-exr")
+    ctx.put_bytes("reference.png", write_png(None, tonemap(reference)), "image/png")
+    # The ladder's dataset is the reference image by content: the same for the same
+    # render, and distinct from any other select's reference in report.pareto.
+    return reference, f"sha256:{rec.digest}"
 
+
+def shard_frame_seconds(got: dict[str, Any]) -> float:
+    """A rung shard's frame time; a shard recorded before frame_seconds existed has only
+    its wall time."""
+    return float(got.get("frame_seconds", got["seconds"]))
+
+
+def rung_cost(
+    params: SelectParams, rung: Rung, index: int, got: dict[str, Any], ctx: JobContext
+) -> float:
+    """The rung's cost, ``params.cost``: measured by its shard, its spp, or read from (or
+    measured for) the model it names."""
+    assert params.scene is not None
+    if params.cost == "render_seconds":
+        return float(got["seconds"])
+    if params.cost == "frame_seconds":
+        return shard_frame_seconds(got)
+    if params.cost == "spp":
+        return float(rung.spp if rung.spp is not None else params.scene.spp)
+    return model_cost(rung, params.cost, index, ctx)
+
+
+def score_rungs(
+    params: SelectParams,
+    reference: np.ndarray,
+    by_name: dict[str, dict[str, Any]],
+    ctx: JobContext,
+) -> list[dict[str, Any]]:
+    """Each rung scored against ``reference``, its images written (``rung_<name>.exr`` and
+    ``.png``, and ``flip_<name>.png`` for a metric with an error map); one point each."""
+    assert params.scene is not None and params.ladder
     points = []
     for i, rung in enumerate(params.ladder):
         got = by_name[rung.name]
@@ -382,16 +441,7 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
         if error_map is not None:
             ctx.put_bytes(f"flip_{rung.name}.png", write_png(None, magma(error_map)), "image/png")
         spp = rung.spp if rung.spp is not None else params.scene.spp
-        # a shard recorded before frame_seconds existed has only its wall time
-        frame = float(got.get("frame_seconds", got["seconds"]))
-        if params.cost == "render_seconds":
-            cost = float(got["seconds"])
-        elif params.cost == "frame_seconds":
-            cost = frame
-        elif params.cost == "spp":
-            cost = float(spp)
-        else:
-            cost = model_cost(rung, params.cost, i, ctx)
+        frame = shard_frame_seconds(got)
         points.append(
             {
                 "candidate": rung.name,
@@ -399,7 +449,7 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
                 "n": 1,
                 "min": value,
                 "max": value,
-                "cost": cost,
+                "cost": rung_cost(params, rung, i, got, ctx),
                 "spp": spp,
                 "render_seconds": float(got["seconds"]),
                 "frame_seconds": frame,
@@ -409,8 +459,17 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
             }
         )
         ctx.progress(0.9 + 0.08 * (i + 1) / len(params.ladder), f"scored {rung.name}")
+    return points
 
-    lower = lower_is_better(params.metric) is not False
+
+def choose(
+    params: SelectParams, dataset: str, points: list[dict[str, Any]], lower: bool
+) -> SelectLadder:
+    """The ladder of ``select.json``: the cheapest rung meeting the target
+    (:func:`evaluators.report.select.ladders`), each rung with its render facts and image."""
+    from evaluators.report.select import ladders
+
+    assert params.scene is not None
     panel = {
         "dataset": dataset,
         "scene": params.scene.scene,
@@ -433,13 +492,4 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
                 "image": f"rung_{r['candidate']}.exr",
             }
         )
-    return {
-        "mode": "scene",
-        "scene": scene,
-        "reference": params.reference
-        if isinstance(params.reference, str)
-        else params.reference.model_dump(mode="json"),
-        "ladder": [r.model_dump(mode="json") for r in params.ladder],
-        "lower_is_better": lower,
-        "ladders": [lad],
-    }
+    return lad

@@ -192,23 +192,43 @@ def reduce_moments(moments: np.ndarray, sampler: str, samples: int) -> Aggregate
     )
 
 
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """How :func:`estimate` integrates each query's footprint: its arguments of the same
+    names (documented there), checked once here and handed down to the chunk functions."""
+
+    samples: int = 256
+    sampler: Sampler = "sobol"
+    seed: int = 0
+    replicates: int = 4
+    kernel: Kernel = "box"
+    with_visibility: bool = True
+    march_step: float = MARCH_STEP
+    march_max_steps: int = MARCH_MAX_STEPS
+    march: March = "hierarchical"
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        samplers.check_sampling(self.sampler, self.samples, self.replicates)
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
+        if not 1 <= self.march_max_steps <= 1024:
+            raise ValueError(f"march_max_steps must be in [1, 1024], got {self.march_max_steps}")
+        if not 1e-3 <= self.march_step <= 1.0:
+            raise ValueError(f"march_step must be in [0.001, 1] cells, got {self.march_step}")
+        if self.threads < 1:
+            raise ValueError(f"threads must be >= 1, got {self.threads}")
+        if self.march not in MARCHES:
+            raise ValueError(f"march must be one of {MARCHES}, got {self.march!r}")
+
+
 def numpy_chunk_moments(
     params: FabricParams,
     geo: YarnGeometry,
     queries: FootprintQueries,
     first: int,
     count: int,
-    *,
-    sampler: Sampler,
-    seed: int,
-    samples: int,
-    replicates: int,
-    kernel: Kernel,
-    with_visibility: bool,
-    march_step: float,
-    march_max_steps: int,
-    march: March = "hierarchical",
-    threads: int,
+    settings: EstimatorSettings,
 ) -> np.ndarray:
     """``(count, replicates, N_MOMENTS)`` for queries ``first .. first + count - 1``.
 
@@ -217,9 +237,10 @@ def numpy_chunk_moments(
     """
     ops = NumpyOps()
     tab = tables(ops, geo)
+    samples, replicates = settings.samples, settings.replicates
     points = samplers.sample_points(
-        sampler,
-        seed=seed,
+        settings.sampler,
+        seed=settings.seed,
         first_query=first,
         n_queries=count,
         samples=samples,
@@ -237,7 +258,7 @@ def numpy_chunk_moments(
         pts = blocks[rows]
         centre = (per_row(queries.centre[:, 0], rows), per_row(queries.centre[:, 1], rows))
         s, t = footprint_positions(
-            ops, centre, per_row(queries.size, rows), pts[..., 0], pts[..., 1], kernel
+            ops, centre, per_row(queries.size, rows), pts[..., 0], pts[..., 1], settings.kernel
         )
         wi = tuple(per_row(queries.wi[:, k], rows) for k in range(3))
         wo = tuple(per_row(queries.wo[:, k], rows) for k in range(3))
@@ -251,24 +272,26 @@ def numpy_chunk_moments(
             (wi[0], wi[1], wi[2]),
             (wo[0], wo[1], wo[2]),
             pts[..., 2],
-            with_visibility=with_visibility,
-            march_step=march_step,
-            march_max_steps=march_max_steps,
-            march=march,
+            with_visibility=settings.with_visibility,
+            march_step=settings.march_step,
+            march_max_steps=settings.march_max_steps,
+            march=settings.march,
         )
         return _moments(terms, pts.shape[0], block)
 
     step = max(1, _NUMPY_SLICE // block)
     slices = [slice(r, min(r + step, len(blocks))) for r in range(0, len(blocks), step)]
-    if threads > 1 and len(slices) > 1:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
+    if settings.threads > 1 and len(slices) > 1:
+        with ThreadPoolExecutor(max_workers=settings.threads) as pool:
             parts = list(pool.map(run, slices))
     else:
         parts = [run(sl) for sl in slices]
     return np.concatenate(parts).reshape(count, replicates, N_MOMENTS)
 
 
-ChunkFn = Callable[..., np.ndarray]
+ChunkFn = Callable[
+    [FabricParams, YarnGeometry, FootprintQueries, int, int, EstimatorSettings], np.ndarray
+]
 
 
 def estimate(
@@ -324,17 +347,18 @@ def estimate(
     -------
     :class:`AggregateEstimate` with ``(Q, 4)`` means and standard errors.
     """
-    samplers.check_sampling(sampler, samples, replicates)
-    if kernel not in KERNELS:
-        raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
-    if not 1 <= march_max_steps <= 1024:
-        raise ValueError(f"march_max_steps must be in [1, 1024], got {march_max_steps}")
-    if not 1e-3 <= march_step <= 1.0:
-        raise ValueError(f"march_step must be in [0.001, 1] cells, got {march_step}")
-    if threads < 1:
-        raise ValueError(f"threads must be >= 1, got {threads}")
-    if march not in MARCHES:
-        raise ValueError(f"march must be one of {MARCHES}, got {march!r}")
+    settings = EstimatorSettings(
+        samples=samples,
+        sampler=sampler,
+        seed=seed,
+        replicates=replicates,
+        kernel=kernel,
+        with_visibility=with_visibility,
+        march_step=march_step,
+        march_max_steps=march_max_steps,
+        march=march,
+        threads=threads,
+    )
     chunk_fn: ChunkFn
     if backend == "numpy":
         chunk_fn = numpy_chunk_moments
@@ -351,29 +375,14 @@ def estimate(
     moments = np.zeros((q_total, replicates, N_MOMENTS))
     for first in range(0, q_total, chunk):
         count = min(chunk, q_total - first)
-        moments[first : first + count] = chunk_fn(
-            params,
-            geo,
-            queries,
-            first,
-            count,
-            sampler=sampler,
-            seed=seed,
-            samples=samples,
-            replicates=replicates,
-            kernel=kernel,
-            with_visibility=with_visibility,
-            march_step=march_step,
-            march_max_steps=march_max_steps,
-            march=march,
-            threads=threads,
-        )
+        moments[first : first + count] = chunk_fn(params, geo, queries, first, count, settings)
     return reduce_moments(moments, sampler, samples)
 
 
 __all__ = [
     "COMPONENTS",
     "AggregateEstimate",
+    "EstimatorSettings",
     "FootprintQueries",
     "estimate",
     "reduce_moments",

@@ -34,13 +34,12 @@ import numpy as np
 
 from materials.fabric import samplers
 from materials.fabric.array_ops import Array
-from materials.fabric.integrand import Kernel, footprint_positions, sample_terms
-from materials.fabric.march import March
+from materials.fabric.integrand import footprint_positions, sample_terms
 from materials.fabric.params import FabricParams
 from materials.fabric.yarn import YarnGeometry, tables
 
 if TYPE_CHECKING:
-    from materials.fabric.aggregate import FootprintQueries
+    from materials.fabric.aggregate import EstimatorSettings, FootprintQueries
 
 
 @lru_cache(maxsize=1)
@@ -156,32 +155,22 @@ def drjit_chunk_moments(
     queries: FootprintQueries,
     first: int,
     count: int,
-    *,
-    sampler: str,
-    seed: int,
-    samples: int,
-    replicates: int,
-    kernel: Kernel,
-    with_visibility: bool,
-    march_step: float,
-    march_max_steps: int,
-    march: March = "hierarchical",
-    threads: int = 1,
+    settings: EstimatorSettings,
 ) -> np.ndarray:
     """``(count, replicates, 15)`` moments, as ``aggregate.numpy_chunk_moments`` computes.
 
-    ``threads`` is ignored (Dr.Jit uses
-    its own pool, ``drjit.thread_count()``). Sobol points are built inside the kernel from
-    the uploaded nets and per-query shifts (bit-identical to ``samplers.sample_points``);
-    independent points are uploaded.
+    ``settings.threads`` is ignored (Dr.Jit uses its own pool, ``drjit.thread_count()``).
+    Sobol points are built inside the kernel from the uploaded nets and per-query shifts
+    (bit-identical to ``samplers.sample_points``); independent points are uploaded.
     """
     jit = _drjit()
     dr, Float, Float64, UInt32 = jit.dr, jit.Float, jit.Float64, jit.UInt32
     ops = DrJitOps()
     tab = tables(ops, geo)
+    samples, replicates, seed = settings.samples, settings.replicates, settings.seed
     block = samples // replicates
     owner = dr.arange(UInt32, count * samples) // samples
-    if sampler == "sobol":
+    if settings.sampler == "sobol":
         nets = samplers.scrambled_nets(seed, replicates, block)
         shifts = samplers.digital_shifts(seed, first, count, replicates)
         k = dr.arange(UInt32, count * samples) - owner * samples  # = replicate * block + i
@@ -208,7 +197,7 @@ def drjit_chunk_moments(
         return dr.gather(Float, Float(np.ascontiguousarray(a[sl], dtype=np.float32)), owner)
 
     centre = (per_sample(queries.centre[:, 0]), per_sample(queries.centre[:, 1]))
-    s, t = footprint_positions(ops, centre, per_sample(queries.size), u[0], u[1], kernel)
+    s, t = footprint_positions(ops, centre, per_sample(queries.size), u[0], u[1], settings.kernel)
     wi = tuple(per_sample(queries.wi[:, k]) for k in range(3))
     wo = tuple(per_sample(queries.wo[:, k]) for k in range(3))
     terms = sample_terms(
@@ -221,10 +210,10 @@ def drjit_chunk_moments(
         (wi[0], wi[1], wi[2]),
         (wo[0], wo[1], wo[2]),
         u[2],
-        with_visibility=with_visibility,
-        march_step=march_step,
-        march_max_steps=march_max_steps,
-        march=march,
+        with_visibility=settings.with_visibility,
+        march_step=settings.march_step,
+        march_max_steps=settings.march_max_steps,
+        march=settings.march,
     )
     comps = [Float64(x) for x in terms[:4]]
     area = Float64(terms.area)

@@ -77,6 +77,99 @@ def plain_shade(mi: types.ModuleType) -> Shade:
     return shade
 
 
+def _initial_state(mi: types.ModuleType, sampler: Any, ray: Any, active: Any) -> tuple[Any, ...]:
+    """The loop state of :func:`trace_paths` before the first vertex."""
+    import drjit as dr
+
+    return (
+        sampler,
+        mi.Ray3f(ray),
+        mi.Bool(active),
+        mi.UInt32(0),  # depth of the current vertex
+        mi.Spectrum(0.0),  # radiance
+        mi.Spectrum(1.0),  # throughput
+        mi.Float(1.0),  # relative IOR along the path
+        mi.Bool(False),  # valid_ray
+        dr.zeros(mi.SurfaceInteraction3f),  # previous vertex
+        mi.Float(1.0),  # previous BSDF sample's pdf
+        mi.Bool(True),  # previous BSDF sample was a delta
+    )
+
+
+def _emission_hit(
+    mi: types.ModuleType,
+    scene: Any,
+    si: Any,
+    active: Any,
+    throughput: Any,
+    result: Any,
+    prev_si: Any,
+    prev_bsdf_pdf: Any,
+    prev_bsdf_delta: Any,
+) -> Any:
+    """``result`` plus the emission that the previous BSDF sample hit at ``si``,
+    MIS-weighted against emitter sampling at the previous vertex."""
+    import drjit as dr
+
+    ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+    em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
+    emitted = ds.emitter.eval(si, active & (prev_bsdf_pdf > 0.0))
+    return dr.fma(throughput, emitted * mis_weight(prev_bsdf_pdf, em_pdf), result)
+
+
+def _shade_vertex(
+    mi: types.ModuleType,
+    scene: Any,
+    sampler: Any,
+    ray: Any,
+    si: Any,
+    depth: Any,
+    active_next: Any,
+    throughput: Any,
+    result: Any,
+    shade: Shade,
+    prepare: Prepare | None,
+) -> tuple[Any, Any, Any, Any]:
+    """Emitter sampling at ``si``, then the ``prepare`` and ``shade`` hooks: the BSDF at the
+    emitter sample's direction (MIS-weighted against BSDF sampling) and its own sample.
+    Returns ``(si, result, bs, bsdf_weight)``: ``si`` as ``prepare`` left it, ``result``
+    plus the emitter sample's contribution, and the BSDF sample with its weight."""
+    import drjit as dr
+
+    bsdf = si.bsdf(ray)
+    active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    ds_em, em_weight = scene.sample_emitter_direction(
+        si, sampler.next_2d(active_next), True, active_em
+    )
+    active_em &= ds_em.pdf != 0.0
+    wo_em = si.to_local(ds_em.d)
+    if prepare is not None:
+        si = prepare(si, depth, sampler, active_next)
+    s1, s2 = sampler.next_1d(active_next), sampler.next_2d(active_next)
+    value_em, pdf_em, bs, bsdf_weight = shade(
+        bsdf, si, wo_em, s1, s2, active_em, active_next, depth
+    )
+    mis_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, pdf_em))
+    result = dr.select(active_em, dr.fma(throughput, value_em * em_weight * mis_em, result), result)
+    return si, result, bs, bsdf_weight
+
+
+def _russian_roulette(
+    sampler: Any, depth: Any, throughput: Any, eta: Any, active_next: Any, rr_depth: int
+) -> tuple[Any, Any]:
+    """Russian roulette, as in Mitsuba's path integrator: ``(throughput, active)`` after
+    it (the throughput divided by the survival probability from ``rr_depth`` on)."""
+    import drjit as dr
+
+    throughput_max = dr.max(throughput)
+    rr_prob = dr.minimum(throughput_max * dr.square(eta), 0.95)
+    rr_active = depth >= rr_depth
+    rr_continue = sampler.next_1d(active_next) < rr_prob
+    throughput = dr.select(rr_active, throughput * dr.rcp(rr_prob), throughput)
+    active = active_next & (~rr_active | rr_continue) & (throughput_max != 0.0)
+    return throughput, active
+
+
 def trace_paths(
     mi: types.ModuleType,
     scene: Any,
@@ -100,19 +193,6 @@ def trace_paths(
 
     shade = shade or plain_shade(mi)
     depth_limit = max_depth if max_depth > 0 else 0xFFFFFFFF
-    state = (
-        sampler,
-        mi.Ray3f(ray),
-        mi.Bool(active),
-        mi.UInt32(0),  # depth of the current vertex
-        mi.Spectrum(0.0),  # radiance
-        mi.Spectrum(1.0),  # throughput
-        mi.Float(1.0),  # relative IOR along the path
-        mi.Bool(False),  # valid_ray
-        dr.zeros(mi.SurfaceInteraction3f),  # previous vertex
-        mi.Float(1.0),  # previous BSDF sample's pdf
-        mi.Bool(True),  # previous BSDF sample was a delta
-    )
 
     def body(
         sampler: Any,
@@ -130,32 +210,16 @@ def trace_paths(
         si = scene.ray_intersect(
             ray, ray_flags=mi.RayFlags.All, coherent=(depth == 0), active=active
         )
-        # Emission hit by the previous BSDF sample, MIS-weighted against emitter sampling
-        # at the previous vertex.
-        ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
-        em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
-        emitted = ds.emitter.eval(si, active & (prev_bsdf_pdf > 0.0))
-        result = dr.fma(throughput, emitted * mis_weight(prev_bsdf_pdf, em_pdf), result)
+        result = _emission_hit(
+            mi, scene, si, active, throughput, result, prev_si, prev_bsdf_pdf, prev_bsdf_delta
+        )
 
         active_next = active & (depth + 1 < depth_limit) & si.is_valid()
-        bsdf = si.bsdf(ray)
-        active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds_em, em_weight = scene.sample_emitter_direction(
-            si, sampler.next_2d(active_next), True, active_em
-        )
-        active_em &= ds_em.pdf != 0.0
-        wo_em = si.to_local(ds_em.d)
-        if prepare is not None:
-            si = prepare(si, depth, sampler, active_next)
-        s1, s2 = sampler.next_1d(active_next), sampler.next_2d(active_next)
-        value_em, pdf_em, bs, bsdf_weight = shade(
-            bsdf, si, wo_em, s1, s2, active_em, active_next, depth
-        )
-        mis_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, pdf_em))
-        result = dr.select(
-            active_em, dr.fma(throughput, value_em * em_weight * mis_em, result), result
+        si, result, bs, bsdf_weight = _shade_vertex(
+            mi, scene, sampler, ray, si, depth, active_next, throughput, result, shade, prepare
         )
 
+        # The next segment.
         ray = si.spawn_ray(si.to_world(bs.wo))
         throughput = throughput * bsdf_weight
         eta = eta * bs.eta
@@ -164,14 +228,9 @@ def trace_paths(
         )
         prev_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         depth = dr.select(si.is_valid(), depth + 1, depth)
-
-        # Russian roulette, as in Mitsuba's path integrator.
-        throughput_max = dr.max(throughput)
-        rr_prob = dr.minimum(throughput_max * dr.square(eta), 0.95)
-        rr_active = depth >= rr_depth
-        rr_continue = sampler.next_1d(active_next) < rr_prob
-        throughput = dr.select(rr_active, throughput * dr.rcp(rr_prob), throughput)
-        active = active_next & (~rr_active | rr_continue) & (throughput_max != 0.0)
+        throughput, active = _russian_roulette(
+            sampler, depth, throughput, eta, active_next, rr_depth
+        )
         return (
             sampler,
             ray,
@@ -186,5 +245,6 @@ def trace_paths(
             prev_delta,
         )
 
+    state = _initial_state(mi, sampler, ray, active)
     out = dr.while_loop(state, lambda *s: s[2], body, label=label)
     return out[4], out[7]
