@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
+from jobapi.documents import CurvesDocument
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
@@ -392,6 +393,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"curves.json": CurvesDocument},
         summary=summarize,
         rows=train_brdf_rows,
         report=ReportFacts(

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
+from jobapi.documents import CurvesDocument
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
@@ -235,6 +236,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"curves.json": CurvesDocument},
         summary=summarize,
         rows=train_btf_rows,
         # failure cases (shadowed / specular slices, models.btf.cases) differ in scale:

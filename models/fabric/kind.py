@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
 
+from jobapi.documents import CurvesDocument
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
@@ -319,6 +320,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"curves.json": CurvesDocument},
         summary=summarize,
         rows=train_fabric_rows,
         # the headline: the network's rows (its Monte Carlo baselines have rows too)
