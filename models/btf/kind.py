@@ -30,6 +30,7 @@ from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
+from models.btf.documents import TrainBtfMetrics
 from models.btf.rows import train_btf_rows
 
 if TYPE_CHECKING:
@@ -236,7 +237,7 @@ register(
                 lead=True,
             ),
         ),
-        documents={"curves.json": CurvesDocument},
+        documents={"curves.json": CurvesDocument, "metrics.json": TrainBtfMetrics},
         summary=summarize,
         rows=train_btf_rows,
         # failure cases (shadowed / specular slices, models.btf.cases) differ in scale:

@@ -42,6 +42,7 @@ from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.fabric.claims import fabric_claims
+from models.fabric.documents import TrainFabricMetrics
 from models.fabric.rows import train_fabric_rows
 
 if TYPE_CHECKING:
@@ -320,7 +321,7 @@ register(
                 lead=True,
             ),
         ),
-        documents={"curves.json": CurvesDocument},
+        documents={"curves.json": CurvesDocument, "metrics.json": TrainFabricMetrics},
         summary=summarize,
         rows=train_fabric_rows,
         # the headline: the network's rows (its Monte Carlo baselines have rows too)

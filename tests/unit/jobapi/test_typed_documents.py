@@ -147,8 +147,9 @@ def test05_chart_documents_are_typed_with_their_rules() -> None:
 
 
 def test06_kinds_that_write_a_chart_or_score_document_declare_its_type() -> None:
-    """Every built-in kind that lists ``curves.json``, ``pareto.json`` (or is ``score``)
-    declares the one type, so the kinds reference lists its fields."""
+    """Every built-in kind that lists ``curves.json`` or ``pareto.json`` declares the one
+    type, and every one that lists ``metrics.json`` its own, so the kinds reference lists
+    their fields."""
     from evaluators.score.document import ScoreMetrics
     from jobapi.documents import CHARTS
     from service import kinds
@@ -159,6 +160,11 @@ def test06_kinds_that_write_a_chart_or_score_document_declare_its_type() -> None
             if name in kind.artifacts:
                 assert kind.documents.get(name) is typed, (kind.name, name)
     assert jobapi_kinds.registered()["score"].documents == {"metrics.json": ScoreMetrics}
+    # Each kind that writes a metrics.json has its own shape, and its own type.
+    metrics = {k.name: k.documents.get("metrics.json") for k in jobapi_kinds.registered().values()
+               if "metrics.json" in k.artifacts and kinds.plugin_of(k.name) is None}  # fmt: skip
+    assert set(metrics) >= {"score", "train.brdf", "train.btf", "train.fabric", "evaluate.tss"}
+    assert all(metrics.values()) and len(set(metrics.values())) == len(metrics), metrics
 
 
 def test07_score_metrics_of_every_scorer_shape() -> None:
