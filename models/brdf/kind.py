@@ -62,7 +62,7 @@ from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.brdf.claims import brdf_claims
-from models.brdf.documents import TrainBrdfMetrics
+from models.brdf.document import TrainBrdfMetrics
 from models.brdf.rows import train_brdf_rows
 
 if TYPE_CHECKING:

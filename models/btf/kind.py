@@ -30,7 +30,7 @@ from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
-from models.btf.documents import TrainBtfMetrics
+from models.btf.document import TrainBtfMetrics
 from models.btf.rows import train_btf_rows
 
 if TYPE_CHECKING:

@@ -42,7 +42,7 @@ from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.fabric.claims import fabric_claims
-from models.fabric.documents import TrainFabricMetrics
+from models.fabric.document import TrainFabricMetrics
 from models.fabric.rows import train_fabric_rows
 
 if TYPE_CHECKING:
