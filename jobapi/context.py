@@ -200,14 +200,15 @@ class JobContext:
         return self._record(name, info.digest, info.size, media_type)
 
     def put_json(self, name: str, obj: Any) -> ArtifactRecord:
-        """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes). A chart document
-        (``curves.json``, ``pareto.json``) must follow its schema, and a document the job's
-        kind declares (``Kind.documents``) its type (:mod:`jobapi.documents`):
+        """Store ``obj`` as pretty, key-sorted JSON (deterministic bytes). A document the
+        job's kind declares (``Kind.documents``) must be of its type, and a chart document
+        (``curves.json``, ``pareto.json``) of its type even if undeclared (:mod:`jobapi.documents`):
         :class:`~jobapi.documents.DocumentError` otherwise, which fails the job."""
-        check_document(name, obj)
         typed = self._documents().get(name)
         if typed is not None:
-            check_typed(name, obj, typed)
+            check_typed(name, obj, typed)  # a chart document's type brings its rules
+        else:
+            check_document(name, obj)
         text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
         return self.put_bytes(name, text.encode(), "application/json")
 

@@ -1,6 +1,9 @@
-"""The one schema of each JSON artifact that the dashboard draws: ``curves.json`` and
-``pareto.json`` (``docs/artifacts.md``, "Chart documents"). :class:`~jobapi.context.JobContext`
-validates them when a kind writes them (``put_json``) or publishes them live (``publish``),
+"""The one schema of each JSON artifact that the dashboard draws: ``curves.json``
+(:class:`CurvesDocument`) and ``pareto.json`` (:class:`ParetoDocument`), each a type with
+the rules a type cannot say (:data:`RULES`: :func:`check_curves`, :func:`check_pareto`)
+(``docs/artifacts.md``, "Chart documents", whose field tables are generated from the
+types). :class:`~jobapi.context.JobContext` validates them when a kind writes them
+(``put_json``, declared in ``Kind.documents`` or not) or publishes them live (``publish``),
 so that a kind that writes another shape fails its first test instead of drawing nothing.
 
 ``curves.json`` (``train.brdf``, ``train.btf``, ``train.fabric``, any plugin):
@@ -40,12 +43,20 @@ the writer's, as before.
 from __future__ import annotations
 
 import math
-from typing import Any, TypeVar
+from collections.abc import Callable
+from typing import Any, NotRequired, TypeVar
 
 from pydantic import ConfigDict, TypeAdapter, ValidationError, with_config
+from typing_extensions import TypedDict
 
 __all__ = [
+    "CurvesDocument",
+    "CurvesPhase",
     "DocumentError",
+    "ParetoClaim",
+    "ParetoDocument",
+    "ParetoPanel",
+    "ParetoPoint",
     "check_document",
     "check_curves",
     "check_pareto",
@@ -222,16 +233,135 @@ def _check_panel(name: str, where: str, panel: Any) -> None:
                                             f"{flagged}")  # fmt: skip
 
 
-#: Checked documents by artifact name (the last path component).
-CHECKS = {"curves.json": check_curves, "pareto.json": check_pareto}
+# -- the chart documents' types ---------------------------------------------------------------
+# The fields every writer and reader shares; the rules a type cannot say (strictly increasing
+# steps, one value per step, the front among the points) are the checkers above, attached to
+# each type in ``RULES``. Extra keys stay allowed where the schema allows them (a series, a
+# group, a note; a kind's own keys), so the types describe the documents as they are.
+
+_OPEN = ConfigDict(extra="allow", use_attribute_docstrings=True)
+
+
+@document
+class CurvesPhase(TypedDict):
+    """One phase of a training run, on the steps of ``curves.json``."""
+
+    name: str
+    """The phase (``train``, ``heldout``)."""
+    first_step: int
+    """Its first step; the first phase's is at or before ``step[0]``."""
+    last_step: int
+    """Its last step; the next phase begins at ``last_step + 1``."""
+
+
+@with_config(_OPEN)
+class CurvesDocument(TypedDict):
+    """``curves.json``: series against step. Every other key is a series (a list of N
+    finite numbers or ``null``, at least one a number), a group ``{name: series}`` drawn as
+    ``key.name``, or a note (a string, e.g. ``loss_definition``)."""
+
+    step: list[int]
+    """N >= 1 ints >= 0, strictly increasing: the x axis (optimiser steps, counted across
+    phases)."""
+    lr: NotRequired[list[float | None]]
+    """The learning rate (N values), drawn on its own log axis."""
+    epoch: NotRequired[list[float | None]]
+    """A second coordinate (N values: data passes), never drawn as a loss."""
+    phases: NotRequired[list[CurvesPhase]]
+    """The run's phases, consecutive, covering every step."""
+
+
+@with_config(_OPEN)
+class ParetoPoint(TypedDict):
+    """One candidate of a panel (a kind may add its own keys, e.g. ``seeds``)."""
+
+    candidate: str
+    """The candidate's label."""
+    mean: float
+    """Its error: the mean over jobs (seeds), finite."""
+    cost: float
+    """Its cost, finite."""
+    front: bool
+    """On the panel's front (not beaten on both cost and error)."""
+    std: NotRequired[float | None]
+    """Sample std over seeds (ddof 1)."""
+    min: NotRequired[float | None]
+    """Least error over seeds (the error bar's low end)."""
+    max: NotRequired[float | None]
+    """Largest error over seeds."""
+    n: NotRequired[int]
+    """Jobs (seeds) averaged."""
+    jobs: NotRequired[list[str]]
+    """The ``job:<id>`` refs averaged; the first is opened on click."""
+    runtime: NotRequired[str | None]
+    """What evaluated the candidate (``drjit-fused``, ``onnxruntime``, ``mitsuba``, several
+    joined with ``+``)."""
+
+
+@with_config(_OPEN)
+class ParetoPanel(TypedDict):
+    """One chart: one dataset and scene, one error metric against one cost."""
+
+    metric: str
+    """The error metric (lower is better), non-empty."""
+    cost: str
+    """The cost column, non-empty."""
+    dataset: NotRequired[str | None]
+    """The dataset (``null``: any)."""
+    scene: NotRequired[str | None]
+    """The scene (``null``: any)."""
+    cost_label: NotRequired[str | None]
+    """The cost axis' label."""
+    runtimes: NotRequired[list[str]]
+    """The points' runtimes; with more than one, ``cost_label`` says they differ."""
+    points: list[ParetoPoint]
+    """One per candidate, non-empty."""
+    front: list[str]
+    """The candidates of the points with ``front: true``."""
+
+
+@with_config(_OPEN)
+class ParetoClaim(TypedDict):
+    """A claim checked (a kind may add ``why`` and its own keys)."""
+
+    claim: str
+    """What is claimed."""
+    holds: bool | None
+    """Whether it holds (``null``: not resolved)."""
+
+
+@with_config(_OPEN)
+class ParetoDocument(TypedDict):
+    """``pareto.json``: error against cost, in panels. Other keys are a kind's own
+    (``report.brdf``'s per-configuration ``points``; ``report.pareto``'s ``families``)."""
+
+    format: str
+    """The writer's format (``matforge.pareto/1``, ``matforge.brdf-report/1``)."""
+    runs: list[str]
+    """The ``job:<id>`` refs reported on."""
+    panels: list[ParetoPanel]
+    """One chart each, non-empty."""
+    claims: NotRequired[list[ParetoClaim]]
+    """The claims checked."""
+
+
+#: The rules of a typed document that its type cannot say (checked before its type, so
+#: that the error is the rule's): ``check(doc, artifact name)``.
+RULES: dict[type, Callable[[Any, str], None]] = {
+    CurvesDocument: check_curves,
+    ParetoDocument: check_pareto,
+}
+#: The chart documents' types by artifact name (the last path component): checked for
+#: every kind, declared or not (a plugin's too).
+CHARTS: dict[str, type] = {"curves.json": CurvesDocument, "pareto.json": ParetoDocument}
 
 
 def check_document(name: str, doc: Any) -> None:
-    """Check ``doc`` against the schema of the artifact ``name`` if it has one (by its file
-    name: ``curves.json``, ``pareto.json``, also under a folder); other names pass."""
-    check = CHECKS.get(name.rsplit("/", 1)[-1])
-    if check is not None:
-        check(doc, name)
+    """Check ``doc`` against the type of the chart document ``name`` if it is one (by its
+    file name: ``curves.json``, ``pareto.json``, also under a folder); other names pass."""
+    typed = CHARTS.get(name.rsplit("/", 1)[-1])
+    if typed is not None:
+        check_typed(name, doc, typed)
 
 
 _ADAPTERS: dict[Any, TypeAdapter[Any]] = {}
@@ -247,7 +377,11 @@ def _adapter(typed: Any) -> TypeAdapter[Any]:
 def check_typed(name: str, doc: Any, typed: type) -> None:
     """Raise :class:`DocumentError` unless ``doc`` is a ``typed`` document: every key it
     requires, no other, each value of its declared JSON type (strict: no coercion, but an
-    int is a number). Names the artifact, the field and the type."""
+    int is a number), and its :data:`RULES` if it has any. Names the artifact, the field
+    and the type."""
+    rule = RULES.get(typed)
+    if rule is not None:
+        rule(doc, name)
     try:
         _adapter(typed).validate_python(doc, strict=True)
     except ValidationError as exc:
@@ -261,17 +395,21 @@ def check_typed(name: str, doc: Any, typed: type) -> None:
 def read_typed(doc: Any, typed: type[T]) -> T | None:
     """``doc`` (parsed JSON) as a ``typed`` document, or ``None`` when it is not one (a
     missing artifact, or one of another shape): a reader then shows nothing rather than
-    guessing."""
+    guessing. A type's :data:`RULES` apply as when it is written."""
     try:
+        rule = RULES.get(typed)
+        if rule is not None:
+            rule(doc, "document")
         valid: T = _adapter(typed).validate_python(doc, strict=True)
         return valid
-    except ValidationError:
+    except (ValidationError, DocumentError):
         return None
 
 
 def document_fields(typed: type) -> list[tuple[str, str, bool, str]]:
     """``(field, JSON type, required, description)`` of every field of a typed document,
-    nested objects' fields as ``outer.inner``, in declaration order: the docs' table."""
+    nested objects' fields as ``outer.inner`` (in a list: ``outer[].inner``), in
+    declaration order: the docs' table."""
     schema = _adapter(typed).json_schema()
     defs = schema.get("$defs", {})
 
@@ -286,6 +424,9 @@ def document_fields(typed: type) -> list[tuple[str, str, bool, str]]:
             return " or ".join(type_of(x) for x in s["anyOf"])
         if s.get("type") == "array":
             return f"list of {type_of(s.get('items', {}))}"
+        extra = s.get("additionalProperties")
+        if s.get("type") == "object" and "properties" not in s and isinstance(extra, dict):
+            return f"object of {type_of(extra)}"
         return str(s.get("type", "any"))
 
     out: list[tuple[str, str, bool, str]] = []
@@ -298,6 +439,8 @@ def document_fields(typed: type) -> list[tuple[str, str, bool, str]]:
             out.append((prefix + key, type_of(prop), key in required, desc))
             if "properties" in resolve(prop):
                 walk(prop, f"{prefix}{key}.")
+            elif "properties" in resolve(resolve(prop).get("items", {})):
+                walk(resolve(prop)["items"], f"{prefix}{key}[].")
 
     walk(schema, "")
     return out

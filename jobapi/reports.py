@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from jobapi.documents import CurvesDocument, read_typed
 from jobapi.rows import ResultRow
 
 if TYPE_CHECKING:
@@ -41,21 +42,19 @@ ClaimsHook = Callable[[Sequence[ResultRow], CheckClaim], list[dict[str, Any]]]
 
 def phase_loss(curves: Any, key: str = "loss") -> list[float | None]:
     """The ``key`` series of a ``curves.json`` document of the one schema
-    (:func:`jobapi.documents.check_curves`), cut to its ``train`` phase when it has
+    (:class:`jobapi.documents.CurvesDocument`), cut to its ``train`` phase when it has
     ``phases`` (a held-out phase fits other data); ``[]`` when there is no such series."""
-    if not isinstance(curves, dict):
+    doc = read_typed(curves, CurvesDocument)
+    if doc is None:
         return []
-    values = curves.get(key)
+    values = doc.get(key)  # a series: an extra key of the type, checked by its rules
     if not isinstance(values, list):
         return []
-    phases = curves.get("phases")
-    spans = phases if isinstance(phases, list) else []
-    span = next((p for p in spans if isinstance(p, dict) and p.get("name") == "train"), None)
-    steps = curves.get("step")
-    if span is not None and isinstance(steps, list) and len(steps) == len(values):
+    span = next((p for p in doc.get("phases", []) if p["name"] == "train"), None)
+    if span is not None:
         return [
             v
-            for s, v in zip(steps, values, strict=True)
+            for s, v in zip(doc["step"], values, strict=True)
             if span["first_step"] <= s <= span["last_step"]
         ]
     return list(values)

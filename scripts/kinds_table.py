@@ -2,13 +2,17 @@
 
 Run: ``.venv/bin/python scripts/kinds_table.py --write`` to rewrite the part of
 ``docs/reference/kinds.md`` between the markers ``<!-- kinds:start -->`` and
-``<!-- kinds:end -->`` (without ``--write`` it prints the table);
+``<!-- kinds:end -->``, and the typed documents' field tables of ``docs/artifacts.md``
+(between ``<!-- fields:MODULE.TYPE -->`` and ``<!-- /fields -->``); without ``--write`` it
+prints the kinds table;
 ``tests/unit/service/test_readme.py`` fails when the page is stale.
 """
 
 from __future__ import annotations
 
+import importlib
 import inspect
+import re
 import sys
 from pathlib import Path
 
@@ -57,15 +61,35 @@ def kinds_markdown() -> str:
         lines.append("")
         for artifact, typed in kind.documents.items():
             lines.append(f"`{artifact}` (`{typed.__module__}.{typed.__qualname__}`):\n")
-            lines.append("| field | type | required | description |")
-            lines.append("| --- | --- | --- | --- |")
-            for field, json_type, required, desc in document_fields(typed):
-                cell = desc.replace("|", "\\|")
-                lines.append(
-                    f"| `{field}` | {json_type} | {'yes' if required else 'no'} | {cell} |"
-                )
+            lines.extend(fields_table(typed))
             lines.append("")
     return "\n".join(lines).rstrip() + "\n"
+
+
+def fields_table(typed: type) -> list[str]:
+    """The markdown table of a typed document's fields (:func:`document_fields`)."""
+    lines = ["| field | type | required | description |", "| --- | --- | --- | --- |"]
+    for field, json_type, required, desc in document_fields(typed):
+        cell = desc.replace("|", "\\|")
+        lines.append(f"| `{field}` | {json_type} | {'yes' if required else 'no'} | {cell} |")
+    return lines
+
+
+#: ``docs/artifacts.md``: each block between ``<!-- fields:MODULE.TYPE -->`` and
+#: ``<!-- /fields -->`` is the field table of that typed document.
+ARTIFACTS = Path(__file__).resolve().parent.parent / "docs" / "artifacts.md"
+FIELDS = re.compile(r"(<!-- fields:([\w.]+) -->\n).*?(<!-- /fields -->)", re.S)
+
+
+def artifacts_with_fields(text: str) -> str:
+    """``text`` (the artifacts page) with every fields block regenerated from its type."""
+
+    def table(m: re.Match[str]) -> str:
+        module, _, name = m[2].rpartition(".")
+        typed = getattr(importlib.import_module(module), name)
+        return m[1] + "\n".join(fields_table(typed)) + "\n" + m[3]
+
+    return FIELDS.sub(table, text)
 
 
 START, END = "<!-- kinds:start -->", "<!-- kinds:end -->"
@@ -82,5 +106,7 @@ def page_with_table(text: str) -> str:
 if __name__ == "__main__":
     if "--write" in sys.argv[1:]:
         PAGE.write_text(page_with_table(PAGE.read_text(encoding="utf-8")), encoding="utf-8")
+        text = ARTIFACTS.read_text(encoding="utf-8")
+        ARTIFACTS.write_text(artifacts_with_fields(text), encoding="utf-8")
     else:
         sys.stdout.write(kinds_markdown())

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Literal
 from pydantic import Field
 
 from evaluators.report.fronts import COST_LABELS
+from jobapi.documents import ParetoDocument, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register, registered
 from jobapi.params import JobRef, StrictModel, job_id_of
@@ -169,21 +170,24 @@ COLUMNS = ("mean", "std", "min", "max", "n", "cost", "front")
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """One row per panel and point (``"<metric> vs <cost> / <candidate>"``, with the
     dataset when there are several), and the claims."""
-    doc = read("pareto.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("panels"), list):
+    doc = read_typed(read("pareto.json"), ParetoDocument)
+    if doc is None:
         return None
-    panels = [p for p in doc["panels"] if isinstance(p, dict)]
+    panels = doc["panels"]
     several = len({(p.get("dataset"), p.get("scene")) for p in panels}) > 1
     rows = {}
     for p in panels:
-        where = (
-            f" [{p.get('dataset')}{' ' + p['scene'] if p.get('scene') else ''}]" if several else ""
-        )
-        for pt in p.get("points") or []:
-            label = f"{p.get('metric')} vs {p.get('cost')}{where} / {pt.get('candidate')}"
+        scene = p.get("scene")
+        where = f" [{p.get('dataset')}{' ' + scene if scene else ''}]" if several else ""
+        for pt in p["points"]:
+            label = f"{p['metric']} vs {p['cost']}{where} / {pt['candidate']}"
             rows[label] = {c: pt.get(c) for c in COLUMNS}
     return ResultTable.from_report(
-        doc, rows, title="Error against cost", label_header="Panel / candidate", columns=COLUMNS
+        dict(doc),
+        rows,
+        title="Error against cost",
+        label_header="Panel / candidate",
+        columns=COLUMNS,
     )
 
 
@@ -206,6 +210,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"pareto.json": ParetoDocument},
         summary=summarize,
     )
 )

@@ -54,8 +54,10 @@ from typing import TYPE_CHECKING, Any
 
 from evaluators.score import brdf, external, images
 from evaluators.score.artifacts import ARTIFACT_KINDS, Loaded, load_input
+from evaluators.score.document import ScoreMetrics
 from evaluators.score.params import ExternalCandidate, ModelCandidate, ScoreParams
 from evaluators.score.rows import score_rows
+from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -127,17 +129,15 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table of a ``score`` job: ``metrics.json``, one row per candidate (and,
     for whole models against a set of tables, one ``"<label> / <material>"`` row per
     material after its candidate's row), one column per metric."""
-    doc = read("metrics.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), dict):
+    doc = read_typed(read("metrics.json"), ScoreMetrics)
+    if doc is None:
         return None
     rows: dict[str, dict[str, Any]] = {}
-    per = doc.get("per_material")
-    per = per if isinstance(per, dict) else {}
+    per = doc.get("per_material", {})
     for label, values in doc["metrics"].items():
-        rows[str(label)] = dict(values) if isinstance(values, dict) else {}
-        for name, vals in (per.get(label) or {}).items():
-            if isinstance(vals, dict):
-                rows[f"{label} / {name}"] = dict(vals)
+        rows[label] = dict(values)
+        for name, vals in per.get(label, {}).items():
+            rows[f"{label} / {name}"] = dict(vals)
     names: list[str] = []
     for values in rows.values():
         names.extend(str(m) for m in values if m not in names)
@@ -165,6 +165,7 @@ register(
             "reference": "step:render/image.exr",
             "candidates": {"same": "step:render/image.exr"},
         },
+        documents={"metrics.json": ScoreMetrics},
         summary=summarize,
         rows=score_rows,
     )

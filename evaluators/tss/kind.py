@@ -44,6 +44,7 @@ import json
 import math
 from typing import TYPE_CHECKING, Any
 
+from evaluators.tss.document import TssMetrics
 from evaluators.tss.params import PLANE_SIDE, ExternalBtfRef, TssParams
 from evaluators.tss.rows import tss_rows
 from jobapi.errors import JobFailed
@@ -305,6 +306,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"metrics.json": TssMetrics},
         summary=summarize,
         rows=tss_rows,
         layout=LAYOUT,

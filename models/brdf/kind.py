@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
+from jobapi.documents import CurvesDocument
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
@@ -61,6 +62,7 @@ from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.brdf.claims import brdf_claims
+from models.brdf.document import TrainBrdfMetrics
 from models.brdf.rows import train_brdf_rows
 
 if TYPE_CHECKING:
@@ -392,6 +394,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"curves.json": CurvesDocument, "metrics.json": TrainBrdfMetrics},
         summary=summarize,
         rows=train_brdf_rows,
         report=ReportFacts(

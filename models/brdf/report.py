@@ -86,7 +86,8 @@ def evaluate(
     *,
     check_cancelled: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
-    """``metrics.json``: per-material scores and their means (see the module docstring).
+    """``metrics.json``: per-material scores and their means (see the module docstring;
+    its type is :class:`models.brdf.document.TrainBrdfMetrics`).
 
     ``materials[i]`` is the model's material ``i``; ``splits[i]`` is ``"train"`` or
     ``"heldout"``. Raises :class:`JobFailed` if the model gives non-finite values.

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import Field
 
+from jobapi.documents import ParetoDocument
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import JobRef, StrictModel
@@ -275,6 +276,9 @@ PARETO_COLUMNS = (
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``pareto.json``, one row per configuration, and its claims."""
     doc = read("pareto.json")
+    # Its own key ``points`` (per configuration, beside the typed panels), not the type's
+    # (:class:`~jobapi.documents.ParetoDocument`): documents written before the panels
+    # existed have only these, and still get their table.
     if not isinstance(doc, dict):
         return None
     points = [p for p in doc.get("points", []) if isinstance(p, dict) and "config" in p]
@@ -306,6 +310,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"pareto.json": ParetoDocument},
         summary=summarize,
     )
 )

@@ -24,11 +24,13 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
+from jobapi.documents import CurvesDocument
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
+from models.btf.document import TrainBtfMetrics
 from models.btf.rows import train_btf_rows
 
 if TYPE_CHECKING:
@@ -235,6 +237,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"curves.json": CurvesDocument, "metrics.json": TrainBtfMetrics},
         summary=summarize,
         rows=train_btf_rows,
         # failure cases (shadowed / specular slices, models.btf.cases) differ in scale:

@@ -35,12 +35,14 @@ from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
 
+from jobapi.documents import CurvesDocument
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.fabric.claims import fabric_claims
+from models.fabric.document import TrainFabricMetrics
 from models.fabric.rows import train_fabric_rows
 
 if TYPE_CHECKING:
@@ -319,6 +321,7 @@ register(
                 lead=True,
             ),
         ),
+        documents={"curves.json": CurvesDocument, "metrics.json": TrainFabricMetrics},
         summary=summarize,
         rows=train_fabric_rows,
         # the headline: the network's rows (its Monte Carlo baselines have rows too)

@@ -202,8 +202,13 @@ def test07_phase_loss_of_the_one_schema() -> None:
     doc: Mapping[str, Any] = {
         "step": [1, 2, 3],
         "loss": [3.0, 2.0, 1.0],
-        "phases": [{"name": "train", "first_step": 1, "last_step": 2}],
+        "phases": [
+            {"name": "train", "first_step": 1, "last_step": 2},
+            {"name": "heldout", "first_step": 3, "last_step": 3},
+        ],
     }
     assert phase_loss(dict(doc)) == [3.0, 2.0]
+    # Not of the schema (a step after the last phase): no loss rather than a guess.
+    assert phase_loss({**doc, "phases": doc["phases"][:1]}) == []
     assert phase_loss(dict(doc), "other") == []
     assert phase_loss(None) == [] and phase_loss([1.0]) == []

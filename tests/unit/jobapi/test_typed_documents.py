@@ -112,3 +112,76 @@ def test04_builtin_documents_are_typed_dicts_of_json() -> None:
         assert name in jobapi_kinds.registered()[kind].artifacts, (kind, name)
         assert typed.__annotations__, (kind, name)
     check_typed("stats.json", glint_stats(), GlintStats)
+
+
+def test05_chart_documents_are_typed_with_their_rules() -> None:
+    """``curves.json`` and ``pareto.json``: each writer's document passes its type and rules
+    (references: the writers' own documents, as the checkers' tests use them); a fault the
+    type sees (a mistyped ``n``) and one only the rules see (steps that do not increase)
+    both fail, naming the field, and readers get ``None`` for either."""
+    from jobapi.documents import CHARTS, CurvesDocument, ParetoDocument, check_document
+    from tests.unit.jobapi.test_documents import PARETO, brdf_curves
+
+    assert CHARTS == {"curves.json": CurvesDocument, "pareto.json": ParetoDocument}
+    curves = brdf_curves()
+    check_typed("curves.json", curves, CurvesDocument)
+    got = read_typed(curves, CurvesDocument)
+    assert got is not None and got["step"] == curves["step"] and got.get("loss") == curves["loss"]
+    bad_steps = {**curves, "step": list(reversed(curves["step"]))}
+    with pytest.raises(DocumentError, match=r"curves\.json: step\[1\]: .*increase"):
+        check_typed("curves.json", bad_steps, CurvesDocument)
+    assert read_typed(bad_steps, CurvesDocument) is None
+    bad_phase = {**curves, "phases": [{**curves["phases"][0], "first_step": "1"}]}
+    with pytest.raises(DocumentError, match=r"curves\.json: phases"):
+        check_document("curves.json", bad_phase)
+
+    check_typed("pareto.json", PARETO, ParetoDocument)
+    panel = PARETO["panels"][0]
+    mistyped = {**PARETO, "panels": [{**panel, "points": [{**panel["points"][0], "n": "2"}]}]}
+    with pytest.raises(DocumentError, match=r"pareto\.json: panels\.0\.points\.0\.n: .*Pareto"):
+        check_document("pareto.json", mistyped)  # the hand-written checker let this pass
+    assert read_typed(mistyped, ParetoDocument) is None
+    off_front = {**PARETO, "panels": [{**panel, "front": ["nobody"]}]}
+    with pytest.raises(DocumentError, match=r"pareto\.json: panels\[0\]\.front"):
+        check_document("pareto.json", off_front)
+
+
+def test06_kinds_that_write_a_chart_or_score_document_declare_its_type() -> None:
+    """Every built-in kind that lists ``curves.json`` or ``pareto.json`` declares the one
+    type, and every one that lists ``metrics.json`` its own, so the kinds reference lists
+    their fields."""
+    from evaluators.score.document import ScoreMetrics
+    from jobapi.documents import CHARTS
+    from service import kinds
+
+    kinds.load_builtin()
+    for kind in jobapi_kinds.registered().values():
+        for name, typed in CHARTS.items():
+            if name in kind.artifacts:
+                assert kind.documents.get(name) is typed, (kind.name, name)
+    assert jobapi_kinds.registered()["score"].documents == {"metrics.json": ScoreMetrics}
+    # Each kind that writes a metrics.json has its own shape, and its own type.
+    metrics = {k.name: k.documents.get("metrics.json") for k in jobapi_kinds.registered().values()
+               if "metrics.json" in k.artifacts and kinds.plugin_of(k.name) is None}  # fmt: skip
+    assert set(metrics) >= {"score", "train.brdf", "train.btf", "train.fabric", "evaluate.tss"}
+    assert all(metrics.values()) and len(set(metrics.values())) == len(metrics), metrics
+
+
+def test07_score_metrics_of_every_scorer_shape() -> None:
+    """``score``'s ``metrics.json`` as its scorers write it (images; whole models with
+    ``per_material``; BTF slices with ``cases``) passes; a label's metrics that are not
+    numbers fail, naming the field."""
+    from evaluators.score.document import ScoreMetrics
+
+    images = {"reference": "job:ab/image.exr", "metrics": {"same": {"flip": 0.0, "psnr": None}},
+              "settings": {"data_range": 1.0}}  # fmt: skip
+    check_typed("metrics.json", images, ScoreMetrics)
+    tables = {**images, "reference": {"gold": "sha256:00"},
+              "per_material": {"same": {"gold": {"smape": 0.1, "mae": None}}}}  # fmt: skip
+    check_typed("metrics.json", tables, ScoreMetrics)
+    btf = {**images, "cases": {"same": [{"case": "grazing", "l1": 0.2}]}}
+    check_typed("metrics.json", btf, ScoreMetrics)
+    bad = {**images, "metrics": {"same": {"flip": "0.1"}}}
+    with pytest.raises(DocumentError, match=r"metrics\.json: metrics\.same\.flip: "):
+        check_typed("metrics.json", bad, ScoreMetrics)
+    assert read_typed(bad, ScoreMetrics) is None

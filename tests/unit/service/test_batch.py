@@ -242,7 +242,12 @@ def test11_real_validator_names_the_field() -> None:
 
 
 # -- running ----------------------------------------------------------------------------------
-SCORE_METRICS = {"metrics": {"a": {"flip": 0.1, "psnr": 30.0}, "b": {"flip": 0.2}}}
+#: A ``score`` metrics.json (``evaluators.score.document.ScoreMetrics``).
+SCORE_METRICS = {
+    "reference": "job:" + "0" * 32 + "/image.exr",
+    "metrics": {"a": {"flip": 0.1, "psnr": 30.0}, "b": {"flip": 0.2}},
+    "settings": {},
+}
 
 
 class FakeClient:
@@ -450,7 +455,8 @@ def test_result_tables_flatten_to_label_column_metrics() -> None:
     from jobapi.results import ResultTable
     from models.brdf.kind import summarize as brdf_summary
 
-    score = score_summary(lambda name: {"metrics": {"a": {"flip": 0.1, "psnr": None}}})
+    doc = {"reference": "sha256:00", "metrics": {"a": {"flip": 0.1, "psnr": None}}, "settings": {}}
+    score = score_summary(lambda name: doc)
     assert score is not None
     assert ResultTable.from_document(score.document()).flat() == {"a.flip": 0.1}
     doc = {

@@ -94,6 +94,7 @@ SET_SCORE = {
     "metrics": {"hybrid": {"smape": 0.2, "mae": 0.03}},
     "per_material": {"hybrid": {"gold": {"smape": 0.1, "mae": 0.02},
                                 "film": {"smape": 0.3, "mae": 0.04}}},
+    "settings": {},
 }  # fmt: skip
 
 

@@ -1,5 +1,6 @@
-"""The kinds reference of the docs site is generated from the registry and must be current;
-the README keeps its two commands."""
+"""The kinds reference of the docs site is generated from the registry and must be current,
+and so must the typed documents' field tables of the artifacts page; the README keeps its
+two commands."""
 
 from __future__ import annotations
 
@@ -18,6 +19,21 @@ def test01_kinds_reference_is_current() -> None:
     assert mod.START in text and mod.END in text
     assert text == mod.page_with_table(text), (
         "docs/reference/kinds.md is stale: run `.venv/bin/python scripts/kinds_table.py --write`"
+    )
+
+
+def test05_artifact_fields_are_current() -> None:
+    """docs/artifacts.md's field tables are the types' fields (``jobapi.documents``), so the
+    page cannot drift from what ``put_json`` checks."""
+    spec = importlib.util.spec_from_file_location("kinds_table", REPO / "scripts/kinds_table.py")
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    text = (REPO / "docs/artifacts.md").read_text(encoding="utf-8")
+    for typed in ("CurvesDocument", "ParetoDocument", "ScoreMetrics"):
+        assert "<!-- fields:" in text and f".{typed} -->" in text, typed
+    assert text == mod.artifacts_with_fields(text), (
+        "docs/artifacts.md is stale: run `.venv/bin/python scripts/kinds_table.py --write`"
     )
 
 
