@@ -30,9 +30,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.common import sample_record
-
-_BASES: dict[str, type] = {}
+from evaluators.render.bsdfs.common import class_for_variant, sample_record
 
 
 def uv_scale_of(props: Any) -> tuple[float, float]:
@@ -53,11 +51,7 @@ def btf_reflector_base(mi: types.ModuleType) -> type:
     patch coordinates ``uv`` (``mi.Point2f``, periodic) for local unit vectors ``light``
     and ``view`` (``mi.Vector3f``, both above the plane where ``active``).
     """
-    cls = _BASES.get(mi.variant())
-    if cls is None:
-        cls = _define_base(mi)
-        _BASES[mi.variant()] = cls
-    return cls
+    return class_for_variant(mi, _define_base)
 
 
 def _define_base(mi: types.ModuleType) -> type:

@@ -16,10 +16,25 @@ both BSDFs are one-sided reflectors, so the density is 0 when ``wi.z <= 0`` or `
 from __future__ import annotations
 
 import types
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-_BASES: dict[str, type] = {}
+#: Classes made by :func:`class_for_variant`, by (defining function, Mitsuba variant).
+_VARIANT_CLASSES: dict[tuple[str, str], type] = {}
+
+
+def class_for_variant(mi: types.ModuleType, define: Callable[[types.ModuleType], type]) -> type:
+    """The class ``define(mi)`` makes, made once per Mitsuba variant and then reused.
+
+    A Python BSDF derives from the current variant's ``mi.BSDF``, so its class is defined
+    inside a function of the ``mitsuba`` module (``define``) and each variant gets its own.
+    """
+    key = (f"{define.__module__}.{define.__qualname__}", str(mi.variant()))
+    cls = _VARIANT_CLASSES.get(key)
+    if cls is None:
+        cls = _VARIANT_CLASSES[key] = define(mi)
+    return cls
 
 
 @dataclass(frozen=True)
@@ -86,11 +101,7 @@ def mixture_reflector_base(mi: types.ModuleType) -> type:
     BRDF ``f`` (1/sr, ``mi.Color3f``, no cosine), 0 below the horizon. It may override
     ``enabled(ctx, active)`` (default: the context enables glossy reflection).
     """
-    cls = _BASES.get(mi.variant())
-    if cls is None:
-        cls = _define_reflector(mi)
-        _BASES[mi.variant()] = cls
-    return cls
+    return class_for_variant(mi, _define_reflector)
 
 
 def _define_reflector(mi: types.ModuleType) -> type:

@@ -30,6 +30,7 @@ import math
 import types
 from typing import Any
 
+from evaluators.render.bsdfs.common import class_for_variant
 from materials.fabric.params import FabricParams
 from materials.fabric.yarn import YarnGeometry
 
@@ -38,16 +39,10 @@ FALLBACK_FOOTPRINT = 1.0
 #: Probability that ``sample`` draws on the viewer's side (reflection).
 P_REFLECT = 0.75
 
-_BASES: dict[str, type] = {}
-
 
 def footprint_base(mi: types.ModuleType) -> type:
     """The base class for Mitsuba's current variant (cached); see the module docstring."""
-    cls = _BASES.get(mi.variant())
-    if cls is None:
-        cls = _define_base(mi)
-        _BASES[mi.variant()] = cls
-    return cls
+    return class_for_variant(mi, _define_base)
 
 
 def _define_base(mi: types.ModuleType) -> type:
