@@ -88,9 +88,10 @@ PACK = _PACK
 #: This makes a different yarn from Jin et al.'s: with ``TAPER = 0.5`` the height (and so
 #: the normal) follows Jin's profile only where both ``|xi|`` and ``|eta|`` are below 0.5,
 #: the inner 25 % of a float's area; outside it the smoothstep bends the surface down to
-#: the base plane, which Jin's yarn does not do. Facets steeper than 70 degrees cover about
-#: a third of the projected area here against about a sixth for Jin's profile
-#: (``tests/unit/materials/fabric/test_yarn_profile.py``). The taper is what keeps the
+#: the base plane, which Jin's yarn does not do. At ``beta = 1``, ``u_max = 30`` degrees,
+#: facets steeper than 70 degrees cover 25-31 % of the yarns' projected area here (plain,
+#: twill 3x3, satin 5x5) against 12.7 % for Jin's profile, 16-17 % with ``"jin"``'s
+#: closing band (``tests/unit/materials/fabric/test_yarn_profile.py``). The taper is what keeps the
 #: height continuous at float boundaries (the watertight ground truth).
 TAPER = 0.5
 #: The taper width of ``yarn_profile`` ``"jin"``: Jin's slopes (``tan v`` across, ``tan u``
