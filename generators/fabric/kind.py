@@ -138,7 +138,9 @@ def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
             shading = shading.replace(beta=YarnPair(b, b))
         else:
             shading = sample_params(ctx.rng(f"generate.fabric/{name}/shading/{j}/{k}"), name)
-        params = shading.replace(psi_deg=geometry.psi_deg, u_max_deg=geometry.u_max_deg)
+        params = shading.replace(
+            psi_deg=geometry.psi_deg, u_max_deg=geometry.u_max_deg, yarn_profile=cfg.yarn_profile
+        )
         label = f"{name}-t{j:02d}-s{k:02d}"
         seed = ctx.sub_seed(f"generate.fabric/queries/{label}")
         out.append(PlannedFabric(label, name, j, k, params, seed))
@@ -146,8 +148,9 @@ def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
 
 
 def params_record(p: FabricParams) -> dict[str, Any]:
-    """Every parameter of a material as plain JSON data (pairs are ``[warp, weft]``)."""
-    return {
+    """Every parameter of a material as plain JSON data (pairs are ``[warp, weft]``;
+    ``yarn_profile`` only when not the default, so older datasets keep their bytes)."""
+    rec: dict[str, Any] = {
         "pattern": p.pattern.name,
         "psi_deg": list(p.psi_deg),
         "u_max_deg": list(p.u_max_deg),
@@ -161,6 +164,9 @@ def params_record(p: FabricParams) -> dict[str, Any]:
         "gap": p.gap,
         "t_rho": p.t_rho,
     }
+    if p.yarn_profile != "smooth":
+        rec["yarn_profile"] = p.yarn_profile
+    return rec
 
 
 @dataclass(frozen=True)
@@ -188,6 +194,8 @@ def _config_doc(cfg: Resolved) -> dict[str, Any]:
     doc = {**cfg.__dict__, "patterns": list(cfg.patterns), "replicates": REPLICATES}
     if doc["sizes"] == "strata":
         del doc["sizes"]
+    if doc["yarn_profile"] == "smooth":
+        del doc["yarn_profile"]
     if cfg.scene is None:
         del doc["scene"]
     else:

@@ -192,6 +192,8 @@ class FabricGenParams(StrictModel):
     ``sizes``                 strata|log_uniform  strata       strata       size design
     ``scene``                 scene (below)       none         none         queries drawn
                                                                             for a render
+    ``yarn_profile``          smooth | jin        smooth       smooth       yarn height
+                                                                            (yarn.py)
     ========================  ==================  ===========  ===========  ================
 
     ``scene`` (:class:`FabricScene`) draws the sizes and directions from the render the
@@ -312,6 +314,16 @@ class FabricGenParams(StrictModel):
         "'sizes').",
     )
 
+    yarn_profile: Literal["smooth", "jin"] = Field(
+        default="smooth",
+        description="Yarn height profile of every material: 'smooth' (the default) tapers "
+        "each float's height to zero over its outer half, which makes a different yarn from "
+        "Jin et al. 2022's (their normals only on the inner quarter of a float's area); "
+        "'jin' keeps Jin's slopes on 90 % of each float and closes the height to zero in a "
+        "thin band at its boundary (still watertight). Specs without it keep their artifacts' "
+        "bytes.",
+    )
+
     @field_validator("patterns")
     @classmethod
     def _known_patterns(cls, value: list[str] | None) -> list[str] | None:
@@ -374,6 +386,7 @@ class FabricGenParams(StrictModel):
             sizes=self.sizes,
             scene=None if self.scene is None else self.scene.design(),
             beta_sweep=eff.beta_sweep,
+            yarn_profile=self.yarn_profile,
         )
 
 
@@ -394,6 +407,7 @@ class Resolved:
     sizes: str = "strata"
     scene: SceneDesign | None = None
     beta_sweep: bool = False
+    yarn_profile: str = "smooth"
 
 
 def scene_record(scene: SceneDesign) -> dict[str, Any]:

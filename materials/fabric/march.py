@@ -86,6 +86,7 @@ def _key(geo: yarn.YarnGeometry) -> tuple[object, ...]:
         tuple(geo.beta),
         geo.cells.tobytes(),
         geo.h_max,
+        geo.taper,
         LEVELS,
     )
 

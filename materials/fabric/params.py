@@ -104,6 +104,10 @@ def _scalar(name: str, value: Any) -> float:
     return v
 
 
+#: Allowed values of :attr:`FabricParams.yarn_profile` (the first is the default).
+YARN_PROFILES = ("smooth", "jin")
+
+
 @dataclass(frozen=True)
 class FabricParams:
     """One woven-fabric material (Table 1 of Chen et al. 2024), validated on creation.
@@ -136,6 +140,10 @@ class FabricParams:
     """Fraction of each cell's width left empty beside the yarn (Sec. 5.1: 0.2)."""
     t_rho: float = 2.0
     """Optical thickness T rho of the SpongeCake layer (Sec. 3.1: always 2)."""
+    yarn_profile: str = "smooth"
+    """Yarn height profile (:data:`YARN_PROFILES`): ``"smooth"`` tapers the height to zero
+    over the outer half of each float (not Jin et al.'s yarn), ``"jin"`` keeps Jin's slopes
+    on 90 % of the float and closes the height in a thin band (``materials.fabric.yarn``)."""
 
     def __post_init__(self) -> None:
         pattern = self.pattern
@@ -151,6 +159,10 @@ class FabricParams:
         object.__setattr__(self, "w", _scalar("w", self.w))
         object.__setattr__(self, "gap", _scalar("gap", self.gap))
         object.__setattr__(self, "t_rho", _scalar("t_rho", self.t_rho))
+        if self.yarn_profile not in YARN_PROFILES:
+            raise ValueError(
+                f"yarn_profile must be one of {', '.join(YARN_PROFILES)}, got {self.yarn_profile!r}"
+            )
 
     def replace(self, **changes: Any) -> FabricParams:
         """A copy with some fields changed (validated again)."""
@@ -200,20 +212,22 @@ def sample_params(rng: np.random.Generator, pattern: Pattern | str) -> FabricPar
 
 
 def params_json(params: FabricParams) -> str:
-    """The material as the JSON string the plugins' ``params`` property takes."""
-    return json.dumps(
-        {
-            "pattern": params.pattern.name,
-            "psi_deg": list(params.psi_deg),
-            "u_max_deg": list(params.u_max_deg),
-            "alpha": list(params.alpha),
-            "beta": list(params.beta),
-            "w": params.w,
-            "kd_warp": list(params.kd_warp),
-            "kd_weft": list(params.kd_weft),
-            "ks_warp": list(params.ks_warp),
-            "ks_weft": list(params.ks_weft),
-            "gap": params.gap,
-            "t_rho": params.t_rho,
-        }
-    )
+    """The material as the JSON string the plugins' ``params`` property takes
+    (``yarn_profile`` only when not the default, so older materials keep their string)."""
+    doc: dict[str, Any] = {
+        "pattern": params.pattern.name,
+        "psi_deg": list(params.psi_deg),
+        "u_max_deg": list(params.u_max_deg),
+        "alpha": list(params.alpha),
+        "beta": list(params.beta),
+        "w": params.w,
+        "kd_warp": list(params.kd_warp),
+        "kd_weft": list(params.kd_weft),
+        "ks_warp": list(params.ks_warp),
+        "ks_weft": list(params.ks_weft),
+        "gap": params.gap,
+        "t_rho": params.t_rho,
+    }
+    if params.yarn_profile != YARN_PROFILES[0]:
+        doc["yarn_profile"] = params.yarn_profile
+    return json.dumps(doc)

@@ -42,7 +42,10 @@ Conventions (all lengths physical: the unit is one warp cell's width, see ``patt
   Eq. 4's area integral, so ``A_P(wo)`` fell 2-13 % short of ``cos theta_o`` and 6-14 % of
   the incoming light vanished (issue 12). Inside the tapers' reach (``|xi|, |eta| <= 1 -
   TAPER``) the slopes are exactly Jin's ``tan v`` across and ``tan u`` along; near the
-  boundary they steepen (:func:`max_slope` bounds them). The ply normal ``n_p`` is the
+  boundary they steepen (:func:`max_slope` bounds them). The taper's width is the
+  material's ``yarn_profile``: ``"smooth"`` (the default, :data:`TAPER` = 0.5, a different
+  yarn from Jin's) or ``"jin"`` (:data:`JIN_TAPER` = 0.05: Jin's slopes on 90 % of each
+  float, the watertight closure in a thin band at its boundary). The ply normal ``n_p`` is the
   height field's normal (``(-dh/da, -dh/db, 1)``, normalised), which makes Eq. 5's
   identity ``A_P = cos theta`` exact over whole tiles; Jin's normal map differs from it
   by the ``1 / cos u`` of its cross slope (not integrable) and on the tapers. The fibre
@@ -77,6 +80,28 @@ _U_MAX = ROLL_MAX
 _PACK = 128.0
 #: Public name of the packing factor (``march.py`` decodes the table too).
 PACK = _PACK
+
+#: Width of the taper that takes each term of the height to zero at the float's boundary,
+#: as a fraction of the half width (across) and of the half length (along), for the
+#: default ``yarn_profile`` ``"smooth"``.
+#:
+#: This makes a different yarn from Jin et al.'s: with ``TAPER = 0.5`` the height (and so
+#: the normal) follows Jin's profile only where both ``|xi|`` and ``|eta|`` are below 0.5,
+#: the inner 25 % of a float's area; outside it the smoothstep bends the surface down to
+#: the base plane, which Jin's yarn does not do. At ``beta = 1``, ``u_max = 30`` degrees,
+#: facets steeper than 70 degrees cover 25-31 % of the yarns' projected area here (plain,
+#: twill 3x3, satin 5x5) against 12.7 % for Jin's profile, 16-17 % with ``"jin"``'s
+#: closing band (``tests/unit/materials/fabric/test_yarn_profile.py``). The taper is what keeps the
+#: height continuous at float boundaries (the watertight ground truth).
+TAPER = 0.5
+#: The taper width of ``yarn_profile`` ``"jin"``: Jin's slopes (``tan v`` across, ``tan u``
+#: along) wherever ``|xi|, |eta| <= 1 - JIN_TAPER`` (90 % of a float's area), and a thin
+#: band at the boundary that closes the height to zero, so the surface stays watertight.
+#: Narrower bands only steepen the band's walls (slopes grow as ``1 / JIN_TAPER``), which
+#: costs the render's rejection sampler (its bound is :func:`max_slope`).
+JIN_TAPER = 0.05
+#: Taper width of each ``yarn_profile`` (``FabricParams.yarn_profile``).
+PROFILE_TAPERS = {"smooth": TAPER, "jin": JIN_TAPER}
 
 
 def _lncos_coefficients(degree: int = 10) -> tuple[float, ...]:
@@ -124,6 +149,8 @@ class YarnGeometry:
     cells: np.ndarray
     h_max: float
     """Largest height anywhere on the tile (the visibility march stops above it)."""
+    taper: float = TAPER
+    """Width of the boundary taper (:data:`PROFILE_TAPERS` of the material's ``yarn_profile``)."""
 
     @classmethod
     def from_params(cls, params: FabricParams) -> YarnGeometry:
@@ -154,6 +181,7 @@ class YarnGeometry:
             beta=params.beta,
             cells=(np.where(pat.warp_up, 1.0, -1.0) * (length * _PACK + offset)).ravel(),
             h_max=h_max,
+            taper=PROFILE_TAPERS[params.yarn_profile],
         )
 
 
@@ -193,28 +221,15 @@ class _Located(NamedTuple):
     slope_b: Array  # d crest / d b (physical), before beta scaling
 
 
-#: Width of the taper that takes each term of the height to zero at the float's boundary,
-#: as a fraction of the half width (across) and of the half length (along).
-#:
-#: This makes a different yarn from Jin et al.'s: with ``TAPER = 0.5`` the height (and so
-#: the normal) follows Jin's profile only where both ``|xi|`` and ``|eta|`` are below 0.5,
-#: the inner 25 % of a float's area; outside it the smoothstep bends the surface down to
-#: the base plane, which Jin's yarn does not do. A review measured facets steeper than 70
-#: degrees on 34 % of the projected area here against 16 % for Jin's profile. The taper is
-#: what keeps the height continuous at float boundaries (the watertight ground truth); an
-#: option with Jin's exact profile is not offered yet.
-TAPER = 0.5
-
-
-def _taper(ops: ArrayOps, x: Array) -> tuple[Array, Array]:
-    """``(s, ds/dx)`` of the smoothstep taper: 1 for ``|x| <= 1 - TAPER``, falling to 0 at
-    ``|x| = 1`` as ``3 t^2 - 2 t^3`` with ``t = (1 - |x|) / TAPER``."""
+def _taper(ops: ArrayOps, x: Array, taper: float) -> tuple[Array, Array]:
+    """``(s, ds/dx)`` of the smoothstep taper: 1 for ``|x| <= 1 - taper``, falling to 0 at
+    ``|x| = 1`` as ``3 t^2 - 2 t^3`` with ``t = (1 - |x|) / taper``."""
     ax = ops.abs(x)
-    tt = ops.minimum(ops.maximum((1.0 - ax) * (1.0 / TAPER), 0.0), 1.0)
+    tt = ops.minimum(ops.maximum((1.0 - ax) * (1.0 / taper), 0.0), 1.0)
     s = tt * tt * (3.0 - 2.0 * tt)
     ds_dt = 6.0 * tt * (1.0 - tt)
     sign = ops.where(x < 0.0, -1.0, 1.0)
-    return s, -sign * ds_dt * (1.0 / TAPER)
+    return s, -sign * ds_dt * (1.0 / taper)
 
 
 def _locate(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Array) -> _Located:
@@ -255,8 +270,8 @@ def _locate(ops: ArrayOps, geo: YarnGeometry, tab: YarnTables, s: Array, t: Arra
     tan_u = ops.sin(u) / ops.cos(u)
     c_a = half * (g_roll / ROLL_MAX)  # the across term's crest height
     c_l = count * cell_along * top / (2.0 * um)  # the lengthwise term's crest height
-    s_xi, ds_xi = _taper(ops, xi)
-    s_eta, ds_eta = _taper(ops, eta)
+    s_xi, ds_xi = _taper(ops, xi, geo.taper)
+    s_eta, ds_eta = _taper(ops, eta, geo.taper)
     # Watertight: each term tapers to zero where the other one does (module docstring).
     crest = c_a * prof_a * s_eta + c_l * prof_b * s_xi
     deta_db = 2.0 / (count * cell_along)
@@ -360,9 +375,9 @@ def rasterize(params: FabricParams, resolution: int) -> TileMaps:
 def max_slope(params: FabricParams) -> float:
     """An upper bound of ``|n_xy| / n_z`` (the height field's gradient) over the tile.
 
-    With ``|s| <= 1``, ``|ds/dx| <= 1.5 / TAPER`` and unit profiles, the across slope is at
-    most ``tan ROLL_MAX + c_l 1.5 / (TAPER half)`` and the along slope at most
-    ``tan u_max + c_a 1.5 / TAPER * 2 / (count cell)``, for the family's longest (``c_l``)
+    With ``|s| <= 1``, ``|ds/dx| <= 1.5 / taper`` and unit profiles, the across slope is at
+    most ``tan ROLL_MAX + c_l 1.5 / (taper half)`` and the along slope at most
+    ``tan u_max + c_a 1.5 / taper * 2 / (count cell)``, for the family's longest (``c_l``)
     and shortest (``count``) floats; their norm, times ``beta``, bounds the gradient.
     """
     geo = YarnGeometry.from_params(params)
@@ -383,7 +398,7 @@ def max_slope(params: FabricParams) -> float:
         longest, shortest = float(length[on_top].max()), float(length[on_top].min())
         c_a = half * g_roll / ROLL_MAX
         c_l = longest * cell_along * top / (2.0 * um)
-        across = math.tan(ROLL_MAX) + c_l * 1.5 / (TAPER * half)
-        along = math.tan(um) + c_a * 1.5 / TAPER * 2.0 / (shortest * cell_along)
+        across = math.tan(ROLL_MAX) + c_l * 1.5 / (geo.taper * half)
+        along = math.tan(um) + c_a * 1.5 / geo.taper * 2.0 / (shortest * cell_along)
         out = max(out, beta * math.hypot(across, along))
     return out

@@ -31,7 +31,7 @@ line do). With ``auto`` on a CUDA machine training runs there, which is not bit-
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field
 
@@ -131,6 +131,7 @@ class TrainFabricParams(StrictModel):
     ``clip``                float           1.0       1.0       gradient-norm clip
     ``holdout``             float           0.1       0.01      held-out query fraction
     ``train_queries``       int             all       344000    training queries kept
+    ``held_out_beta``       list of floats  none      none      betas never trained on
     ``loss``                paper | rel.    paper     paper     Eq. 9-11, or relative_l2
     ``centre_encoding``     one_blob|per.   one_blob  one_blob  periodic: no seam at the border
     ``size_encoding``       strata | log    strata    strata    log: resolves small footprints
@@ -203,6 +204,16 @@ class TrainFabricParams(StrictModel):
         default=None, ge=0.0, le=0.5,
         description="Fraction of each material's queries held out for metrics.json (fixed "
         "seed, never trained on)" + _preset("holdout"),
+    )  # fmt: skip
+    held_out_beta: list[Annotated[float, Field(ge=0.0, le=2.0)]] | None = Field(
+        default=None, min_length=1, max_length=64,
+        description="Beta values held out whole: a material whose beta (equal for warp and "
+        "weft, within 1e-6) is listed is never trained on, only scored (its held-out "
+        "queries, as the others') and marked `held_out` in metrics.json, whose "
+        "`beta_response` gives per pattern with two or more such betas the slope of each "
+        "component's mean against beta, the network's beside Monte Carlo's. Meant for "
+        "generate.fabric's `beta` preset (16 betas per pattern from 0.1 to 1 in steps of "
+        "0.06; e.g. [0.4, 0.7]). Default: none.",
     )  # fmt: skip
     train_queries: int | None = Field(
         default=None, ge=1, le=1 << 26,

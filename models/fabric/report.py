@@ -212,6 +212,82 @@ def evaluate(
     }
 
 
+#: A material's beta matches a ``held_out_beta`` value within this (the ``beta`` preset's
+#: values are ``0.1 + 0.9 k / (n - 1)`` in float64; specs give decimals).
+BETA_MATCH = 1e-6
+
+
+def held_out_materials(materials: Sequence[MaterialData], betas: Sequence[float]) -> list[int]:
+    """Indices of the materials whose beta (warp and weft alike) is one of ``betas``.
+
+    Raises :class:`JobFailed` naming ``held_out_beta`` when a value matches no material or
+    every material would be held out.
+    """
+    held = []
+    for i, m in enumerate(materials):
+        warp, weft = (float(b) for b in m.record["beta"])
+        if abs(warp - weft) <= BETA_MATCH and any(abs(warp - b) <= BETA_MATCH for b in betas):
+            held.append(i)
+    for b in betas:
+        if not any(abs(float(materials[i].record["beta"][0]) - b) <= BETA_MATCH for i in held):
+            raise JobFailed(f"held_out_beta: no material of the dataset has beta {b:g}")
+    if len(held) == len(materials):
+        raise JobFailed("held_out_beta: every material would be held out; none left to train")
+    return held
+
+
+def response_slope(beta: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """Least-squares slopes ``d mean / d beta``: ``beta`` ``(M,)``, ``mean`` ``(M, K)``."""
+    b = np.asarray(beta, np.float64) - np.mean(beta)
+    y = np.asarray(mean, np.float64)
+    return (b @ (y - y.mean(axis=0))) / float(b @ b)
+
+
+def beta_response(
+    net: FabricNetwork, materials: Sequence[MaterialData], latents: np.ndarray, held: Sequence[int]
+) -> list[dict[str, Any]]:
+    """Per pattern with two or more held-out betas: each component's (and the Eq. 8 RGB
+    value's, mean of channels) mean over the held-out queries against beta, network and
+    Monte Carlo on the same queries; the least-squares slopes, their ratio, and whether the
+    network has Monte Carlo's sign and at least half its size (the goal)."""
+    by_pattern: dict[str, list[int]] = {}
+    for i in held:
+        if len(materials[i].test):
+            by_pattern.setdefault(materials[i].pattern, []).append(i)
+    out = []
+    for pattern, idx in sorted(by_pattern.items()):
+        beta = np.array([float(materials[i].record["beta"][0]) for i in idx])
+        if len(idx) < 2 or np.ptp(beta) <= 0.0:
+            continue
+        mc, nn = [], []
+        for i in idx:
+            m = materials[i]
+            q = m.query[m.test]
+            pred = components_numpy(decode_raw(net, latents[i], q), q[:, 5]).astype(np.float64)
+            gt = m.value[m.test].astype(np.float64)
+            rgb = m.albedos().mean(axis=1)  # the RGB mean is linear in the components
+            mc.append([*gt.mean(axis=0), float(gt.mean(axis=0) @ rgb)])
+            nn.append([*pred.mean(axis=0), float(pred.mean(axis=0) @ rgb)])
+        s_mc, s_nn = response_slope(beta, np.array(mc)), response_slope(beta, np.array(nn))
+        entry: dict[str, Any] = {
+            "pattern": pattern,
+            "materials": [materials[i].name for i in idx],
+            "beta": beta.tolist(),
+        }
+        for k, name in enumerate([*COMPONENTS, "rgb"]):
+            ratio = float(s_nn[k] / s_mc[k]) if s_mc[k] != 0.0 else None
+            entry[name] = {
+                "monte_carlo": [float(r[k]) for r in mc],
+                "model": [float(r[k]) for r in nn],
+                "slope_monte_carlo": float(s_mc[k]),
+                "slope_model": float(s_nn[k]),
+                "slope_ratio": ratio,
+                "goal": ratio is not None and ratio >= 0.5,
+            }
+        out.append(entry)
+    return out
+
+
 def curves_png(curves: Curves, title: str) -> bytes:
     """Loss and per-component MSE against step (log scale), as deterministic PNG bytes;
     with the relative L2 losses also each component's training mean ratio (right axis, the

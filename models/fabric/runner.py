@@ -21,7 +21,13 @@ from models.device import pick_device
 from models.fabric.data import load_dataset
 from models.fabric.networks import Architecture, FabricNetwork, build_network
 from models.fabric.portable import checkpoint_bytes, load_checkpoint, to_portable
-from models.fabric.report import curves_png, encode_all, evaluate
+from models.fabric.report import (
+    beta_response,
+    curves_png,
+    encode_all,
+    evaluate,
+    held_out_materials,
+)
 from models.fabric.train import Curves, FitConfig, TrainingSet, fit
 
 if TYPE_CHECKING:
@@ -81,7 +87,9 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
     materials = load_dataset(
         params.dataset, ctx, cfg.map_resolution, float(cfg.holdout), cfg.train_queries
     )
-    ctx.progress(P_LOADED, f"{len(materials)} materials on {device}")
+    held = held_out_materials(materials, params.held_out_beta or [])
+    trained_on = [m for i, m in enumerate(materials) if i not in set(held)]
+    ctx.progress(P_LOADED, f"{len(trained_on)} materials on {device}")
     steps = cfg.steps
 
     def report(step: int, n: int, loss: float) -> None:
@@ -93,7 +101,7 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
         net = _initial(params, ctx).to(device)
         curves = fit(
             net,
-            TrainingSet(materials, device, cfg.loss),
+            TrainingSet(trained_on, device, cfg.loss),
             FitConfig(
                 steps=steps,
                 batch=cfg.batch,
@@ -113,6 +121,21 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
         ctx.progress(P_FITTED, "scoring held-out queries")
         latents = encode_all(net, materials)
         metrics = evaluate(net, materials, latents)
+        if params.held_out_beta is not None:
+            names = {materials[i].name for i in held}
+            for row in metrics["materials"]:
+                row["held_out"] = row["name"] in names
+            metrics["beta_response"] = beta_response(net, materials, latents, held)
+            metrics["settings"]["held_out"] = (
+                "the material's beta is in held_out_beta: it was never trained on (its "
+                "baseline is still the mean of its own training-split Monte Carlo values)"
+            )
+            metrics["settings"]["beta_response"] = (
+                "per pattern with >= 2 held-out betas: each component's mean (and the RGB "
+                "value's, mean of channels) over the held-out queries, Monte Carlo and "
+                "model on the same queries; least-squares slopes against beta, their ratio "
+                "(model / Monte Carlo), goal = same sign and at least half the size"
+            )
     ctx.progress(P_SCORED, "writing artifacts")
     _write(ctx, params, net, materials, latents, metrics, curves)
     ms = 1000.0 * curves.seconds / steps

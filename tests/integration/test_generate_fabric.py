@@ -159,6 +159,7 @@ def test03_recorded_shard_is_reused(settings: Settings) -> None:
         ({"scene": {"name": "cloth_plane"}, "sizes": "log_uniform"}, "sizes"),
         ({"scene": {"name": "cloth_plane"}, "btdf_fraction": 0.2}, "btdf_fraction"),
         ({"scene": {"name": "plane_points", "lights": []}}, "lights"),
+        ({"yarn_profile": "round"}, "yarn_profile"),
     ],
 )
 def test04_bad_specs_name_the_field(settings: Settings, params: dict, field: str) -> None:
@@ -213,6 +214,32 @@ def test06_log_uniform_size_design(settings: Settings) -> None:
     # The default design's materials.json has no "sizes" key (its bytes are unchanged).
     default = run_in_process(spec({**PARAMS, "patterns": ["plain"]}), settings)
     assert "sizes" not in json.loads(read(settings, default, "materials.json"))["config"]
+
+
+def test06b_jin_yarn_profile_is_recorded_and_used(settings: Settings) -> None:
+    """``yarn_profile: jin`` reaches every material: recorded in materials.json (config and
+    params), its maps are those of :func:`materials.fabric.yarn.rasterize` with Jin's
+    profile (the reference), and the default spec's documents carry no such key."""
+    from materials.fabric.params import FabricParams
+    from materials.fabric.yarn import rasterize
+
+    base = {**PARAMS, "patterns": ["twill_3x3"], "queries_per_material": 128, "samples": 16}
+    job = run_in_process(spec({**base, "yarn_profile": "jin"}), settings)
+    assert job.state == "succeeded", job.error
+    doc = json.loads(read(settings, job, "materials.json"))
+    assert doc["config"]["yarn_profile"] == "jin"
+    (m,) = doc["materials"]
+    assert m["params"]["yarn_profile"] == "jin"
+    params = FabricParams(**m["params"])
+    normal = read_exr_bytes(settings, job, m["maps"]["normal"])
+    ref = np.flip(rasterize(params, 16).normal, axis=0)  # the map file is top-down
+    smooth = np.flip(rasterize(params.replace(yarn_profile="smooth"), 16).normal, axis=0)
+    assert np.abs(normal - ref).max() < np.abs(normal - smooth).max()
+    default = run_in_process(spec(base), settings)
+    ddoc = json.loads(read(settings, default, "materials.json"))
+    assert "yarn_profile" not in ddoc["config"]
+    assert "yarn_profile" not in ddoc["materials"][0]["params"]
+    assert digests(default)["materials.json"] != digests(job)["materials.json"]
 
 
 def test07_scene_driven_design(settings: Settings) -> None:

@@ -279,3 +279,65 @@ def test05_second_pass_options_end_to_end(fabric_env: tuple[Settings, str]) -> N
     paper = read_json(settings, train(settings, {**TINY, "steps": 40, "dataset": f"job:{gen}"}),
                       "metrics.json")  # fmt: skip
     assert math.isfinite(paper["mean"]["relative_l2"])
+
+
+def test06_held_out_beta_is_never_trained_on_and_scored(
+    fabric_env: tuple[Settings, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``held_out_beta`` on the ``beta`` preset: the listed betas' materials never reach the
+    training set (recorded at its construction), are scored and marked in metrics.json,
+    and ``beta_response`` holds their means and slopes, Monte Carlo's recomputed here
+    from the shards' values (the reference); an unmatched value fails naming the field."""
+    import models.fabric.runner as runner
+
+    settings, _ = fabric_env
+    data = {"preset": "beta", "patterns": ["plain"], "shading_sets": 4,
+            "queries_per_material": 256, "shard_queries": 256, "samples": 64,
+            "map_resolution": 32}  # fmt: skip
+    gen = run_in_process({"kind": "generate.fabric", "seed": 3, "params": data}, settings)
+    assert gen.state == "succeeded", gen.error
+    seen: list[list[str]] = []
+    original = runner.TrainingSet
+
+    def record(materials: Any, *args: Any) -> Any:
+        seen.append([m.name for m in materials])
+        return original(materials, *args)
+
+    monkeypatch.setattr(runner, "TrainingSet", record)
+    params = {**TINY, "steps": 60, "dataset": f"job:{gen.id}", "held_out_beta": [0.4, 0.7]}
+    job = train(settings, params)
+    assert job.state == "succeeded", job.error
+    metrics = read_json(settings, job, "metrics.json")
+    held = {r["name"] for r in metrics["materials"] if r["held_out"]}
+    assert held == {"plain-t00-s01", "plain-t00-s02"}  # betas 0.1, 0.4, 0.7, 1.0
+    assert seen == [["plain-t00-s00", "plain-t00-s03"]]
+    (resp,) = metrics["beta_response"]
+    assert resp["pattern"] == "plain" and resp["materials"] == sorted(held)
+    np.testing.assert_allclose(resp["beta"], [0.4, 0.7], atol=1e-12)
+    # Monte Carlo's means on the held-out queries, from the shards and the same split.
+    from models.fabric.data import holdout_split
+
+    store = ArtifactStore(settings.store_dir)
+    doc = json.loads(
+        store.read(next(a.digest for a in gen.artifacts if a.name == "materials.json"))
+    )
+    for j, name in enumerate(resp["materials"]):
+        (mat,) = [m for m in doc["materials"] if m["name"] == name]
+        (shard,) = mat["shards"]
+        digest = next(a.digest for a in gen.artifacts if a.name == shard)
+        with np.load(io.BytesIO(store.read(digest))) as z:
+            value = z["value"].astype(np.float64)
+        _, test = holdout_split(name, len(value), TINY["holdout"])
+        for k, comp in enumerate(("C_warp", "C_weft", "S_warp", "S_weft")):
+            assert resp[comp]["monte_carlo"][j] == pytest.approx(value[test, k].mean(), rel=1e-9)
+    for comp in ("C_warp", "C_weft", "S_warp", "S_weft", "rgb"):
+        entry = resp[comp]
+        # Two points: the slope is the difference quotient.
+        slope = (entry["monte_carlo"][1] - entry["monte_carlo"][0]) / (
+            resp["beta"][1] - resp["beta"][0]
+        )
+        assert entry["slope_monte_carlo"] == pytest.approx(slope, rel=1e-9, abs=1e-12)
+        assert set(entry) == {"monte_carlo", "model", "slope_monte_carlo", "slope_model",
+                              "slope_ratio", "goal"}  # fmt: skip
+    bad = train(settings, {**params, "held_out_beta": [0.5]})
+    assert bad.state == "failed" and "held_out_beta" in (bad.error or "")

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import types
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
@@ -118,6 +118,12 @@ class FabricSpec(StrictModel):
     ks_weft: Rgb = Field(default=0.5, description="Specular albedo of weft yarns (RGB).")
     gap: Number = Field(default=0.2, description="Gap fraction beside each yarn, [0, 0.9].")
     t_rho: Number = Field(default=2.0, description="SpongeCake optical thickness T rho.")
+    yarn_profile: Literal["smooth", "jin"] = Field(
+        default="smooth",
+        description="Yarn height profile: 'smooth' (default; tapers each float's height over "
+        "its outer half, a different yarn from Jin et al. 2022's) or 'jin' (Jin's slopes on "
+        "90 % of each float, closed to zero in a thin band at its boundary).",
+    )
     tiles_per_uv: Number = Field(
         default=16.0, gt=0.0, le=4096.0, description="Pattern tiles across the uv range [0, 1]."
     )
@@ -142,8 +148,12 @@ class FabricSpec(StrictModel):
 
 
 def _as_dict(spec: FabricSpec) -> dict[str, Any]:
-    # The validated params stay plain JSON (canonical spec hashing, render.json).
-    return spec.model_dump(mode="json")
+    # The validated params stay plain JSON (canonical spec hashing, render.json);
+    # yarn_profile only when not the default, so older specs keep their bytes.
+    doc = spec.model_dump(mode="json")
+    if doc["yarn_profile"] == "smooth":
+        del doc["yarn_profile"]
+    return doc
 
 
 #: The pydantic type of the ``fabric`` value: validated as :class:`FabricSpec`, kept as JSON.

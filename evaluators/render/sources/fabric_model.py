@@ -122,7 +122,10 @@ def lerp_params(a: FabricParams, b: FabricParams, t: float) -> FabricParams:
             return [mix(u, v) for u, v in zip(x, y, strict=True)]
         return (1.0 - t) * float(x) + t * float(y)
 
-    return FabricParams(**{k: v if k == "pattern" else mix(v, rb[k]) for k, v in ra.items()})
+    if a.yarn_profile != b.yarn_profile:
+        raise ValueError(f"yarn profiles differ: {a.yarn_profile} and {b.yarn_profile}")
+    keep = ("pattern", "yarn_profile")
+    return FabricParams(**{k: v if k in keep else mix(v, rb[k]) for k, v in ra.items()})
 
 
 def lerp_latent(za: np.ndarray, zb: np.ndarray, t: float) -> np.ndarray:
@@ -141,6 +144,8 @@ def _same_material(record: Mapping[str, Any], pattern: str | None, params: Fabri
     except (ValueError, KeyError):
         return False
     if theirs.pattern.name != params.pattern.name:
+        return False
+    if record.get("yarn_profile", "smooth") != params.yarn_profile:
         return False
     return all(
         np.allclose(np.asarray(getattr(theirs, k)), np.asarray(getattr(params, k)), atol=1e-6)

@@ -76,12 +76,13 @@ def reference(
     light: tuple[float, float, float],
     centre: tuple[float, float],
     size: float,
+    params: FabricParams = PARAMS,
 ) -> tuple[np.ndarray, np.ndarray]:
     queries = FootprintQueries(
         np.array([centre]), np.array([size]), np.array([light]), np.array([view])
     )
-    est = estimate(PARAMS, queries, samples=1 << 15, sampler="independent", replicates=2)
-    return est.recombine(PARAMS)[0], est.stderr[0] @ PARAMS.albedos()
+    est = estimate(params, queries, samples=1 << 15, sampler="independent", replicates=2)
+    return est.recombine(params)[0], est.stderr[0] @ params.albedos()
 
 
 CASES = {
@@ -97,6 +98,19 @@ def test01_eval_matches_aggregate(mi: types.ModuleType, case: str) -> None:
     bsdf = fabric_bsdf(mi, PARAMS, tiles_per_uv=1.0)
     mean, se = mean_eval(mi, bsdf, view, light, centre, ((size, 0.0), (0.0, size)))
     ref, ref_se = reference(view, light, centre, size)
+    z = (mean - ref) / np.sqrt(se**2 + ref_se**2)
+    assert np.all(ref > 0.0)
+    assert np.all(np.abs(z) < Z_MAX), (mean, ref, z)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test01b_eval_matches_aggregate_with_jins_yarn_profile(mi: types.ModuleType, case: str) -> None:
+    """As test01 for ``yarn_profile: jin`` (steeper closing band: a larger rejection bound)."""
+    params = PARAMS.replace(yarn_profile="jin")
+    view, light, centre, size = CASES[case]
+    bsdf = fabric_bsdf(mi, params, tiles_per_uv=1.0)
+    mean, se = mean_eval(mi, bsdf, view, light, centre, ((size, 0.0), (0.0, size)))
+    ref, ref_se = reference(view, light, centre, size, params)
     z = (mean - ref) / np.sqrt(se**2 + ref_se**2)
     assert np.all(ref > 0.0)
     assert np.all(np.abs(z) < Z_MAX), (mean, ref, z)

@@ -66,6 +66,19 @@ def test02_fields_reach_fabric_params() -> None:
     assert material["tiles_per_uv"] == 8.0 and material["visibility"] is False
 
 
+def test02b_yarn_profile_reaches_fabric_params() -> None:
+    """``yarn_profile`` is kept when set and left out of the stored form at its default
+    (older specs keep their stored bytes); a wrong value names the field."""
+    default = RenderParams(material={"fabric": {}}).material["fabric"]
+    assert "yarn_profile" not in default
+    material = RenderParams(material={"fabric": {"yarn_profile": "jin"}}).material["fabric"]
+    assert material["yarn_profile"] == "jin"
+    assert RenderParams(material={"fabric": material}).material["fabric"] == material
+    got = FabricSpec.model_validate(material).to_params()
+    assert got == FabricParams("twill_3x3", yarn_profile="jin")
+    assert error_of({"fabric": {"yarn_profile": "round"}}).startswith("fabric.yarn_profile:")
+
+
 def test03_errors_are_clear() -> None:
     allowed = ", ".join(sorted(PATTERNS))
     assert error_of({"fabric": {"pattern": "twill9"}}) == (
