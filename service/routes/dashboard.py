@@ -11,6 +11,7 @@ the same token check as every page.
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -234,13 +235,54 @@ def _live_plots(job: Job) -> dict[str, str]:
 ROWS_ARTIFACT = "rows.json"
 
 
-def _pivot_cell(col: dict[str, Any], got: dict[str, Any] | None) -> str:
+#: SI prefixes of the method table's costs and metrics (``_si``), by power of 1000.
+_PREFIXES = {-4: "p", -3: "n", -2: "\u00b5", -1: "m", 0: "", 1: "k", 2: "M", 3: "G", 4: "T"}
+
+
+def _si(value: float, unit: str) -> str:
+    """``value`` (in ``unit``) with an SI prefix and 4 significant digits: ``82.7 \u00b5s``,
+    ``1.528 MB``; plain ``.4g`` without a unit."""
+    if not unit:
+        return f"{value:.4g}"
+    if value == 0 or not math.isfinite(value):
+        return f"{value:.4g} {unit}"
+    power = max(-4, min(4, math.floor(math.log10(abs(value)) / 3)))
+    return f"{value / 1000.0**power:.4g} {_PREFIXES[power]}{unit}"
+
+
+def _unit(name: str) -> tuple[float, str]:
+    """The scale to base units and the unit of a result-row column, from its name:
+    ``*_ns``/``ns_per_eval`` nanoseconds (shown in s), ``*seconds`` s, ``*bytes*`` B,
+    ``psnr`` dB; other metrics are unitless."""
+    if name.endswith("_ns") or name.startswith("ns_"):
+        return 1e-9, "s"
+    if name.endswith("seconds"):
+        return 1.0, "s"
+    if "bytes" in name:
+        return 1.0, "B"
+    if name.startswith("psnr"):
+        return 1.0, "dB"
+    return 1.0, ""
+
+
+def _shown(value: float, scale: float, unit: str) -> str:
+    """A value of a column in ``unit`` (decibels take no SI prefix)."""
+    return f"{value:.4g} dB" if unit == "dB" else _si(value * scale, unit)
+
+
+def _pivot_cell(col: dict[str, Any], got: dict[str, Any] | None) -> dict[str, Any]:
+    """One cell: its ``text`` (SI prefixes and units) and its raw ``value`` (the mean of a
+    metric, the median of a cost; ``None`` for an empty cell)."""
     if got is None:
-        return ""
+        return {"text": "", "value": None}
+    scale, unit = _unit(str(col["name"]))
     if col["role"] != "metric":
-        return f"{got['median']:.4g}"
-    text = f"{got['mean']:.4g}"
-    return text + (f" \u00b1 {got['std']:.2g}" if got.get("std") is not None else "")
+        return {"text": _shown(got["median"], scale, unit), "value": got["median"]}
+    text = _shown(got["mean"], scale, unit)
+    std = got.get("std")
+    if std is not None:
+        text += f" \u00b1 {_shown(std, scale, unit) if unit else format(std, '.2g')}"
+    return {"text": text, "value": got["mean"]}
 
 
 def methods_view(rows: list[Any], by: str = "candidate") -> dict[str, Any] | None:

@@ -98,9 +98,11 @@ def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, An
     heads = table.locator("thead th").evaluate_all("ths => ths.map(t => t.dataset.column || '')")
     shown = table.locator("tbody tr").evaluate_all(
         "trs => trs.map(tr => [tr.dataset.method, [...tr.cells].map(c => c.textContent),"
-        " [...tr.cells].map(c => c.classList.contains('best'))])"
+        " [...tr.cells].map(c => c.classList.contains('best')),"
+        " [...tr.cells].map(c => c.dataset.value ?? null)])"
     )
-    by_method = {m: (cells, best) for m, cells, best in shown}
+    by_method = {m: (cells, best) for m, cells, best, _ in shown}
+    raw = {m: values for m, _, _, values in shown}
     assert list(by_method) == methods, (list(by_method), methods)
     assert "train_seconds" in heads, heads
     checked = 0
@@ -112,9 +114,12 @@ def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, An
             if method not in having:
                 assert cells[col] == "", (metric, method, cells)
                 continue
-            # 4 significant digits shown: a relative 1e-3 covers the rounding
-            got = float(cells[col].split(" ")[0])
-            assert got == pytest.approx(having[method], rel=1e-3), (metric, method, cells)
+            # the raw mean rides along in data-value (the text has SI prefixes and units:
+            # "1.767 µs"); summed in another order than the hand mean, hence rel 1e-9
+            got = float(raw[method][col])
+            assert got == pytest.approx(having[method], rel=1e-9), (metric, method, cells)
+            if metric.endswith(("_ns", "seconds")) or "bytes" in metric:  # has a unit
+                assert "e+" not in cells[col] and "e-" not in cells[col], (metric, cells)
             marked = len(having) > 1 and target is not None and having[method] == target
             assert best[col] == marked, (metric, method, cells, best)
             checked += 1
@@ -124,7 +129,10 @@ def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, An
     for method, seconds in train_s.items():  # a run's own cost; a baseline's: the median
         cells, _ = by_method[method]
         want = statistics.median(seconds)
-        assert float(cells[col]) == pytest.approx(want, rel=1e-3), (method, cells)
+        # shown with an SI prefix and its unit (e.g. "850 ms", "1.234 s"); the raw value
+        # rides along in data-value
+        assert float(raw[method][col]) == pytest.approx(want, rel=1e-9), (method, cells)
+        assert cells[col].endswith("s") and "e+" not in cells[col], (method, cells)
     # the pictures of the batch are still there, above the table
     pg.locator("#compare-grid figure").first.wait_for()
     pg.locator("#c-methods").scroll_into_view_if_needed()

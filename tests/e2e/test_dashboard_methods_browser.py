@@ -88,5 +88,7 @@ def test_methods_table_of_a_report(page: Any, server: str, prepared: dict[str, A
     for method, cells, best in shown:
         assert float(cells[col].split(" ")[0]) == pytest.approx(means[method], rel=1e-3)
         assert best[col] == (means[method] == min(means.values())), (method, cells, best)
+        ns = cells[heads.index("ns_per_eval")]  # a cost in SI units: "13.13 ns", never 1.3e+01
+        assert ns == "" or (ns.endswith("s") and "e+" not in ns and "e-" not in ns), ns
     pg.screenshot(path=str(SHOTS / "matforge-dashboard-methods.png"), full_page=True)
     assert pg.problems == [], pg.problems

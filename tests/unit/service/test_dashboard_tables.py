@@ -196,3 +196,21 @@ def test04_fabric_training_metrics_flattened(client: TestClient, settings: Setti
     assert data["rows"]["mean"]["baseline.rgb.rel"] == 1.1
     assert data["rows"]["mean"]["C_warp.rel"] is None
     assert "Metrics per material" in text
+
+
+def test05_method_table_cells_in_si_units() -> None:
+    """The method x metric table shows costs and metrics with SI prefixes and units (issue:
+    "use SI prefixes and units everywhere"), and keeps the raw value for readers; the
+    expected strings are worked by hand."""
+    from service.routes.dashboard import _pivot_cell
+
+    def cell(name: str, role: str, **got: float) -> dict[str, object]:
+        return _pivot_cell({"name": name, "role": role}, dict(got))
+
+    assert cell("torch_ns", "cost", median=82700.0) == {"text": "82.7 \u00b5s", "value": 82700.0}
+    assert cell("ns_per_eval", "cost", median=13.13)["text"] == "13.13 ns"
+    assert cell("bytes_per_material", "cost", median=1528000.0)["text"] == "1.528 MB"
+    assert cell("train_seconds", "cost", median=0.85)["text"] == "850 ms"
+    assert cell("smape", "metric", mean=0.7238, std=0.01)["text"] == "0.7238 \u00b1 0.01"
+    assert cell("psnr", "metric", mean=31.2, std=0.5)["text"] == "31.2 dB \u00b1 0.5 dB"
+    assert _pivot_cell({"name": "smape", "role": "metric"}, None) == {"text": "", "value": None}
