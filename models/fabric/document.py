@@ -8,7 +8,7 @@ of components and error measures (``models.fabric.report``), typed here as objec
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NotRequired
 
 from typing_extensions import TypedDict
 
@@ -27,3 +27,7 @@ class TrainFabricMetrics(TypedDict):
     """Per footprint-size case: queries summed, errors averaged over the materials."""
     settings: dict[str, Any]
     """What each error measure is."""
+    beta_response: NotRequired[list[dict[str, Any]]]
+    """With ``held_out_beta``: per pattern with two or more held-out betas, each component's
+    slope of the mean against beta, the network's beside Monte Carlo's, their ratio and
+    whether the goal is met."""

@@ -51,9 +51,9 @@ def test01_roles_of_a_score_job_and_a_render(tmp_path: Path) -> None:
     assert got["main"] == ["reference:reference", "candidate:gold16"]
     assert got["pictures"][0]["pixels"] == f"/api/artifacts/{'1' * 64}/pixels?values=linear"
     assert got["pictures"][2]["src"] == f"/api/artifacts/{'3' * 64}"
-    # a render: its one picture is its main one (no kind figure: the first picture)
+    # a render: its one picture, image.exr, is the kind's declared lead and its main one
     plain = job_pictures(jobs.get(render), jobs)
-    assert plain["main"] == ["image:image.exr"]
+    assert plain["main"] == ["lead:image.exr"]
     panels = [{"pictures": got["pictures"]}, {"pictures": plain["pictures"]}]
     assert [v["key"] for v in compare_views(panels)] == ["main", "errors", "diff", "image.exr"]
     # the fabric kind's lead picture leads, as on its job page
