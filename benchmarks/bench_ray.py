@@ -17,7 +17,13 @@ on the authors' machine) on N nodes of this machine's size, at Ray's measured ra
 assuming linear scaling. What bounds that assumption is measured too: the job's own thread
 stores every shard (SHA-256, CAS write with fsync, SQLite record), so the driver sustains
 at most ``1 / (seconds per shard)`` shards per second. ``--driver-only`` measures just that,
-for the earlier path (the pickled result stored too) and the current one.
+for the earliest path (the pickled result stored too), the job storing each returned shard
+(``MATFORGE_SHARED_STORE`` unset), and the shard tasks storing their own results into a
+store every node mounts (``MATFORGE_SHARED_STORE=1``: the job's thread checks an object's
+size and records its digest), each through the real ``JobContext.map_artifact_shards``
+with an executor whose results are ready at once; and, with ``--ray``, Ray's own cost per
+shard on the job's thread (submitting a task, waiting for it, fetching its small result)
+on a private local Ray.
 
 Run: ``.venv/bin/python benchmarks/bench_ray.py [--queries 20480] [--shard-queries 4096]
 [--repeats 3] [--cpus 2]``
@@ -35,17 +41,19 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jobapi.executor import Executor  # noqa: E402
+from jobapi.context import JobContext, NullMonitor  # noqa: E402
+from jobapi.executor import Executor, InlineExecutor  # noqa: E402
 from service.settings import Settings  # noqa: E402
 from service.submission import submit  # noqa: E402
 from service.workers.execution import execute, worker_id  # noqa: E402
 from service.workers.executors import make_executor  # noqa: E402
-from storage.artifacts import ArtifactStore  # noqa: E402
+from storage.artifacts import ArtifactStore, ObjectInfo  # noqa: E402
 from storage.jobs import JobStore  # noqa: E402
 
 MATERIALS = 465
@@ -53,6 +61,8 @@ PAPER_QUERIES = 3_276_800
 PAPER_SAMPLES = 2048
 PAPER_HOURS = 165.0
 NODES = (1, 32, 128)
+#: Shards in flight for the ``ray.wait`` timing (2 x CPUs: 2 to 2,000 two-core nodes).
+WAIT_IN_FLIGHT = (4, 400, 4000)
 
 
 def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> dict[str, Any]:
@@ -78,50 +88,138 @@ def run_job(settings: Settings, executor: Executor, params: dict[str, Any]) -> d
     return stats
 
 
+class ReadyResults(InlineExecutor):
+    """An executor whose shards finished elsewhere: ``map`` yields the results prepared
+    beforehand (the npz bytes, or with ``shared_store`` the digests of objects the tasks
+    already wrote), so timing ``map_artifact_shards`` times the job's thread alone."""
+
+    def __init__(self, results: list[Any], shared_store: bool) -> None:
+        self.results = results
+        self.shared_store = shared_store
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
+        yield from enumerate(self.results[: len(items)])
+
+
+def _unused_shard(item: int) -> bytes:
+    raise AssertionError("ReadyResults never runs a shard")
+
+
 def driver_seconds_per_shard(
-    settings: Settings, shard_queries: int, samples: int, *, twice: bool = False
+    settings: Settings, shard_queries: int, samples: int, *, path: str, n: int = 100
 ) -> float:
     """The job thread's own cost of one finished fabric shard, for a result of the real
-    size (random bytes: incompressible): its npz artifact written to the store and the
-    shard record (``generate.fabric`` through ``map_artifact_shards``). ``twice``: the
-    earlier path, which also stored the pickled result (``map_shards``) beside the npz."""
+    size (random bytes: incompressible). ``path``: ``"twice"``, the earliest, which stored
+    the pickled result (``map_shards``) beside the npz; ``"job"``, the job storing each
+    returned npz (``map_artifact_shards``, its artifact is the shard record); ``"task"``,
+    the shard tasks storing into a shared store, the job checking sizes and recording."""
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     job, _ = submit(
-        {"kind": "generate.fabric", "seed": 1, "params": {"preset": "small", "samples": samples}},
+        {
+            "kind": "generate.fabric",
+            "seed": 1,
+            "params": {"preset": "small", "samples": samples},
+            "force": True,  # a new job each time: no shards recorded yet
+        },
         jobs,
         store,
     )
     # material int32, centre 2 x f32, size f32, wi/wo 3 x f32, value/stderr 4 x f32
     npz = os.urandom(shard_queries * 4 * (1 + 2 + 1 + 3 + 3 + 4 + 4))
-    n = 40
-    tag = b"old" if twice else b"new"
-    t0 = time.perf_counter()
-    for i in range(n):
-        data = npz + tag + i.to_bytes(4)
-        if twice:
+    shards = [npz + path.encode() + i.to_bytes(4) for i in range(n)]
+    names = [f"shard-{i:04d}.npz" for i in range(n)]
+    if path == "twice":
+        t0 = time.perf_counter()
+        for i, data in enumerate(shards):
             info = store.put_bytes(pickle.dumps({"npz": data, "seconds": 1.0}))
             jobs.record_shard(job.id, f"shard-{i:04d}", info.digest)
             store.put_bytes(data)
-        else:
-            info = store.put_bytes(data)
-            jobs.record_shard(job.id, f"shard-{i:04d}.npz", info.digest)
+        jobs.close()
+        return (time.perf_counter() - t0) / n
+    results: list[Any]
+    if path == "task":  # the tasks' own writes, done before the clock starts
+        results = [ArtifactStore(store.root.resolve()).put_bytes(d) for d in shards]
+    else:
+        results = shards
+    ctx = JobContext(
+        job_id=job.id, seed=1, spec=job.spec, store=store, jobs=jobs,
+        workdir=Path(settings.data_dir), monitor=NullMonitor(),
+        executor=ReadyResults(results, shared_store=path == "task"),
+    )  # fmt: skip
+    t0 = time.perf_counter()
+    ctx.map_artifact_shards(_unused_shard, range(n), names, media_type="application/x-npz")
+    seconds = time.perf_counter() - t0
     jobs.close()
-    return (time.perf_counter() - t0) / n
+    return seconds / n
+
+
+def _small_result(i: int) -> Any:
+    """A Ray task's result with a shared store: a digest and a size."""
+    return ObjectInfo(f"{i:064x}", 294912)
+
+
+def _sleeper(seconds: float) -> None:
+    time.sleep(seconds)
+
+
+def ray_wait_seconds(in_flight: int, calls: int = 20) -> float:
+    """Seconds of the two ``ray.wait`` calls :meth:`RayExecutor.map` makes per round (one
+    finished shard among ``in_flight`` unfinished ones): the scan whose cost grows with
+    the shards in flight, 2 x the cluster's CPUs."""
+    import ray
+
+    sleeper = ray.remote(_sleeper).options(num_cpus=1)
+    pending = [sleeper.remote(600.0) for _ in range(in_flight)]
+    done = ray.put(b"digest")
+    ray.wait([done])
+    refs = [*pending, done]
+    try:
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            ready, _ = ray.wait(refs, num_returns=1)
+            more, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+            assert ready == more == [done]
+        return (time.perf_counter() - t0) / calls
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+
+
+def ray_seconds_per_shard(cpus: int, n: int) -> tuple[float, float, dict[int, float]]:
+    """Ray's cost per shard on the job's thread, through :class:`RayExecutor`'s ``map``
+    of ``n`` tasks that return a digest at once: (thread CPU seconds, wall seconds) per
+    task. The wall time includes the tasks themselves on ``cpus`` CPUs of this machine.
+    Then :func:`ray_wait_seconds` for each of :data:`WAIT_IN_FLIGHT`."""
+    ex = make_executor("ray", cpus)
+    ex.start()
+    try:
+        list(ex.map(_small_result, range(4 * cpus)))  # warm: the workers and the function
+        c0, t0 = time.thread_time(), time.perf_counter()
+        for _ in ex.map(_small_result, range(n)):
+            pass
+        per_task = (time.thread_time() - c0) / n, (time.perf_counter() - t0) / n
+        waits = {k: ray_wait_seconds(k) for k in WAIT_IN_FLIGHT}
+        return (*per_task, waits)
+    finally:
+        ex.close()
 
 
 def driver_only(args: argparse.Namespace) -> None:
-    """``--driver-only``: the job thread's cost per shard, the earlier path (stored twice)
-    and this one (once), alternated ``--repeats`` times, and the node count at which one
-    job's thread saturates at ``--node-rate`` samples/s per node."""
-    costs: dict[str, list[float]] = {"twice (before)": [], "once (now)": []}
+    """``--driver-only``: the job thread's cost per shard on each storing path, the paths
+    alternated ``--repeats`` times, and the node count at which one job's thread
+    saturates at ``--node-rate`` samples/s per node; with ``--ray``, Ray's own part."""
+    arms = {
+        "twice (earliest)": "twice",
+        "job stores each shard (shared store unset)": "job",
+        "tasks store, job records digests (MATFORGE_SHARED_STORE=1)": "task",
+    }
+    costs: dict[str, list[float]] = {name: [] for name in arms}
     with tempfile.TemporaryDirectory() as tmp:
         settings = Settings.from_env(dict(os.environ)).with_(data_dir=Path(tmp) / "data")
         for _ in range(args.repeats):
-            for name, twice in (("twice (before)", True), ("once (now)", False)):
+            for name, path in arms.items():
                 costs[name].append(
-                    driver_seconds_per_shard(
-                        settings, args.shard_queries, args.samples, twice=twice
-                    )
+                    driver_seconds_per_shard(settings, args.shard_queries, args.samples, path=path)
                 )
     shard_samples = args.shard_queries * PAPER_SAMPLES
     print(f"| shard stored | ms per {args.shard_queries}-query shard (median, range) | "
@@ -131,13 +229,42 @@ def driver_only(args: argparse.Namespace) -> None:
         med = statistics.median(v)
         nodes = shard_samples / med / args.node_rate
         print(
-            f"| {name} | {med * 1e3:.2f} ({min(v) * 1e3:.2f}-{max(v) * 1e3:.2f}) | "
+            f"| {name} | {med * 1e3:.3f} ({min(v) * 1e3:.3f}-{max(v) * 1e3:.3f}) | "
             f"{1 / med:.0f} | {nodes:.0f} |"
+        )
+    if args.ray:
+        os.environ.setdefault("RAY_AUTH_MODE", "token")
+        os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(16))
+        cpu, wall, waits = zip(
+            *(ray_seconds_per_shard(args.cpus, args.ray_tasks) for _ in range(args.repeats)),
+            strict=True,
+        )
+        store_ms = statistics.median(costs[list(arms)[-1]]) * 1e3
+        ray_ms = statistics.median(cpu) * 1e3
+        total = (store_ms + ray_ms) / 1e3
+        print(
+            f"\nRay on the job's thread, {args.ray_tasks} tasks x {args.repeats}: CPU "
+            f"{ray_ms:.3f} ms per task (range {min(cpu) * 1e3:.3f}-{max(cpu) * 1e3:.3f}); "
+            f"wall {statistics.median(wall) * 1e3:.3f} ms per task with the tasks on "
+            f"{args.cpus} CPUs here"
+        )
+        for k in WAIT_IN_FLIGHT:
+            v = [w[k] for w in waits]
+            print(
+                f"ray.wait, one finished among {k} in flight: {statistics.median(v) * 1e3:.3f} "
+                f"ms per round (range {min(v) * 1e3:.3f}-{max(v) * 1e3:.3f})"
+            )
+        print(
+            f"shared store, all told: {store_ms:.3f} + {ray_ms:.3f} ms = {total * 1e3:.3f} ms "
+            f"per shard -> {1 / total:.0f} shards/s = "
+            f"{shard_samples / total / args.node_rate:.0f} nodes at "
+            f"{args.node_rate / 1e6:.0f} M samples/s each"
         )
     print(f"load {os.getloadavg()[0]:.1f}; {os.cpu_count()} cores")
     print(
         f"reproduce: .venv/bin/python benchmarks/bench_ray.py --driver-only --shard-queries "
         f"{args.shard_queries} --repeats {args.repeats} --node-rate {args.node_rate:g}"
+        + (f" --ray --ray-tasks {args.ray_tasks} --cpus {args.cpus}" if args.ray else "")
     )
 
 
@@ -153,6 +280,8 @@ def main() -> None:
     ap.add_argument(
         "--node-rate", type=float, default=8e6, help="samples/s per node (--driver-only)"
     )
+    ap.add_argument("--ray", action="store_true", help="--driver-only: Ray's part too")
+    ap.add_argument("--ray-tasks", type=int, default=400, help="tasks per --ray measurement")
     args = ap.parse_args()
     if args.driver_only:
         driver_only(args)
@@ -195,7 +324,10 @@ def main() -> None:
         finally:
             for ex in executors.values():
                 ex.close()
-        per_shard = driver_seconds_per_shard(settings, args.shard_queries, args.samples)
+        per_shard = driver_seconds_per_shard(
+            settings, args.shard_queries, args.samples, path="task" if settings.shared_store
+            else "job"
+        )  # fmt: skip
     med = {k: statistics.median(v) for k, v in rates.items()}
     load = os.getloadavg()[0]
     print("| backend | M samples/s per node (median, range) | vs local pool |")

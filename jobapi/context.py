@@ -22,10 +22,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from jobapi.documents import check_document, check_typed
-from jobapi.errors import JobCancelled, JobFailed, NotFoundError
-from jobapi.executor import Executor, InlineExecutor
+from jobapi.errors import IntegrityError, JobCancelled, JobFailed, NotFoundError
+from jobapi.executor import Executor, InlineExecutor, StoreShard, uses_shared_store
 from jobapi.params import JOB_REF, SHA_REF
-from storage.artifacts import ArtifactStore
+from storage.artifacts import ArtifactStore, ObjectInfo
 from storage.formats.btf_folder import MAX_ARCHIVE_PIXELS
 from storage.formats.media import media_type_for
 from storage.jobs import ArtifactRecord, Job, JobStore
@@ -64,6 +64,11 @@ class NullMonitor:
 
     def cancelled(self) -> bool:
         return False
+
+
+def _check_name(name: str) -> None:
+    if not name or name.startswith("/") or ".." in name.split("/"):
+        raise ValueError(f"bad artifact name {name!r}")
 
 
 class JobContext:
@@ -194,8 +199,7 @@ class JobContext:
     # -- outputs -------------------------------------------------------------------------
     def put_bytes(self, name: str, data: bytes, media_type: str | None = None) -> ArtifactRecord:
         """Store ``data`` as the artifact ``name`` of this job."""
-        if not name or name.startswith("/") or ".." in name.split("/"):
-            raise ValueError(f"bad artifact name {name!r}")
+        _check_name(name)
         info = self.store.put_bytes(data)
         return self._record(name, info.digest, info.size, media_type)
 
@@ -323,9 +327,17 @@ class JobContext:
         after a crash registers the stored bytes again (verified, not re-read) instead of
         recomputing them. ``on_result(i, path)`` is called once per shard, in completion
         order, with a verified read-only path to its bytes (to summarise it on the way).
+
+        With an executor whose shards see this store at the same path
+        (:func:`~jobapi.executor.uses_shared_store`, ``MATFORGE_SHARED_STORE``), each shard
+        task writes its own bytes into the store (:class:`~jobapi.executor.StoreShard`) and
+        returns their digest and size; this thread checks that the object is there with
+        that size (a ``stat``) and records it. The artifacts are the same bytes either way.
         """
         if len(names) != len(items) or len(set(names)) != len(names):
             raise ValueError("map_artifact_shards: names must be unique, one per item")
+        for name in names:
+            _check_name(name)
         done = self.jobs.shards(self.job_id)
         records: list[ArtifactRecord | None] = [None] * len(items)
         todo: list[int] = []
@@ -340,9 +352,23 @@ class JobContext:
         lo, hi = progress_range
         n_done = len(items) - len(todo)
         self._report_resumed(n_done, len(items), label, progress_range)
-        for j, data in self.executor.map(fn, [items[i] for i in todo]):
+        shared = uses_shared_store(self.executor)
+        task = StoreShard(fn, str(self.store.root.resolve())) if shared else fn
+        for j, data in self.executor.map(task, [items[i] for i in todo]):
             i = todo[j]
-            rec = self.put_bytes(names[i], data, media_type)
+            if shared:  # the shard task stored it; check it is there, cheaply, and record it
+                info: ObjectInfo = data
+                try:
+                    self.store.check_stored(info)
+                except (NotFoundError, IntegrityError) as exc:
+                    raise JobFailed(
+                        f"{names[i]}: its shard task stored it, but {exc}: with "
+                        "MATFORGE_SHARED_STORE=1 every node must mount the store at "
+                        f"{self.store.root.resolve()}"
+                    ) from None
+                rec = self._record(names[i], info.digest, info.size, media_type)
+            else:
+                rec = self.put_bytes(names[i], data, media_type)
             self.jobs.record_shard(self.job_id, names[i], rec.digest)
             records[i] = rec
             del data

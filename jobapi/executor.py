@@ -11,12 +11,23 @@ items.
 
 Shard functions must be module-level functions (picklable), take one item and return a
 picklable result.
+
+A backend whose shards all run where the job's artifact store is mounted at the same path
+(``MATFORGE_SHARED_STORE``: one machine, or a POSIX file system every node mounts, such as
+NFS or Lustre) says so with ``shared_store = True``. Then
+:meth:`jobapi.context.JobContext.map_artifact_shards` hands it :class:`StoreShard`, which
+writes each shard's bytes into the store inside the shard task (the store's own atomic
+temp-file, fsync, rename protocol) and returns only their :class:`~storage.artifacts.
+ObjectInfo`: the job's thread records digests instead of writing every shard itself.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any, Protocol
+
+from storage.artifacts import ArtifactStore, ObjectInfo
 
 
 class Executor(Protocol):
@@ -38,6 +49,7 @@ class Executor(Protocol):
 
     def close(self) -> None: ...
 
+    # Optional: ``shared_store: bool`` (see the module's docstring; absent means False).
     # Optional: ``abort()``, callable from another thread, makes a blocked ``map`` raise at
     # once (kill the shard processes, cancel the tasks). The worker calls it when a job is
     # cancelled, stuck or out of time; a backend without it is waited for, then its worker
@@ -61,3 +73,30 @@ class InlineExecutor:
 
     def close(self) -> None:
         pass
+
+
+def uses_shared_store(executor: Executor) -> bool:
+    """Whether ``executor``'s shards may write into the job's store themselves: its
+    ``shared_store`` attribute, an explicit setting (``MATFORGE_SHARED_STORE``), never a
+    guess from the file system."""
+    return getattr(executor, "shared_store", False) is True
+
+
+@dataclass(frozen=True)
+class StoreShard:
+    """A shard function that stores its own result: ``fn(item)`` (bytes) is written into
+    the artifact store at ``root`` where the shard runs, and only its digest and size go
+    back to the job. ``root`` is absolute: a shard task on another node has another
+    working directory. Picklable when ``fn`` is a module-level function."""
+
+    fn: Callable[[Any], bytes]
+    root: str
+
+    def __call__(self, item: Any) -> ObjectInfo:
+        data = self.fn(item)
+        if not isinstance(data, bytes | bytearray | memoryview):
+            raise TypeError(
+                f"shard function {getattr(self.fn, '__name__', self.fn)!r} returned "
+                f"{type(data).__name__}, not bytes"
+            )
+        return ArtifactStore(self.root).put_bytes(bytes(data))

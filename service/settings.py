@@ -39,6 +39,15 @@ def _float(env: dict[str, str], name: str, default: float) -> float:
         raise ValueError(f"environment variable {name}={raw!r} is not a number") from exc
 
 
+def _flag(env: dict[str, str], name: str) -> bool:
+    raw = (env.get(name) or "").strip().lower()
+    if raw in ("", "0", "false", "no", "off"):
+        return False
+    if raw in ("1", "true", "yes", "on"):
+        return True
+    raise ValueError(f"environment variable {name}={raw!r} is not a flag (1 or 0)")
+
+
 def _choice(env: dict[str, str], name: str, choices: tuple[str, ...]) -> str:
     raw = (env.get(name) or choices[0]).strip().lower()
     if raw not in choices:
@@ -74,6 +83,7 @@ class Settings:
     ``RAY_ADDRESS``               ``ray_address``              unset: a private local Ray
     ``MATFORGE_RAY_MAX_RETRIES``  ``ray_max_retries``          3 (per shard)
     ``RAY_AUTH_MODE``             ``ray_auth_mode``            unset (Ray's own default)
+    ``MATFORGE_SHARED_STORE``     ``shared_store``             0 (shards' bytes come back)
     ``DRJIT_LIBLLVM_PATH``        ``libllvm_path``             Debian's libLLVM-19
     ``MATFORGE_VARIANT``          ``variant``                  ``auto`` (cuda, else llvm)
     ============================  ===========================  ==============================
@@ -108,6 +118,15 @@ class Settings:
     ``pool_processes`` CPUs when unset. Ray reads ``RAY_AUTH_MODE`` and ``RAY_AUTH_TOKEN`` /
     ``RAY_AUTH_TOKEN_PATH`` itself; matforge reads the mode only to warn when it connects
     to a cluster without token authentication.
+
+    ``shared_store`` (``MATFORGE_SHARED_STORE=1``) says that every process running shards
+    sees the data directory's store at the same absolute path: one machine, or a POSIX file
+    system that every node mounts (NFS, Lustre). Then each shard task writes its own bytes
+    into the store, with the store's atomic temp-file, fsync, rename protocol, and returns
+    only their digest and size; the job's thread checks size and records digests
+    (:meth:`jobapi.context.JobContext.map_artifact_shards`). Unset, a shard's bytes travel
+    back to the job, which stores them. It is an operator's statement, never guessed from
+    the file system: a store that is not in fact shared fails the job, naming the path.
     """
 
     data_dir: Path = Path("./matforge-data")
@@ -134,6 +153,7 @@ class Settings:
     ray_address: str | None = None
     ray_max_retries: int = 3
     ray_auth_mode: str | None = None
+    shared_store: bool = False
     variant: str = "auto"
     extra: dict[str, str] = field(default_factory=dict)
 
@@ -171,6 +191,7 @@ class Settings:
             ray_address=e.get("RAY_ADDRESS") or None,
             ray_max_retries=max(0, _int(e, "MATFORGE_RAY_MAX_RETRIES", 3)),
             ray_auth_mode=e.get("RAY_AUTH_MODE") or None,
+            shared_store=_flag(e, "MATFORGE_SHARED_STORE"),
             variant=_choice(e, "MATFORGE_VARIANT", VARIANTS),
         )
 
@@ -197,6 +218,7 @@ class Settings:
             "DRJIT_LIBLLVM_PATH": self.libllvm_path,
             "MATFORGE_EXECUTOR": self.executor,
             "MATFORGE_RAY_MAX_RETRIES": str(self.ray_max_retries),
+            "MATFORGE_SHARED_STORE": "1" if self.shared_store else "0",
             "MATFORGE_VARIANT": self.variant,
         }
         if self.stall_seconds:

@@ -120,6 +120,31 @@ class ArtifactStore:
         except FileNotFoundError:
             raise NotFoundError(f"no object sha256:{check_digest(digest)} in the store") from None
 
+    def check_stored(self, info: ObjectInfo) -> None:
+        """Check, cheaply, that an object another process wrote (a shard task on another
+        node) is in place with ``info.size`` bytes: one ``stat``, no hashing (the full
+        check stays on read, :meth:`read` and :meth:`open_verified`). On NFS a name made
+        by another client can be hidden for a while by this client's cached lookups:
+        listing its directory revalidates them, once, before the object counts as
+        missing. Raises :class:`NotFoundError` or, for a wrong size,
+        :class:`IntegrityError`."""
+        p = self.path(info.digest)
+        try:
+            st = p.stat()
+        except FileNotFoundError:
+            try:
+                os.listdir(p.parent)
+                st = p.stat()
+            except FileNotFoundError:
+                raise NotFoundError(
+                    f"no object sha256:{info.digest} in the store at {self.root}"
+                ) from None
+        if st.st_size != info.size:
+            raise IntegrityError(
+                f"object sha256:{info.digest} has {st.st_size} bytes in the store, "
+                f"expected {info.size}"
+            )
+
     # -- writing -------------------------------------------------------------------------
     def _intact(self, digest: str, size: int) -> bool:
         """Whether an object exists with ``size`` bytes that hash to ``digest``; a damaged

@@ -30,13 +30,18 @@ class LocalPoolExecutor:
     fork. ``setup`` (``(initializer, args)``) runs once in each new process: the Mitsuba
     variant of the job's process (:func:`service.workers.backend.setup_shard_process`).
     At most ``2 * processes`` shards are in flight, so a cancelled job stops quickly.
+    ``shared_store``: the shard processes store their own results
+    (``MATFORGE_SHARED_STORE``, :mod:`jobapi.executor`); on one machine they always can.
     """
 
     name = "process"
 
-    def __init__(self, processes: int = 2, setup: Setup | None = None) -> None:
+    def __init__(
+        self, processes: int = 2, setup: Setup | None = None, *, shared_store: bool = False
+    ) -> None:
         self.processes = max(1, processes)
         self.setup = setup
+        self.shared_store = shared_store
         self._pool: ProcessPoolExecutor | None = None
 
     def _get_pool(self) -> ProcessPoolExecutor:
@@ -111,12 +116,14 @@ def make_executor(
     ray_max_retries: int = 3,
     ray_auth_mode: str | None = None,
     setup: Setup | None = None,
+    shared_store: bool = False,
 ) -> Executor:
     """The executor backend called ``name``: ``"process"`` (alias ``"local"``), ``"ray"``
     or ``"inline"``. ``processes`` is the pool's size, or the CPUs of a private local Ray
-    when ``ray_address`` is unset; ``setup`` initialises each shard process."""
+    when ``ray_address`` is unset; ``setup`` initialises each shard process;
+    ``shared_store``: the shards store their own results (``MATFORGE_SHARED_STORE``)."""
     if name in ("process", "local"):
-        return LocalPoolExecutor(processes, setup)
+        return LocalPoolExecutor(processes, setup, shared_store=shared_store)
     if name == "ray":
         try:
             from service.workers.ray_executor import RayExecutor
@@ -130,6 +137,7 @@ def make_executor(
             max_retries=ray_max_retries,
             auth_mode=ray_auth_mode,
             setup=setup,
+            shared_store=shared_store,
         )
     if name == "inline":
         return InlineExecutor()
@@ -137,9 +145,9 @@ def make_executor(
 
 
 def executor_for(settings: Settings) -> Executor:
-    """The backend that ``settings`` name (``MATFORGE_EXECUTOR``, ``RAY_ADDRESS``); its
-    shard processes take ``settings.variant`` (resolve it first: :func:`~service.workers.
-    backend.start_backend`)."""
+    """The backend that ``settings`` name (``MATFORGE_EXECUTOR``, ``RAY_ADDRESS``,
+    ``MATFORGE_SHARED_STORE``); its shard processes take ``settings.variant`` (resolve it
+    first: :func:`~service.workers.backend.start_backend`)."""
     from service.workers.backend import setup_shard_process
 
     return make_executor(
@@ -149,4 +157,5 @@ def executor_for(settings: Settings) -> Executor:
         ray_max_retries=settings.ray_max_retries,
         ray_auth_mode=settings.ray_auth_mode,
         setup=(setup_shard_process, (settings.variant, settings.libllvm_path)),
+        shared_store=settings.shared_store,
     )

@@ -4,8 +4,11 @@
 worker process: the context hands ``fn`` and the shard items to :meth:`RayExecutor.map`,
 Ray runs ``fn(item)`` on some node of the cluster, and the result comes back to the job,
 which writes it into the artifact store and records the finished shard exactly as with the
-local pool. So resumption, cancellation and the bytes of every artifact do not depend on the
-backend; only where the arithmetic runs does.
+local pool. Where every node mounts the store (``MATFORGE_SHARED_STORE=1``) the task writes
+an artifact shard into the store itself and only its digest and size come back
+(:class:`jobapi.executor.StoreShard`). So resumption, cancellation and the bytes of every
+artifact do not depend on the backend; only where the arithmetic runs (and, with a shared
+store, where the bytes are written) does.
 
 - Items are what the kinds already hand the pool: small parameter records, seeds and paths,
   never the data set's arrays (a shard *returns* its bytes).
@@ -66,7 +69,10 @@ class RayExecutor:
     ``num_cpus`` CPUs, owned and shut down by this executor); ``max_retries`` bounds the
     re-runs of one shard after a node or worker failure or a transient error;
     ``auth_mode`` is ``RAY_AUTH_MODE`` as configured (only to warn when it is not
-    ``token``); ``setup`` runs in the Ray worker before each shard (:func:`run_shard`). Ray
+    ``token``); ``setup`` runs in the Ray worker before each shard (:func:`run_shard`);
+    ``shared_store``: every node mounts the job's store at the same path, so the shard
+    tasks store their own results and return digests (``MATFORGE_SHARED_STORE``,
+    :mod:`jobapi.executor`). Ray
     is joined by :meth:`start` (else on the first map) and reused
     afterwards; a Ray already initialised in this process (a test's fixture) is used as it
     is, and left running by :meth:`close`.
@@ -82,9 +88,11 @@ class RayExecutor:
         max_retries: int = 3,
         auth_mode: str | None = None,
         setup: Setup | None = None,
+        shared_store: bool = False,
     ) -> None:
         self.address = address
         self.setup = setup
+        self.shared_store = shared_store
         self.num_cpus = max(1, num_cpus)
         self.max_retries = max(0, max_retries)
         self.auth_mode = auth_mode
@@ -161,7 +169,12 @@ class RayExecutor:
                     item = pickle.dumps(items[next_i], protocol=5)
                     pending[task.remote(fn_ref, item, self.setup)] = next_i
                     next_i += 1
-                ready, _ = ray.wait(list(pending), num_returns=1)
+                refs = list(pending)
+                ready, _ = ray.wait(refs, num_returns=1)
+                if len(refs) > 1:  # every finished shard, not one per scan of the list
+                    more, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+                    first = set(ready)
+                    ready += [r for r in more if r not in first]
                 for ref in ready:
                     i = pending.pop(ref)
                     yield i, self._result(ref, i)

@@ -96,3 +96,83 @@ def test01_two_nodes_then_one_lost_mid_job(
     on_pool = run_in_process(probe_spec(local, n=6), settings)
     assert on_pool.state == "succeeded", on_pool.error
     assert digests(job) == digests(on_pool) and len(digests(job)) == 6
+
+
+def test02_shards_stored_by_their_tasks_on_both_nodes(
+    cluster, probe_kind, settings: Settings, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``MATFORGE_SHARED_STORE=1``: both nodes' tasks write their shards into the store
+    directory both use, the job's process writes none of them, and the digests are the
+    process pool's (which stores the returned bytes itself). Then a job interrupted after
+    two recorded shards resumes without computing them again."""
+    from jobapi.context import JobContext, NullMonitor
+    from service.workers.executors import make_executor
+    from storage.artifacts import ArtifactStore, ObjectInfo
+    from storage.jobs import JobStore
+    from tests.helpers.ray_probe import ProbeItem, probe_shard
+
+    shared = settings.with_(executor="ray", shared_store=True)
+    (worker_node,) = cluster.worker_nodes
+    head_id, worker_id = cluster.head_node.node_id, worker_node.node_id
+    written: list[str] = []  # objects this (the job's) process wrote itself
+    put = ArtifactStore.put_bytes
+
+    def counting_put(self: ArtifactStore, data: bytes) -> ObjectInfo:
+        info = put(self, data)
+        written.append(info.digest)
+        return info
+
+    spread = tmp_path / "spread"
+    spread.mkdir()
+    with monkeypatch.context() as m:
+        m.setattr(ArtifactStore, "put_bytes", counting_put)
+        job = run_in_process(probe_spec(spread, n=4, sleep=0.5), shared)
+    assert job.state == "succeeded", job.error
+    assert {node for v in calls(spread).values() for node in v} == {head_id, worker_id}
+    shard_digests = set(digests(job).values())
+    assert len(shard_digests) == 4 and not shard_digests & set(written)
+    assert manifest(shared, job)["executor_nodes"] == 2
+
+    local = tmp_path / "local"
+    local.mkdir()
+    on_pool = run_in_process(probe_spec(local, n=4), settings)
+    assert on_pool.state == "succeeded", on_pool.error
+    assert digests(job) == digests(on_pool)
+
+    # Interrupted after its second recorded shard (the job's thread dies, as a killed
+    # worker's would), then run again: the two are registered, not computed again.
+    class CrashAfter(NullMonitor):
+        def __init__(self, n: int) -> None:
+            super().__init__()
+            self.n = n
+
+        def report(self, progress: float, message: str | None) -> None:
+            self.n -= 1
+            if self.n == 0:
+                raise KeyboardInterrupt  # not an Exception: nothing on the way catches it
+
+    resumed = tmp_path / "resumed"
+    resumed.mkdir()
+    jobs, store = JobStore(shared.db_path), ArtifactStore(shared.store_dir)
+    queued, _ = jobs.submit(kind="probe", name=None, seed=3, spec_hash="1" * 64, spec={})
+    items = [ProbeItem(i, 3, 0.2, str(resumed), False, False) for i in range(4)]
+    names = [f"probe-{i:03d}.bin" for i in range(4)]
+    executor = make_executor("ray", shared_store=True)
+
+    def ctx(monitor: NullMonitor) -> JobContext:
+        return JobContext(
+            job_id=queued.id, seed=3, spec={}, store=store, jobs=jobs, workdir=tmp_path,
+            monitor=monitor, executor=executor,
+        )  # fmt: skip
+
+    with pytest.raises(KeyboardInterrupt):
+        ctx(CrashAfter(3)).map_artifact_shards(probe_shard, items, names)
+    recorded = jobs.shards(queued.id)
+    assert len(recorded) == 2
+    first = set(calls(resumed))
+    records = ctx(NullMonitor()).map_artifact_shards(probe_shard, items, names)
+    again = calls(resumed)
+    assert all(len(again[int(n[6:9])]) == 1 for n in recorded)  # not run a second time
+    assert set(again) == set(range(4)) and first <= set(again)
+    assert {r.name: r.digest for r in records} == digests(on_pool)
+    jobs.close()

@@ -110,10 +110,17 @@ def test04_finished_shards_are_not_redone(ray_local, probe_kind, settings, tmp_p
     assert digests(job)["probe-001.bin"] == sentinel
 
 
-def test05_generate_fabric_same_bytes_as_the_process_pool(ray_local, settings) -> None:
+@pytest.mark.parametrize("shared_store", [False, True])
+def test05_generate_fabric_same_bytes_as_the_process_pool(
+    ray_local, settings, shared_store: bool
+) -> None:
+    """With ``shared_store`` the Ray tasks write the npz shards into the store themselves
+    (``MATFORGE_SHARED_STORE=1``); the pool's job stores the returned bytes."""
     spec = {"kind": "generate.fabric", "seed": 11, "params": FABRIC}
     on_pool = run_in_process(spec, settings.with_(executor="process"))
-    on_ray = run_in_process({**spec, "force": True}, settings.with_(executor="ray"))
+    on_ray = run_in_process(
+        {**spec, "force": True}, settings.with_(executor="ray", shared_store=shared_store)
+    )
     assert on_pool.state == on_ray.state == "succeeded", (on_pool.error, on_ray.error)
     assert on_ray.id != on_pool.id
     assert len([n for n in digests(on_ray) if n.startswith("shard-")]) == 4

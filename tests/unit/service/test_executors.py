@@ -78,3 +78,24 @@ def test06_abort_frees_a_map_blocked_on_the_pool() -> None:
         assert sorted(r for _, r in ex.map(abs, [-1, -2])) == [1, 2]
     finally:
         ex.close()
+
+
+def test06_shared_store_is_an_explicit_flag_that_reaches_the_executors() -> None:
+    """``MATFORGE_SHARED_STORE``: off unless said; then the pool and Ray backends both
+    let their shards store their own results, and a worker process gets the same."""
+    from jobapi.executor import uses_shared_store
+    from service.workers.ray_executor import RayExecutor
+
+    default = Settings.from_env({})
+    assert default.shared_store is False
+    assert not uses_shared_store(executor_for(default))
+    for raw in ("1", "true", "YES"):
+        s = Settings.from_env({"MATFORGE_SHARED_STORE": raw, "MATFORGE_EXECUTOR": "ray"})
+        ex = executor_for(s)
+        assert isinstance(ex, RayExecutor) and uses_shared_store(ex)
+        assert Settings.from_env(s.to_env()).shared_store is True
+        assert uses_shared_store(executor_for(s.with_(executor="process")))
+    assert Settings.from_env({"MATFORGE_SHARED_STORE": "0"}).shared_store is False
+    assert Settings.from_env(default.to_env()).shared_store is False
+    with pytest.raises(ValueError, match="MATFORGE_SHARED_STORE='maybe' is not a flag"):
+        Settings.from_env({"MATFORGE_SHARED_STORE": "maybe"})
