@@ -61,7 +61,7 @@ PAPER_QUERIES = 3_276_800
 PAPER_SAMPLES = 2048
 PAPER_HOURS = 165.0
 NODES = (1, 32, 128)
-#: Shards in flight for the ``ray.wait`` timing (2 x CPUs: 2 to 2,000 two-core nodes).
+#: Shards in flight for the ``ray.wait`` timing (2 x CPUs: 1 to 1,000 two-core nodes).
 WAIT_IN_FLIGHT = (4, 400, 4000)
 
 
