@@ -132,8 +132,12 @@ class ArtifactStore:
         try:
             st = p.stat()
         except FileNotFoundError:
+            for folder in (p.parent.parent, p.parent):  # the fan-out folder may be new too
+                try:
+                    os.listdir(folder)
+                except FileNotFoundError:
+                    pass
             try:
-                os.listdir(p.parent)
                 st = p.stat()
             except FileNotFoundError:
                 raise NotFoundError(

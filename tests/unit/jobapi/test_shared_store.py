@@ -163,3 +163,19 @@ def test04_check_stored_is_a_stat_not_a_hash(tmp_path: Path) -> None:
 def test05_store_shard_refuses_a_result_that_is_not_bytes(tmp_path: Path) -> None:
     with pytest.raises(TypeError, match="returned int, not bytes"):
         StoreShard(len, str(tmp_path))("abc")
+
+
+def test06_the_process_pool_stores_in_its_processes_too(tmp_path: Path) -> None:
+    """``MATFORGE_SHARED_STORE=1`` with the local pool: :class:`StoreShard` pickles into
+    spawned processes, which store the shards; the records equal the inline path's."""
+    from service.workers.executors import LocalPoolExecutor
+
+    pool = LocalPoolExecutor(2, shared_store=True)
+    before = len(CALLS)
+    try:
+        records = context(tmp_path / "pool", pool).map_artifact_shards(shard, range(4), NAMES[:4])
+    finally:
+        pool.close()
+    assert len(CALLS) == before  # the shards ran in the pool's processes, not here
+    plain = context(tmp_path / "plain", InlineExecutor())
+    assert records == plain.map_artifact_shards(shard, range(4), NAMES[:4])
