@@ -23,11 +23,13 @@ ObjectInfo`: the job's thread records digests instead of writing every shard its
 
 from __future__ import annotations
 
+import socket
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from storage.artifacts import ArtifactStore, ObjectInfo
+from storage.errors import NotFoundError
 
 
 class Executor(Protocol):
@@ -99,4 +101,11 @@ class StoreShard:
                 f"shard function {getattr(self.fn, '__name__', self.fn)!r} returned "
                 f"{type(data).__name__}, not bytes"
             )
-        return ArtifactStore(self.root).put_bytes(bytes(data))
+        try:
+            store = ArtifactStore(self.root, create=False)
+        except NotFoundError as exc:
+            raise NotFoundError(
+                f"{exc} ({socket.gethostname()}): with MATFORGE_SHARED_STORE=1 every node "
+                "must mount the store at that path"
+            ) from None
+        return store.put_bytes(bytes(data))

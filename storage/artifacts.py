@@ -95,12 +95,18 @@ def _fsync_dir(path: Path) -> None:
 
 
 class ArtifactStore:
-    """A content-addressed object store rooted at ``root``."""
+    """A content-addressed object store rooted at ``root``. ``create=False`` opens an
+    existing store only (a shard task on another node, which must not make a store of its
+    own where the shared one is not mounted): :class:`NotFoundError` if it is not there."""
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, *, create: bool = True) -> None:
         self.root = Path(root)
         self.objects = self.root / "objects"
         self.tmp = self.root / "tmp"
+        if not create:
+            if not (self.objects.is_dir() and self.tmp.is_dir()):
+                raise NotFoundError(f"no artifact store at {self.root} on this machine")
+            return
         self.objects.mkdir(parents=True, exist_ok=True)
         self.tmp.mkdir(parents=True, exist_ok=True)
 

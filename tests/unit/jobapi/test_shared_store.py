@@ -40,7 +40,7 @@ class SharedInline(InlineExecutor):
 
 class ElsewhereStore(InlineExecutor):
     """Declares a shared store, but its shards write into another directory: a node that
-    does not in fact mount the job's store."""
+    does not in fact see the job's store at its path."""
 
     shared_store = True
 
@@ -137,6 +137,9 @@ def test02_a_crash_mid_job_loses_no_recorded_shard(tmp_path: Path) -> None:
 
 
 def test03_a_store_that_is_not_shared_fails_the_job_naming_it(tmp_path: Path) -> None:
+    """The node has a store of its own at the path (a local directory where the mount
+    should be): its shards' objects are not where the job looks."""
+    ArtifactStore(tmp_path / "node-local")
     ctx = context(tmp_path, ElsewhereStore(tmp_path / "node-local"))
     with pytest.raises(JobFailed, match="MATFORGE_SHARED_STORE=1 every node must mount"):
         ctx.map_artifact_shards(shard, range(2), NAMES[:2])
@@ -179,3 +182,12 @@ def test06_the_process_pool_stores_in_its_processes_too(tmp_path: Path) -> None:
     assert len(CALLS) == before  # the shards ran in the pool's processes, not here
     plain = context(tmp_path / "plain", InlineExecutor())
     assert records == plain.map_artifact_shards(shard, range(4), NAMES[:4])
+
+
+def test07_a_node_without_the_store_refuses_to_make_one(tmp_path: Path) -> None:
+    """A shard task where the shared store is not mounted fails, naming the path, and
+    leaves no store of its own there."""
+    root = tmp_path / "not-mounted" / "store"
+    with pytest.raises(NotFoundError, match="no artifact store at .*not-mounted.*must mount"):
+        StoreShard(shard, str(root))(0)
+    assert not root.exists()
