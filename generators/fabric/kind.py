@@ -42,8 +42,9 @@ then the preview; each report also honours a cancel.
 Modules: the params model, presets and material plan are in :mod:`generators.fabric.params`
 (re-exported here), the query designs in :mod:`generators.fabric.queries` and
 :mod:`generators.fabric.scene_queries`, the pictures in
-:mod:`generators.fabric.preview`; this module holds the shard function, the runner and the
-kind's registration.
+:mod:`generators.fabric.preview`, the shard function in :mod:`generators.fabric.shards`;
+this module draws the materials (:func:`plan_materials`) and holds the runner, its steps
+and the kind's registration.
 """
 
 from __future__ import annotations
@@ -51,8 +52,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
 
 from generators.fabric.params import (
     MAX_MATERIALS,
@@ -76,15 +75,11 @@ from generators.fabric.preview import (
     map_images,
     preview_png,
 )
-from generators.fabric.queries import design_queries
 from generators.fabric.rows import fabric_stats_rows
-from generators.fabric.scene_queries import SceneDesign, scene_queries
+from generators.fabric.shards import ShardTask, estimate_shard, estimate_shards
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
-from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.params import FabricParams, YarnPair, sample_params
-from materials.fabric.yarn import YarnGeometry
-from storage.formats.npz import npz_bytes
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -169,24 +164,6 @@ def params_record(p: FabricParams) -> dict[str, Any]:
     return rec
 
 
-@dataclass(frozen=True)
-class ShardTask:
-    """One shard: queries ``first .. first + count - 1`` of material ``material``."""
-
-    material: int
-    params: FabricParams
-    design_seed: int
-    first: int
-    count: int
-    btdf_fraction: float
-    samples: int
-    sampler: str
-    sample_seed: int
-    backend: str
-    sizes: str = "strata"
-    scene: SceneDesign | None = None
-
-
 def _config_doc(cfg: Resolved) -> dict[str, Any]:
     """``materials.json``'s ``config``; ``sizes`` only when not the paper's strata and
     ``scene`` only when set (so a default job's ``materials.json`` keeps its bytes); with a
@@ -204,54 +181,26 @@ def _config_doc(cfg: Resolved) -> dict[str, Any]:
     return doc
 
 
-def _queries(task: ShardTask) -> Any:
-    """The shard's queries: the scene's (:mod:`generators.fabric.scene_queries`) or the
-    Sec. 5.1 design's (:mod:`generators.fabric.queries`)."""
-    if task.scene is not None:
-        tw, th = YarnGeometry.from_params(task.params).tile
-        return scene_queries(
-            task.scene, task.design_seed, task.first, task.count, tile_aspect=tw / th
-        )
-    return design_queries(
-        task.design_seed, task.first, task.count, btdf_fraction=task.btdf_fraction,
-        sizes=task.sizes,
-    )  # fmt: skip
-
-
-def estimate_shard(task: ShardTask) -> bytes:
-    """Shard function: design and estimate the queries; the shard's ``.npz`` bytes."""
-    q = _queries(task)
-    # Store float32 and estimate at exactly the stored values.
-    centre, size = q.centre.astype(np.float32), q.size.astype(np.float32)
-    wi, wo = q.wi.astype(np.float32), q.wo.astype(np.float32)
-    est = estimate(
-        task.params,
-        FootprintQueries(centre, size, wi, wo),
-        samples=task.samples,
-        sampler=task.sampler,  # type: ignore[arg-type]
-        seed=task.sample_seed,
-        replicates=REPLICATES,
-        backend=task.backend,  # type: ignore[arg-type]
-    )
-    return npz_bytes(
-        {
-            "material": np.full(task.count, task.material, dtype=np.int32),
-            "center": centre,
-            "size": size,
-            "wi": wi,
-            "wo": wo,
-            "value": est.mean.astype(np.float32),
-            "stderr": est.stderr.astype(np.float32),
-        }
-    )
-
-
 def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
     """Plan materials, write their maps, estimate every shard, then preview and stats."""
     started = time.perf_counter()
     cfg = params.resolved()
     ctx.progress(0.0, "planning materials")
     planned = plan_materials(cfg, ctx)
+    tasks, owners = _shard_tasks(cfg, planned, ctx)
+    records = _write_maps(cfg, planned, owners, ctx)
+    ctx.progress(0.02, f"{len(planned)} material(s), {len(tasks)} shard(s)")
+    estimate_shards(tasks, BATCH_SHARDS, ctx)
+    ctx.progress(0.95, "preview")
+    previewed = _write_preview(planned, ctx)
+    _write_materials_doc(params, cfg, records, previewed, ctx)
+    _write_stats(cfg, planned, started, ctx)
+
+
+def _shard_tasks(
+    cfg: Resolved, planned: list[PlannedFabric], ctx: JobContext
+) -> tuple[list[ShardTask], list[list[str]]]:
+    """Every shard's task, numbered across materials, and each material's shard names."""
     tasks: list[ShardTask] = []
     owners: list[list[str]] = []
     for i, m in enumerate(planned):
@@ -275,6 +224,14 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
                 )
             )
         owners.append(names)
+    return tasks, owners
+
+
+def _write_maps(
+    cfg: Resolved, planned: list[PlannedFabric], owners: list[list[str]], ctx: JobContext
+) -> list[dict[str, Any]]:
+    """Write each material's normal and orientation maps (progress 0 - 0.02); returns the
+    materials' records for ``materials.json``."""
     records = []
     for i, (m, shards) in enumerate(zip(planned, owners, strict=True)):
         # Paper scale: 465 materials x ~0.1 s of maps each; report (and honour cancel).
@@ -298,28 +255,31 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
                 "shards": shards,
             }
         )
-    ctx.progress(0.02, f"{len(planned)} material(s), {len(tasks)} shard(s)")
-    for lo in range(0, len(tasks), BATCH_SHARDS):
-        batch = tasks[lo : lo + BATCH_SHARDS]
-        hi = lo + len(batch)
-        # Each shard is stored once, as its npz artifact, which is also its shard record
-        # (a re-run after a crash registers the stored shards again instead of computing
-        # them); no pickled copy of the result beside it.
-        ctx.map_artifact_shards(
-            estimate_shard,
-            batch,
-            [f"shard-{i:04d}.npz" for i in range(lo, hi)],
-            media_type="application/x-npz",
-            label="shard",
-            progress_range=(0.02 + 0.93 * lo / len(tasks), 0.02 + 0.93 * hi / len(tasks)),
-        )
-    ctx.progress(0.95, "preview")
+    return records
+
+
+def _write_preview(planned: list[PlannedFabric], ctx: JobContext) -> list[PlannedFabric]:
+    """Write ``preview.png`` (each pattern's first material, up to :data:`PREVIEW_ROWS`);
+    returns the materials shown."""
     first_of_pattern = [m for m in planned if m.texture_set == 0 and m.shading_set == 0]
+    shown = first_of_pattern[:PREVIEW_ROWS]
     ctx.put_bytes(
         "preview.png",
-        preview_png(first_of_pattern[:PREVIEW_ROWS], ctx.sub_seed("generate.fabric/preview")),
+        preview_png(shown, ctx.sub_seed("generate.fabric/preview")),
         "image/png",
     )
+    return shown
+
+
+def _write_materials_doc(
+    params: FabricGenParams,
+    cfg: Resolved,
+    records: list[dict[str, Any]],
+    previewed: list[PlannedFabric],
+    ctx: JobContext,
+) -> None:
+    """Write ``materials.json``: the materials' records, the config and the preview's
+    materials and directions."""
     ctx.put_json(
         "materials.json",
         {
@@ -328,7 +288,7 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
             "preset": params.preset,
             "config": _config_doc(cfg),
             "preview": {
-                "materials": [m.name for m in first_of_pattern[:PREVIEW_ROWS]],
+                "materials": [m.name for m in previewed],
                 "footprint_size": PREVIEW_SIZE,
                 "wi": _PREVIEW_WI.tolist(),
                 "wo": _PREVIEW_WO.tolist(),
@@ -336,6 +296,13 @@ def run_generate_fabric(params: FabricGenParams, ctx: JobContext) -> None:
             },
         },
     )
+
+
+def _write_stats(
+    cfg: Resolved, planned: list[PlannedFabric], started: float, ctx: JobContext
+) -> None:
+    """Write ``stats.json`` (counts only), measure the throughput since ``started`` (a
+    ``time.perf_counter()``) into the manifest, and report the end (progress 1)."""
     seconds = time.perf_counter() - started
     samples = len(planned) * cfg.queries * cfg.samples
     # The throughput is a timing: in the manifest (timings.measured.throughput), not in

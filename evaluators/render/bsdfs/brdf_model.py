@@ -38,7 +38,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
+from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
 from evaluators.render.plugins import register_vectorised_bsdf
 from models.brdf.fused import BakedMaterial, bake_material, model_brdf, read_model
 
@@ -55,77 +55,76 @@ def register_model_bsdf(mi: types.ModuleType) -> type:
     Idempotent per variant; returns the class. Needs a vectorised RGB variant
     (``llvm_ad_rgb``, ``cuda_ad_rgb``); raises ``RuntimeError`` otherwise.
     """
-    return register_vectorised_bsdf(mi, MODEL_BSDF_NAME, _define_class, "model BSDF")
+    return register_vectorised_bsdf(mi, MODEL_BSDF_NAME, ModelBSDF, "model BSDF")
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class ModelBSDF(MixtureReflector):
+    """One material of a trained BRDF model (plugin ``"brdf_model"``).
 
-    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+    ====================  =======  ========  ============================================
+    parameter             type     default   meaning
+    ====================  =======  ========  ============================================
+    ``filename``          string   --        a ``model.json`` (``matforge.brdf-model/1``)
+    ``material``          string   --        the material's name in the model
+    ``neural_max_depth``  int      none      a rendering hint, stored as the attribute
+                                             of that name: :func:`evaluators.
+                                             neural_depth_integrator.integrator_for`
+                                             reads it to pick the integrator; the BSDF
+                                             itself only obeys :data:`ANALYTIC_ONLY`
+    ====================  =======  ========  ============================================
 
-    class ModelBSDF(mixture_reflector_base(mi)):  # type: ignore[misc]
-        """One material of a trained BRDF model (plugin ``"brdf_model"``).
+    Example (XML, as the chi-square harness loads it)::
 
-        ====================  =======  ========  ============================================
-        parameter             type     default   meaning
-        ====================  =======  ========  ============================================
-        ``filename``          string   --        a ``model.json`` (``matforge.brdf-model/1``)
-        ``material``          string   --        the material's name in the model
-        ``neural_max_depth``  int      none      a rendering hint, stored as the attribute
-                                                 of that name: :func:`evaluators.
-                                                 neural_depth_integrator.integrator_for`
-                                                 reads it to pick the integrator; the BSDF
-                                                 itself only obeys :data:`ANALYTIC_ONLY`
-        ====================  =======  ========  ============================================
+        <bsdf type="brdf_model"><string name="filename" value="model.json"/>
+            <string name="material" value="gold"/></bsdf>
+    """
 
-        Example (XML, as the chi-square harness loads it)::
-
-            <bsdf type="brdf_model"><string name="filename" value="model.json"/>
-                <string name="material" value="gold"/></bsdf>
-        """
-
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            if "filename" not in props or "material" not in props:
-                raise ValueError("brdf_model: 'filename' and 'material' are required")
-            doc = read_model(str(props["filename"]))
-            self.material: BakedMaterial = bake_material(doc, str(props["material"]))
-            depth = props.get("neural_max_depth", None)
-            if depth is not None and (int(depth) < 0 or not self.material.has_analytic):
-                raise ValueError(
-                    "brdf_model: neural_max_depth needs a model with an analytic part "
-                    "(hybrid) and a value >= 0"
-                )
-            self.neural_max_depth: int | None = None if depth is None else int(depth)
-            self.specular_weight = self.material.specular_weight
-            alpha = self.material.alpha if self.material.alpha is not None else 1.0
-            self.sampling = MixtureSampling(alpha, self.specular_weight)
-            self.m_flags = flags
-            self.m_components = [flags]
-
-        # -- the model ------------------------------------------------------------------------
-        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
-            """``f`` (1/sr, ``Color3f``); ``f_a`` alone under :data:`ANALYTIC_ONLY`."""
-            # Decided at trace time: never raise here. Mitsuba traces every live instance of
-            # a BSDF into every render kernel's call table, used by the scene or not.
-            active = active & (wi.z > 0.0) & (wo.z > 0.0)
-            neural = not int(ctx.type_mask) & ANALYTIC_ONLY
-            value = model_brdf(mi, self.material, wi, wo, neural=neural)
-            return dr.select(active, value, 0.0)
-
-        def enabled(self, ctx: Any, active: Any) -> Any:
-            """``active`` where the context asks for glossy or diffuse reflection."""
-            enabled = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-                mi.BSDFFlags.DiffuseReflection, 0
+    def __init__(self, props: Any) -> None:
+        MixtureReflector.__init__(self, props)
+        mi = self.mi
+        flags = (
+            mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        )
+        if "filename" not in props or "material" not in props:
+            raise ValueError("brdf_model: 'filename' and 'material' are required")
+        doc = read_model(str(props["filename"]))
+        self.material: BakedMaterial = bake_material(doc, str(props["material"]))
+        depth = props.get("neural_max_depth", None)
+        if depth is not None and (int(depth) < 0 or not self.material.has_analytic):
+            raise ValueError(
+                "brdf_model: neural_max_depth needs a model with an analytic part "
+                "(hybrid) and a value >= 0"
             )
-            return active & enabled
+        self.neural_max_depth: int | None = None if depth is None else int(depth)
+        self.specular_weight = self.material.specular_weight
+        alpha = self.material.alpha if self.material.alpha is not None else 1.0
+        self.sampling = MixtureSampling(alpha, self.specular_weight)
+        self.m_flags = flags
+        self.m_components = [flags]
 
-        def to_string(self) -> str:
-            m = self.material
-            return (
-                f"ModelBSDF[{m.model} {m.name!r}, alpha={m.alpha}, "
-                f"specular_weight={self.specular_weight:.3g}, "
-                f"neural_max_depth={self.neural_max_depth}]"
-            )
+    # -- the model ------------------------------------------------------------------------
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+        """``f`` (1/sr, ``Color3f``); ``f_a`` alone under :data:`ANALYTIC_ONLY`."""
+        mi, dr = self.mi, self.dr
+        # Decided at trace time: never raise here. Mitsuba traces every live instance of
+        # a BSDF into every render kernel's call table, used by the scene or not.
+        active = active & (wi.z > 0.0) & (wo.z > 0.0)
+        neural = not int(ctx.type_mask) & ANALYTIC_ONLY
+        value = model_brdf(mi, self.material, wi, wo, neural=neural)
+        return dr.select(active, value, 0.0)
 
-    return ModelBSDF
+    def enabled(self, ctx: Any, active: Any) -> Any:
+        """``active`` where the context asks for glossy or diffuse reflection."""
+        mi = self.mi
+        enabled = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
+            mi.BSDFFlags.DiffuseReflection, 0
+        )
+        return active & enabled
+
+    def to_string(self) -> str:
+        m = self.material
+        return (
+            f"ModelBSDF[{m.model} {m.name!r}, alpha={m.alpha}, "
+            f"specular_weight={self.specular_weight:.3g}, "
+            f"neural_max_depth={self.neural_max_depth}]"
+        )

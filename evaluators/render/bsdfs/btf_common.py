@@ -27,10 +27,10 @@ Sampling
 
 from __future__ import annotations
 
-import types
 from typing import Any
 
-from evaluators.render.bsdfs.common import class_for_variant, sample_record
+from evaluators.render.bsdfs.common import sample_record
+from evaluators.render.plugins import VariantPlugin
 
 
 def uv_scale_of(props: Any) -> tuple[float, float]:
@@ -43,77 +43,73 @@ def uv_scale_of(props: Any) -> tuple[float, float]:
     return su, sv
 
 
-def btf_reflector_base(mi: types.ModuleType) -> type:
-    """The base class (for Mitsuba's current variant, cached) of a BTF BSDF.
+class BtfReflector(VariantPlugin):
+    """A BTF as a one-sided reflector (see the module docstring).
 
     A subclass sets ``self.uv_scale`` (``(s_u, s_v)``) in ``__init__`` and defines
     ``btf(uv, light, view, active)``: the BTF (``mi.Color3f``, foreshortening included) at
     patch coordinates ``uv`` (``mi.Point2f``, periodic) for local unit vectors ``light``
     and ``view`` (``mi.Vector3f``, both above the plane where ``active``).
     """
-    return class_for_variant(mi, _define_base)
 
+    uv_scale: tuple[float, float] = (1.0, 1.0)
 
-def _define_base(mi: types.ModuleType) -> type:
-    import drjit as dr
+    def __init__(self, props: Any) -> None:
+        VariantPlugin.__init__(self, props)
+        mi = self.mi
+        flags = (
+            mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        )
+        self.m_flags = flags
+        self.m_components = [flags]
 
-    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+    def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
+        """The BTF (``mi.Color3f``); defined by the subclass."""
+        raise NotImplementedError
 
-    class BtfReflector(mi.BSDF):  # type: ignore[name-defined]
-        """A BTF as a one-sided reflector (see the module docstring)."""
+    def _enabled(self, ctx: Any, active: Any) -> Any:
+        mi = self.mi
+        on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
+            mi.BSDFFlags.DiffuseReflection, 0
+        )
+        return active & on
 
-        uv_scale: tuple[float, float] = (1.0, 1.0)
+    def _value(self, si: Any, wo: Any, active: Any) -> Any:
+        """``BTF(uv, light = wo, view = si.wi)``, 0 below either horizon."""
+        mi, dr = self.mi, self.dr
+        active = active & (wo.z > 0.0) & (si.wi.z > 0.0)
+        # Left-handed uv (t = -dp/dv): mirror y, see the module docstring.
+        sign = dr.select(dr.dot(si.sh_frame.t, si.dp_dv) < 0.0, -1.0, 1.0)
+        light = mi.Vector3f(wo.x, wo.y * sign, wo.z)
+        view = mi.Vector3f(si.wi.x, si.wi.y * sign, si.wi.z)
+        uv = mi.Point2f(si.uv.x * self.uv_scale[0], si.uv.y * self.uv_scale[1])
+        return dr.select(active, self.btf(uv, light, view, active), 0.0)
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            self.m_flags = flags
-            self.m_components = [flags]
+    def _pdf(self, si: Any, wo: Any, active: Any) -> Any:
+        mi, dr = self.mi, self.dr
+        active = active & (wo.z > 0.0) & (si.wi.z > 0.0)
+        return dr.select(active, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
 
-        def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-            """The BTF (``mi.Color3f``); defined by the subclass."""
-            raise NotImplementedError
+    def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        """``BTF(uv, light = wo, view = si.wi)`` (already ``f cos theta_wo``)."""
+        return self._value(si, wo, self._enabled(ctx, active))
 
-        def _enabled(self, ctx: Any, active: Any) -> Any:
-            on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-                mi.BSDFFlags.DiffuseReflection, 0
-            )
-            return active & on
+    def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        """``cos(theta_wo) / pi`` above both horizons, else 0."""
+        return self._pdf(si, wo, self._enabled(ctx, active))
 
-        def _value(self, si: Any, wo: Any, active: Any) -> Any:
-            """``BTF(uv, light = wo, view = si.wi)``, 0 below either horizon."""
-            active = active & (wo.z > 0.0) & (si.wi.z > 0.0)
-            # Left-handed uv (t = -dp/dv): mirror y, see the module docstring.
-            sign = dr.select(dr.dot(si.sh_frame.t, si.dp_dv) < 0.0, -1.0, 1.0)
-            light = mi.Vector3f(wo.x, wo.y * sign, wo.z)
-            view = mi.Vector3f(si.wi.x, si.wi.y * sign, si.wi.z)
-            uv = mi.Point2f(si.uv.x * self.uv_scale[0], si.uv.y * self.uv_scale[1])
-            return dr.select(active, self.btf(uv, light, view, active), 0.0)
+    def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        """``(eval, pdf)`` in one call."""
+        active = self._enabled(ctx, active)
+        return self._value(si, wo, active), self._pdf(si, wo, active)
 
-        def _pdf(self, si: Any, wo: Any, active: Any) -> Any:
-            active = active & (wo.z > 0.0) & (si.wi.z > 0.0)
-            return dr.select(active, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
-
-        def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            """``BTF(uv, light = wo, view = si.wi)`` (already ``f cos theta_wo``)."""
-            return self._value(si, wo, self._enabled(ctx, active))
-
-        def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            """``cos(theta_wo) / pi`` above both horizons, else 0."""
-            return self._pdf(si, wo, self._enabled(ctx, active))
-
-        def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            """``(eval, pdf)`` in one call."""
-            active = self._enabled(ctx, active)
-            return self._value(si, wo, active), self._pdf(si, wo, active)
-
-        def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
-            """A cosine-weighted light direction; returns ``(BSDFSample3f, eval / pdf)``."""
-            active = self._enabled(ctx, active) & (si.wi.z > 0.0)
-            wo = mi.warp.square_to_cosine_hemisphere(sample2)
-            pdf = self._pdf(si, wo, active)
-            active &= pdf > 0.0
-            value = self._value(si, wo, active)
-            bs = sample_record(mi, wo, pdf)
-            return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
-
-    return BtfReflector
+    def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
+        """A cosine-weighted light direction; returns ``(BSDFSample3f, eval / pdf)``."""
+        mi, dr = self.mi, self.dr
+        active = self._enabled(ctx, active) & (si.wi.z > 0.0)
+        wo = mi.warp.square_to_cosine_hemisphere(sample2)
+        pdf = self._pdf(si, wo, active)
+        active &= pdf > 0.0
+        value = self._value(si, wo, active)
+        bs = sample_record(mi, wo, pdf)
+        return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)

@@ -18,7 +18,7 @@ import types
 from pathlib import Path
 from typing import Any
 
-from evaluators.render.bsdfs.btf_common import btf_reflector_base, uv_scale_of
+from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
 from evaluators.render.plugins import register_vectorised_bsdf
 
 #: The plugin name.
@@ -27,7 +27,7 @@ BTF_MODEL_NAME = "btf_model"
 
 def register_btf_model_bsdf(mi: types.ModuleType) -> type:
     """Register ``btf_model`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, BTF_MODEL_NAME, _define_class, "BTF model BSDF")
+    return register_vectorised_bsdf(mi, BTF_MODEL_NAME, BtfModelBSDF, "BTF model BSDF")
 
 
 def load_fused(mi: types.ModuleType, model_path: str, textures_path: str) -> Any:
@@ -47,37 +47,35 @@ def load_fused(mi: types.ModuleType, model_path: str, textures_path: str) -> Any
     return FusedBtf(read_model(doc, textures), mi)
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    class BtfModelBSDF(btf_reflector_base(mi)):  # type: ignore[misc]
-        """A trained BTF model (plugin ``"btf_model"``).
+class BtfModelBSDF(BtfReflector):
+    """A trained BTF model (plugin ``"btf_model"``).
 
-        ==============  ======  =======  ================================================
-        parameter       type    default  meaning
-        ==============  ======  =======  ================================================
-        ``model``       string  --       a ``model.json`` (``matforge.btf-model/1``)
-        ``textures``    string  --       its ``textures.npz``
-        ``uv_scale_u``  float   1        patch repeats per unit of u
-        ``uv_scale_v``  float   1        patch repeats per unit of v
-        ==============  ======  =======  ================================================
+    ==============  ======  =======  ================================================
+    parameter       type    default  meaning
+    ==============  ======  =======  ================================================
+    ``model``       string  --       a ``model.json`` (``matforge.btf-model/1``)
+    ``textures``    string  --       its ``textures.npz``
+    ``uv_scale_u``  float   1        patch repeats per unit of u
+    ``uv_scale_v``  float   1        patch repeats per unit of v
+    ==============  ======  =======  ================================================
 
-        Example (XML)::
+    Example (XML)::
 
-            <bsdf type="btf_model"><string name="model" value="model.json"/>
-                <string name="textures" value="textures.npz"/></bsdf>
-        """
+        <bsdf type="btf_model"><string name="model" value="model.json"/>
+            <string name="textures" value="textures.npz"/></bsdf>
+    """
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            if "model" not in props or "textures" not in props:
-                raise ValueError("btf_model: 'model' and 'textures' are required")
-            self.fused = load_fused(mi, str(props["model"]), str(props["textures"]))
-            self.uv_scale = uv_scale_of(props)
+    def __init__(self, props: Any) -> None:
+        BtfReflector.__init__(self, props)
+        mi = self.mi
+        if "model" not in props or "textures" not in props:
+            raise ValueError("btf_model: 'model' and 'textures' are required")
+        self.fused = load_fused(mi, str(props["model"]), str(props["textures"]))
+        self.uv_scale = uv_scale_of(props)
 
-        def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-            return self.fused.eval(uv, light, view)
+    def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
+        return self.fused.eval(uv, light, view)
 
-        def to_string(self) -> str:
-            h, w = self.fused.h, self.fused.w
-            return f"BtfModel[{self.fused.model.model}, {h}x{w}, uv_scale={self.uv_scale}]"
-
-    return BtfModelBSDF
+    def to_string(self) -> str:
+        h, w = self.fused.h, self.fused.w
+        return f"BtfModel[{self.fused.model.model}, {h}x{w}, uv_scale={self.uv_scale}]"

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluators.render.bsdfs.btf_common import btf_reflector_base, uv_scale_of
+from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
 from evaluators.render.plugins import register_vectorised_bsdf
 from materials.btf.angular import (
     JitDirectionMesh,
@@ -126,84 +126,80 @@ def put_table(table: BtfTable) -> str:
 
 def register_btf_table_bsdf(mi: types.ModuleType) -> type:
     """Register ``btf_table`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, BTF_TABLE_NAME, _define_class, "BTF table BSDF")
+    return register_vectorised_bsdf(mi, BTF_TABLE_NAME, BtfTableBSDF, "BTF table BSDF")
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class BtfTableBSDF(BtfReflector):
+    """A tabulated BTF (plugin ``"btf_table"``).
 
-    class BtfTableBSDF(btf_reflector_base(mi)):  # type: ignore[misc]
-        """A tabulated BTF (plugin ``"btf_table"``).
+    ==============  ======  =======  ================================================
+    parameter       type    default  meaning
+    ==============  ======  =======  ================================================
+    ``table``       string  --       key of a :class:`BtfTable` from :func:`put_table`
+    ``uv_scale_u``  float   1        patch repeats per unit of u
+    ``uv_scale_v``  float   1        patch repeats per unit of v
+    ==============  ======  =======  ================================================
 
-        ==============  ======  =======  ================================================
-        parameter       type    default  meaning
-        ==============  ======  =======  ================================================
-        ``table``       string  --       key of a :class:`BtfTable` from :func:`put_table`
-        ``uv_scale_u``  float   1        patch repeats per unit of u
-        ``uv_scale_v``  float   1        patch repeats per unit of v
-        ==============  ======  =======  ================================================
+    Example::
 
-        Example::
+        mi.load_dict({"type": "btf_table", "table": put_table(table), "uv_scale_u": 4.0,
+                      "uv_scale_v": 4.0})
+    """
 
-            mi.load_dict({"type": "btf_table", "table": put_table(table), "uv_scale_u": 4.0,
-                          "uv_scale_v": 4.0})
-        """
+    def __init__(self, props: Any) -> None:
+        BtfReflector.__init__(self, props)
+        key = str(props.get("table", ""))
+        table = _TABLES.get(key)
+        if table is None:
+            raise ValueError(f"btf_table: no table registered under {key!r}")
+        self.table: BtfTable = table
+        self.uv_scale = uv_scale_of(props)
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            key = str(props.get("table", ""))
-            table = _TABLES.get(key)
-            if table is None:
-                raise ValueError(f"btf_table: no table registered under {key!r}")
-            self.table: BtfTable = table
-            self.uv_scale = uv_scale_of(props)
+    def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
+        mi, dr = self.mi, self.dr
+        t = self.table
+        li, la = direction_weights(mi, t.lights, light, active)
+        vi, va = direction_weights(mi, t.views, view, active)
+        # Bilinear texel taps, periodic (the same four texels in every slice).
+        x = uv.x * t.width - 0.5
+        y = uv.y * t.height - 0.5
+        x0, y0 = dr.floor(x), dr.floor(y)
+        fx, fy = x - x0, y - y0
+        i0 = mi.Int32(x0) % t.width
+        j0 = mi.Int32(y0) % t.height
+        i0 = dr.select(i0 < 0, i0 + t.width, i0)
+        j0 = dr.select(j0 < 0, j0 + t.height, j0)
+        i1 = dr.select(i0 + 1 >= t.width, 0, i0 + 1)
+        j1 = dr.select(j0 + 1 >= t.height, 0, j0 + 1)
+        taps = [
+            (mi.UInt32(j0 * t.width + i0), (1.0 - fx) * (1.0 - fy)),
+            (mi.UInt32(j0 * t.width + i1), fx * (1.0 - fy)),
+            (mi.UInt32(j1 * t.width + i0), (1.0 - fx) * fy),
+            (mi.UInt32(j1 * t.width + i1), fx * fy),
+        ]
+        texels = t.height * t.width
+        acc = mi.Color3f(0.0)
+        total = mi.Float(0.0)
+        for i in range(3):
+            # Apparent BRDF interpolated, times the query's foreshortening.
+            cos_l = dr.gather(mi.Float, t.light_cos, li[i], active & (la[i] > 0.0))
+            ratio = dr.maximum(light.z, 0.0) / dr.maximum(cos_l, MIN_COS)
+            for j in range(3):
+                w = la[i] * va[j]
+                ok = active & (w > 0.0)
+                k = dr.gather(mi.Int32, t.pairs, li[i] * t.views.n + vi[j], ok)
+                ok &= k >= 0
+                total += dr.select(ok, w, 0.0)
+                base = mi.UInt32(dr.maximum(k, 0)) * texels
+                value = mi.Color3f(0.0)
+                for texel, tw in taps:
+                    value += tw * dr.gather(mi.Color3f, t.rgb, base + texel, ok & (tw > 0.0))
+                acc += dr.select(ok, w * ratio, 0.0) * value
+        return dr.select(total > 0.0, acc / dr.select(total > 0.0, total, 1.0), 0.0)
 
-        def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-            t = self.table
-            li, la = direction_weights(mi, t.lights, light, active)
-            vi, va = direction_weights(mi, t.views, view, active)
-            # Bilinear texel taps, periodic (the same four texels in every slice).
-            x = uv.x * t.width - 0.5
-            y = uv.y * t.height - 0.5
-            x0, y0 = dr.floor(x), dr.floor(y)
-            fx, fy = x - x0, y - y0
-            i0 = mi.Int32(x0) % t.width
-            j0 = mi.Int32(y0) % t.height
-            i0 = dr.select(i0 < 0, i0 + t.width, i0)
-            j0 = dr.select(j0 < 0, j0 + t.height, j0)
-            i1 = dr.select(i0 + 1 >= t.width, 0, i0 + 1)
-            j1 = dr.select(j0 + 1 >= t.height, 0, j0 + 1)
-            taps = [
-                (mi.UInt32(j0 * t.width + i0), (1.0 - fx) * (1.0 - fy)),
-                (mi.UInt32(j0 * t.width + i1), fx * (1.0 - fy)),
-                (mi.UInt32(j1 * t.width + i0), (1.0 - fx) * fy),
-                (mi.UInt32(j1 * t.width + i1), fx * fy),
-            ]
-            texels = t.height * t.width
-            acc = mi.Color3f(0.0)
-            total = mi.Float(0.0)
-            for i in range(3):
-                # Apparent BRDF interpolated, times the query's foreshortening.
-                cos_l = dr.gather(mi.Float, t.light_cos, li[i], active & (la[i] > 0.0))
-                ratio = dr.maximum(light.z, 0.0) / dr.maximum(cos_l, MIN_COS)
-                for j in range(3):
-                    w = la[i] * va[j]
-                    ok = active & (w > 0.0)
-                    k = dr.gather(mi.Int32, t.pairs, li[i] * t.views.n + vi[j], ok)
-                    ok &= k >= 0
-                    total += dr.select(ok, w, 0.0)
-                    base = mi.UInt32(dr.maximum(k, 0)) * texels
-                    value = mi.Color3f(0.0)
-                    for texel, tw in taps:
-                        value += tw * dr.gather(mi.Color3f, t.rgb, base + texel, ok & (tw > 0.0))
-                    acc += dr.select(ok, w * ratio, 0.0) * value
-            return dr.select(total > 0.0, acc / dr.select(total > 0.0, total, 1.0), 0.0)
-
-        def to_string(self) -> str:
-            t = self.table
-            return (
-                f"BtfTable[{t.count} slices of {t.height}x{t.width}, {t.lights.n} lights x "
-                f"{t.views.n} views, uv_scale={self.uv_scale}]"
-            )
-
-    return BtfTableBSDF
+    def to_string(self) -> str:
+        t = self.table
+        return (
+            f"BtfTable[{t.count} slices of {t.height}x{t.width}, {t.lights.n} lights x "
+            f"{t.views.n} views, uv_scale={self.uv_scale}]"
+        )

@@ -9,32 +9,20 @@ drawn with probability ``specular_weight``; a weight of 0 samples the cosine lob
 
 Directions are in the local shading frame, z up, Dr.Jit arrays of the current variant;
 both BSDFs are one-sided reflectors, so the density is 0 when ``wi.z <= 0`` or ``wo.z <= 0``.
-:func:`mixture_reflector_base` is their shared base class: it owns the ``mi.BSDF`` interface
+:class:`MixtureReflector` is their shared base class: it owns the ``mi.BSDF`` interface
 (``eval``, ``pdf``, ``eval_pdf``, ``sample``), and a subclass supplies the plain BRDF.
+:class:`~evaluators.render.plugins.VariantPlugin` and
+:func:`~evaluators.render.plugins.class_for_variant` turn such a module-level class into the
+per-variant ``mi.BSDF`` subclass that Mitsuba instantiates.
 """
 
 from __future__ import annotations
 
 import types
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-#: Classes made by :func:`class_for_variant`, by (defining function, Mitsuba variant).
-_VARIANT_CLASSES: dict[tuple[str, str], type] = {}
-
-
-def class_for_variant(mi: types.ModuleType, define: Callable[[types.ModuleType], type]) -> type:
-    """The class ``define(mi)`` makes, made once per Mitsuba variant and then reused.
-
-    A Python BSDF derives from the current variant's ``mi.BSDF``, so its class is defined
-    inside a function of the ``mitsuba`` module (``define``) and each variant gets its own.
-    """
-    key = (f"{define.__module__}.{define.__qualname__}", str(mi.variant()))
-    cls = _VARIANT_CLASSES.get(key)
-    if cls is None:
-        cls = _VARIANT_CLASSES[key] = define(mi)
-    return cls
+from evaluators.render.plugins import VariantPlugin, class_for_variant
 
 
 @dataclass(frozen=True)
@@ -92,61 +80,60 @@ def sample_record(mi: types.ModuleType, wo: Any, pdf: Any, sampled_type: Any = N
     return bs
 
 
-def mixture_reflector_base(mi: types.ModuleType) -> type:
-    """The base class, for Mitsuba's current variant (cached), of a one-sided reflector
-    sampled by :class:`MixtureSampling`.
+class MixtureReflector(VariantPlugin):
+    """A one-sided reflector sampled by :class:`MixtureSampling` (the module docstring).
 
-    A subclass sets ``self.sampling`` (a :class:`MixtureSampling`), ``m_flags`` and
+    It owns the ``mi.BSDF`` interface (``eval``, ``pdf``, ``eval_pdf``, ``sample``). A
+    subclass sets ``self.sampling`` (a :class:`MixtureSampling`), ``m_flags`` and
     ``m_components`` in ``__init__``, and defines ``brdf(ctx, wi, wo, active)``: the plain
     BRDF ``f`` (1/sr, ``mi.Color3f``, no cosine), 0 below the horizon. It may override
     ``enabled(ctx, active)`` (default: the context enables glossy reflection).
     """
-    return class_for_variant(mi, _define_reflector)
+
+    sampling: MixtureSampling
+
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+        """The plain BRDF ``f`` (1/sr, ``mi.Color3f``); defined by the subclass."""
+        raise NotImplementedError
+
+    def enabled(self, ctx: Any, active: Any) -> Any:
+        """``active`` where the context asks for this BSDF's lobe."""
+        return active & ctx.is_enabled(self.mi.BSDFFlags.GlossyReflection, 0)
+
+    def _pdf(self, wi: Any, wo: Any, active: Any) -> Any:
+        return self.sampling.pdf(self.mi, wi, wo, active)
+
+    def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        """``f(wi, wo) cos theta_o`` (Mitsuba's convention), ``mi.Spectrum``."""
+        dr = self.dr
+        active = self.enabled(ctx, active)
+        return self.brdf(ctx, si.wi, wo, active) * dr.maximum(wo.z, 0.0)
+
+    def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        """Solid-angle density of :meth:`sample` at ``wo``; 0 below the horizon."""
+        return self._pdf(si.wi, wo, self.enabled(ctx, active))
+
+    def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        """``(eval, pdf)`` in one call."""
+        dr = self.dr
+        active = self.enabled(ctx, active)
+        value = self.brdf(ctx, si.wi, wo, active) * dr.maximum(wo.z, 0.0)
+        return value, self._pdf(si.wi, wo, active)
+
+    def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
+        """Draw ``wo`` from the mixture; returns ``(BSDFSample3f, f cos / pdf)``."""
+        mi, dr = self.mi, self.dr
+        active = self.enabled(ctx, active) & (si.wi.z > 0.0)
+        wi = si.wi
+        wo = self.sampling.sample(mi, wi, sample1, sample2)
+        pdf = self._pdf(wi, wo, active)
+        active &= pdf > 0.0
+        value = self.brdf(ctx, wi, wo, active) * dr.maximum(wo.z, 0.0)
+        bs = sample_record(mi, wo, pdf)
+        return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
 
 
-def _define_reflector(mi: types.ModuleType) -> type:
-    import drjit as dr
-
-    class MixtureReflector(mi.BSDF):  # type: ignore[name-defined]
-        """One-sided reflector with GGX/cosine mixture sampling (see the module docstring)."""
-
-        sampling: MixtureSampling
-
-        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
-            """The plain BRDF ``f`` (1/sr, ``mi.Color3f``); defined by the subclass."""
-            raise NotImplementedError
-
-        def enabled(self, ctx: Any, active: Any) -> Any:
-            """``active`` where the context asks for this BSDF's lobe."""
-            return active & ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
-
-        def _pdf(self, wi: Any, wo: Any, active: Any) -> Any:
-            return self.sampling.pdf(mi, wi, wo, active)
-
-        def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            """``f(wi, wo) cos theta_o`` (Mitsuba's convention), ``mi.Spectrum``."""
-            active = self.enabled(ctx, active)
-            return self.brdf(ctx, si.wi, wo, active) * dr.maximum(wo.z, 0.0)
-
-        def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            """Solid-angle density of :meth:`sample` at ``wo``; 0 below the horizon."""
-            return self._pdf(si.wi, wo, self.enabled(ctx, active))
-
-        def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            """``(eval, pdf)`` in one call."""
-            active = self.enabled(ctx, active)
-            value = self.brdf(ctx, si.wi, wo, active) * dr.maximum(wo.z, 0.0)
-            return value, self._pdf(si.wi, wo, active)
-
-        def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
-            """Draw ``wo`` from the mixture; returns ``(BSDFSample3f, f cos / pdf)``."""
-            active = self.enabled(ctx, active) & (si.wi.z > 0.0)
-            wi = si.wi
-            wo = self.sampling.sample(mi, wi, sample1, sample2)
-            pdf = self._pdf(wi, wo, active)
-            active &= pdf > 0.0
-            value = self.brdf(ctx, wi, wo, active) * dr.maximum(wo.z, 0.0)
-            bs = sample_record(mi, wo, pdf)
-            return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
-
-    return MixtureReflector
+def mixture_reflector_base(mi: types.ModuleType) -> type:
+    """:class:`MixtureReflector` for Mitsuba's current variant (:func:`class_for_variant`),
+    for a subclass defined once Mitsuba is loaded (e.g. a benchmark's)."""
+    return class_for_variant(mi, MixtureReflector)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
+from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
 from evaluators.render.plugins import register_vectorised_bsdf
 
 #: The plugin name.
@@ -34,63 +34,60 @@ EXTERNAL_MLP_NAME = "external_mlp"
 
 def register_external_mlp_bsdf(mi: types.ModuleType) -> type:
     """Register ``external_mlp`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, EXTERNAL_MLP_NAME, _define_class, "external MLP BSDF")
+    return register_vectorised_bsdf(mi, EXTERNAL_MLP_NAME, ExternalMlpBSDF, "external MLP BSDF")
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class ExternalMlpBSDF(MixtureReflector):
+    """A user's BRDF network (plugin ``"external_mlp"``).
 
-    from models.external.fused import FusedMlp
-    from models.external.mlp import read_mlp
+    ============  ======  =======  ==============================================
+    parameter     type    default  meaning
+    ============  ======  =======  ==============================================
+    ``filename``  string  --       a ``matforge.mlp-brdf/1`` JSON file
+    ============  ======  =======  ==============================================
 
-    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+    Example (XML)::
 
-    class ExternalMlpBSDF(mixture_reflector_base(mi)):  # type: ignore[misc]
-        """A user's BRDF network (plugin ``"external_mlp"``).
+        <bsdf type="external_mlp"><string name="filename" value="my-brdf.json"/></bsdf>
+    """
 
-        ============  ======  =======  ==============================================
-        parameter     type    default  meaning
-        ============  ======  =======  ==============================================
-        ``filename``  string  --       a ``matforge.mlp-brdf/1`` JSON file
-        ============  ======  =======  ==============================================
+    def __init__(self, props: Any) -> None:
+        MixtureReflector.__init__(self, props)
+        from models.external.fused import FusedMlp
+        from models.external.mlp import read_mlp
 
-        Example (XML)::
+        mi = self.mi
+        flags = (
+            mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        )
+        if "filename" not in props:
+            raise ValueError("external_mlp: 'filename' is required")
+        material = read_mlp(str(props["filename"]))
+        if material.kind != "brdf":
+            raise ValueError(f"external_mlp: {material.source} is a BTF, not a BRDF")
+        self.fused = FusedMlp(material, mi)
+        alpha = self.fused.alpha
+        self.specular_weight = self.fused.specular_weight
+        self.sampling = MixtureSampling(alpha if alpha is not None else 1.0, self.specular_weight)
+        self.m_flags = flags
+        self.m_components = [flags]
 
-            <bsdf type="external_mlp"><string name="filename" value="my-brdf.json"/></bsdf>
-        """
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+        """``f`` (1/sr, ``Color3f``), 0 below either horizon."""
+        dr = self.dr
+        active = active & (wi.z > 0.0) & (wo.z > 0.0)
+        return dr.select(active, self.fused.eval(wi, wo), 0.0)
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            if "filename" not in props:
-                raise ValueError("external_mlp: 'filename' is required")
-            material = read_mlp(str(props["filename"]))
-            if material.kind != "brdf":
-                raise ValueError(f"external_mlp: {material.source} is a BTF, not a BRDF")
-            self.fused = FusedMlp(material, mi)
-            alpha = self.fused.alpha
-            self.specular_weight = self.fused.specular_weight
-            self.sampling = MixtureSampling(
-                alpha if alpha is not None else 1.0, self.specular_weight
-            )
-            self.m_flags = flags
-            self.m_components = [flags]
+    def enabled(self, ctx: Any, active: Any) -> Any:
+        mi = self.mi
+        on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
+            mi.BSDFFlags.DiffuseReflection, 0
+        )
+        return active & on
 
-        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
-            """``f`` (1/sr, ``Color3f``), 0 below either horizon."""
-            active = active & (wi.z > 0.0) & (wo.z > 0.0)
-            return dr.select(active, self.fused.eval(wi, wo), 0.0)
-
-        def enabled(self, ctx: Any, active: Any) -> Any:
-            on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-                mi.BSDFFlags.DiffuseReflection, 0
-            )
-            return active & on
-
-        def to_string(self) -> str:
-            doc = self.fused.material.doc
-            return (
-                f"ExternalMlp[{doc.name or self.fused.material.source}, {len(doc.layers)} layers, "
-                f"combine={doc.combine}, specular_weight={self.specular_weight:.3g}]"
-            )
-
-    return ExternalMlpBSDF
+    def to_string(self) -> str:
+        doc = self.fused.material.doc
+        return (
+            f"ExternalMlp[{doc.name or self.fused.material.source}, {len(doc.layers)} layers, "
+            f"combine={doc.combine}, specular_weight={self.specular_weight:.3g}]"
+        )

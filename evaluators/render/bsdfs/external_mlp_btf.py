@@ -14,7 +14,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.btf_common import btf_reflector_base, uv_scale_of
+from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
 from evaluators.render.plugins import register_vectorised_bsdf
 
 #: The plugin name.
@@ -25,45 +25,43 @@ def register_external_mlp_btf_bsdf(mi: types.ModuleType) -> type:
     """Register ``external_mlp_btf`` for Mitsuba's (vectorised RGB) variant; returns the
     class."""
     return register_vectorised_bsdf(
-        mi, EXTERNAL_MLP_BTF_NAME, _define_class, "external MLP BTF BSDF"
+        mi, EXTERNAL_MLP_BTF_NAME, ExternalMlpBtfBSDF, "external MLP BTF BSDF"
     )
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    from models.external.fused import FusedMlp
-    from models.external.mlp import read_mlp
+class ExternalMlpBtfBSDF(BtfReflector):
+    """A user's neural BTF (plugin ``"external_mlp_btf"``).
 
-    class ExternalMlpBtfBSDF(btf_reflector_base(mi)):  # type: ignore[misc]
-        """A user's neural BTF (plugin ``"external_mlp_btf"``).
+    ==============  ======  =======  ============================================
+    parameter       type    default  meaning
+    ==============  ======  =======  ============================================
+    ``filename``    string  --       a ``matforge.mlp-btf/1`` JSON file
+    ``uv_scale_u``  float   1        patch repeats per unit of u
+    ``uv_scale_v``  float   1        patch repeats per unit of v
+    ==============  ======  =======  ============================================
 
-        ==============  ======  =======  ============================================
-        parameter       type    default  meaning
-        ==============  ======  =======  ============================================
-        ``filename``    string  --       a ``matforge.mlp-btf/1`` JSON file
-        ``uv_scale_u``  float   1        patch repeats per unit of u
-        ``uv_scale_v``  float   1        patch repeats per unit of v
-        ==============  ======  =======  ============================================
+    Example (XML)::
 
-        Example (XML)::
+        <bsdf type="external_mlp_btf"><string name="filename" value="my-btf.json"/></bsdf>
+    """
 
-            <bsdf type="external_mlp_btf"><string name="filename" value="my-btf.json"/></bsdf>
-        """
+    def __init__(self, props: Any) -> None:
+        BtfReflector.__init__(self, props)
+        from models.external.fused import FusedMlp
+        from models.external.mlp import read_mlp
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            if "filename" not in props:
-                raise ValueError("external_mlp_btf: 'filename' is required")
-            material = read_mlp(str(props["filename"]))
-            if material.kind != "btf":
-                raise ValueError(f"external_mlp_btf: {material.source} is a BRDF, not a BTF")
-            self.fused = FusedMlp(material, mi)
-            self.uv_scale = uv_scale_of(props)
+        mi = self.mi
+        if "filename" not in props:
+            raise ValueError("external_mlp_btf: 'filename' is required")
+        material = read_mlp(str(props["filename"]))
+        if material.kind != "btf":
+            raise ValueError(f"external_mlp_btf: {material.source} is a BRDF, not a BTF")
+        self.fused = FusedMlp(material, mi)
+        self.uv_scale = uv_scale_of(props)
 
-        def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-            return self.fused.eval(light, view, uv)
+    def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
+        return self.fused.eval(light, view, uv)
 
-        def to_string(self) -> str:
-            m = self.fused.material
-            return f"ExternalMlpBtf[{m.doc.name or m.source}, uv_scale={self.uv_scale}]"
-
-    return ExternalMlpBtfBSDF
+    def to_string(self) -> str:
+        m = self.fused.material
+        return f"ExternalMlpBtf[{m.doc.name or m.source}, uv_scale={self.uv_scale}]"

@@ -55,9 +55,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from evaluators.render.bsdfs.btf_common import btf_reflector_base, uv_scale_of
-from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
-from evaluators.render.plugins import register_vectorised_bsdf
+from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
+from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
+from evaluators.render.plugins import VariantPlugin, class_for_variant, register_vectorised_bsdf
 from models.external.onnx_model import DEFAULT_THREADS, OnnxMaterial, load_onnx
 from storage.errors import FormatError, TooLargeError
 from storage.formats.onnx import check_onnx_file
@@ -75,7 +75,7 @@ _LIVE: weakref.WeakSet[Any] = weakref.WeakSet()
 
 def register_external_onnx_bsdf(mi: types.ModuleType) -> type:
     """Register ``external_onnx`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, EXTERNAL_ONNX_NAME, _define_class, "ONNX model BSDF")
+    return register_vectorised_bsdf(mi, EXTERNAL_ONNX_NAME, ExternalOnnx, "ONNX model BSDF")
 
 
 def external_onnx_plugin(
@@ -178,67 +178,81 @@ def _load(props: Any) -> OnnxMaterial:
         raise ValueError(f"external_onnx: {exc}") from None
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class OnnxBrdf(MixtureReflector):
+    """An ONNX BRDF (``kind = brdf``), cosine-sampled or with a GGX lobe (MIS)."""
 
-    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-
-    class OnnxBrdf(mixture_reflector_base(mi)):  # type: ignore[misc]
-        """An ONNX BRDF (``kind = brdf``), cosine-sampled or with a GGX lobe (MIS)."""
-
-        def __init__(self, props: Any, model: OnnxMaterial) -> None:
-            super().__init__(props)
-            self.model = model
-            self.symbolic_calls = 0
-            alpha = float(props.get("alpha", 1.0))
-            weight = float(props.get("specular_weight", 0.0))
-            if not (0.0 < alpha <= 1.0 and 0.0 <= weight < 1.0):
-                raise ValueError(
-                    f"external_onnx: alpha must lie in (0, 1] and specular_weight in [0, 1), "
-                    f"got {alpha} and {weight}"
-                )
-            self.sampling = MixtureSampling(alpha, weight)  # weight 0: cosine only
-            self.m_flags = flags
-            self.m_components = [flags]
-            _LIVE.add(self)
-
-        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
-            active = active & (wi.z > 0.0) & (wo.z > 0.0)
-            return dr.select(active, _call_model(mi, self, self.model, active, wi, wo), 0.0)
-
-        def enabled(self, ctx: Any, active: Any) -> Any:
-            on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-                mi.BSDFFlags.DiffuseReflection, 0
+    def __init__(self, props: Any, model: OnnxMaterial) -> None:
+        MixtureReflector.__init__(self, props)
+        mi = self.mi
+        flags = (
+            mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        )
+        self.model = model
+        self.symbolic_calls = 0
+        alpha = float(props.get("alpha", 1.0))
+        weight = float(props.get("specular_weight", 0.0))
+        if not (0.0 < alpha <= 1.0 and 0.0 <= weight < 1.0):
+            raise ValueError(
+                f"external_onnx: alpha must lie in (0, 1] and specular_weight in [0, 1), "
+                f"got {alpha} and {weight}"
             )
-            return active & on
+        self.sampling = MixtureSampling(alpha, weight)  # weight 0: cosine only
+        self.m_flags = flags
+        self.m_components = [flags]
+        _LIVE.add(self)
 
-        def to_string(self) -> str:
-            return f"OnnxBrdf[{self.model.name}, {self.model.param_bytes} parameter bytes]"
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+        mi, dr = self.mi, self.dr
+        active = active & (wi.z > 0.0) & (wo.z > 0.0)
+        return dr.select(active, _call_model(mi, self, self.model, active, wi, wo), 0.0)
 
-    class OnnxBtf(btf_reflector_base(mi)):  # type: ignore[misc]
-        """An ONNX BTF (``kind = btf``), cosine-sampled."""
+    def enabled(self, ctx: Any, active: Any) -> Any:
+        mi = self.mi
+        on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
+            mi.BSDFFlags.DiffuseReflection, 0
+        )
+        return active & on
 
-        def __init__(self, props: Any, model: OnnxMaterial) -> None:
-            super().__init__(props)
-            self.model = model
-            self.symbolic_calls = 0
-            self.uv_scale = uv_scale_of(props)
-            _LIVE.add(self)
+    def to_string(self) -> str:
+        return f"OnnxBrdf[{self.model.name}, {self.model.param_bytes} parameter bytes]"
 
-        def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-            return _call_model(mi, self, self.model, active, uv, light, view)
 
-        def to_string(self) -> str:
-            return f"OnnxBtf[{self.model.name}, uv_scale={self.uv_scale}]"
+class OnnxBtf(BtfReflector):
+    """An ONNX BTF (``kind = btf``), cosine-sampled."""
 
-    class ExternalOnnx:
-        """Factory: the BRDF or BTF class by the ``kind`` property."""
+    def __init__(self, props: Any, model: OnnxMaterial) -> None:
+        BtfReflector.__init__(self, props)
+        self.model = model
+        self.symbolic_calls = 0
+        self.uv_scale = uv_scale_of(props)
+        _LIVE.add(self)
 
-        #: The BSDF classes it makes (both ``mi.BSDF`` subclasses of this variant).
-        variants = (OnnxBrdf, OnnxBtf)
+    def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
+        return _call_model(self.mi, self, self.model, active, uv, light, view)
 
-        def __new__(cls, props: Any) -> Any:
-            model = _load(props)
-            return (OnnxBtf if model.kind == "btf" else OnnxBrdf)(props, model)
+    def to_string(self) -> str:
+        return f"OnnxBtf[{self.model.name}, uv_scale={self.uv_scale}]"
 
-    return ExternalOnnx
+
+class _VariantClasses:
+    """A class attribute: the classes of the owner's variant (:func:`class_for_variant`)
+    for the given bodies."""
+
+    def __init__(self, *bodies: type[VariantPlugin]) -> None:
+        self.bodies = bodies
+
+    def __get__(self, obj: Any, owner: type[VariantPlugin]) -> tuple[type, ...]:
+        return tuple(class_for_variant(owner.mi, body) for body in self.bodies)
+
+
+class ExternalOnnx(VariantPlugin):
+    """Factory: an :class:`OnnxBrdf` or an :class:`OnnxBtf` (of the variant's classes) by
+    the ``kind`` property. Its own per-variant class is never instantiated."""
+
+    #: The BSDF classes it makes, the variant's (both ``mi.BSDF`` subclasses).
+    variants = _VariantClasses(OnnxBrdf, OnnxBtf)
+
+    def __new__(cls, props: Any) -> Any:
+        model = _load(props)
+        body = OnnxBtf if model.kind == "btf" else OnnxBrdf
+        return class_for_variant(cls.mi, body)(props, model)

@@ -47,7 +47,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.fabric_footprint import footprint_base
+from evaluators.render.bsdfs.fabric_footprint import FabricFootprintBSDF
 from evaluators.render.plugins import register_vectorised_bsdf
 from materials.fabric import integrand, yarn
 from materials.fabric.array_ops import dot
@@ -63,7 +63,7 @@ MAX_TRIES = 1024
 
 def register_fabric_bsdf(mi: types.ModuleType) -> type:
     """Register ``fabric_aggregate`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, FABRIC_BSDF_NAME, _define_class, "fabric BSDF")
+    return register_vectorised_bsdf(mi, FABRIC_BSDF_NAME, FabricAggregateBSDF, "fabric BSDF")
 
 
 def fabric_bsdf(
@@ -85,89 +85,88 @@ def fabric_bsdf(
     )
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class FabricAggregateBSDF(FabricFootprintBSDF):
+    """Aggregated woven-fabric BSDF (plugin ``"fabric_aggregate"``), one-sample estimate.
 
-    from materials.fabric.aggregate_drjit import DrJitOps
+    ================  ======  ========  ================================================
+    parameter         type    default   meaning
+    ================  ======  ========  ================================================
+    ``params``        string  --        the material, JSON of the
+                                        :class:`~materials.fabric.params.FabricParams`
+                                        fields (:func:`params_json`)
+    ``tiles_per_uv``  float   16        pattern tiles across the uv range [0, 1]
+    ``visibility``    bool    true      yarn-to-yarn visibility V of Eq. 3-4
+    ================  ======  ========  ================================================
 
-    def bits(x: Any) -> Any:
-        return dr.reinterpret_array(mi.UInt32, x)
+    Example: ``fabric_bsdf(mi, FabricParams("twill_3x3", alpha=0.3), tiles_per_uv=8)``.
+    """
 
-    class FabricAggregateBSDF(footprint_base(mi)):  # type: ignore[misc]
-        """Aggregated woven-fabric BSDF (plugin ``"fabric_aggregate"``), one-sample estimate.
+    def __init__(self, props: Any) -> None:
+        FabricFootprintBSDF.__init__(self, props)
+        from materials.fabric.aggregate_drjit import DrJitOps
 
-        ================  ======  ========  ================================================
-        parameter         type    default   meaning
-        ================  ======  ========  ================================================
-        ``params``        string  --        the material, JSON of the
-                                            :class:`~materials.fabric.params.FabricParams`
-                                            fields (:func:`params_json`)
-        ``tiles_per_uv``  float   16        pattern tiles across the uv range [0, 1]
-        ``visibility``    bool    true      yarn-to-yarn visibility V of Eq. 3-4
-        ================  ======  ========  ================================================
+        mi = self.mi
+        self.visibility = bool(props.get("visibility", True))
+        self.geo = YarnGeometry.from_params(self.params)
+        self.ops = DrJitOps(mi.Float, mi.UInt32)
+        self.tab = yarn.tables(self.ops, self.geo)
+        self.slope = max_slope(self.params)
+        # The hierarchical march of sample_terms, also in the rejection loop below.
+        self.mip = upload(self.ops, max_mip(self.geo))
 
-        Example: ``fabric_bsdf(mi, FabricParams("twill_3x3", alpha=0.3), tiles_per_uv=8)``.
+    def estimate(self, si: Any, light: Any, active: Any = True) -> Any:
+        """One-sample estimate of ``f_P`` (Eq. 8, incident cosine included), ``mi.Color3f``.
+
+        ``si.wi`` is the view, ``light`` the light direction, both local; footprint from
+        ``si.uv``, ``si.duv_dx``, ``si.duv_dy`` (module docstring).
         """
+        mi, dr = self.mi, self.dr
+        ops, geo, tab, params = self.ops, self.geo, self.tab, self.params
+        bits = self._bits
+        view, lit, active = self.directions(si, light, active)
+        cs, ct, ax, ay, bx, by = self.footprint(si)
+        h = mi.sample_tea_32(bits(si.time) ^ bits(light.x), bits(si.uv.x) ^ bits(light.y))[0]
+        seed = mi.sample_tea_32(h ^ bits(light.z), bits(si.uv.y) ^ bits(si.wi.x))[0]
+        a_max = view[2] + dr.sqrt(view[0] * view[0] + view[1] * view[1]) * self.slope
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            self.visibility = bool(props.get("visibility", True))
-            self.geo = YarnGeometry.from_params(self.params)
-            self.ops = DrJitOps(mi.Float, mi.UInt32)
-            self.tab = yarn.tables(self.ops, self.geo)
-            self.slope = max_slope(self.params)
-            # The hierarchical march of sample_terms, also in the rejection loop below.
-            self.mip = upload(self.ops, max_mip(self.geo))
+        def cond(k: Any, found: Any, s: Any, t: Any, jit: Any) -> Any:
+            return active & ~found & (k < MAX_TRIES)
 
-        def estimate(self, si: Any, light: Any, active: Any = True) -> Any:
-            """One-sample estimate of ``f_P`` (Eq. 8, incident cosine included), ``mi.Color3f``.
+        def body(k: Any, found: Any, s: Any, t: Any, jit: Any) -> Any:
+            u = [mi.sample_tea_float32(seed, k * 4 + d, 4) for d in range(4)]
+            s = cs + (u[0] - 0.5) * ax + (u[1] - 0.5) * bx
+            t = ct + (u[0] - 0.5) * ay + (u[1] - 0.5) * by
+            surf = yarn.surface(ops, geo, tab, s, t)
+            n = surf.normal
+            area0 = dr.maximum(dot(view, n), 0.0) / n[2]
+            found = u[3] * a_max < area0
+            if self.visibility:
+                v_o = integrand.visibility(
+                    ops, geo, tab, s, t, surf.height, view, u[2], need=found, mip=self.mip
+                )
+                found &= v_o > 0.0
+            return k + 1, found, s, t, u[2]
 
-            ``si.wi`` is the view, ``light`` the light direction, both local; footprint from
-            ``si.uv``, ``si.duv_dx``, ``si.duv_dy`` (module docstring).
-            """
-            ops, geo, tab, params = self.ops, self.geo, self.tab, self.params
-            view, lit, active = self.directions(si, light, active)
-            cs, ct, ax, ay, bx, by = self.footprint(si)
-            h = mi.sample_tea_32(bits(si.time) ^ bits(light.x), bits(si.uv.x) ^ bits(light.y))[0]
-            seed = mi.sample_tea_32(h ^ bits(light.z), bits(si.uv.y) ^ bits(si.wi.x))[0]
-            a_max = view[2] + dr.sqrt(view[0] * view[0] + view[1] * view[1]) * self.slope
+        zero = dr.zeros(mi.Float)
+        _, found, s, t, jit = dr.while_loop(
+            (mi.UInt32(0), mi.Bool(False), zero, zero, zero),
+            cond,
+            body,
+            label="fabric_aggregate: footprint sample",
+        )
+        terms = integrand.sample_terms(
+            ops, params, geo, tab, s, t, lit, view, jit, with_visibility=self.visibility
+        )
+        inv = dr.select(found & (terms.area > 0.0), 1.0 / dr.maximum(terms.area, 1e-20), 0.0)
+        value = self.recombine((terms.c_warp, terms.c_weft, terms.s_warp, terms.s_weft))
+        return dr.select(active, value * inv, 0.0)
 
-            def cond(k: Any, found: Any, s: Any, t: Any, jit: Any) -> Any:
-                return active & ~found & (k < MAX_TRIES)
+    def _bits(self, x: Any) -> Any:
+        """The bits of ``mi.Float`` ``x`` as ``mi.UInt32`` (to hash them)."""
+        return self.dr.reinterpret_array(self.mi.UInt32, x)
 
-            def body(k: Any, found: Any, s: Any, t: Any, jit: Any) -> Any:
-                u = [mi.sample_tea_float32(seed, k * 4 + d, 4) for d in range(4)]
-                s = cs + (u[0] - 0.5) * ax + (u[1] - 0.5) * bx
-                t = ct + (u[0] - 0.5) * ay + (u[1] - 0.5) * by
-                surf = yarn.surface(ops, geo, tab, s, t)
-                n = surf.normal
-                area0 = dr.maximum(dot(view, n), 0.0) / n[2]
-                found = u[3] * a_max < area0
-                if self.visibility:
-                    v_o = integrand.visibility(
-                        ops, geo, tab, s, t, surf.height, view, u[2], need=found, mip=self.mip
-                    )
-                    found &= v_o > 0.0
-                return k + 1, found, s, t, u[2]
-
-            zero = dr.zeros(mi.Float)
-            _, found, s, t, jit = dr.while_loop(
-                (mi.UInt32(0), mi.Bool(False), zero, zero, zero),
-                cond,
-                body,
-                label="fabric_aggregate: footprint sample",
-            )
-            terms = integrand.sample_terms(
-                ops, params, geo, tab, s, t, lit, view, jit, with_visibility=self.visibility
-            )
-            inv = dr.select(found & (terms.area > 0.0), 1.0 / dr.maximum(terms.area, 1e-20), 0.0)
-            value = self.recombine((terms.c_warp, terms.c_weft, terms.s_warp, terms.s_weft))
-            return dr.select(active, value * inv, 0.0)
-
-        def to_string(self) -> str:
-            return (
-                f"FabricAggregateBSDF[pattern={self.params.pattern.name}, "
-                f"tiles_per_uv={self.tiles_per_uv:g}, visibility={self.visibility}]"
-            )
-
-    return FabricAggregateBSDF
+    def to_string(self) -> str:
+        return (
+            f"FabricAggregateBSDF[pattern={self.params.pattern.name}, "
+            f"tiles_per_uv={self.tiles_per_uv:g}, visibility={self.visibility}]"
+        )

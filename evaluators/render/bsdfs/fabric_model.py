@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluators.render.bsdfs.fabric_footprint import footprint_base
+from evaluators.render.bsdfs.fabric_footprint import FabricFootprintBSDF
 from evaluators.render.plugins import register_vectorised_bsdf
 
 #: The plugin name.
@@ -31,46 +31,45 @@ FABRIC_MODEL_BSDF_NAME = "fabric_model"
 
 def register_fabric_model_bsdf(mi: types.ModuleType) -> type:
     """Register ``fabric_model`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, FABRIC_MODEL_BSDF_NAME, _define_class, "fabric model BSDF")
+    return register_vectorised_bsdf(
+        mi, FABRIC_MODEL_BSDF_NAME, FabricModelBSDF, "fabric model BSDF"
+    )
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class FabricModelBSDF(FabricFootprintBSDF):
+    """A ``train.fabric`` network as a footprint BSDF (plugin ``"fabric_model"``).
 
-    from models.fabric.fused import decoder_drjit, load_fabric_model
+    ================  ==========  ========  ==============================================
+    parameter         type        default   meaning
+    ================  ==========  ========  ==============================================
+    ``filename``      string      --        ``model.json`` or ``model.pt`` of the model
+    ``latent``        TensorXf    --        the material's ``(latent_dim,)`` latent
+    ``params``        string      --        the material (JSON of the ``FabricParams``
+                                            fields; its albedos give Eq. 8)
+    ``tiles_per_uv``  float       16        pattern tiles across the uv range [0, 1]
+    ================  ==========  ========  ==============================================
+    """
 
-    class FabricModelBSDF(footprint_base(mi)):  # type: ignore[misc]
-        """A ``train.fabric`` network as a footprint BSDF (plugin ``"fabric_model"``).
+    def __init__(self, props: Any) -> None:
+        FabricFootprintBSDF.__init__(self, props)
+        from models.fabric.fused import decoder_drjit, load_fabric_model
 
-        ================  ==========  ========  ==============================================
-        parameter         type        default   meaning
-        ================  ==========  ========  ==============================================
-        ``filename``      string      --        ``model.json`` or ``model.pt`` of the model
-        ``latent``        TensorXf    --        the material's ``(latent_dim,)`` latent
-        ``params``        string      --        the material (JSON of the ``FabricParams``
-                                                fields; its albedos give Eq. 8)
-        ``tiles_per_uv``  float       16        pattern tiles across the uv range [0, 1]
-        ================  ==========  ========  ==============================================
-        """
+        mi = self.mi
+        model = load_fabric_model(Path(str(props.get("filename"))).read_bytes())
+        latent = np.asarray(props.get("latent").numpy(), np.float32).reshape(-1)
+        self.decoder = decoder_drjit(model, latent, mi.Float)
 
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            model = load_fabric_model(Path(str(props.get("filename"))).read_bytes())
-            latent = np.asarray(props.get("latent").numpy(), np.float32).reshape(-1)
-            self.decoder = decoder_drjit(model, latent, mi.Float)
+    def estimate(self, si: Any, light: Any, active: Any = True) -> Any:
+        """The network's ``f_P`` (Eq. 8) at the footprint, ``mi.Color3f``."""
+        dr = self.dr
+        view, lit, active = self.directions(si, light, active)
+        cs, ct, ax, ay, bx, by = self.footprint(si)
+        size = dr.sqrt(dr.abs(ax * by - ay * bx))
+        comps = self.decoder(cs, ct, size, lit[0], lit[1], lit[2], view[0], view[1])
+        return dr.select(active, self.recombine(comps), 0.0)
 
-        def estimate(self, si: Any, light: Any, active: Any = True) -> Any:
-            """The network's ``f_P`` (Eq. 8) at the footprint, ``mi.Color3f``."""
-            view, lit, active = self.directions(si, light, active)
-            cs, ct, ax, ay, bx, by = self.footprint(si)
-            size = dr.sqrt(dr.abs(ax * by - ay * bx))
-            comps = self.decoder(cs, ct, size, lit[0], lit[1], lit[2], view[0], view[1])
-            return dr.select(active, self.recombine(comps), 0.0)
-
-        def to_string(self) -> str:
-            return (
-                f"FabricModelBSDF[pattern={self.params.pattern.name}, "
-                f"tiles_per_uv={self.tiles_per_uv:g}]"
-            )
-
-    return FabricModelBSDF
+    def to_string(self) -> str:
+        return (
+            f"FabricModelBSDF[pattern={self.params.pattern.name}, "
+            f"tiles_per_uv={self.tiles_per_uv:g}]"
+        )

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
+from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
 from evaluators.render.plugins import register_vectorised_bsdf
 from materials.glints.footprint import PIXEL_SIGMA
 from materials.glints.pndf_drjit import (
@@ -123,7 +123,7 @@ def put_layers(key: str, base: GlintLayer, coat: GlintLayer | None = None) -> st
 
 def register_glint_bsdf(mi: types.ModuleType) -> type:
     """Register ``glint`` for Mitsuba's (vectorised RGB) variant; returns the class."""
-    return register_vectorised_bsdf(mi, GLINT_BSDF_NAME, _define_class, "glint BSDF")
+    return register_vectorised_bsdf(mi, GLINT_BSDF_NAME, GlintBSDF, "glint BSDF")
 
 
 def layer_pndf(
@@ -234,190 +234,190 @@ def _fresnel(mi: types.ModuleType, fresnel: tuple[Any, ...], cos_d: Any) -> Any:
     return mi.Color3f(f, f, f)
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class GlintBSDF(MixtureReflector):
+    """Glinty microstructure (plugin ``"glint"``).
 
-    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+    ================  ======  ========  ==============================================
+    parameter         type    default   meaning
+    ================  ======  ========  ==============================================
+    ``layers``        string  --        key of :func:`put_layers` (base, clearcoat)
+    ``texels_per_uv`` float   256       global texels across the uv range [0, 1]
+    ================  ======  ========  ==============================================
+    """
 
-    class GlintBSDF(mixture_reflector_base(mi)):  # type: ignore[misc]
-        """Glinty microstructure (plugin ``"glint"``).
+    #: Read by :func:`evaluators.render.integrators.fabric_path.wants`.
+    needs_footprint = True
 
-        ================  ======  ========  ==============================================
-        parameter         type    default   meaning
-        ================  ======  ========  ==============================================
-        ``layers``        string  --        key of :func:`put_layers` (base, clearcoat)
-        ``texels_per_uv`` float   256       global texels across the uv range [0, 1]
-        ================  ======  ========  ==============================================
-        """
-
-        #: Read by :func:`evaluators.render.integrators.fabric_path.wants`.
-        needs_footprint = True
-
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            key = str(props.get("layers"))
-            if key not in _LAYERS:
-                raise ValueError(f"glint: no prepared layers {key!r} (see put_layers)")
-            self.base, self.coat = _LAYERS[key]
-            self.texels_per_uv = float(props.get("texels_per_uv", 256.0))
-            if not (math.isfinite(self.texels_per_uv) and self.texels_per_uv > 0):
-                raise ValueError("glint: texels_per_uv must be > 0")
-            self.sampling = MixtureSampling(self.base.alpha, GGX_WEIGHT)
-            if self.base.sampling not in SAMPLINGS:
-                raise ValueError(f"glint: sampling must be one of {SAMPLINGS}")
-            self.pndf_sampling = self.base.sampling == "pndf" and self.base.method != "smooth_ggx"
-            if self.pndf_sampling and self.base.method == "tiny_example":
-                if self.base.placement is not None:
-                    raise ValueError("glint: sampling 'pndf' draws from tiled surfaces only")
-                if self.base.lookup != "flat" or self.base.sampler is None:
-                    raise ValueError(
-                        "glint: sampling 'pndf' draws from the 'flat' lookup's P-NDF and "
-                        "needs the maps' sampler (jit_map_sampler)"
-                    )
-            self.m_flags = flags
-            self.m_components = [flags]
-
-        def _footprint(self, si: Any, fallback: float) -> tuple[tuple[Any, Any], Sym2]:
-            t = self.texels_per_uv
-            cx, cy = si.uv.x * t, si.uv.y * t
-            ax, ay = si.duv_dx.x * t, si.duv_dx.y * t
-            bx, by = si.duv_dy.x * t, si.duv_dy.y * t
-            s2 = PIXEL_SIGMA * PIXEL_SIGMA
-            a = s2 * (ax * ax + bx * bx) + 1e-6
-            b = s2 * (ax * ay + bx * by)
-            d = s2 * (ay * ay + by * by) + 1e-6
-            none = (ax == 0.0) & (ay == 0.0) & (bx == 0.0) & (by == 0.0)
-            f2 = fallback * fallback
-            cov = Sym2(dr.select(none, f2, a), dr.select(none, 0.0, b), dr.select(none, f2, d))
-            return (cx, cy), cov
-
-        def _lobe(
-            self, layer: GlintLayer, si: Any, wi: Any, wo: Any, h: Any, active: Any
-        ) -> tuple[Any, Any]:
-            """``(f, D)``: the layer's BRDF and its NDF value at ``h``."""
-            ggx = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, layer.alpha, False)
-            if layer.alphas is not None:  # smooth_ggx: the NDF alone differs, not G or F
-                smooth = mi.MicrofacetDistribution(
-                    mi.MicrofacetType.GGX, layer.alphas[0], layer.alphas[1], False
+    def __init__(self, props: Any) -> None:
+        MixtureReflector.__init__(self, props)
+        mi = self.mi
+        flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+        key = str(props.get("layers"))
+        if key not in _LAYERS:
+            raise ValueError(f"glint: no prepared layers {key!r} (see put_layers)")
+        self.base, self.coat = _LAYERS[key]
+        self.texels_per_uv = float(props.get("texels_per_uv", 256.0))
+        if not (math.isfinite(self.texels_per_uv) and self.texels_per_uv > 0):
+            raise ValueError("glint: texels_per_uv must be > 0")
+        self.sampling = MixtureSampling(self.base.alpha, GGX_WEIGHT)
+        if self.base.sampling not in SAMPLINGS:
+            raise ValueError(f"glint: sampling must be one of {SAMPLINGS}")
+        self.pndf_sampling = self.base.sampling == "pndf" and self.base.method != "smooth_ggx"
+        if self.pndf_sampling and self.base.method == "tiny_example":
+            if self.base.placement is not None:
+                raise ValueError("glint: sampling 'pndf' draws from tiled surfaces only")
+            if self.base.lookup != "flat" or self.base.sampler is None:
+                raise ValueError(
+                    "glint: sampling 'pndf' draws from the 'flat' lookup's P-NDF and "
+                    "needs the maps' sampler (jit_map_sampler)"
                 )
-                d = smooth.eval(h)
-            else:
-                c, cov = self._footprint(si, layer.fallback_texels)
-                d = layer_pndf(mi, layer, c, cov, example_slopes(mi, si, h), active)
-            g = ggx.G(wi, wo, h)
+        self.m_flags = flags
+        self.m_components = [flags]
+
+    def _footprint(self, si: Any, fallback: float) -> tuple[tuple[Any, Any], Sym2]:
+        dr = self.dr
+        t = self.texels_per_uv
+        cx, cy = si.uv.x * t, si.uv.y * t
+        ax, ay = si.duv_dx.x * t, si.duv_dx.y * t
+        bx, by = si.duv_dy.x * t, si.duv_dy.y * t
+        s2 = PIXEL_SIGMA * PIXEL_SIGMA
+        a = s2 * (ax * ax + bx * bx) + 1e-6
+        b = s2 * (ax * ay + bx * by)
+        d = s2 * (ay * ay + by * by) + 1e-6
+        none = (ax == 0.0) & (ay == 0.0) & (bx == 0.0) & (by == 0.0)
+        f2 = fallback * fallback
+        cov = Sym2(dr.select(none, f2, a), dr.select(none, 0.0, b), dr.select(none, f2, d))
+        return (cx, cy), cov
+
+    def _lobe(
+        self, layer: GlintLayer, si: Any, wi: Any, wo: Any, h: Any, active: Any
+    ) -> tuple[Any, Any]:
+        """``(f, D)``: the layer's BRDF and its NDF value at ``h``."""
+        mi, dr = self.mi, self.dr
+        ggx = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, layer.alpha, False)
+        if layer.alphas is not None:  # smooth_ggx: the NDF alone differs, not G or F
+            smooth = mi.MicrofacetDistribution(
+                mi.MicrofacetType.GGX, layer.alphas[0], layer.alphas[1], False
+            )
+            d = smooth.eval(h)
+        else:
+            c, cov = self._footprint(si, layer.fallback_texels)
+            d = layer_pndf(mi, layer, c, cov, example_slopes(mi, si, h), active)
+        g = ggx.G(wi, wo, h)
+        cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+        f = _fresnel(mi, layer.fresnel, cos_d)
+        return f * (d * g / (4.0 * wi.z * wo.z)), d
+
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+        raise NotImplementedError  # glints need the interaction (footprint): see eval
+
+    def _value_d(self, si: Any, wo: Any, active: Any) -> tuple[Any, Any]:
+        """The BRDF at ``wo`` and the base layer's NDF at the half vector."""
+        mi, dr = self.mi, self.dr
+        wi = si.wi
+        active = active & (wi.z > 0.0) & (wo.z > 0.0)
+        h = dr.normalize(wi + wo)
+        value, d = self._lobe(self.base, si, wi, wo, h, active)
+        if self.coat is not None:
             cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
-            f = _fresnel(mi, layer.fresnel, cos_d)
-            return f * (d * g / (4.0 * wi.z * wo.z)), d
+            f_c = mi.fresnel(cos_d, float(self.coat.fresnel[1]))[0]
+            value = value * (1.0 - f_c) + self._lobe(self.coat, si, wi, wo, h, active)[0]
+        return dr.select(active, value, 0.0), d
 
-        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
-            raise NotImplementedError  # glints need the interaction (footprint): see eval
+    def _value(self, si: Any, wo: Any, active: Any) -> Any:
+        return self._value_d(si, wo, active)[0]
 
-        def _value_d(self, si: Any, wo: Any, active: Any) -> tuple[Any, Any]:
-            """The BRDF at ``wo`` and the base layer's NDF at the half vector."""
-            wi = si.wi
-            active = active & (wi.z > 0.0) & (wo.z > 0.0)
-            h = dr.normalize(wi + wo)
-            value, d = self._lobe(self.base, si, wi, wo, h, active)
-            if self.coat is not None:
-                cos_d = dr.clip(dr.dot(wi, h), 0.0, 1.0)
-                f_c = mi.fresnel(cos_d, float(self.coat.fresnel[1]))[0]
-                value = value * (1.0 - f_c) + self._lobe(self.coat, si, wi, wo, h, active)[0]
-            return dr.select(active, value, 0.0), d
+    def _pdf_of(self, si: Any, wo: Any, d: Any, total: Any, active: Any) -> Any:
+        """``sampling="pndf"``: the mixture's density at ``wo``, given the base NDF
+        ``d`` at the half vector and the P-NDF's integral ``total``: ``D cos_h / total``
+        per solid angle of ``h``, times the reflection Jacobian ``1 / (4 wo.h)``."""
+        mi, dr = self.mi, self.dr
+        wi = si.wi
+        h = dr.normalize(wi + wo)
+        dot_oh = dr.dot(wo, h)
+        ok = active & (wi.z > 0.0) & (wo.z > 0.0) & (dot_oh > 0.0) & (total > 0.0)
+        p_d = dr.select(
+            ok, d * h.z / (dr.maximum(total, 1e-30) * 4.0 * dr.maximum(dot_oh, 1e-30)), 0.0
+        )
+        p_mix = self.sampling.pdf(mi, wi, wo, active)
+        return PNDF_WEIGHT * dr.maximum(p_d, 0.0) + (1.0 - PNDF_WEIGHT) * p_mix
 
-        def _value(self, si: Any, wo: Any, active: Any) -> Any:
-            return self._value_d(si, wo, active)[0]
+    def _total(self, si: Any, active: Any) -> Any:
+        mi, dr = self.mi, self.dr
+        c, cov = self._footprint(si, self.base.fallback_texels)
+        zero = dr.zeros(mi.Float)
+        return layer_sample(
+            mi, self.base, c, cov, zero, (zero, zero), active, total_only=True
+        )[2]  # fmt: skip
 
-        def _pdf_of(self, si: Any, wo: Any, d: Any, total: Any, active: Any) -> Any:
-            """``sampling="pndf"``: the mixture's density at ``wo``, given the base NDF
-            ``d`` at the half vector and the P-NDF's integral ``total``: ``D cos_h / total``
-            per solid angle of ``h``, times the reflection Jacobian ``1 / (4 wo.h)``."""
-            wi = si.wi
-            h = dr.normalize(wi + wo)
-            dot_oh = dr.dot(wo, h)
-            ok = active & (wi.z > 0.0) & (wo.z > 0.0) & (dot_oh > 0.0) & (total > 0.0)
-            p_d = dr.select(
-                ok, d * h.z / (dr.maximum(total, 1e-30) * 4.0 * dr.maximum(dot_oh, 1e-30)), 0.0
-            )
-            p_mix = self.sampling.pdf(mi, wi, wo, active)
-            return PNDF_WEIGHT * dr.maximum(p_d, 0.0) + (1.0 - PNDF_WEIGHT) * p_mix
+    def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        active = self.enabled(ctx, active)
+        if not self.pndf_sampling:
+            return self._pdf(si.wi, wo, active)
+        _, d = self._value_d(si, wo, active)
+        return self._pdf_of(si, wo, d, self._total(si, active), active)
 
-        def _total(self, si: Any, active: Any) -> Any:
-            c, cov = self._footprint(si, self.base.fallback_texels)
-            zero = dr.zeros(mi.Float)
-            return layer_sample(
-                mi, self.base, c, cov, zero, (zero, zero), active, total_only=True
-            )[2]  # fmt: skip
+    # The footprint lives in ``si``, so eval / eval_pdf / sample are written here
+    # rather than through the base class's ``brdf(ctx, wi, wo)``.
+    def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        dr = self.dr
+        active = self.enabled(ctx, active)
+        return self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
 
-        def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            active = self.enabled(ctx, active)
-            if not self.pndf_sampling:
-                return self._pdf(si.wi, wo, active)
-            _, d = self._value_d(si, wo, active)
-            return self._pdf_of(si, wo, d, self._total(si, active), active)
-
-        # The footprint lives in ``si``, so eval / eval_pdf / sample are written here
-        # rather than through the base class's ``brdf(ctx, wi, wo)``.
-        def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            active = self.enabled(ctx, active)
-            return self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
-
-        def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-            active = self.enabled(ctx, active)
-            if not self.pndf_sampling:
-                value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
-                return value, self._pdf(si.wi, wo, active)
-            value, d = self._value_d(si, wo, active)
-            pdf = self._pdf_of(si, wo, d, self._total(si, active), active)
-            return value * dr.maximum(wo.z, 0.0), pdf
-
-        def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
-            from evaluators.render.bsdfs.common import sample_record
-
-            active = self.enabled(ctx, active) & (si.wi.z > 0.0)
-            if self.pndf_sampling:
-                return self._sample_pndf(si, sample1, sample2, active, sample_record)
-            wo = self.sampling.sample(mi, si.wi, sample1, sample2)
-            pdf = self._pdf(si.wi, wo, active)
-            active &= pdf > 0.0
+    def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
+        dr = self.dr
+        active = self.enabled(ctx, active)
+        if not self.pndf_sampling:
             value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
-            bs = sample_record(mi, wo, pdf)
-            return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
+            return value, self._pdf(si.wi, wo, active)
+        value, d = self._value_d(si, wo, active)
+        pdf = self._pdf_of(si, wo, d, self._total(si, active), active)
+        return value * dr.maximum(wo.z, 0.0), pdf
 
-        def _sample_pndf(
-            self, si: Any, sample1: Any, sample2: Any, active: Any, record: Any
-        ) -> Any:
-            """``sampling="pndf"``: with probability :data:`PNDF_WEIGHT` a half vector from
-            the base layer's P-NDF (its lobes or tiles, then the Gaussian or the bilinear
-            patch), reflected; otherwise the GGX/cosine mixture (``sample1`` rescaled)."""
-            wi = si.wi
-            from_d = sample1 < PNDF_WEIGHT
-            u1 = dr.select(
-                from_d, sample1 / PNDF_WEIGHT, (sample1 - PNDF_WEIGHT) / (1.0 - PNDF_WEIGHT)
-            )
-            c, cov = self._footprint(si, self.base.fallback_texels)
-            sx, sy, total = layer_sample(
-                mi, self.base, c, cov, u1, (sample2.x, sample2.y), active & from_d
-            )
-            inside = sx * sx + sy * sy < 1.0
-            h = local_of_slopes(mi, si, sx, sy)
-            wo_d = mi.reflect(wi, h)
-            wo_m = self.sampling.sample(mi, wi, u1, sample2)
-            wo = dr.select(from_d, wo_d, wo_m)
-            drawn = active & (~from_d | (inside & (total > 0.0) & (dr.dot(wi, h) > 0.0)))
-            value, d = self._value_d(si, wo, drawn)
-            # The P-NDF's integral at this footprint, also for mixture draws.
-            total = dr.select(from_d, total, self._total(si, drawn & ~from_d))
-            pdf = self._pdf_of(si, wo, d, total, drawn)
-            drawn &= pdf > 0.0
-            value = value * dr.maximum(wo.z, 0.0)
-            bs = record(mi, wo, pdf)
-            return bs, dr.select(drawn, value / dr.maximum(pdf, 1e-30), 0.0)
+    def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True) -> Any:
+        mi, dr = self.mi, self.dr
+        from evaluators.render.bsdfs.common import sample_record
 
-        def to_string(self) -> str:
-            coat = "" if self.coat is None else f", clearcoat {self.coat.method}"
-            return (
-                f"GlintBSDF[{self.base.method}, alpha={self.base.alpha:.3g}, "
-                f"texels_per_uv={self.texels_per_uv:g}{coat}]"
-            )
+        active = self.enabled(ctx, active) & (si.wi.z > 0.0)
+        if self.pndf_sampling:
+            return self._sample_pndf(si, sample1, sample2, active, sample_record)
+        wo = self.sampling.sample(mi, si.wi, sample1, sample2)
+        pdf = self._pdf(si.wi, wo, active)
+        active &= pdf > 0.0
+        value = self._value(si, wo, active) * dr.maximum(wo.z, 0.0)
+        bs = sample_record(mi, wo, pdf)
+        return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
 
-    return GlintBSDF
+    def _sample_pndf(self, si: Any, sample1: Any, sample2: Any, active: Any, record: Any) -> Any:
+        """``sampling="pndf"``: with probability :data:`PNDF_WEIGHT` a half vector from
+        the base layer's P-NDF (its lobes or tiles, then the Gaussian or the bilinear
+        patch), reflected; otherwise the GGX/cosine mixture (``sample1`` rescaled)."""
+        mi, dr = self.mi, self.dr
+        wi = si.wi
+        from_d = sample1 < PNDF_WEIGHT
+        u1 = dr.select(from_d, sample1 / PNDF_WEIGHT, (sample1 - PNDF_WEIGHT) / (1.0 - PNDF_WEIGHT))
+        c, cov = self._footprint(si, self.base.fallback_texels)
+        sx, sy, total = layer_sample(
+            mi, self.base, c, cov, u1, (sample2.x, sample2.y), active & from_d
+        )
+        inside = sx * sx + sy * sy < 1.0
+        h = local_of_slopes(mi, si, sx, sy)
+        wo_d = mi.reflect(wi, h)
+        wo_m = self.sampling.sample(mi, wi, u1, sample2)
+        wo = dr.select(from_d, wo_d, wo_m)
+        drawn = active & (~from_d | (inside & (total > 0.0) & (dr.dot(wi, h) > 0.0)))
+        value, d = self._value_d(si, wo, drawn)
+        # The P-NDF's integral at this footprint, also for mixture draws.
+        total = dr.select(from_d, total, self._total(si, drawn & ~from_d))
+        pdf = self._pdf_of(si, wo, d, total, drawn)
+        drawn &= pdf > 0.0
+        value = value * dr.maximum(wo.z, 0.0)
+        bs = record(mi, wo, pdf)
+        return bs, dr.select(drawn, value / dr.maximum(pdf, 1e-30), 0.0)
+
+    def to_string(self) -> str:
+        coat = "" if self.coat is None else f", clearcoat {self.coat.method}"
+        return (
+            f"GlintBSDF[{self.base.method}, alpha={self.base.alpha:.3g}, "
+            f"texels_per_uv={self.texels_per_uv:g}{coat}]"
+        )

@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluators.render.bsdfs.common import MixtureSampling, mixture_reflector_base
+from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
 from evaluators.render.plugins import register_vectorised_bsdf
 from materials import halfdiff as hd
 from materials.lobe_fit import SamplingLobe, fit_sampling_lobe
@@ -78,7 +78,7 @@ def register_merl_bsdf(mi: types.ModuleType) -> type:
     Idempotent per variant; returns the class. Needs a vectorised RGB variant
     (``llvm_ad_rgb``, ``cuda_ad_rgb``); raises ``RuntimeError`` otherwise.
     """
-    return register_vectorised_bsdf(mi, MERL_BSDF_NAME, _define_class, "MERL table BSDF")
+    return register_vectorised_bsdf(mi, MERL_BSDF_NAME, MerlBSDF, "MERL table BSDF")
 
 
 #: Storage precisions of the table: ``float32`` (exact, 17.5 MB at 180 phi_d bins) and
@@ -159,13 +159,117 @@ def merl_bsdf(
     )
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class MerlBSDF(MixtureReflector):
+    """MERL table BSDF (plugin ``"merl_table"``).
 
-    ops = hd.drjit_ops(dr)
-    flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+    =====================  =============  ========  =========================================
+    parameter              type           default   meaning
+    =====================  =============  ========  =========================================
+    ``filename``           string         --        a MERL ``.binary`` file, read and
+                                                    validated by
+                                                    :func:`storage.formats.merl.read_merl`
+    ``data``               ``TensorXf``   --        the table itself, ``(90, 90, P, 3)``
+                                                    physical BRDF in 1/sr (instead of a file)
+    ``alpha``              float          fitted    GGX roughness of the sampling lobe
+    ``specular_weight``    float          fitted    probability of sampling the GGX lobe
+    ``precision``          string         float32   ``float32``, ``float16`` or ``rgb9e5``:
+                                                    how the table is held (module docs)
+    ``layout``             string         phi_d     ``phi_d`` or ``theta_h``: which
+                                                    angle's bins are adjacent in memory
+    =====================  =============  ========  =========================================
 
-    def corners(u: Any, n: int, periodic: bool) -> tuple[tuple[Any, Any], tuple[Any, Any]]:
+    Example (XML, as the chi-square harness loads it)::
+
+        <bsdf type="merl_table"><string name="filename" value="gold.binary"/></bsdf>
+    """
+
+    def __init__(self, props: Any) -> None:
+        MixtureReflector.__init__(self, props)
+        mi, dr = self.mi, self.dr
+        flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+        filename = props.get("filename", None)
+        data = props.get("data", None)
+        if (filename is None) == (data is None):
+            raise ValueError("merl_table: give exactly one of 'filename' and 'data'")
+        if filename is not None:
+            rgb = read_merl(str(filename)).rgb
+        else:
+            rgb = np.asarray(data.numpy(), dtype=np.float64)
+        if rgb.ndim != 4 or rgb.shape[:2] != (90, 90) or rgb.shape[3] != 3:
+            raise ValueError(f"merl_table: table shape must be (90, 90, P, 3), got {rgb.shape}")
+        self.phi_d_bins = int(rgb.shape[2])
+        if self.phi_d_bins not in hd.PHI_D_VARIANTS:
+            raise ValueError(f"merl_table: phi_d bins must be 180 or 360, not {rgb.shape[2]}")
+        alpha, weight = props.get("alpha", None), props.get("specular_weight", None)
+        if alpha is None or weight is None:
+            lobe = fit_sampling_lobe(rgb)
+            alpha = lobe.alpha if alpha is None else alpha
+            weight = lobe.specular_weight if weight is None else weight
+        if not (alpha > 0.0 and 0.0 <= weight <= 1.0):
+            raise ValueError("merl_table: need alpha > 0, 0 <= specular_weight <= 1")
+        self.alpha, self.specular_weight = float(alpha), float(weight)
+        self.sampling = MixtureSampling(self.alpha, self.specular_weight)
+        precision = str(props.get("precision", "float32"))
+        layout = str(props.get("layout", "phi_d"))
+        table = np.asarray(rgb, dtype=np.float32)
+        # Unknown names, and rgb9e5 with bins missing in some channels, are refused.
+        check_storage(table, precision, layout)
+        self.precision, self.layout = precision, layout
+        # True when every bin is missing in all its channels or in none (tabulations):
+        # the lookup then tests one channel and keeps one weight sum.
+        self.whole_bins_missing = whole_bins_missing(table)
+        if layout == "theta_h":
+            table = table.transpose(2, 1, 0, 3)  # (P, 90 theta_d, 90 theta_h, 3)
+        table = np.ascontiguousarray(table).ravel()
+        if precision == "float16":
+            # One 64-bit word per bin: R, G, B as IEEE halves in bits 0-15, 16-31, 32-47.
+            half = table.astype(np.float16).view(np.uint16).reshape(-1, 3).astype(np.uint64)
+            words = half[:, 0] | (half[:, 1] << 16) | (half[:, 2] << 32)
+            uint64: Any = dr.uint64_array_t(mi.Float)
+            self.table = uint64(words)
+        elif precision == "rgb9e5":
+            self.table = mi.UInt32(encode_rgb9e5(table.reshape(-1, 3)))
+        else:
+            self.table = mi.Float(table)
+        self.m_flags = flags
+        self.m_components = [flags]
+
+    # -- the table --------------------------------------------------------------------
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
+        """Interpolated BRDF (1/sr, ``mi.Color3f``), no cosine; 0 below the horizon
+        (``ctx`` is not used)."""
+        mi, dr = self.mi, self.dr
+        ops = hd.drjit_ops(dr)
+        active = active & (wi.z > 0) & (wo.z > 0)
+        theta_h, theta_d, phi_d = hd.halfdiff_angles(wi.x, wi.y, wi.z, wo.x, wo.y, wo.z, ops)
+        n_p = self.phi_d_bins
+        u_h, u_d, u_p = hd.merl_coordinates(theta_h, theta_d, phi_d, n_p, ops)
+        ax_h = self._corners(u_h, hd.RES_THETA_H, False)
+        ax_d = self._corners(u_d, hd.RES_THETA_D, False)
+        ax_p = self._corners(u_p, n_p, True)
+        acc = dr.zeros(mi.Color3f)
+        # Per-bin missing entries: one weight sum; per-channel ones: one per channel.
+        wsum = dr.zeros(mi.Float if self.whole_bins_missing else mi.Color3f)
+        for i_h, w_h in ax_h:
+            for i_d, w_d in ax_d:
+                w_hd = w_h * w_d
+                for i_p, w_p in ax_p:
+                    v = self._read(self._index(i_h, i_d, i_p), active)
+                    if self.whole_bins_missing:
+                        w = dr.select(v.x >= 0.0, w_hd * w_p, 0.0)
+                        acc = dr.fma(v, w, acc)
+                    else:
+                        ok = v >= 0.0
+                        w = dr.select(ok, w_hd * w_p, 0.0)
+                        acc += dr.select(ok, w * v, 0.0)
+                    wsum += w
+        value = dr.select(wsum > 0.0, acc / dr.maximum(wsum, 1e-30), 0.0)
+        return dr.select(active, value, 0.0)
+
+    def _corners(self, u: Any, n: int, periodic: bool) -> tuple[tuple[Any, Any], tuple[Any, Any]]:
+        """The two bins (``mi.UInt32``) and weights of MERL coordinate ``u`` on an axis of
+        ``n`` bins, clamped at the edges or ``periodic``."""
+        mi, dr = self.mi, self.dr
         # As halfdiff._interpolate: bin centres sit at integer p = u - 1/2.
         p = u - 0.5
         lower = dr.floor(p)
@@ -180,142 +284,39 @@ def _define_class(mi: types.ModuleType) -> type:
         i1 = mi.UInt32(dr.clip(i1, 0, n - 1))
         return (i0, 1.0 - w1), (i1, w1)
 
-    def _half(bits: Any) -> Any:
-        # IEEE half (low 16 bits) to float32: the magnitude's bits shifted into float32's
-        # place and scaled by 2^(127 - 15) (exact for normals, subnormals and zero), sign
-        # copied. Halves hold no infinities or NaNs here (the table is finite).
-        magnitude: Any = dr.reinterpret_array(
-            mi.Float, ((bits & 0x7FFF) << 13) | ((bits & 0x8000) << 16)
+    def _half(self, bits: Any) -> Any:
+        """IEEE half (low 16 bits of ``mi.UInt32``) to ``mi.Float``."""
+        # The magnitude's bits shifted into float32's place and scaled by 2^(127 - 15)
+        # (exact for normals, subnormals and zero), sign copied. Halves hold no infinities
+        # or NaNs here (the table is finite).
+        magnitude: Any = self.dr.reinterpret_array(
+            self.mi.Float, ((bits & 0x7FFF) << 13) | ((bits & 0x8000) << 16)
         )
         return magnitude * 5.192296858534828e33
 
-    class MerlBSDF(mixture_reflector_base(mi)):  # type: ignore[misc]
-        """MERL table BSDF (plugin ``"merl_table"``).
+    def _index(self, i_h: Any, i_d: Any, i_p: Any) -> Any:
+        if self.layout == "theta_h":
+            return (i_p * hd.RES_THETA_D + i_d) * hd.RES_THETA_H + i_h
+        return (i_h * hd.RES_THETA_D + i_d) * self.phi_d_bins + i_p
 
-        =====================  =============  ========  =========================================
-        parameter              type           default   meaning
-        =====================  =============  ========  =========================================
-        ``filename``           string         --        a MERL ``.binary`` file, read and
-                                                        validated by
-                                                        :func:`storage.formats.merl.read_merl`
-        ``data``               ``TensorXf``   --        the table itself, ``(90, 90, P, 3)``
-                                                        physical BRDF in 1/sr (instead of a file)
-        ``alpha``              float          fitted    GGX roughness of the sampling lobe
-        ``specular_weight``    float          fitted    probability of sampling the GGX lobe
-        ``precision``          string         float32   ``float32``, ``float16`` or ``rgb9e5``:
-                                                        how the table is held (module docs)
-        ``layout``             string         phi_d     ``phi_d`` or ``theta_h``: which
-                                                        angle's bins are adjacent in memory
-        =====================  =============  ========  =========================================
-
-        Example (XML, as the chi-square harness loads it)::
-
-            <bsdf type="merl_table"><string name="filename" value="gold.binary"/></bsdf>
-        """
-
-        def __init__(self, props: Any) -> None:
-            super().__init__(props)
-            filename = props.get("filename", None)
-            data = props.get("data", None)
-            if (filename is None) == (data is None):
-                raise ValueError("merl_table: give exactly one of 'filename' and 'data'")
-            if filename is not None:
-                rgb = read_merl(str(filename)).rgb
-            else:
-                rgb = np.asarray(data.numpy(), dtype=np.float64)
-            if rgb.ndim != 4 or rgb.shape[:2] != (90, 90) or rgb.shape[3] != 3:
-                raise ValueError(f"merl_table: table shape must be (90, 90, P, 3), got {rgb.shape}")
-            self.phi_d_bins = int(rgb.shape[2])
-            if self.phi_d_bins not in hd.PHI_D_VARIANTS:
-                raise ValueError(f"merl_table: phi_d bins must be 180 or 360, not {rgb.shape[2]}")
-            alpha, weight = props.get("alpha", None), props.get("specular_weight", None)
-            if alpha is None or weight is None:
-                lobe = fit_sampling_lobe(rgb)
-                alpha = lobe.alpha if alpha is None else alpha
-                weight = lobe.specular_weight if weight is None else weight
-            if not (alpha > 0.0 and 0.0 <= weight <= 1.0):
-                raise ValueError("merl_table: need alpha > 0, 0 <= specular_weight <= 1")
-            self.alpha, self.specular_weight = float(alpha), float(weight)
-            self.sampling = MixtureSampling(self.alpha, self.specular_weight)
-            precision = str(props.get("precision", "float32"))
-            layout = str(props.get("layout", "phi_d"))
-            table = np.asarray(rgb, dtype=np.float32)
-            # Unknown names, and rgb9e5 with bins missing in some channels, are refused.
-            check_storage(table, precision, layout)
-            self.precision, self.layout = precision, layout
-            # True when every bin is missing in all its channels or in none (tabulations):
-            # the lookup then tests one channel and keeps one weight sum.
-            self.whole_bins_missing = whole_bins_missing(table)
-            if layout == "theta_h":
-                table = table.transpose(2, 1, 0, 3)  # (P, 90 theta_d, 90 theta_h, 3)
-            table = np.ascontiguousarray(table).ravel()
-            if precision == "float16":
-                # One 64-bit word per bin: R, G, B as IEEE halves in bits 0-15, 16-31, 32-47.
-                half = table.astype(np.float16).view(np.uint16).reshape(-1, 3).astype(np.uint64)
-                words = half[:, 0] | (half[:, 1] << 16) | (half[:, 2] << 32)
-                uint64: Any = dr.uint64_array_t(mi.Float)
-                self.table = uint64(words)
-            elif precision == "rgb9e5":
-                self.table = mi.UInt32(encode_rgb9e5(table.reshape(-1, 3)))
-            else:
-                self.table = mi.Float(table)
-            self.m_flags = flags
-            self.m_components = [flags]
-
-        # -- the table --------------------------------------------------------------------
-        def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any = True) -> Any:
-            """Interpolated BRDF (1/sr, ``mi.Color3f``), no cosine; 0 below the horizon
-            (``ctx`` is not used)."""
-            active = active & (wi.z > 0) & (wo.z > 0)
-            theta_h, theta_d, phi_d = hd.halfdiff_angles(wi.x, wi.y, wi.z, wo.x, wo.y, wo.z, ops)
-            n_p = self.phi_d_bins
-            u_h, u_d, u_p = hd.merl_coordinates(theta_h, theta_d, phi_d, n_p, ops)
-            ax_h = corners(u_h, hd.RES_THETA_H, False)
-            ax_d = corners(u_d, hd.RES_THETA_D, False)
-            ax_p = corners(u_p, n_p, True)
-            acc = dr.zeros(mi.Color3f)
-            # Per-bin missing entries: one weight sum; per-channel ones: one per channel.
-            wsum = dr.zeros(mi.Float if self.whole_bins_missing else mi.Color3f)
-            for i_h, w_h in ax_h:
-                for i_d, w_d in ax_d:
-                    w_hd = w_h * w_d
-                    for i_p, w_p in ax_p:
-                        v = self._read(self._index(i_h, i_d, i_p), active)
-                        if self.whole_bins_missing:
-                            w = dr.select(v.x >= 0.0, w_hd * w_p, 0.0)
-                            acc = dr.fma(v, w, acc)
-                        else:
-                            ok = v >= 0.0
-                            w = dr.select(ok, w_hd * w_p, 0.0)
-                            acc += dr.select(ok, w * v, 0.0)
-                        wsum += w
-            value = dr.select(wsum > 0.0, acc / dr.maximum(wsum, 1e-30), 0.0)
-            return dr.select(active, value, 0.0)
-
-        def _index(self, i_h: Any, i_d: Any, i_p: Any) -> Any:
-            if self.layout == "theta_h":
-                return (i_p * hd.RES_THETA_D + i_d) * hd.RES_THETA_H + i_h
-            return (i_h * hd.RES_THETA_D + i_d) * self.phi_d_bins + i_p
-
-        def _read(self, index: Any, active: Any) -> Any:
-            if self.precision == "float32":
-                return dr.gather(mi.Color3f, self.table, index, active)
-            word = dr.gather(type(self.table), self.table, index, active)
-            if self.precision == "rgb9e5":
-                scale = dr.reinterpret_array(mi.Float, ((word >> 27) + (127 - 15 - 9)) << 23)
-                rgb = mi.Color3f(
-                    mi.Float(word & 0x1FF),
-                    mi.Float((word >> 9) & 0x1FF),
-                    mi.Float((word >> 18) & 0x1FF),
-                )
-                return dr.select(word == RGB9E5_MISSING, -1.0, rgb * scale)
-            lo, hi = mi.UInt32(word & 0xFFFFFFFF), mi.UInt32(word >> 32)
-            return mi.Color3f(_half(lo & 0xFFFF), _half(lo >> 16), _half(hi & 0xFFFF))
-
-        def to_string(self) -> str:
-            return (
-                f"MerlBSDF[phi_d_bins={self.phi_d_bins}, alpha={self.alpha:.4g}, "
-                f"specular_weight={self.specular_weight:.3g}]"
+    def _read(self, index: Any, active: Any) -> Any:
+        mi, dr = self.mi, self.dr
+        if self.precision == "float32":
+            return dr.gather(mi.Color3f, self.table, index, active)
+        word = dr.gather(type(self.table), self.table, index, active)
+        if self.precision == "rgb9e5":
+            scale = dr.reinterpret_array(mi.Float, ((word >> 27) + (127 - 15 - 9)) << 23)
+            rgb = mi.Color3f(
+                mi.Float(word & 0x1FF),
+                mi.Float((word >> 9) & 0x1FF),
+                mi.Float((word >> 18) & 0x1FF),
             )
+            return dr.select(word == RGB9E5_MISSING, -1.0, rgb * scale)
+        lo, hi = mi.UInt32(word & 0xFFFFFFFF), mi.UInt32(word >> 32)
+        return mi.Color3f(self._half(lo & 0xFFFF), self._half(lo >> 16), self._half(hi & 0xFFFF))
 
-    return MerlBSDF
+    def to_string(self) -> str:
+        return (
+            f"MerlBSDF[phi_d_bins={self.phi_d_bins}, alpha={self.alpha:.4g}, "
+            f"specular_weight={self.specular_weight:.3g}]"
+        )

@@ -36,7 +36,7 @@ from typing import Any
 
 from evaluators.render.bsdfs.brdf_model import ANALYTIC_ONLY
 from evaluators.render.integrators.common import read_depths, trace_paths
-from evaluators.render.plugins import register_vectorised_integrator
+from evaluators.render.plugins import VariantPlugin, register_vectorised_integrator
 
 #: The plugin name of the integrator.
 NEURAL_DEPTH_INTEGRATOR = "neural_depth"
@@ -66,111 +66,116 @@ def register_neural_depth_integrator(mi: types.ModuleType) -> type:
     (``llvm_ad_rgb`` or ``cuda_ad_rgb``).
     """
     return register_vectorised_integrator(
-        mi, NEURAL_DEPTH_INTEGRATOR, _define_class, "neural_depth integrator"
+        mi, NEURAL_DEPTH_INTEGRATOR, NeuralDepthIntegrator, "neural_depth integrator"
     )
 
 
-def _define_class(mi: types.ModuleType) -> type:
-    import drjit as dr
+class NeuralDepthIntegrator(VariantPlugin):
+    """Path tracer with selective neural evaluation (plugin ``"neural_depth"``).
 
-    def context(analytic: bool) -> Any:
-        ctx = mi.BSDFContext()
+    ====================  =====  =======  ==============================================
+    parameter             type   default  meaning
+    ====================  =====  =======  ==============================================
+    ``max_depth``         int    -1       longest path in segments, as ``path`` (-1: no
+                                          limit; 1: emitters only; 2: direct light)
+    ``rr_depth``          int    5        depth from which Russian roulette starts
+    ``neural_max_depth``  int    -1       vertices of depth ``< neural_max_depth`` get
+                                          the full model, deeper ones ``f_a`` (-1: all)
+    ====================  =====  =======  ==============================================
+    """
+
+    @classmethod
+    def mitsuba_base(cls, mi: types.ModuleType) -> type:
+        """``mi.SamplingIntegrator`` of the current variant."""
+        base: type = mi.SamplingIntegrator
+        return base
+
+    def __init__(self, props: Any) -> None:
+        VariantPlugin.__init__(self, props)
+        self.max_depth, self.rr_depth = read_depths(props, NEURAL_DEPTH_INTEGRATOR)
+        self.neural_max_depth = int(props.get("neural_max_depth", -1))
+        if self.neural_max_depth < -1:
+            raise ValueError("neural_depth: neural_max_depth must be -1 or >= 0")
+
+    def _shade(
+        self,
+        bsdf: Any,
+        si: Any,
+        wo: Any,
+        s1: Any,
+        s2: Any,
+        active_em: Any,
+        active: Any,
+        depth: Any,
+    ) -> Any:
+        """The ``shade`` hook: ``eval_pdf`` at the emitter sample and ``sample``, neural
+        or analytic.
+
+        Both are wrapped in symbolic ``if`` statements (see the module docstring): an
+        outer one on ``active`` (the lanes that shade this vertex), so that packets
+        whose paths have all escaped or ended skip the BSDF entirely, and an inner one
+        on ``depth < neural_max_depth``.
+        """
+        mi, dr = self.mi, self.dr
+        n = self.neural_max_depth
+        args = (si, wo, s1, s2, active_em, active, depth)
+
+        def calls(ctx: Any) -> Any:
+            def body(si: Any, wo: Any, s1: Any, s2: Any, em: Any, act: Any, d: Any) -> Any:
+                value, pdf = bsdf.eval_pdf(ctx, si, wo, em)
+                bs, weight = bsdf.sample(ctx, si, s1, s2, act)
+                return value, pdf, bs, weight
+
+            return body
+
+        def skip(*_: Any) -> Any:
+            zero = dr.zeros(mi.Spectrum)
+            return zero, dr.zeros(mi.Float), dr.zeros(mi.BSDFSample3f), zero
+
+        def by_depth(*a: Any) -> Any:
+            return dr.if_stmt(
+                args=a,
+                cond=a[5] & (a[6] < n),
+                true_fn=calls(self._context(False)),
+                false_fn=calls(self._context(True)),
+                label="neural_depth: network or f_a",
+            )
+
+        shade = calls(self._context(n == 0)) if n <= 0 else by_depth
+        return dr.if_stmt(
+            args=args, cond=active, true_fn=shade, false_fn=skip, label="neural_depth: shade"
+        )
+
+    def _context(self, analytic: bool) -> Any:
+        """A ``mi.BSDFContext`` asking for ``f_a`` alone if ``analytic``
+        (:data:`~evaluators.render.bsdfs.brdf_model.ANALYTIC_ONLY`), else the full model."""
+        ctx = self.mi.BSDFContext()
         ctx.type_mask = ctx.type_mask | (ANALYTIC_ONLY if analytic else 0)
         return ctx
 
-    class NeuralDepthIntegrator(mi.SamplingIntegrator):  # type: ignore[name-defined]
-        """Path tracer with selective neural evaluation (plugin ``"neural_depth"``).
+    def sample(
+        self, scene: Any, sampler: Any, ray: Any, medium: Any = None, active: Any = True
+    ) -> Any:
+        """One path per lane; returns ``(radiance, valid, [])`` as ``path`` does."""
+        mi = self.mi
+        radiance, valid = trace_paths(
+            mi,
+            scene,
+            sampler,
+            ray,
+            active,
+            max_depth=self.max_depth,
+            rr_depth=self.rr_depth,
+            shade=self._shade,
+            label="neural_depth path",
+        )
+        return radiance, valid, []
 
-        ====================  =====  =======  ==============================================
-        parameter             type   default  meaning
-        ====================  =====  =======  ==============================================
-        ``max_depth``         int    -1       longest path in segments, as ``path`` (-1: no
-                                              limit; 1: emitters only; 2: direct light)
-        ``rr_depth``          int    5        depth from which Russian roulette starts
-        ``neural_max_depth``  int    -1       vertices of depth ``< neural_max_depth`` get
-                                              the full model, deeper ones ``f_a`` (-1: all)
-        ====================  =====  =======  ==============================================
-        """
+    def aov_names(self) -> list[str]:
+        return []
 
-        def __init__(self, props: Any) -> None:
-            mi.SamplingIntegrator.__init__(self, props)
-            self.max_depth, self.rr_depth = read_depths(props, NEURAL_DEPTH_INTEGRATOR)
-            self.neural_max_depth = int(props.get("neural_max_depth", -1))
-            if self.neural_max_depth < -1:
-                raise ValueError("neural_depth: neural_max_depth must be -1 or >= 0")
-
-        def _shade(
-            self,
-            bsdf: Any,
-            si: Any,
-            wo: Any,
-            s1: Any,
-            s2: Any,
-            active_em: Any,
-            active: Any,
-            depth: Any,
-        ) -> Any:
-            """The ``shade`` hook: ``eval_pdf`` at the emitter sample and ``sample``, neural
-            or analytic.
-
-            Both are wrapped in symbolic ``if`` statements (see the module docstring): an
-            outer one on ``active`` (the lanes that shade this vertex), so that packets
-            whose paths have all escaped or ended skip the BSDF entirely, and an inner one
-            on ``depth < neural_max_depth``.
-            """
-            n = self.neural_max_depth
-            args = (si, wo, s1, s2, active_em, active, depth)
-
-            def calls(ctx: Any) -> Any:
-                def body(si: Any, wo: Any, s1: Any, s2: Any, em: Any, act: Any, d: Any) -> Any:
-                    value, pdf = bsdf.eval_pdf(ctx, si, wo, em)
-                    bs, weight = bsdf.sample(ctx, si, s1, s2, act)
-                    return value, pdf, bs, weight
-
-                return body
-
-            def skip(*_: Any) -> Any:
-                zero = dr.zeros(mi.Spectrum)
-                return zero, dr.zeros(mi.Float), dr.zeros(mi.BSDFSample3f), zero
-
-            def by_depth(*a: Any) -> Any:
-                return dr.if_stmt(
-                    args=a,
-                    cond=a[5] & (a[6] < n),
-                    true_fn=calls(context(False)),
-                    false_fn=calls(context(True)),
-                    label="neural_depth: network or f_a",
-                )
-
-            shade = calls(context(n == 0)) if n <= 0 else by_depth
-            return dr.if_stmt(
-                args=args, cond=active, true_fn=shade, false_fn=skip, label="neural_depth: shade"
-            )
-
-        def sample(
-            self, scene: Any, sampler: Any, ray: Any, medium: Any = None, active: Any = True
-        ) -> Any:
-            """One path per lane; returns ``(radiance, valid, [])`` as ``path`` does."""
-            radiance, valid = trace_paths(
-                mi,
-                scene,
-                sampler,
-                ray,
-                active,
-                max_depth=self.max_depth,
-                rr_depth=self.rr_depth,
-                shade=self._shade,
-                label="neural_depth path",
-            )
-            return radiance, valid, []
-
-        def aov_names(self) -> list[str]:
-            return []
-
-        def to_string(self) -> str:
-            return (
-                f"NeuralDepthIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}, "
-                f"neural_max_depth={self.neural_max_depth}]"
-            )
-
-    return NeuralDepthIntegrator
+    def to_string(self) -> str:
+        return (
+            f"NeuralDepthIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}, "
+            f"neural_max_depth={self.neural_max_depth}]"
+        )
