@@ -6,14 +6,16 @@ sizes uniform in [0, 1] or [1, 5] tiles (half each), light directions uniform ov
 sphere (half of them from below: transmission), view directions uniform over the upper
 hemisphere. Every query gets ``--samples`` footprint samples (the paper uses 2048). Each
 configuration runs once to warm up (Dr.Jit compiles its kernel), then ``--repeats``
-rounds that interleave the configurations; rows report the median. ``--march both`` (the
-default) times the hierarchical and the plain visibility march in the same run and prints
-their ratio, the figure to compare on a shared, loaded machine. Results are read back to
+rounds that interleave the configurations; rows report the median. ``--march all`` (the
+default) times every visibility march (batched, hierarchical, plain) in the same run and
+prints their ratios to the plain march, the figure to compare on a shared, loaded machine;
+``--lane-samples 1,2,4`` adds a batched row per value (samples per SIMD lane, whose rays
+are marched back to back; ``aggregate_drjit.LANE_SAMPLES``). Results are read back to
 numpy, so Dr.Jit's lazy evaluation cannot hide work (NOTES.md). The paper's rate, 3.2 M
 queries x 2048 samples in 22 minutes on an RTX 3090, is 4.96 M samples/s.
 
 Run: ``.venv/bin/python benchmarks/bench_fabric.py [--queries 4096] [--samples 2048]
-[--march both|hierarchical|plain]``
+[--march all|batched|hierarchical|plain] [--lane-samples 2]``
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from materials.fabric import aggregate_drjit  # noqa: E402
 from materials.fabric.aggregate import Backend, FootprintQueries, estimate  # noqa: E402
 from materials.fabric.march import MARCHES, March  # noqa: E402
 from materials.fabric.params import FabricParams, YarnPair  # noqa: E402
@@ -74,9 +77,19 @@ class Config:
     march: March
     queries: FootprintQueries
     threads: int
+    lane_samples: int = aggregate_drjit.LANE_SAMPLES
+
+    @property
+    def march_label(self) -> str:
+        if not self.visibility:
+            return "-"
+        if self.march == "batched" and self.backend == "drjit":
+            return f"batched ({self.lane_samples} per lane)"
+        return self.march
 
     def run(self, samples: int) -> float:
         """Seconds of one estimate() over the whole batch."""
+        aggregate_drjit.LANE_SAMPLES = self.lane_samples
         t0 = time.perf_counter()
         est = estimate(
             PARAMS,
@@ -104,17 +117,24 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2, help="numpy worker threads")
     ap.add_argument(
         "--march",
-        choices=("both", *MARCHES),
-        default="both",
-        help="visibility march of the rows with visibility (both: each, for the ratio)",
+        choices=("all", *MARCHES),
+        default="all",
+        help="visibility march of the rows with visibility (all: each, for the ratios)",
+    )
+    ap.add_argument(
+        "--lane-samples",
+        default=str(aggregate_drjit.LANE_SAMPLES),
+        help="comma-separated samples per lane of the Dr.Jit batched rows (powers of two)",
     )
     args = ap.parse_args()
-    marches: list[March] = list(MARCHES) if args.march == "both" else [args.march]
+    marches: list[March] = list(MARCHES) if args.march == "all" else [args.march]
+    lane_samples = [int(x) for x in args.lane_samples.split(",")]
     machine = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
     drjit_q = paper_like_queries(args.queries)
     configs: list[Config] = []
     for m in marches:
-        configs.append(Config("drjit", "sobol", True, m, drjit_q, args.threads))
+        for per_lane in lane_samples if m == "batched" else [lane_samples[0]]:
+            configs.append(Config("drjit", "sobol", True, m, drjit_q, args.threads, per_lane))
     configs.append(Config("drjit", "independent", True, marches[0], drjit_q, args.threads))
     configs.append(Config("drjit", "sobol", False, marches[0], drjit_q, args.threads))
     if args.numpy_queries > 0:
@@ -137,24 +157,25 @@ def main() -> None:
     )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     rates: dict[tuple[str, str, bool, str], float] = {}
+    labelled: dict[tuple[str, str, bool, str], float] = {}
     for c, ts in zip(configs, times, strict=True):
         seconds = statistics.median(ts)
         count = len(c.queries)
         rate = count * args.samples / seconds
-        rates[(c.backend, c.sampler, c.visibility, c.march)] = rate
+        rates.setdefault((c.backend, c.sampler, c.visibility, c.march), rate)
+        labelled[(c.backend, c.sampler, c.visibility, c.march_label)] = rate
         label = c.backend if c.backend == "drjit" else f"numpy ({args.threads} threads)"
         print(
             f"| {label} | {c.sampler} | {'on' if c.visibility else 'off'} | "
-            f"{c.march if c.visibility else '-'} | {count} | {args.samples} | {seconds:.3f} | "
+            f"{c.march_label} | {count} | {args.samples} | {seconds:.3f} | "
             f"{rate / 1e6:.2f} | {rate / PAPER_RATE:.2f}x | {machine} |",
             flush=True,
         )
     print(f"\nload average (1 min) after each round: {', '.join(f'{x:.1f}' for x in loads)}")
-    for backend in ("drjit", "numpy"):
-        new = rates.get((backend, "sobol", True, "hierarchical"))
+    for (backend, sampler, vis, label), rate in labelled.items():
         old = rates.get((backend, "sobol", True, "plain"))
-        if new and old:
-            print(f"{backend} sobol, visibility on: hierarchical / plain = {new / old:.2f}x")
+        if sampler == "sobol" and vis and label != "plain" and old:
+            print(f"{backend} sobol, visibility on: {label} / plain = {rate / old:.2f}x")
     best = rates.get(("drjit", "sobol", True, marches[0]))
     if best:
         minutes = PAPER_MATERIAL_SAMPLES / best / 60
@@ -165,7 +186,8 @@ def main() -> None:
     print(
         f"\nreproduce: .venv/bin/python benchmarks/bench_fabric.py --queries {args.queries} "
         f"--numpy-queries {args.numpy_queries} --samples {args.samples} "
-        f"--repeats {args.repeats} --threads {args.threads} --march {args.march}"
+        f"--repeats {args.repeats} --threads {args.threads} --march {args.march} "
+        f"--lane-samples {args.lane_samples}"
     )
 
 

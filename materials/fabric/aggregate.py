@@ -205,7 +205,7 @@ class EstimatorSettings:
     with_visibility: bool = True
     march_step: float = MARCH_STEP
     march_max_steps: int = MARCH_MAX_STEPS
-    march: March = "hierarchical"
+    march: March = "batched"
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -306,7 +306,7 @@ def estimate(
     with_visibility: bool = True,
     march_step: float = MARCH_STEP,
     march_max_steps: int = MARCH_MAX_STEPS,
-    march: March = "hierarchical",
+    march: March = "batched",
     backend: Backend = "numpy",
     threads: int = 1,
     chunk_queries: int | None = None,
@@ -335,9 +335,13 @@ def estimate(
         horizontal steps of ``march_step`` cells, at most ``march_max_steps`` per ray;
         ``integrand.py``); False sets V = 1.
     march
-        ``"hierarchical"`` (default: a max mip-map over the height field skips the steps
-        it proves clear, ``march.py``) or ``"plain"`` (every step tested, the method before
-        2026-12-03); the same visibility up to float32 round-off, so the same statistics.
+        ``"batched"`` (default: the hierarchical march, with the Dr.Jit kernel integrating
+        ``aggregate_drjit.LANE_SAMPLES`` samples per SIMD lane and marching all their rays
+        in one loop, so lanes that finish a ray go on to the next), ``"hierarchical"`` (a
+        max mip-map over the height field skips the steps it proves clear, ``march.py``;
+        one sample per lane, its two rays in two loops) or ``"plain"`` (every step tested,
+        the method before 2026-12-03); the same visibility up to float32 round-off, so the
+        same statistics. With numpy, ``"batched"`` is ``"hierarchical"``.
     backend
         ``"numpy"`` (``threads`` worker threads) or ``"drjit"`` (LLVM kernel, all cores).
     chunk_queries

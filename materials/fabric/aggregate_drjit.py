@@ -25,8 +25,9 @@ Timing note (NOTES.md): results are read back with ``.numpy()``, which waits for
 
 from __future__ import annotations
 
+import math
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
@@ -34,7 +35,7 @@ import numpy as np
 
 from materials.fabric import samplers
 from materials.fabric.array_ops import Array
-from materials.fabric.integrand import footprint_positions, sample_terms
+from materials.fabric.integrand import SamplePoint, footprint_positions, sample_terms_batch
 from materials.fabric.params import FabricParams
 from materials.fabric.yarn import YarnGeometry, tables
 
@@ -148,6 +149,77 @@ class DrJitOps:
         _, out = dr.while_loop((k0, flag), cond, step)
         return out
 
+    def march_many(
+        self,
+        counts: Sequence[Array],
+        max_steps: int,
+        lanes: Sequence[tuple[Array, ...]],
+        body: Callable[[Array, tuple[Array, ...]], tuple[Array, Array]],
+    ) -> list[Array]:
+        # One symbolic loop: each lane runs its marches back to back, so a packet leaves when
+        # its lanes' summed iterations are done. ``todo`` has a bit per march still to run
+        # (those with steps), ``phase`` = its lowest bit (the march under way), ``hits`` a bit
+        # per blocked march: O(1) bookkeeping per iteration, whatever the number of marches.
+        dr, Float, n = self.dr, self.Float, len(counts)
+        if n > 32:
+            raise ValueError(f"at most 32 marches per element, got {n}")
+        UInt32 = dr.uint32_array_t(Float)
+        width = dr.width((*counts, *(a for lane in lanes for a in lane)))
+
+        def pick(values: Sequence[Array], phase: Array) -> Array:
+            # The marches' inputs repeat (a sample's start point is shared by its two rays,
+            # a direction by every sample of a query): one select per change of value, and
+            # a select on the phase's parity where the values alternate.
+            distinct: list[Array] = []
+            for v in values:
+                if not any(v is d for d in distinct):
+                    distinct.append(v)
+            if len(distinct) == 1:
+                return self._f(values[0])
+            if len(distinct) == 2 and all(v is values[j % 2] for j, v in enumerate(values)):
+                return dr.select((phase & 1) == 0, self._f(values[0]), self._f(values[1]))
+            runs: list[tuple[int, Array]] = []
+            for j, v in enumerate(values):
+                if runs and runs[-1][1] is v:
+                    runs[-1] = (j, v)
+                else:
+                    runs.append((j, v))
+            out = self._f(runs[-1][1])
+            for last, v in reversed(runs[:-1]):
+                out = dr.select(phase <= last, self._f(v), out)
+            return out
+
+        todo0 = dr.zeros(UInt32, width)
+        for j, c in enumerate(counts):
+            todo0 |= dr.select(c > 0.0, UInt32(1 << j), UInt32(0))
+        k0 = dr.zeros(Float, width)
+        hits0 = dr.zeros(UInt32, width)
+
+        def cond(todo: Array, k: Array, hits: Array) -> Array:
+            return todo != 0
+
+        def step(todo: Array, k: Array, hits: Array) -> tuple[Array, Array, Array]:
+            phase = dr.tzcnt(todo)
+            cur = tuple(pick([lane[i] for lane in lanes], phase) for i in range(len(lanes[0])))
+            hit, k_next = body(k, cur)
+            bit = UInt32(1) << phase
+            done = hit | (k_next >= pick(counts, phase))
+            return (
+                dr.select(done, todo & ~bit, todo),
+                dr.select(done, 0.0, k_next),
+                dr.select(hit, hits | bit, hits),
+            )
+
+        _, _, hits = dr.while_loop((todo0, k0, hits0), cond, step)
+        return [(hits & (1 << j)) != 0 for j in range(n)]
+
+
+#: Samples per SIMD lane with the batched march: their 2 x LANE_SAMPLES rays are marched
+#: back to back in one loop (a power of two, at most 16: 32 marches per lane). 1, 2, 4, 8
+#: and 16 were measured (BENCHMARKS.md); the kernel grows with it (about 1.8 s to compile
+#: per material at 8 on the loaded 2-core VM, 0.35 s at 1).
+LANE_SAMPLES = 8
+
 
 def drjit_chunk_moments(
     params: FabricParams,
@@ -169,18 +241,16 @@ def drjit_chunk_moments(
     tab = tables(ops, geo)
     samples, replicates, seed = settings.samples, settings.replicates, settings.seed
     block = samples // replicates
-    owner = dr.arange(UInt32, count * samples) // samples
+    # Samples per lane: with the batched march one lane integrates ``per_lane`` consecutive
+    # samples of one replicate block, and marches all their rays in one loop.
+    per_lane = math.gcd(block, LANE_SAMPLES) if settings.march == "batched" else 1
+    width = count * samples // per_lane
+    lane = dr.arange(UInt32, width)
     if settings.sampler == "sobol":
         nets = samplers.scrambled_nets(seed, replicates, block)
+        net = [UInt32(np.ascontiguousarray(nets[:, :, d].ravel())) for d in range(3)]
         shifts = samplers.digital_shifts(seed, first, count, replicates)
-        k = dr.arange(UInt32, count * samples) - owner * samples  # = replicate * block + i
-        slot = owner * replicates + k // block
-        u = []
-        for d in range(3):
-            net = UInt32(np.ascontiguousarray(nets[:, :, d].ravel()))
-            shift = UInt32(np.ascontiguousarray(shifts[:, :, d].ravel()))
-            bits = dr.gather(UInt32, net, k) ^ dr.gather(UInt32, shift, slot)
-            u.append((Float(bits >> 8) + 0.5) * (2.0**-24))  # = samplers.bits_to_unit
+        shift = [UInt32(np.ascontiguousarray(shifts[:, :, d].ravel())) for d in range(3)]
     else:
         pts = samplers.sample_points(
             "independent",
@@ -190,45 +260,65 @@ def drjit_chunk_moments(
             samples=samples,
             replicates=replicates,
         ).reshape(count * samples, 3)
-        u = [Float(np.ascontiguousarray(pts[:, d])) for d in range(3)]
+        cols = [Float(np.ascontiguousarray(pts[:, d])) for d in range(3)]
     sl = slice(first, first + count)
+    owner = (lane * per_lane) // samples
+    centre_tab = [
+        Float(np.ascontiguousarray(queries.centre[sl, d], dtype=np.float32)) for d in range(2)
+    ]
+    size_tab = Float(np.ascontiguousarray(queries.size[sl], dtype=np.float32))
+    wi_tab = [Float(np.ascontiguousarray(queries.wi[sl, d], dtype=np.float32)) for d in range(3)]
+    wo_tab = [Float(np.ascontiguousarray(queries.wo[sl, d], dtype=np.float32)) for d in range(3)]
 
-    def per_sample(a: np.ndarray) -> Array:
-        return dr.gather(Float, Float(np.ascontiguousarray(a[sl], dtype=np.float32)), owner)
+    def per_query(a: Array) -> Array:
+        return dr.gather(Float, a, owner)
 
-    centre = (per_sample(queries.centre[:, 0]), per_sample(queries.centre[:, 1]))
-    s, t = footprint_positions(ops, centre, per_sample(queries.size), u[0], u[1], settings.kernel)
-    wi = tuple(per_sample(queries.wi[:, k]) for k in range(3))
-    wo = tuple(per_sample(queries.wo[:, k]) for k in range(3))
-    terms = sample_terms(
+    centre = (per_query(centre_tab[0]), per_query(centre_tab[1]))
+    size = per_query(size_tab)
+    wi = (per_query(wi_tab[0]), per_query(wi_tab[1]), per_query(wi_tab[2]))
+    wo = (per_query(wo_tab[0]), per_query(wo_tab[1]), per_query(wo_tab[2]))
+    points = []
+    for r in range(per_lane):
+        g = lane * per_lane + r  # the sample's global index: query owner, sample k
+        if settings.sampler == "sobol":
+            k = g - owner * samples  # = replicate * block + i
+            slot = owner * replicates + k // block
+            u = []
+            for d in range(3):
+                bits = dr.gather(UInt32, net[d], k) ^ dr.gather(UInt32, shift[d], slot)
+                u.append((Float(bits >> 8) + 0.5) * (2.0**-24))  # = samplers.bits_to_unit
+        else:
+            u = [dr.gather(Float, c, g) for c in cols]
+        s, t = footprint_positions(ops, centre, size, u[0], u[1], settings.kernel)
+        points.append(SamplePoint(s, t, wi, wo, u[2]))
+    batch = sample_terms_batch(
         ops,
         params,
         geo,
         tab,
-        s,
-        t,
-        (wi[0], wi[1], wi[2]),
-        (wo[0], wo[1], wo[2]),
-        u[2],
+        points,
         with_visibility=settings.with_visibility,
         march_step=settings.march_step,
         march_max_steps=settings.march_max_steps,
         march=settings.march,
     )
-    comps = [Float64(x) for x in terms[:4]]
-    area = Float64(terms.area)
-    area_in = Float64(terms.area_in)
-    products = (
-        *comps,
-        area,
-        area_in,
-        *(c * c for c in comps),
-        *(c * area for c in comps),
-        area * area,
-    )
+    products: list[Array] = [Float64(0.0)] * 15
+    for terms in batch:
+        comps = [Float64(x) for x in terms[:4]]
+        area = Float64(terms.area)
+        area_in = Float64(terms.area_in)
+        one = (
+            *comps,
+            area,
+            area_in,
+            *(c * c for c in comps),
+            *(c * area for c in comps),
+            area * area,
+        )
+        products = [a + b for a, b in zip(products, one, strict=True)]
     # Symbolic block sums: the integrand and the reductions fuse into one kernel whose
     # lanes atomically add (in float64) into the per-replicate moments.
-    outs = dr.block_sum(products, block, mode="symbolic")
+    outs = dr.block_sum(tuple(products), block // per_lane, mode="symbolic")
     dr.eval(outs)
     moments = np.stack([o.numpy() for o in outs], axis=1)
     return moments.reshape(count, replicates, len(outs))

@@ -36,8 +36,8 @@ import numpy as np
 from materials.fabric import yarn
 from materials.fabric.array_ops import Array, ArrayOps, NumpyOps
 
-March = Literal["hierarchical", "plain"]
-MARCHES: tuple[March, ...] = ("hierarchical", "plain")
+March = Literal["batched", "hierarchical", "plain"]
+MARCHES: tuple[March, ...] = ("batched", "hierarchical", "plain")
 
 #: Texels per pattern cell side, finest first; each level halves the one before.
 LEVELS: tuple[int, ...] = (16, 8, 4, 2, 1)

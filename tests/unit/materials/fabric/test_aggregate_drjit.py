@@ -68,3 +68,30 @@ def test02_drjit_without_visibility_and_flat_yarns() -> None:
         b = estimate(params, q, samples=512, backend="drjit", with_visibility=vis)
         np.testing.assert_allclose(b.mean, a.mean, rtol=1e-5, atol=1e-9)
         np.testing.assert_allclose(b.stderr, a.stderr, rtol=1e-3, atol=1e-9)
+
+
+@pytest.mark.parametrize(("sampler", "per_lane"), [("sobol", 1), ("sobol", 2), ("independent", 4)])
+def test03_batched_march_matches_hierarchical(
+    sampler: str, per_lane: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The batched march (several samples per SIMD lane, all their rays in one loop)
+    against the hierarchical march of the same kernel code, one sample per lane: the same
+    points and the same visibility, so the same estimates up to float32 round-off in a
+    jump target (as ``test_march.py``), and float64 summation order. ``samples=8`` with 8
+    replicates has blocks of one sample, fewer than ``per_lane``."""
+    from materials.fabric import aggregate_drjit
+
+    monkeypatch.setattr(aggregate_drjit, "LANE_SAMPLES", per_lane)
+    params = sample_params(np.random.default_rng(21), "twill_3x3")
+    q = mixed_queries(np.random.default_rng(22), 64)
+    kw = {"samples": 512, "sampler": sampler, "seed": 3, "backend": "drjit"}
+    a = estimate(params, q, march="hierarchical", **kw)  # type: ignore[arg-type]
+    b = estimate(params, q, march="batched", **kw)  # type: ignore[arg-type]
+    np.testing.assert_allclose(b.mean, a.mean, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(b.area, a.area, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(b.area_in, a.area_in, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(b.stderr, a.stderr, rtol=1e-4, atol=1e-9)
+    tiny = {"samples": 8, "replicates": 8, "sampler": sampler, "backend": "drjit"}
+    c = estimate(params, q, march="hierarchical", **tiny)  # type: ignore[arg-type]
+    d = estimate(params, q, march="batched", **tiny)  # type: ignore[arg-type]
+    np.testing.assert_allclose(d.mean, c.mean, rtol=1e-5, atol=1e-9)

@@ -18,7 +18,7 @@ import pytest
 from materials.fabric import yarn
 from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.array_ops import NumpyOps
-from materials.fabric.integrand import visibility
+from materials.fabric.integrand import RayQuery, visibilities, visibility
 from materials.fabric.march import LEVELS, max_mip, upload
 from materials.fabric.params import FabricParams
 from materials.fabric.patterns import PATTERNS
@@ -136,7 +136,7 @@ def test03_mip_bounds_hold_at_random_points() -> None:
 
 
 def test04_estimates_agree_between_marches() -> None:
-    """The estimator's output with either march: equal up to float32 round-off."""
+    """The estimator's output with each march: equal up to float32 round-off."""
     params = FabricParams(PATTERNS["twill_3x3"], beta=1.0, u_max_deg=30.0)
     rng = np.random.default_rng(4)
     wi = rng.normal(size=(8, 3))
@@ -146,9 +146,15 @@ def test04_estimates_agree_between_marches() -> None:
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     q = FootprintQueries(rng.uniform(0, 1, (8, 2)), rng.uniform(0.2, 2, 8), wi, wo)
     a = estimate(params, q, samples=512, march="plain")
-    b = estimate(params, q, samples=512, march="hierarchical")
-    np.testing.assert_allclose(b.mean, a.mean, rtol=1e-5, atol=1e-7)
-    np.testing.assert_allclose(b.area, a.area, rtol=1e-5, atol=1e-7)
+    for march in ("hierarchical", "batched"):
+        b = estimate(params, q, samples=512, march=march)  # type: ignore[arg-type]
+        np.testing.assert_allclose(b.mean, a.mean, rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(b.area, a.area, rtol=1e-5, atol=1e-7)
+    # The Dr.Jit kernel (8 samples per lane with the batched march) against its plain march.
+    c = estimate(params, q, samples=512, march="plain", backend="drjit")
+    d = estimate(params, q, samples=512, march="batched", backend="drjit")
+    np.testing.assert_allclose(d.mean, c.mean, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(d.area, c.area, rtol=1e-5, atol=1e-7)
 
 
 def test05_unknown_march_is_refused() -> None:
@@ -158,3 +164,43 @@ def test05_unknown_march_is_refused() -> None:
     )
     with pytest.raises(ValueError, match="march must be one of"):
         estimate(params, q, samples=64, march="fast")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("backend", ["numpy", "drjit"])
+def test06_marches_in_one_loop_equal_separate_marches(backend: str) -> None:
+    """``visibilities`` (all rays of an element in one loop, ``ArrayOps.march_many``)
+    against one ``visibility`` call per ray on the same backend: the same step function
+    on the same inputs, so the same outcomes (a float32 jump target may round differently
+    inside a different kernel: allow 0.05 %, as test01). Rays without a march (``need``
+    False) must come out visible, and a lane must go on to its next ray after a hit."""
+    params = FabricParams(PATTERNS["twill_5x5"], beta=0.7, u_max_deg=30.0)
+    geo = yarn.YarnGeometry.from_params(params)
+    tab_np = yarn.tables(OPS, geo)
+    rays_np = [_rays(geo, 8000, seed=20 + i) for i in range(4)]
+    needs = [np.random.default_rng(30 + i).uniform(size=8000) < 0.8 for i in range(4)]
+    if backend == "numpy":
+        ops: object = OPS
+        conv: Callable[[np.ndarray], object] = lambda a: a  # noqa: E731
+    else:
+        from materials.fabric.aggregate_drjit import DrJitOps
+
+        dops = DrJitOps()
+        ops, conv = dops, lambda a: dops.Float(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+    tab = yarn.tables(ops, geo)  # type: ignore[arg-type]
+    mip = upload(ops, max_mip(geo))  # type: ignore[arg-type]
+    queries = []
+    for (s, t, h0, w, jit), need in zip(rays_np, needs, strict=True):
+        need_b = need if backend == "numpy" else dops.Float(need.astype(np.float32)) > 0.5
+        queries.append(
+            RayQuery(
+                conv(s), conv(t), conv(h0), (conv(w[0]), conv(w[1]), conv(w[2])), conv(jit), need_b
+            )
+        )
+    together = visibilities(ops, geo, tab, queries, mip=mip)  # type: ignore[arg-type]
+    for q, v, need in zip(queries, together, needs, strict=True):
+        alone = visibility(ops, geo, tab, q.s, q.t, q.h0, q.w, q.jitter, need=q.need, mip=mip)  # type: ignore[arg-type]
+        a, b = np.asarray(alone), np.asarray(v)
+        assert np.mean(a != b) <= 5e-4
+        assert np.all(b[~need] == 1.0)
+        assert 0.05 < b[need].mean() < 0.95  # both outcomes occur
+    del tab_np
