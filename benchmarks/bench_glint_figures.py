@@ -155,6 +155,16 @@ def _ms_per_spp(job: Any) -> float:
     return 1e3 * float(m.group(2)) / int(m.group(1))
 
 
+def spread(values: list[float]) -> dict[str, Any]:
+    """Mean, min, max and the values of one arm over its render seeds."""
+    return {
+        "mean": float(np.mean(values)),
+        "min": float(min(values)),
+        "max": float(max(values)),
+        "values": [float(v) for v in values],
+    }
+
+
 def exposure_for(images: list[np.ndarray]) -> float:
     """Stops that map the 99.5th percentile of luminance of the brightest image to 1."""
     lum = [float(np.percentile(im @ np.array([0.2126, 0.7152, 0.0722]), 99.5)) for im in images]
@@ -238,10 +248,13 @@ def make_figures(settings: Any, jobs: dict[str, Any], figures: Path, texels: int
         sizes[fig] = _write(figures / f"{fig}.png", grid([row]))
         m = metrics(score)
         out[fig] = {
-            **{k: m["tiny"][k] for k in ("flip", "psnr", "ssim")},
-            "yan_lo": {k: m["yan_lo"][k] for k in ("flip", "psnr", "ssim")},
-            "ms_per_spp": {label: _ms_per_spp(jobs[s]) for label, s in cols},
+            arm: {
+                k: spread([m[c][k] for c in m if c == arm or c.startswith(f"{arm}_")])
+                for k in ("flip", "psnr", "ssim")
+            }
+            for arm in ("tiny", "yan_lo")
         }
+        out[fig]["ms_per_spp"] = {label: _ms_per_spp(jobs[s]) for label, s in cols}
     if all(s in jobs for _, s in FIG10):
         steps = [s for _, s in FIG10]
         t = tms(steps, steps)
@@ -263,6 +276,7 @@ def make_figures(settings: Any, jobs: dict[str, Any], figures: Path, texels: int
                     for m in ("flip", "psnr", "ssim")
                 },
                 "flip_vs_tiling": effect[k]["flip"] if k in effect else None,
+                "yan_lo_flip_vs_yan": metrics(f"fig11_{k}_score").get("yan_lo", {}).get("flip"),
                 "ms_per_spp_tiny": _ms_per_spp(jobs[f"fig11_{k}_tiny"]),
                 "ms_per_spp_yan": _ms_per_spp(jobs[f"fig11_{k}_yan"]),
             }
@@ -295,12 +309,14 @@ def print_tables(res: dict[str, Any]) -> None:
         if fig in res:
             r = res[fig]
             ms = r["ms_per_spp"]
-            lo = r["yan_lo"]
-            print(
-                f"{fig}: tiny FLIP {r['flip']:.3f}, PSNR {r['psnr']:.1f} dB, SSIM {r['ssim']:.3f};"
-                f" Yan at the same spp FLIP {lo['flip']:.3f}, PSNR {lo['psnr']:.1f} dB, SSIM "
-                f"{lo['ssim']:.3f}; ms/spp tiny {ms['tiny']:.1f}, Yan {ms['yan']:.1f}"
-            )
+            for arm, name in (("tiny", "tiny model"), ("yan_lo", "Yan at the same spp")):
+                a = r[arm]
+                cells = ", ".join(
+                    f"{k} {a[k]['mean']:.3f} ({a[k]['min']:.3f}-{a[k]['max']:.3f})"
+                    for k in ("flip", "psnr", "ssim")
+                )
+                print(f"{fig} {name}, {len(a['flip']['values'])} seeds: {cells}")
+            print(f"{fig} ms/spp: " + ", ".join(f"{k} {v:.1f}" for k, v in ms.items()))
     if "fig10" in res:
         print(
             "fig10 ms/spp: "
@@ -319,6 +335,11 @@ def print_tables(res: dict[str, Any]) -> None:
                 f"{r['ssim_vs_yan']:.3f} | {fv} | {r['ms_per_spp_tiny']:.1f} | "
                 f"{r['ms_per_spp_yan']:.1f} |"
             )
+    if "fig11" in res and res["fig11"]["tile"]["yan_lo_flip_vs_yan"] is not None:
+        print(
+            f"fig11 floor: Yan at the tiny model's spp, tiling, FLIP "
+            f"{res['fig11']['tile']['yan_lo_flip_vs_yan']:.3f}"
+        )
     if "fig12" in res:
         r = res["fig12"]
         print(
