@@ -7,12 +7,14 @@ does), then writes one PNG panel per figure to ``--figures`` (default
 
 - ``fig8.png``, ``fig9.png``: tiny model, Yan reference, the tiny model's HDR-FLIP map
   against it (the score step's ``flip_tiny.png``, magma), Yan at the tiny model's spp and
-  its FLIP map (``flip_yan_lo.png``: the Monte Carlo floor), with FLIP, PSNR and SSIM;
+  its FLIP map (``flip_yan_lo.png``: the Monte Carlo floor), with FLIP, PSNR and SSIM of
+  both arms, mean and range over three render seeds each (the panels show the first);
 - ``fig10.png``: smooth GGX, structured tiled, scratches tiled, scratches stochastic,
   isotropic noise stochastic;
 - ``fig11.png``: brushed metal under five transforms, a row of tiny renders, a row of Yan
   renders, a row of FLIP maps, with the FLIP of each transform's tiny render against the
-  tiling's (does the transform change the image?);
+  tiling's (does the transform change the image?) and Yan at 16 spp against Yan on the
+  tiling (the floor);
 - ``fig12.png``: the three noise maps (each instance of the stochastic table drawn in a
   colour of its rotation, brighter for larger scale, over one uv square), the renders,
   and the FLIP of noise maps 1 and 2 and of map 0 at another render seed against map 0.
@@ -87,12 +89,16 @@ def _refs(value: Any) -> Iterable[str]:
 
 
 def chosen_steps(steps: list[Any], only: str | None) -> list[Any]:
-    """The steps whose names start with ``only`` and, transitively, the steps they use, in
-    the recipe's order (all of them when ``only`` is None)."""
+    """The steps whose names start with ``only``, the renders their figure's panel shows,
+    and, transitively, the steps they use, in the recipe's order (all of them when ``only``
+    is None)."""
     if only is None:
         return steps
     by_name = {s.name: s for s in steps}
     keep = {s.name for s in steps if s.name.startswith(only)}
+    # A panel may show another figure's render (Fig. 10 shows Fig. 9's stochastic scratches).
+    if any(k.startswith("fig10_") for k in keep):
+        keep.update(s for _, s in FIG10)
     todo = list(keep)
     while todo:
         for ref in _refs(by_name[todo.pop()].spec):

@@ -1,12 +1,15 @@
 """``benchmarks/bench_glint_figures.py`` (and its recipe ``scripts/glint_figures.yaml``) at
 tiny size: 16 x 12 pixels, 2 spp (references 4), 16 texels per uv, NDF images of 16 cells.
 
-Runs the script as a user would (a subprocess; ``--only fig1`` keeps Figs. 10-12 and the
-steps they use, ``fig8`` and ``fig9`` are one more call each in the real run and share its
-code path with Fig. 11's tiny-against-Yan scores). Oracles: each figure's PNG has the size
-of its grid of panels (``rows x columns`` tiles of 16 x 12 and 2-pixel gaps); every FLIP is
-in [0, 1] and PSNR finite; the five transforms of Fig. 11 each change the image against the
-tiling (FLIP above 0); the three noise maps of Fig. 12 are three different layouts.
+Runs the script as a user would (a subprocess; ``--only fig1`` keeps Figs. 10-12, the
+steps they use and Fig. 9's stochastic render that Fig. 10 shows; Figs. 8 and 9 share their
+code path with Fig. 11's tiny-against-Yan scores, and are left out to save time). Takes
+50 s on the loaded 2-core machine (load average 10; mostly kernel compilation).
+
+Oracles: each figure's PNG has the size of its grid of panels (``rows x columns`` tiles of
+16 x 12 and 2-pixel gaps); every FLIP is in [0, 1] and PSNR finite; the transforms of
+Fig. 11 each change the image against the tiling (FLIP above 0); the three noise maps of
+Fig. 12 are three different layouts.
 """
 
 from __future__ import annotations
