@@ -156,60 +156,13 @@ def lobes_pndf(
     ``5 sigma_h``. At most ``max_items`` texels per lane."""
     import drjit as dr
 
-    n, k2 = lobes.n, lobes.rate * lobes.rate
-    h2 = lobes.sigma_h**2
-    cx, cy = c
+    count, lobe = _lobe_terms(mi, lobes, c, cov, active, max_items)
+    k2 = lobes.rate * lobes.rate
     qx, qy = q
-    inv_p = cov.inverse(dr)
-    # S = (I / h2 + Sigma_P^-1)^-1; m = A u + bvec with A = S / h2, bvec = S Sigma_P^-1 c.
-    s_mat = Sym2(inv_p.a + 1.0 / h2, inv_p.b, inv_p.d + 1.0 / h2).inverse(dr)
-    px = inv_p.a * cx + inv_p.b * cy
-    py = inv_p.b * cx + inv_p.d * cy
-    bx = s_mat.a * px + s_mat.b * py
-    by = s_mat.b * px + s_mat.d * py
-    spatial = Sym2(cov.a + h2, cov.b, cov.d + h2)
-    sp_inv = spatial.inverse(dr)
-    sp_norm = dr.rcp(2.0 * math.pi * dr.sqrt(spatial.det()))
-    reach = 5.0 * lobes.sigma_h
-    hx = SUPPORT_SIGMAS * dr.sqrt(cov.a) + reach
-    hy = SUPPORT_SIGMAS * dr.sqrt(cov.d) + reach
-    x0 = mi.Int32(dr.floor(cx - hx))
-    y0 = mi.Int32(dr.floor(cy - hy))
-    nx = mi.Int32(dr.floor(cx + hx)) - x0 + 1
-    ny = mi.Int32(dr.floor(cy + hy)) - y0 + 1
-    count = dr.select(mi.Bool(active), dr.minimum(nx * ny, max_items), 0)
-    r2 = lobes.sigma_r**2
-    ux_a, uy_a, sx_a, sy_a, j00_a, j01_a, j10_a, j11_a = lobes.arrays
 
     def body(i: Any, acc: Any) -> tuple[Any, Any]:
-        tx = x0 + i % nx
-        ty = y0 + i // nx
-        wx, wy = _pmod(mi, dr, tx, n), _pmod(mi, dr, ty, n)
-        shx, shy = mi.Float(tx - wx), mi.Float(ty - wy)
-        base = mi.UInt32((wy * n + wx) * k2)
         for j in range(k2):
-            idx = base + j
-            ux = dr.gather(mi.Float, ux_a, idx) + shx
-            uy = dr.gather(mi.Float, uy_a, idx) + shy
-            g = _gauss(dr, sp_inv, sp_norm, cx - ux, cy - uy)
-            mx = s_mat.a * ux + s_mat.b * uy
-            my = s_mat.b * ux + s_mat.d * uy
-            dux = mx / h2 + bx - ux
-            duy = my / h2 + by - uy
-            j00 = dr.gather(mi.Float, j00_a, idx)
-            j01 = dr.gather(mi.Float, j01_a, idx)
-            j10 = dr.gather(mi.Float, j10_a, idx)
-            j11 = dr.gather(mi.Float, j11_a, idx)
-            mean_x = dr.gather(mi.Float, sx_a, idx) + j00 * dux + j01 * duy
-            mean_y = dr.gather(mi.Float, sy_a, idx) + j10 * dux + j11 * duy
-            # J S J^T + sigma_r^2 I
-            t00 = j00 * s_mat.a + j01 * s_mat.b
-            t01 = j00 * s_mat.b + j01 * s_mat.d
-            t10 = j10 * s_mat.a + j11 * s_mat.b
-            t11 = j10 * s_mat.b + j11 * s_mat.d
-            ncov = Sym2(
-                t00 * j00 + t01 * j01 + r2, t00 * j10 + t01 * j11, t10 * j10 + t11 * j11 + r2
-            )
+            g, mean_x, mean_y, ncov = lobe(i, j)
             ninv = ncov.inverse(dr)
             nnorm = dr.rcp(2.0 * math.pi * dr.sqrt(ncov.det()))
             acc += g * _gauss(dr, ninv, nnorm, qx - mean_x, qy - mean_y)
