@@ -1,4 +1,5 @@
-"""What the four training examples share: the command line and a tiny MLP (plain torch).
+"""What the four training examples share: the command line, a tiny MLP and its training
+loop (plain torch).
 
 Each example trains on one dataset family, read with ``matforge.datasets`` only::
 
@@ -15,6 +16,7 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.utils.data import DataLoader, Dataset
 
 import matforge
 
@@ -28,6 +30,33 @@ def mlp(n_in: int, n_out: int, width: int = 32, depth: int = 2) -> nn.Sequential
         d = width
     layers.append(nn.Linear(d, n_out))
     return nn.Sequential(*layers)
+
+
+def fit(
+    net: nn.Module,
+    data: Dataset,
+    loss_of: Callable[[dict[str, torch.Tensor]], torch.Tensor],
+    *,
+    steps: int,
+    batch: int,
+    lr: float,
+    shuffle: bool = True,
+) -> tuple[float, float]:
+    """``steps`` Adam steps at ``lr`` on ``loss_of(b)`` of batches ``b`` of ``data``
+    (passes over it, reshuffled each time unless ``shuffle`` is off, until ``steps``);
+    returns the mean loss of the first and of the last 20 steps."""
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    losses: list[float] = []
+    while len(losses) < steps:
+        for b in DataLoader(data, batch_size=batch, shuffle=shuffle):
+            loss = loss_of(b)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+            if len(losses) == steps:
+                break
+    return sum(losses[:20]) / 20, sum(losses[-20:]) / 20
 
 
 def open_dataset(args: argparse.Namespace, spec: dict[str, Any]) -> Any:

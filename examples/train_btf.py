@@ -11,8 +11,7 @@ import math
 from typing import Any
 
 import torch
-from common import cli, mlp
-from torch.utils.data import DataLoader
+from common import cli, fit, mlp
 
 SPEC = {"kind": "generate.btf", "seed": 4,
         "params": {"surface": {"procedural": "wood", "size": 8}, "resolution": 8, "spp": 2,
@@ -33,16 +32,13 @@ def train(btf: Any, steps: int = 300, batch: int = 256) -> tuple[float, float]:
     """Train; returns the mean loss of the first and of the last 20 steps."""
     data = btf.torch_dataset(length=steps * batch, seed=0)
     net = mlp(4 * FREQS + 6, 3, width=64)
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    losses: list[float] = []
-    for b in DataLoader(data, batch_size=batch, shuffle=False):
+
+    def loss(b: dict[str, torch.Tensor]) -> torch.Tensor:
         x = torch.cat([features(b["uv"]), b["wi"], b["wo"]], dim=1)
-        loss = (net(x) - torch.log1p(b["rgb"])).abs().mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
-    return sum(losses[:20]) / 20, sum(losses[-20:]) / 20
+        return (net(x) - torch.log1p(b["rgb"])).abs().mean()
+
+    # one pass: the dataset holds steps * batch draws
+    return fit(net, data, loss, steps=steps, batch=batch, lr=3e-3, shuffle=False)
 
 
 if __name__ == "__main__":

@@ -11,8 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from common import cli, mlp
-from torch.utils.data import DataLoader
+from common import cli, fit, mlp
 
 SPEC = {"kind": "generate.fabric", "seed": 5,
         "params": {"patterns": ["plain"], "texture_sets": 1, "shading_sets": 2,
@@ -26,21 +25,14 @@ def train(fq: Any, steps: int = 300, batch: int = 64) -> tuple[float, float]:
     data = fq.torch_dataset()
     n_mat = len(fq.names)
     net = mlp(9 + n_mat, 4)
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    losses: list[float] = []
-    while len(losses) < steps:
-        for b in DataLoader(data, batch_size=batch, shuffle=True):
-            onehot = torch.nn.functional.one_hot(b["material"], n_mat).float()
-            x = torch.cat([b["center"], b["size"][:, None], b["wi"], b["wo"], onehot], dim=1)
-            w = 1.0 / (b["stderr"] ** 2 + EPS)
-            loss = (w * (net(x) - b["value"]) ** 2).mean() * EPS
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            if len(losses) == steps:
-                break
-    return sum(losses[:20]) / 20, sum(losses[-20:]) / 20
+
+    def loss(b: dict[str, torch.Tensor]) -> torch.Tensor:
+        onehot = torch.nn.functional.one_hot(b["material"], n_mat).float()
+        x = torch.cat([b["center"], b["size"][:, None], b["wi"], b["wo"], onehot], dim=1)
+        w = 1.0 / (b["stderr"] ** 2 + EPS)
+        return (w * (net(x) - b["value"]) ** 2).mean() * EPS
+
+    return fit(net, data, loss, steps=steps, batch=batch, lr=3e-3)
 
 
 if __name__ == "__main__":

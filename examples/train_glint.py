@@ -11,8 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from common import cli, mlp
-from torch.utils.data import DataLoader
+from common import cli, fit, mlp
 
 SPEC = {"kind": "generate.glint", "seed": 3,
         "params": {"example": {"procedural": "isotropic_noise", "size": 8},
@@ -23,20 +22,13 @@ def train(g: Any, steps: int = 300, batch: int = 512) -> tuple[float, float]:
     """Train; returns the mean loss of the first and of the last 20 steps."""
     data = g.torch_dataset()
     net = mlp(6, 1, width=64)
-    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
-    losses: list[float] = []
-    while len(losses) < steps:
-        for b in DataLoader(data, batch_size=batch, shuffle=True):
-            x = torch.cat([b["uv"], b["footprint"][:, None], b["s"],
-                           b["level"][:, None].float()], dim=1)  # fmt: skip
-            loss = ((net(x)[:, 0] - torch.log1p(b["density"])) ** 2).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            if len(losses) == steps:
-                break
-    return sum(losses[:20]) / 20, sum(losses[-20:]) / 20
+
+    def loss(b: dict[str, torch.Tensor]) -> torch.Tensor:
+        x = torch.cat([b["uv"], b["footprint"][:, None], b["s"],
+                       b["level"][:, None].float()], dim=1)  # fmt: skip
+        return ((net(x)[:, 0] - torch.log1p(b["density"])) ** 2).mean()
+
+    return fit(net, data, loss, steps=steps, batch=batch, lr=1e-2)
 
 
 if __name__ == "__main__":

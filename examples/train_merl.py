@@ -11,8 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from common import cli, mlp
-from torch.utils.data import DataLoader
+from common import cli, fit, mlp
 
 SPEC = {"kind": "generate.merl", "seed": 5,
         "params": {"collection": {"families": {"metal": 1, "paint": 1}}}}  # fmt: skip
@@ -23,21 +22,14 @@ def train(coll: Any, steps: int = 300, batch: int = 512) -> tuple[float, float]:
     data = coll.torch_dataset(pairs=4096, seed=0)
     n_mat = len(coll.names)
     net = mlp(6 + n_mat, 3)
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    losses: list[float] = []
-    while len(losses) < steps:
-        for b in DataLoader(data, batch_size=batch, shuffle=True):
-            onehot = torch.nn.functional.one_hot(b["material"], n_mat).float()
-            x = torch.cat([b["wi"], b["wo"], onehot], dim=1)
-            target = torch.log1p(b["rgb"].clamp_min(0) * b["wi"][:, 2:3])
-            loss = (net(x) - target).abs().mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            if len(losses) == steps:
-                break
-    return sum(losses[:20]) / 20, sum(losses[-20:]) / 20
+
+    def loss(b: dict[str, torch.Tensor]) -> torch.Tensor:
+        onehot = torch.nn.functional.one_hot(b["material"], n_mat).float()
+        x = torch.cat([b["wi"], b["wo"], onehot], dim=1)
+        target = torch.log1p(b["rgb"].clamp_min(0) * b["wi"][:, 2:3])
+        return (net(x) - target).abs().mean()
+
+    return fit(net, data, loss, steps=steps, batch=batch, lr=3e-3)
 
 
 if __name__ == "__main__":

@@ -17,15 +17,9 @@ from __future__ import annotations
 
 import argparse
 import io
-import os
-import re
-import signal
-import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +32,7 @@ from service.settings import Settings  # noqa: E402
 from service.specs import STEP_REF  # noqa: E402
 from service.submission import run_in_process  # noqa: E402
 from storage.jobs import Job  # noqa: E402
+from tests.e2e.harness import serve_in_subprocess  # noqa: E402
 
 CHROMIUM = Path("/usr/bin/chromium")
 TOKEN = "screenshots"
@@ -175,44 +170,6 @@ def import_btf(settings: Settings, tmp: Path) -> Job:
     return run_in_process(spec, settings)
 
 
-@contextmanager
-def dashboard(data: Path, log_path: Path) -> Iterator[str]:
-    """``serve()`` on a free port (no workers) with :data:`TOKEN`; yields its URL."""
-    code = (
-        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
-        "from service.server import serve; from service.settings import Settings; "
-        "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
-        "host='127.0.0.1', port=0, workers=0)"
-    )
-    env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
-    env["MATFORGE_TOKEN"] = TOKEN
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-c", code, str(data), str(ROOT)],
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-    try:
-        url = None
-        deadline = time.monotonic() + 60
-        while url is None and time.monotonic() < deadline and proc.poll() is None:
-            m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
-            url = m.group(1).rstrip("/") if m else None
-            time.sleep(0.1)
-        if url is None:
-            raise RuntimeError(f"the server did not start:\n{log_path.read_text()}")
-        yield url
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def small_png(shot: bytes) -> bytes:
     """A screenshot reduced to 256 colours (a tenth of the size; UI colours survive)."""
     import numpy as np
@@ -310,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         shots: list[tuple[str, str, str]] = []
         with (
-            dashboard(data, Path(tmp) / "server.log") as url,
+            serve_in_subprocess(data, TOKEN, Path(tmp) / "server.log") as (url, _),
             sync_playwright() as pw,
         ):
             browser = pw.chromium.launch(

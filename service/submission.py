@@ -9,18 +9,17 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from jobapi.context import JobLimits, media_type_for
+from jobapi.context import media_type_for
 from jobapi.errors import SpecError
 from jobapi.params import JOB_REF, SHA_REF
 from service.settings import Settings
 from service.specs import SHORT_JOB_REF, ValidSpec, validate_spec
 from service.workers.backend import start_backend
-from service.workers.execution import execute, worker_id
+from service.workers.execution import execute_configured, worker_id
 from service.workers.executors import executor_for
 from storage.artifacts import ArtifactStore
 from storage.errors import AmbiguousIdError, FormatError, NotFoundError
 from storage.formats import validate_file
-from storage.job_logs import log_dir
 from storage.job_queries import resolve_job_id
 from storage.jobs import ArtifactRecord, Job, JobStore
 
@@ -256,18 +255,7 @@ def run_in_process(raw: Any, settings: Settings) -> Job:
         claimed = jobs.claim(worker_id(), settings.lease_seconds, job_id=job.id)
         try:
             if claimed is not None:
-                execute(
-                    claimed,
-                    jobs=jobs,
-                    store=store,
-                    lease_seconds=settings.lease_seconds,
-                    executor=executor,
-                    scratch=settings.data_dir / "scratch",
-                    limits=JobLimits(archive_pixels=settings.archive_max_pixels),
-                    stall_seconds=settings.stall_seconds,
-                    log_dir=log_dir(settings.data_dir),
-                    variant=settings.variant,
-                )
+                execute_configured(claimed, settings, jobs=jobs, store=store, executor=executor)
         finally:
             executor.close()
     return jobs.get(job.id)

@@ -221,50 +221,67 @@ PLANE_LIGHTS = (
 )
 
 
-def sphere_env(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """Unit sphere under :func:`studio_envmap`, plus ``lights`` (none by default)."""
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["sphere"] = {"type": "sphere", "bsdf": bsdf}
-    scene["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap())}
-    scene.update(_point_lights(lights))
-    return scene
+def _environment(mi: types.ModuleType, scale: float) -> dict[str, Any]:
+    return {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap()), "scale": scale}
 
 
-def sphere_points(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """Unit sphere under point lights (by default :data:`SPHERE_LIGHTS`), black background.
+@dataclass(frozen=True)
+class LitScene:
+    """A scene builder (:attr:`SceneDef.builder`): the integrator and sensor of
+    :func:`_base`, the shapes ``shapes(mi, bsdf)``, :func:`studio_envmap` at
+    ``environment_scale`` (0: no environment) and the point lights ``lights``."""
 
-    The sphere's pole points up (+y) and its uv seam (``phi = 0``) away from the default
-    camera: Mitsuba's sphere has its pole on local +z, which would face the camera, and a
-    texture (a BTF, Xu et al. Fig. 17's sphere) would converge to a pinwheel at the centre
-    of the view. Rotations leave the geometry, and so isotropic materials, unchanged.
+    shapes: Callable[[types.ModuleType, Any], dict[str, Any]]
+    environment_scale: float = 0.0
+
+    def __call__(
+        self,
+        mi: types.ModuleType,
+        bsdf: Any,
+        camera: Camera,
+        lights: tuple[PointLight, ...],
+        max_depth: int,
+        resolution: tuple[int, int],
+        spp: int,
+    ) -> dict[str, Any]:
+        scene = _base(mi, camera, max_depth, resolution, spp)
+        scene.update(self.shapes(mi, bsdf))
+        if self.environment_scale:
+            scene["environment"] = _environment(mi, self.environment_scale)
+        scene.update(_point_lights(lights))
+        return scene
+
+
+def _sphere(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
+    """The unit sphere at the origin, Mitsuba's orientation (pole on +z)."""
+    return {"sphere": {"type": "sphere", "bsdf": bsdf}}
+
+
+def _upright_sphere(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
+    """The unit sphere with its pole up (+y) and its uv seam (``phi = 0``) away from the
+    default camera.
+
+    Mitsuba's sphere has its pole on local +z, which would face the camera, and a texture (a
+    BTF, Xu et al. Fig. 17's sphere) would converge to a pinwheel at the centre of the view.
+    Rotations leave the geometry, and so isotropic materials, unchanged.
     """
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["sphere"] = {
-        "type": "sphere",
-        "bsdf": bsdf,
-        # Applied right to left: local +z (pole) to +y, then local +x (seam) to -z.
-        "to_world": mi.ScalarTransform4f()
-        .rotate([0.0, 1.0, 0.0], 90.0)
-        .rotate([1.0, 0.0, 0.0], -90.0),
+    return {
+        "sphere": {
+            "type": "sphere",
+            "bsdf": bsdf,
+            # Applied right to left: local +z (pole) to +y, then local +x (seam) to -z.
+            "to_world": mi.ScalarTransform4f()
+            .rotate([0.0, 1.0, 0.0], 90.0)
+            .rotate([1.0, 0.0, 0.0], -90.0),
+        }
     }
-    scene.update(_point_lights(lights))
-    return scene
+
+
+#: Unit sphere under :func:`studio_envmap`, plus ``lights`` (none by default).
+sphere_env = LitScene(_sphere, environment_scale=1.0)
+#: Unit sphere (:func:`_upright_sphere`) under point lights (by default
+#: :data:`SPHERE_LIGHTS`), black background.
+sphere_points = LitScene(_upright_sphere)
 
 
 def floor_under_sphere(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
@@ -301,20 +318,12 @@ def _floor_square(mi: types.ModuleType, bsdf: Any, half_size: float) -> Any:
     }
 
 
-def plane_points(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """An 8x8 textured square (normal +y, uv in [0, 1]^2) under point lights."""
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["plane"] = _floor_square(mi, bsdf, PLANE_HALF_SIZE)
-    scene.update(_point_lights(lights))
-    return scene
+def _plane(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
+    return {"plane": _floor_square(mi, bsdf, PLANE_HALF_SIZE)}
+
+
+#: An 8x8 textured square (normal +y, uv in [0, 1]^2) under point lights.
+plane_points = LitScene(_plane)
 
 
 #: Half the side of the ``cloth_plane`` square.
@@ -323,21 +332,12 @@ CLOTH_CAMERA = Camera(origin=(0.0, 2.0, 2.4), target=(0.0, 0.0, 0.0), fov=45.0)
 CLOTH_LIGHTS = (PointLight(position=(-1.5, 2.5, 1.0), intensity=(6.0, 5.5, 5.0)),)
 
 
-def cloth_plane(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """A 3x3 square (normal +y, uv in [0, 1]^2) under :func:`studio_envmap` and ``lights``."""
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["cloth"] = _floor_square(mi, bsdf, CLOTH_HALF_SIZE)
-    scene["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap())}
-    scene.update(_point_lights(lights))
-    return scene
+def _cloth(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
+    return {"cloth": _floor_square(mi, bsdf, CLOTH_HALF_SIZE)}
+
+
+#: A 3x3 square (normal +y, uv in [0, 1]^2) under :func:`studio_envmap` and ``lights``.
+cloth_plane = LitScene(_cloth, environment_scale=1.0)
 
 
 #: Four sharp point lights, as in Xing et al. 2024's scenes.
@@ -369,42 +369,14 @@ def bent_quad_mesh(mi: types.ModuleType, bsdf: Any, segments: int = 32) -> Any:
     return triangle_mesh(mi, "bent_quad", pos, faces, bsdf, uv=uv, normals=nrm)
 
 
-def _dim_environment(mi: types.ModuleType) -> dict[str, Any]:
-    return {"type": "envmap", "bitmap": mi.Bitmap(studio_envmap()), "scale": GLINT_ENV_SCALE}
+def _quad(mi: types.ModuleType, bsdf: Any) -> dict[str, Any]:
+    return {"quad": bent_quad_mesh(mi, bsdf)}
 
 
-def bent_quad(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """The bent quad under ``lights`` (by default :data:`GLINT_LIGHTS`) and a dim map."""
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["quad"] = bent_quad_mesh(mi, bsdf)
-    scene["environment"] = _dim_environment(mi)
-    scene.update(_point_lights(lights))
-    return scene
-
-
-def glint_sphere(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """The unit sphere under ``lights`` (by default :data:`GLINT_LIGHTS`) and a dim map."""
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["sphere"] = {"type": "sphere", "bsdf": bsdf}
-    scene["environment"] = _dim_environment(mi)
-    scene.update(_point_lights(lights))
-    return scene
+#: The bent quad under ``lights`` (by default :data:`GLINT_LIGHTS`) and a dim map.
+bent_quad = LitScene(_quad, environment_scale=GLINT_ENV_SCALE)
+#: The unit sphere under ``lights`` (by default :data:`GLINT_LIGHTS`) and a dim map.
+glint_sphere = LitScene(_sphere, environment_scale=GLINT_ENV_SCALE)
 
 
 @dataclass(frozen=True)

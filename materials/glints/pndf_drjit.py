@@ -156,60 +156,13 @@ def lobes_pndf(
     ``5 sigma_h``. At most ``max_items`` texels per lane."""
     import drjit as dr
 
-    n, k2 = lobes.n, lobes.rate * lobes.rate
-    h2 = lobes.sigma_h**2
-    cx, cy = c
+    count, lobe = _lobe_terms(mi, lobes, c, cov, active, max_items)
+    k2 = lobes.rate * lobes.rate
     qx, qy = q
-    inv_p = cov.inverse(dr)
-    # S = (I / h2 + Sigma_P^-1)^-1; m = A u + bvec with A = S / h2, bvec = S Sigma_P^-1 c.
-    s_mat = Sym2(inv_p.a + 1.0 / h2, inv_p.b, inv_p.d + 1.0 / h2).inverse(dr)
-    px = inv_p.a * cx + inv_p.b * cy
-    py = inv_p.b * cx + inv_p.d * cy
-    bx = s_mat.a * px + s_mat.b * py
-    by = s_mat.b * px + s_mat.d * py
-    spatial = Sym2(cov.a + h2, cov.b, cov.d + h2)
-    sp_inv = spatial.inverse(dr)
-    sp_norm = dr.rcp(2.0 * math.pi * dr.sqrt(spatial.det()))
-    reach = 5.0 * lobes.sigma_h
-    hx = SUPPORT_SIGMAS * dr.sqrt(cov.a) + reach
-    hy = SUPPORT_SIGMAS * dr.sqrt(cov.d) + reach
-    x0 = mi.Int32(dr.floor(cx - hx))
-    y0 = mi.Int32(dr.floor(cy - hy))
-    nx = mi.Int32(dr.floor(cx + hx)) - x0 + 1
-    ny = mi.Int32(dr.floor(cy + hy)) - y0 + 1
-    count = dr.select(mi.Bool(active), dr.minimum(nx * ny, max_items), 0)
-    r2 = lobes.sigma_r**2
-    ux_a, uy_a, sx_a, sy_a, j00_a, j01_a, j10_a, j11_a = lobes.arrays
 
     def body(i: Any, acc: Any) -> tuple[Any, Any]:
-        tx = x0 + i % nx
-        ty = y0 + i // nx
-        wx, wy = _pmod(mi, dr, tx, n), _pmod(mi, dr, ty, n)
-        shx, shy = mi.Float(tx - wx), mi.Float(ty - wy)
-        base = mi.UInt32((wy * n + wx) * k2)
         for j in range(k2):
-            idx = base + j
-            ux = dr.gather(mi.Float, ux_a, idx) + shx
-            uy = dr.gather(mi.Float, uy_a, idx) + shy
-            g = _gauss(dr, sp_inv, sp_norm, cx - ux, cy - uy)
-            mx = s_mat.a * ux + s_mat.b * uy
-            my = s_mat.b * ux + s_mat.d * uy
-            dux = mx / h2 + bx - ux
-            duy = my / h2 + by - uy
-            j00 = dr.gather(mi.Float, j00_a, idx)
-            j01 = dr.gather(mi.Float, j01_a, idx)
-            j10 = dr.gather(mi.Float, j10_a, idx)
-            j11 = dr.gather(mi.Float, j11_a, idx)
-            mean_x = dr.gather(mi.Float, sx_a, idx) + j00 * dux + j01 * duy
-            mean_y = dr.gather(mi.Float, sy_a, idx) + j10 * dux + j11 * duy
-            # J S J^T + sigma_r^2 I
-            t00 = j00 * s_mat.a + j01 * s_mat.b
-            t01 = j00 * s_mat.b + j01 * s_mat.d
-            t10 = j10 * s_mat.a + j11 * s_mat.b
-            t11 = j10 * s_mat.b + j11 * s_mat.d
-            ncov = Sym2(
-                t00 * j00 + t01 * j01 + r2, t00 * j10 + t01 * j11, t10 * j10 + t11 * j11 + r2
-            )
+            g, mean_x, mean_y, ncov = lobe(i, j)
             ninv = ncov.inverse(dr)
             nnorm = dr.rcp(2.0 * math.pi * dr.sqrt(ncov.det()))
             acc += g * _gauss(dr, ninv, nnorm, qx - mean_x, qy - mean_y)
@@ -246,6 +199,98 @@ def _box_mass(dr: Any, cov: Sym2, ox: Any, oy: Any, side: Any) -> Any:
     return half * mass
 
 
+def _local_footprint(ai: np.ndarray, c: tuple[Any, Any], cov: Sym2) -> tuple[Any, Any, Sym2]:
+    """The footprint in the example's local frame, ``ai = A^-1``: ``c_l = A^-1 c`` and
+    ``Sigma_l = A^-1 Sigma A^-T``, as ``(c_lx, c_ly, Sigma_l)``."""
+    clx = float(ai[0, 0]) * c[0] + float(ai[0, 1]) * c[1]
+    cly = float(ai[1, 0]) * c[0] + float(ai[1, 1]) * c[1]
+    r00, r01, r10, r11 = (float(v) for v in ai.ravel())
+    a = r00 * r00 * cov.a + 2 * r00 * r01 * cov.b + r01 * r01 * cov.d
+    b = r00 * r10 * cov.a + (r00 * r11 + r01 * r10) * cov.b + r01 * r11 * cov.d
+    d = r10 * r10 * cov.a + 2 * r10 * r11 * cov.b + r11 * r11 * cov.d
+    return clx, cly, Sym2(a, b, d)
+
+
+def _flat_level(mi: types.ModuleType, dr: Any, cl: Sym2, levels: int) -> tuple[Any, Any, Any]:
+    """``(lambda_min, target, level)`` of the local footprint ``cl`` (lod_level): the
+    coarsest level with tile side ``2^(l+1) <= target = FLATNESS sigma_min``."""
+    half_tr = 0.5 * (cl.a + cl.d)
+    lam = half_tr - dr.sqrt(dr.maximum(dr.square(0.5 * (cl.a - cl.d)) + cl.b * cl.b, 0.0))
+    target = FLATNESS * dr.sqrt(dr.maximum(lam, 1e-30))
+    level = dr.minimum(mi.Int32(dr.floor(dr.log2(dr.maximum(target, 1e-30)))) - 1, levels - 1)
+    return lam, target, level
+
+
+@dataclass(frozen=True)
+class _TileGrid:
+    """The tiles of level ``lv`` (side ``side`` texels, ``r`` per period of the example)
+    that the local footprint ``N((clx, cly), Sigma_l)`` may reach: the support box at
+    :data:`SUPPORT_SIGMAS` plus ``5 sigma_h``, ``nx`` per row from ``(t0x, t0y)``, ``count``
+    of them (at most ``max_items``; 0 where the maps are not used); ``inv_l`` and
+    ``norm_l``: the footprint Gaussian's inverse covariance and normalisation."""
+
+    mi: types.ModuleType
+    dr: Any
+    clx: Any
+    cly: Any
+    lv: Any
+    side: Any
+    r: Any
+    t0x: Any
+    t0y: Any
+    nx: Any
+    count: Any
+    inv_l: Sym2
+    norm_l: Any
+
+    def tile(self, i: Any) -> tuple[Any, Any]:
+        """The ``i``-th tile's index ``(tx, ty)`` (not wrapped)."""
+        return self.t0x + i % self.nx, self.t0y + i // self.nx
+
+    def flat_mass(self, tx: Any, ty: Any) -> Any:
+        """The tile's footprint mass: 2 x 2 Gauss-Legendre on ``[t side, (t + 1) side]^2``."""
+        mi, dr, side = self.mi, self.dr, self.side
+        ox = (mi.Float(tx) + 0.5) * side - self.clx
+        oy = (mi.Float(ty) + 0.5) * side - self.cly
+        d = 0.5 * side * _GL2
+        mass = dr.zeros(mi.Float)
+        for sx in (-d, d):
+            for sy in (-d, d):
+                mass += _gauss(dr, self.inv_l, self.norm_l, ox + sx, oy + sy)
+        return mass * (0.25 * side * side)
+
+    def wrap(self, tx: Any, ty: Any) -> tuple[Any, Any]:
+        """The tile's index in the example's period: ``(tx mod r, ty mod r)``."""
+        mi, dr, r = self.mi, self.dr, self.r
+        wx = tx - r * mi.Int32(dr.floor(mi.Float(tx) / mi.Float(r)))
+        wy = ty - r * mi.Int32(dr.floor(mi.Float(ty) / mi.Float(r)))
+        return wx, wy
+
+
+def _tile_grid(
+    mi: types.ModuleType, maps: JitMaps, lobes: JitLobes, clx: Any, cly: Any, cl: Sym2,
+    level: Any, use_maps: Any, max_items: int,
+) -> _TileGrid:  # fmt: skip
+    """The :class:`_TileGrid` of ``level`` (negative: the finest) for the local footprint
+    ``N((clx, cly), cl)``, what :func:`tiny_pndf` and :func:`tiny_sample` loop over."""
+    import drjit as dr
+
+    lv = dr.maximum(level, 0)
+    side = dr.exp2(mi.Float(lv + 1))
+    r = mi.Int32(maps.n) // mi.Int32(side)
+    reach = 5.0 * lobes.sigma_h
+    hx = SUPPORT_SIGMAS * dr.sqrt(cl.a) + reach
+    hy = SUPPORT_SIGMAS * dr.sqrt(cl.d) + reach
+    t0x = mi.Int32(dr.floor((clx - hx) / side))
+    t0y = mi.Int32(dr.floor((cly - hy) / side))
+    nx = mi.Int32(dr.floor((clx + hx) / side)) - t0x + 1
+    ny = mi.Int32(dr.floor((cly + hy) / side)) - t0y + 1
+    count = dr.select(use_maps, dr.minimum(nx * ny, max_items), 0)
+    inv_l = cl.inverse(dr)
+    norm_l = dr.rcp(2.0 * math.pi * dr.sqrt(cl.det()))
+    return _TileGrid(mi, dr, clx, cly, lv, side, r, t0x, t0y, nx, count, inv_l, norm_l)
+
+
 def tiny_pndf(
     mi: types.ModuleType,
     maps: JitMaps,
@@ -272,25 +317,11 @@ def tiny_pndf(
     ai = np.linalg.inv(a_mat)
     det_a = float(abs(np.linalg.det(a_mat)))
     # Local frame: c_l = A^-1 c, Sigma_l = A^-1 Sigma A^-T, q_l = A^T (q - o).
-    clx = float(ai[0, 0]) * c[0] + float(ai[0, 1]) * c[1]
-    cly = float(ai[1, 0]) * c[0] + float(ai[1, 1]) * c[1]
-
-    def congruent(m: Sym2) -> Sym2:
-        r00, r01, r10, r11 = (float(v) for v in ai.ravel())
-        a = r00 * r00 * m.a + 2 * r00 * r01 * m.b + r01 * r01 * m.d
-        b = r00 * r10 * m.a + (r00 * r11 + r01 * r10) * m.b + r01 * r11 * m.d
-        d = r10 * r10 * m.a + 2 * r10 * r11 * m.b + r11 * r11 * m.d
-        return Sym2(a, b, d)
-
-    cl = congruent(cov)
+    clx, cly, cl = _local_footprint(ai, c, cov)
     dqx, dqy = q[0] - float(off[0]), q[1] - float(off[1])
     qlx = float(a_mat[0, 0]) * dqx + float(a_mat[1, 0]) * dqy
     qly = float(a_mat[0, 1]) * dqx + float(a_mat[1, 1]) * dqy
-    # The level (lod_level): the coarsest with tile side 2^(l+1) <= FLATNESS sigma_min.
-    half_tr = 0.5 * (cl.a + cl.d)
-    lam = half_tr - dr.sqrt(dr.maximum(dr.square(0.5 * (cl.a - cl.d)) + cl.b * cl.b, 0.0))
-    target = FLATNESS * dr.sqrt(dr.maximum(lam, 1e-30))
-    level = dr.minimum(mi.Int32(dr.floor(dr.log2(dr.maximum(target, 1e-30)))) - 1, maps.levels - 1)
+    lam, target, level = _flat_level(mi, dr, cl, maps.levels)
     if lookup == "paper":  # footprint.paper_uses_lobes
         minor = 2.0 * COVER_SIGMAS * dr.sqrt(dr.maximum(lam, 0.0))
         use_maps = mi.Bool(active) & (minor >= 2.0)
@@ -302,18 +333,8 @@ def tiny_pndf(
 
     from_lobes = lobes_pndf(mi, lobes, (clx, cly), cl, (qlx, qly), use_lobes, max_items=max_items)
 
-    lv = dr.maximum(level, 0)
-    side = dr.exp2(mi.Float(lv + 1))
-    r = mi.Int32(maps.n) // mi.Int32(side)
-    reach = 5.0 * lobes.sigma_h
-    hx = SUPPORT_SIGMAS * dr.sqrt(cl.a) + reach
-    hy = SUPPORT_SIGMAS * dr.sqrt(cl.d) + reach
-    t0x = mi.Int32(dr.floor((clx - hx) / side))
-    t0y = mi.Int32(dr.floor((cly - hy) / side))
-    nx = mi.Int32(dr.floor((clx + hx) / side)) - t0x + 1
-    ny = mi.Int32(dr.floor((cly + hy) / side)) - t0y + 1
-    count = dr.select(use_maps, dr.minimum(nx * ny, max_items), 0)
-    base = dr.gather(mi.UInt32, maps.offsets, mi.UInt32(lv), use_maps)
+    grid = _tile_grid(mi, maps, lobes, clx, cly, cl, level, use_maps, max_items)
+    base = dr.gather(mi.UInt32, maps.offsets, mi.UInt32(grid.lv), use_maps)
     big_r = maps.resolution
     cell = 2.0 * maps.extent / big_r
     px = (qlx + maps.extent) / cell - 0.5
@@ -327,12 +348,10 @@ def tiny_pndf(
             ok = (ix >= 0) & (ix < big_r) & (iy >= 0) & (iy < big_r)
             w = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
             corners.append((mi.UInt32(dr.select(ok, iy * big_r + ix, 0)), dr.select(ok, w, 0.0)))
-    inv_l = cl.inverse(dr)
-    norm_l = dr.rcp(2.0 * math.pi * dr.sqrt(cl.det()))
+    inv_l = grid.inv_l
 
     def paper_body(i: Any, acc: Any) -> tuple[Any, Any]:
-        tx = t0x + i % nx
-        ty = t0y + i // nx
+        tx, ty = grid.tile(i)
         # The coarsest covered ancestor (covered is monotone: children of a covered tile
         # are covered), searched from the top; -1: the finest tile is not covered.
         found = mi.Int32(-1)
@@ -368,20 +387,10 @@ def tiny_pndf(
         return i + 1, acc + dr.select(read, mass * value, 0.0)
 
     def body(i: Any, acc: Any) -> tuple[Any, Any]:
-        tx = t0x + i % nx
-        ty = t0y + i // nx
-        # The tile's footprint mass: 2 x 2 Gauss-Legendre on [t side, (t + 1) side]^2.
-        ox = (mi.Float(tx) + 0.5) * side - clx
-        oy = (mi.Float(ty) + 0.5) * side - cly
-        d = 0.5 * side * _GL2
-        mass = dr.zeros(mi.Float)
-        for sx in (-d, d):
-            for sy in (-d, d):
-                mass += _gauss(dr, inv_l, norm_l, ox + sx, oy + sy)
-        mass *= 0.25 * side * side
-        wx = tx - r * mi.Int32(dr.floor(mi.Float(tx) / mi.Float(r)))
-        wy = ty - r * mi.Int32(dr.floor(mi.Float(ty) / mi.Float(r)))
-        img = base + mi.UInt32((wy * r + wx) * (big_r * big_r))
+        tx, ty = grid.tile(i)
+        mass = grid.flat_mass(tx, ty)
+        wx, wy = grid.wrap(tx, ty)
+        img = base + mi.UInt32((wy * grid.r + wx) * (big_r * big_r))
         value = dr.zeros(mi.Float)
         for idx, w in corners:
             value += w * dr.gather(mi.Float, maps.data, img + idx)
@@ -389,7 +398,7 @@ def tiny_pndf(
 
     _, acc = dr.while_loop(
         (mi.Int32(0), dr.zeros(mi.Float)),
-        lambda i, acc: i < count,
+        lambda i, acc: i < grid.count,
         paper_body if lookup == "paper" else body,
         label="glint: tiles",
     )
@@ -609,54 +618,25 @@ def tiny_sample(
 
     a_mat, off = (np.asarray(x, dtype=np.float64) for x in transform)
     ai = np.linalg.inv(a_mat)
-    clx = float(ai[0, 0]) * c[0] + float(ai[0, 1]) * c[1]
-    cly = float(ai[1, 0]) * c[0] + float(ai[1, 1]) * c[1]
+    clx, cly, cl = _local_footprint(ai, c, cov)
     r00, r01, r10, r11 = (float(v) for v in ai.ravel())
-    cl = Sym2(
-        r00 * r00 * cov.a + 2 * r00 * r01 * cov.b + r01 * r01 * cov.d,
-        r00 * r10 * cov.a + (r00 * r11 + r01 * r10) * cov.b + r01 * r11 * cov.d,
-        r10 * r10 * cov.a + 2 * r10 * r11 * cov.b + r11 * r11 * cov.d,
-    )
-    half_tr = 0.5 * (cl.a + cl.d)
-    lam = half_tr - dr.sqrt(dr.maximum(dr.square(0.5 * (cl.a - cl.d)) + cl.b * cl.b, 0.0))
-    target = FLATNESS * dr.sqrt(dr.maximum(lam, 1e-30))
-    level = dr.minimum(mi.Int32(dr.floor(dr.log2(dr.maximum(target, 1e-30)))) - 1, maps.levels - 1)
+    _, target, level = _flat_level(mi, dr, cl, maps.levels)
     use_maps = mi.Bool(active) & (target >= 2.0)
     use_lobes = mi.Bool(active) & (target < 2.0)
     lsx, lsy, ltot = lobes_sample(
         mi, lobes, (clx, cly), cl, u1, u2, use_lobes, max_items=max_items, total_only=total_only
     )
 
-    lv = dr.maximum(level, 0)
-    side = dr.exp2(mi.Float(lv + 1))
-    r = mi.Int32(maps.n) // mi.Int32(side)
-    reach = 5.0 * lobes.sigma_h
-    hx = SUPPORT_SIGMAS * dr.sqrt(cl.a) + reach
-    hy = SUPPORT_SIGMAS * dr.sqrt(cl.d) + reach
-    t0x = mi.Int32(dr.floor((clx - hx) / side))
-    t0y = mi.Int32(dr.floor((cly - hy) / side))
-    nx = mi.Int32(dr.floor((clx + hx) / side)) - t0x + 1
-    ny = mi.Int32(dr.floor((cly + hy) / side)) - t0y + 1
-    count = dr.select(use_maps, dr.minimum(nx * ny, max_items), 0)
+    grid = _tile_grid(mi, maps, lobes, clx, cly, cl, level, use_maps, max_items)
+    lv, count = grid.lv, grid.count
     ibase = dr.gather(mi.UInt32, sampler.int_offsets, mi.UInt32(lv), use_maps)
-    inv_l = cl.inverse(dr)
-    norm_l = dr.rcp(2.0 * math.pi * dr.sqrt(cl.det()))
 
     def weight(i: Any) -> tuple[Any, Any]:
         """Tile ``i``'s mass times its image's integral (as :func:`tiny_pndf`'s body)."""
-        tx = t0x + i % nx
-        ty = t0y + i // nx
-        ox = (mi.Float(tx) + 0.5) * side - clx
-        oy = (mi.Float(ty) + 0.5) * side - cly
-        d = 0.5 * side * _GL2
-        mass = dr.zeros(mi.Float)
-        for sx in (-d, d):
-            for sy in (-d, d):
-                mass += _gauss(dr, inv_l, norm_l, ox + sx, oy + sy)
-        mass *= 0.25 * side * side
-        wx = tx - r * mi.Int32(dr.floor(mi.Float(tx) / mi.Float(r)))
-        wy = ty - r * mi.Int32(dr.floor(mi.Float(ty) / mi.Float(r)))
-        tile = mi.UInt32(wy * r + wx)
+        tx, ty = grid.tile(i)
+        mass = grid.flat_mass(tx, ty)
+        wx, wy = grid.wrap(tx, ty)
+        tile = mi.UInt32(wy * grid.r + wx)
         return mass * dr.gather(mi.Float, sampler.integrals, ibase + tile, use_maps), tile
 
     def total_body(i: Any, acc: Any) -> tuple[Any, Any]:

@@ -29,10 +29,11 @@ from jobapi.errors import JobCancelled, JobFailed, SpecError
 from jobapi.executor import Executor, InlineExecutor
 from jobapi.version import __version__
 from service import kinds
+from service.settings import Settings
 from service.specs import canonical_json, validate_spec
 from service.workers.provenance import code_version, package_versions
 from storage.artifacts import ArtifactStore
-from storage.job_logs import JobLog
+from storage.job_logs import JobLog, log_dir
 from storage.jobs import HeartbeatStatus, Job, JobStore
 from storage.scratch import scratch_prefix
 
@@ -273,6 +274,33 @@ def crash_message(kind: str, exc: BaseException, step: str | None) -> str:
             "see the worker log, then submit the spec again"
         )
     return f"internal error in {kind}: {type(exc).__name__}: {_one_line(exc)}"
+
+
+def execute_configured(
+    job: Job,
+    settings: Settings,
+    *,
+    jobs: JobStore,
+    store: ArtifactStore,
+    executor: Executor,
+    on_wedged: Callable[[], None] | None = None,
+) -> str:
+    """:func:`execute` with what ``settings`` configure: the lease, the scratch folder and
+    the log folder under the data directory, the archive limits, the stall bound and the
+    Mitsuba variant."""
+    return execute(
+        job,
+        jobs=jobs,
+        store=store,
+        lease_seconds=settings.lease_seconds,
+        executor=executor,
+        scratch=settings.data_dir / "scratch",
+        limits=JobLimits(archive_pixels=settings.archive_max_pixels),
+        stall_seconds=settings.stall_seconds,
+        log_dir=log_dir(settings.data_dir),
+        on_wedged=on_wedged,
+        variant=settings.variant,
+    )
 
 
 def execute(

@@ -21,15 +21,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from jobapi.context import JobLimits
 from jobapi.errors import BackendUnavailable, ExecutorUnavailable
 from service.settings import Settings
 from service.workers.backend import start_backend
-from service.workers.execution import execute, worker_id
+from service.workers.execution import execute_configured, worker_id
 from service.workers.executors import executor_for
 from service.workers.liveness import Beat, beat_path, end_worker, stalled_for, watch_parent
 from storage.artifacts import ArtifactStore
-from storage.job_logs import log_dir
 from storage.jobs import JobStore
 
 log = logging.getLogger("matforge.worker")
@@ -74,18 +72,8 @@ def run_worker(
                 time.sleep(poll_seconds)
                 continue
             log.info("worker %s runs job %s (%s), attempt %d", me, job.id, job.kind, job.attempts)
-            state = execute(
-                job,
-                jobs=jobs,
-                store=store,
-                lease_seconds=settings.lease_seconds,
-                executor=executor,
-                scratch=settings.data_dir / "scratch",
-                limits=JobLimits(archive_pixels=settings.archive_max_pixels),
-                stall_seconds=settings.stall_seconds,
-                log_dir=log_dir(settings.data_dir),
-                on_wedged=on_wedged,
-                variant=settings.variant,
+            state = execute_configured(
+                job, settings, jobs=jobs, store=store, executor=executor, on_wedged=on_wedged
             )
             log.info("job %s: %s", job.id, state)
             ran += 1

@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from .browser import page  # noqa: F401 (the browser tests' fixture)
 from .harness import Server, start_server, stop_server
 
 

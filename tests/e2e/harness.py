@@ -311,20 +311,18 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @contextmanager
-def dashboard_server(data_dir: Path, kind_factory: str, token: str, log_dir: Path) -> Iterator[str]:
+def serve_in_subprocess(
+    data_dir: Path, token: str, log_path: Path, setup: str = ""
+) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
     """``serve()`` in a subprocess on a free port (port 0), with ``token`` and no workers,
-    after registering the test kind ``kind_factory`` (``"module:function"``, a function
-    returning a :class:`jobapi.kinds.Kind`) beside the built-in ones; yields the URL.
+    its output in ``log_path``, after the Python statements ``setup`` (``;``-separated);
+    yields its URL and the process. A ``RuntimeError`` if it does not start in 60 s.
 
-    Stops it with SIGTERM and fails the test if it ignores that or exits non-zero."""
-    module, func = kind_factory.split(":")
-    log_path = log_dir / "server.log"
+    Stops it with SIGTERM, and kills it if it ignores that for 20 s."""
     code = (
         "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]); "
         "from service.server import serve; from service.settings import Settings; "
-        "from service import kinds; from jobapi.kinds import register; "
-        f"from {module} import {func}; "
-        f"kinds.load_builtin(); register({func}()); "
+        f"{setup}"
         "serve(Settings.from_env().with_(data_dir=Path(sys.argv[1])), "
         "host='127.0.0.1', port=0, workers=0)"
     )
@@ -345,8 +343,9 @@ def dashboard_server(data_dir: Path, kind_factory: str, token: str, log_dir: Pat
             m = re.search(r"matforge dashboard: (http://\S+)", log_path.read_text())
             url = m.group(1).rstrip("/") if m else None
             time.sleep(0.1)
-        assert url, f"server did not start:\n{log_path.read_text()}"
-        yield url
+        if url is None:
+            raise RuntimeError(f"the server did not start:\n{log_path.read_text()}")
+        yield url, proc
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -354,5 +353,24 @@ def dashboard_server(data_dir: Path, kind_factory: str, token: str, log_dir: Pat
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-            pytest.fail(f"server ignored SIGTERM:\n{log_path.read_text()}")
+
+
+@contextmanager
+def dashboard_server(data_dir: Path, kind_factory: str, token: str, log_dir: Path) -> Iterator[str]:
+    """:func:`serve_in_subprocess` after registering the test kind ``kind_factory``
+    (``"module:function"``, a function returning a :class:`jobapi.kinds.Kind`) beside the
+    built-in ones; yields the URL.
+
+    Fails the test if the server ignores SIGTERM or exits non-zero."""
+    module, func = kind_factory.split(":")
+    log_path = log_dir / "server.log"
+    setup = (
+        "from service import kinds; from jobapi.kinds import register; "
+        f"from {module} import {func}; "
+        f"kinds.load_builtin(); register({func}()); "
+    )
+    with serve_in_subprocess(data_dir, token, log_path, setup) as (url, proc):
+        yield url
+    if proc.returncode == -signal.SIGKILL:
+        pytest.fail(f"server ignored SIGTERM:\n{log_path.read_text()}")
     assert proc.returncode == 0, log_path.read_text()

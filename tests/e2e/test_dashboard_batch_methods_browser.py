@@ -13,25 +13,19 @@ from __future__ import annotations
 
 import statistics
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from service import kinds
 from service.results import job_rows
-from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job, JobStore
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 BATCH = "widths"
 
@@ -39,9 +33,7 @@ BATCH = "widths"
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     kinds.load_builtin()
-    data = Path(tmp_path_factory.mktemp("dashboard-batch-methods")) / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard-batch-methods")
 
     def run(spec: dict[str, Any]) -> Job:
         job = run_in_process({**spec, "batch": BATCH}, settings)
@@ -62,18 +54,13 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     for job in (merl, *trained):  # a row's method: its candidate, else its job's (step) name
         for r in job_rows(queue.get(job.id), queue, store):
             rows.append({**r.document(), "method": r.candidate or job.name})
-    yield {"data": data, "rows": rows}
+    yield {"data": settings.data_dir, "rows": rows}
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_browser:gallery_kind")
 
 
-def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, Any]) -> None:  # noqa: F811
+def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, Any]) -> None:
     pg = page
     rows: list[dict[str, Any]] = prepared["rows"]
     # the reference, by hand: each method's values of each metric and its train_seconds
@@ -140,7 +127,7 @@ def test_methods_table_of_a_batch(page: Any, server: str, prepared: dict[str, An
     assert pg.problems == [], pg.problems
 
 
-def test_the_batch_group_links_to_its_table(page: Any, server: str) -> None:  # noqa: F811
+def test_the_batch_group_links_to_its_table(page: Any, server: str) -> None:
     pg = page
     pg.goto(f"{server}/?group=1&token={TOKEN}")
     link = pg.locator(f'tr.group[data-batch="{BATCH}"] a:text-is("methods table")')

@@ -10,7 +10,6 @@ images. Screenshots go to ``/tmp/matforge-dashboard-*.png``.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,7 +23,6 @@ from jobapi.context import JobContext
 from jobapi.kinds import Kind
 from jobapi.params import StrictModel
 from service import kinds
-from service.settings import Settings
 from service.submission import submit
 from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
@@ -32,28 +30,9 @@ from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
 from storage.jobs import JobStore
 
-from .harness import dashboard_server
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
-TOKEN = "browser-s3cret"
-SHOTS = Path("/tmp")
-
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium (`make setup`)"
-    ),
-]
+pytestmark = BROWSER
 
 
 class GalleryParams(StrictModel):
@@ -102,9 +81,7 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     kind = gallery_kind()
     saved = jobapi_kinds._KINDS.get(kind.name)
     jobapi_kinds.register(kind)
-    data = tmp_path_factory.mktemp("dashboard") / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard")
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     try:
         done, _ = submit({"kind": kind.name, "name": "gallery demo", "params": {}}, jobs, store)
@@ -113,7 +90,7 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
         queued, _ = submit(
             {"kind": kind.name, "name": "still waiting", "params": {"size": 16}}, jobs, store
         )
-        yield {"data": data, "done": jobs.get(done.id), "queued": queued, "jobs": jobs}
+        yield {"data": settings.data_dir, "done": jobs.get(done.id), "queued": queued, "jobs": jobs}
     finally:
         jobs.close()
         if saved is None:
@@ -122,63 +99,7 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
             jobapi_kinds.register(saved)
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """``serve()`` on a free port, with a token and no workers; yields its URL."""
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_browser:gallery_kind"
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
-
-
-@pytest.fixture
-def page(server: str) -> Iterator[Any]:
-    """A Chromium page that records console errors, page errors, failed requests and any
-    request to another origin (everything, scripts included, is served by matforge)."""
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        context = browser.new_context(viewport={"width": 1280, "height": 900})
-        pg = context.new_page()
-        problems: list[str] = []
-        pg.on(
-            "console",
-            lambda m: (
-                problems.append(f"console {m.type}: {m.text}")
-                if m.type in ("error", "warning")
-                else None
-            ),
-        )
-        pg.on("pageerror", lambda e: problems.append(f"page error: {e}"))
-        # A poll in flight when the page navigates away is aborted by the browser: not a
-        # problem of the page (it showed up under load, when polls and clicks overlap).
-        pg.on(
-            "requestfailed",
-            lambda r: (
-                problems.append(f"request failed: {r.url} ({r.failure})")
-                if r.failure != "net::ERR_ABORTED"
-                else None
-            ),
-        )
-        pg.on(
-            "response",
-            lambda r: problems.append(f"HTTP {r.status}: {r.url}") if r.status >= 400 else None,
-        )
-        pg.on(
-            "request",
-            lambda r: (
-                problems.append(f"external request: {r.url}")
-                if not r.url.startswith((server, "data:", "blob:"))
-                else None
-            ),
-        )
-        pg.problems = problems
-        try:
-            yield pg
-        finally:
-            context.close()
-            browser.close()
+server = browser_server("tests.e2e.test_dashboard_browser:gallery_kind")
 
 
 def test01_jobs_list_live(page: Any, server: str, prepared: dict[str, Any]) -> None:

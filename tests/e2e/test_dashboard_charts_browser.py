@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -25,13 +24,9 @@ from service.specs import STEP_REF
 from service.submission import run_in_process
 from storage.jobs import Job
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 CHARTED = ("curves.json", "pareto.json")
 #: The kinds that write a chart document, and which.
@@ -98,24 +93,17 @@ class Runs:
 def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """Two finished jobs of every kind that writes a chart document."""
     kinds.load_builtin()
-    data = Path(tmp_path_factory.mktemp("dashboard-charts")) / "data"
-    (data / "scratch").mkdir(parents=True)
-    runs = Runs(Settings.from_env({}).with_(data_dir=data, pool_processes=1))
+    runs = Runs(data_settings(tmp_path_factory, "dashboard-charts"))
     pairs = {}
     jobs = runs.settings  # the store and jobs database, for the live test below
     for name in KINDS:
         pair = [runs.job(name, 0), runs.job(name, 1)]
         assert all(j.state == "succeeded" for j in pair), [j.error for j in pair]
         pairs[name] = [j.id for j in pair]
-    yield {"data": data, "pairs": pairs, "settings": jobs}
+    yield {"data": runs.settings.data_dir, "pairs": pairs, "settings": jobs}
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_browser:gallery_kind")
 
 
 def visible(pg: Any, selector: str) -> list[dict[str, Any]]:
@@ -144,10 +132,7 @@ def test_the_charted_kinds_are_all_here() -> None:
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_job_page_draws_the_chart(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
-    kind: str,
+    page: Any, server: str, prepared: dict[str, Any], kind: str
 ) -> None:
     pg = page
     job_id = prepared["pairs"][kind][0]
@@ -180,10 +165,7 @@ def test_job_page_draws_the_chart(
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_compare_view_overlays_two_jobs(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
-    kind: str,
+    page: Any, server: str, prepared: dict[str, Any], kind: str
 ) -> None:
     pg = page
     ids = prepared["pairs"][kind]
@@ -209,9 +191,7 @@ def test_compare_view_overlays_two_jobs(
 
 
 def test_live_train_brdf_curves_old_and_new(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     """A running train.brdf job's page draws its live curves (the kind publishes them), in
     the one schema with its two phases, and a document of before the schema (phases under

@@ -7,7 +7,7 @@ its extra columns, long names and long error messages, fits its card at 1280, 14
 
 The reference for each value is the job's own spec and the metric it was built to have
 (:func:`metric_of`), not the page's arithmetic. The server, the browser page and its problem
-log come from :mod:`tests.e2e.test_dashboard_browser`. Screenshots:
+log come from :mod:`tests.e2e.browser`. Screenshots:
 ``/tmp/matforge-dashboard-columns*.png``.
 """
 
@@ -25,18 +25,13 @@ from jobapi.kinds import Kind
 from jobapi.params import StrictModel
 from jobapi.rows import RowSource, base_row
 from service import kinds
-from service.settings import Settings
 from service.submission import submit
 from service.workers.worker import run_worker
 from storage.jobs import JobStore
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 KIND = "test_columns"
 #: (model, width) of the finished jobs.
@@ -84,9 +79,7 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     kinds.load_builtin()
     kind = columns_kind()
     jobapi_kinds.register(kind)
-    data = tmp_path_factory.mktemp("dashboard-columns") / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard-columns")
     jobs = JobStore(settings.db_path)
     from storage.artifacts import ArtifactStore
 
@@ -113,19 +106,13 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
                       "batch": "nightly " + LONG},
             )  # fmt: skip
         assert all(jobs.get(j.id).state == "succeeded" for j in done.values())
-        yield {"data": data, "done": {k: jobs.get(j.id) for k, j in done.items()}}
+        yield {"data": settings.data_dir, "done": {k: jobs.get(j.id) for k, j in done.items()}}
     finally:
         jobs.close()
         jobapi_kinds._KINDS.pop(kind.name, None)
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    log_dir = tmp_path_factory.mktemp("server-log")
-    with dashboard_server(
-        prepared["data"], "tests.e2e.test_dashboard_columns_browser:columns_kind", TOKEN, log_dir
-    ) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_columns_browser:columns_kind")
 
 
 def url_has(pg: Any, part: str) -> None:
@@ -149,7 +136,7 @@ def cells(pg: Any, key: str) -> dict[str, str]:
     return out
 
 
-def test01_columns_and_filters_from_the_page(page: Any, server: str) -> None:  # noqa: F811
+def test01_columns_and_filters_from_the_page(page: Any, server: str) -> None:
     pg = page
     pg.goto(f"{server}/?token={TOKEN}")
     rows_shown(pg, len(RUNS) + 7)
@@ -202,7 +189,7 @@ def test01_columns_and_filters_from_the_page(page: Any, server: str) -> None:  #
     assert pg.problems == [], pg.problems
 
 
-def test02_the_view_comes_back_from_its_address(page: Any, server: str) -> None:  # noqa: F811
+def test02_the_view_comes_back_from_its_address(page: Any, server: str) -> None:
     pg = page
     pg.goto(
         f"{server}/?columns=metric.smape_mean&filter=params.model!%3Dhybrid"
@@ -217,7 +204,7 @@ def test02_the_view_comes_back_from_its_address(page: Any, server: str) -> None:
     assert pg.problems == [], pg.problems
 
 
-def test03_a_bad_filter_is_named(page: Any, server: str) -> None:  # noqa: F811
+def test03_a_bad_filter_is_named(page: Any, server: str) -> None:
     pg = page
     pg.goto(f"{server}/?filter=metric.smape_mean%3Clow&token={TOKEN}")
     pg.wait_for_function(
@@ -231,12 +218,7 @@ def test03_a_bad_filter_is_named(page: Any, server: str) -> None:  # noqa: F811
 
 @pytest.mark.parametrize("width", [1280, 1440, 1920])
 @pytest.mark.parametrize("grouped", [False, True])
-def test04_the_list_fits_its_card(
-    page: Any,  # noqa: F811
-    server: str,
-    width: int,
-    grouped: bool,
-) -> None:
+def test04_the_list_fits_its_card(page: Any, server: str, width: int, grouped: bool) -> None:
     """Issue: the Time column was cut at 1280, 1440 and 1920 px, and the grouped view
     scrolled sideways so that "not in a batch" read "in a batch". With four extra columns
     (one of them long text),

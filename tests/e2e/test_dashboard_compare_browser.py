@@ -17,20 +17,17 @@ import pytest
 
 from jobapi import kinds as jobapi_kinds
 from service import kinds
-from service.settings import Settings
 from service.submission import submit
 from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
 from storage.jobs import JobStore
 
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
-from .test_dashboard_list_browser import server, url_has, wide_kind  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
+from .test_dashboard_list_browser import url_has, wide_kind
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
+server = browser_server("tests.e2e.test_dashboard_list_browser:wide_kind")
 
 
 @pytest.fixture(scope="module")
@@ -41,9 +38,7 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     kinds.load_builtin()
     kind = wide_kind()
     jobapi_kinds.register(kind)
-    data = tmp_path_factory.mktemp("dashboard-compare") / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard-compare")
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     try:
         ids = []
@@ -69,8 +64,8 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
             scores.append(job.id)
         assert run_worker(settings, max_jobs=3) == 3
         assert all(jobs.get(i).state == "succeeded" for i in [lone.id, *scores])
-        yield {"data": data, "ids": ids, "jobs": jobs, "scores": scores, "lone": lone.id,
-               "store": store}  # fmt: skip
+        yield {"data": settings.data_dir, "ids": ids, "jobs": jobs, "scores": scores,
+               "lone": lone.id, "store": store}  # fmt: skip
     finally:
         jobs.close()
         jobapi_kinds._KINDS.pop(kind.name, None)
@@ -83,11 +78,7 @@ def loaded(pg: Any, selector: str) -> None:
     )
 
 
-def test01_pick_in_the_list_then_compare(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
-) -> None:
+def test01_pick_in_the_list_then_compare(page: Any, server: str, prepared: dict[str, Any]) -> None:
     pg = page
     ids = prepared["ids"]
     pg.goto(f"{server}/?token={TOKEN}")
@@ -132,11 +123,7 @@ def test01_pick_in_the_list_then_compare(
     assert pg.problems == [], pg.problems
 
 
-def test02_ab_slider_and_batch(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
-) -> None:
+def test02_ab_slider_and_batch(page: Any, server: str, prepared: dict[str, Any]) -> None:
     pg = page
     ids = prepared["ids"]
     pg.goto(f"{server}/compare?batch=sizes&token={TOKEN}")
@@ -162,7 +149,7 @@ def test02_ab_slider_and_batch(
     assert pg.problems == [], pg.problems
 
 
-def test03_bad_ids_are_named(page: Any, server: str) -> None:  # noqa: F811
+def test03_bad_ids_are_named(page: Any, server: str) -> None:
     # a malformed id is a 422, as /api/jobs/zzz answers (issue 21, item 12); it was a 404
     response = page.goto(f"{server}/compare?jobs=zzz&token={TOKEN}")
     assert response is not None and response.status == 422
@@ -174,11 +161,7 @@ def test03_bad_ids_are_named(page: Any, server: str) -> None:  # noqa: F811
     page.problems.clear()  # the 422 and 404 themselves are expected
 
 
-def test04_training_curves_overlaid(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
-) -> None:
+def test04_training_curves_overlaid(page: Any, server: str, prepared: dict[str, Any]) -> None:
     """Issue 14 §2: several runs' curves.json in one chart, a series at a time."""
     ids = prepared["ids"]
     page.goto(f"{server}/compare?jobs={','.join(i[:10] for i in ids)}&token={TOKEN}")
@@ -212,11 +195,7 @@ def _roles(pg: Any) -> list[str]:
     return pg.locator(".compare-panel .pic-role").all_inner_texts()
 
 
-def test05_score_jobs_pair_by_role(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
-) -> None:
+def test05_score_jobs_pair_by_role(page: Any, server: str, prepared: dict[str, Any]) -> None:
     """Two score jobs with different candidate labels: their shared reference once (both
     jobs named), every candidate, and every error map; nothing is missing."""
     pg = page
@@ -237,9 +216,7 @@ def test05_score_jobs_pair_by_role(
 
 
 def test06_one_score_jobs_candidates_side_by_side(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     pg = page
     gold = prepared["scores"][0]
@@ -257,9 +234,7 @@ def test06_one_score_jobs_candidates_side_by_side(
 
 
 def test07_a_batch_shows_each_job_by_what_it_has(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     """``?batch=`` of a test_wide job and two score jobs: its preview, then the score jobs'
     shared reference and three candidates; no "no image.exr" placeholders."""
@@ -292,9 +267,7 @@ def _pixel(pg: Any) -> tuple[int, int]:
 
 
 def test08_signed_difference_and_its_colour_bar(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     """Reference for the values: candidate − reference, the mean over R, G, B, computed
     here from the stored EXRs with numpy."""
@@ -342,9 +315,7 @@ def test08_signed_difference_and_its_colour_bar(
 
 
 def test09_readout_gives_every_panels_value(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     """The value under the cursor in every panel: linear RGB of the EXRs (reference: the
     stored files), and a FLIP map's error (reference: the map's own colours, inverted)."""
@@ -379,11 +350,7 @@ def _numbers(transform: str) -> list[float]:
     return [float(v) for v in re.findall(r"-?[0-9.]+", transform)]
 
 
-def test10_the_view_is_in_the_address(
-    page: Any,  # noqa: F811
-    server: str,  # noqa: F811
-    prepared: dict[str, Any],
-) -> None:
+def test10_the_view_is_in_the_address(page: Any, server: str, prepared: dict[str, Any]) -> None:
     """Picture, mode, zoom, exposure and the A/B choice round-trip through the URL."""
     pg = page
     gold, silver = prepared["scores"]

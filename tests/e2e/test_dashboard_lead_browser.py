@@ -12,7 +12,6 @@ from __future__ import annotations
 import fnmatch
 import math
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -20,18 +19,13 @@ import pytest
 from service import kinds
 from service.compare_pictures import job_pictures
 from service.routes.dashboard import picture_views
-from service.settings import Settings
 from storage.jobs import Job, JobStore
 from tests.unit.service.test_dashboard_pictures import NO_LEAD
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 from .test_dashboard_charts_browser import Runs
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 PICTURES = ("*.png", "*.exr")
 #: The kinds with smoke params whose artifacts include a picture.
@@ -46,25 +40,22 @@ KINDS = sorted(
 def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """The smoke job of every kind in :data:`KINDS` (inputs first)."""
     kinds.load_builtin()
-    data = Path(tmp_path_factory.mktemp("dashboard-lead")) / "data"
-    (data / "scratch").mkdir(parents=True)
-    runs = Runs(Settings.from_env({}).with_(data_dir=data, pool_processes=1))
+    runs = Runs(data_settings(tmp_path_factory, "dashboard-lead"))
     done = {name: runs.job(name) for name in KINDS}
     failed = {n: j.error for n, j in done.items() if j.state != "succeeded"}
     assert not failed, failed
     jobs = JobStore(runs.settings.db_path)
     try:
-        yield {"data": data, "jobs": {n: jobs.get(j.id) for n, j in done.items()}, "db": jobs}
+        yield {
+            "data": runs.settings.data_dir,
+            "jobs": {n: jobs.get(j.id) for n, j in done.items()},
+            "db": jobs,
+        }
     finally:
         jobs.close()
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_browser:gallery_kind")
 
 
 def test_the_picture_kinds_are_all_here() -> None:
@@ -81,10 +72,7 @@ def _loaded(pg: Any, selector: str) -> None:
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_lead_picture_first_on_the_job_page_and_in_compare(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
-    kind: str,
+    page: Any, server: str, prepared: dict[str, Any], kind: str
 ) -> None:
     check_lead(page, server, prepared["jobs"][kind], prepared["db"])
 

@@ -20,30 +20,23 @@ import pytest
 
 from generators.btf.slice_folder import job_slice_folder
 from service import kinds
-from service.settings import Settings
 from service.submission import import_file, run_in_process
 from storage.artifacts import ArtifactStore
 from storage.formats.btf import parse_index, read_shard
 from storage.formats.btf_folder import pack_folder
 from storage.jobs import Job, JobStore
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, TOKEN, page  # noqa: F401
+from .browser import BROWSER, browser_server, data_settings
 from .test_dashboard_lead_browser import check_lead
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     kinds.load_builtin()
-    root = Path(tmp_path_factory.mktemp("dashboard-lead-import-btf"))
-    data = root / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard-lead-import-btf")
+    root = settings.data_dir.parent
     spec = {"kind": "generate.btf", "params": kinds.get_kind("generate.btf").smoke}
     generated = run_in_process(spec, settings)
     assert generated.state == "succeeded", generated.error
@@ -55,18 +48,13 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
         spec = {"kind": "import.btf", "params": {"archive": f"sha256:{record.digest}"}}
         imported = run_in_process(spec, settings)
         assert imported.state == "succeeded", imported.error
-        yield {"data": data, "store": store, "db": jobs, "generated": generated,
+        yield {"data": settings.data_dir, "store": store, "db": jobs, "generated": generated,
                "imported": jobs.get(imported.id), "tmp": root}  # fmt: skip
     finally:
         jobs.close()
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_browser:gallery_kind")
 
 
 def _slices(store: ArtifactStore, job: Job, tmp: Path) -> tuple[np.ndarray, ...]:
@@ -91,7 +79,7 @@ def test_the_folder_imports_the_generated_slices(prepared: dict[str, Any]) -> No
     np.testing.assert_allclose(got[1], want[1], atol=2e-6)
 
 
-def test_lead_picture_of_import_btf(page: Any, server: str, prepared: dict[str, Any]) -> None:  # noqa: F811
+def test_lead_picture_of_import_btf(page: Any, server: str, prepared: dict[str, Any]) -> None:
     job = prepared["imported"]
     assert any(a.name == "preview.png" for a in job.artifacts), [a.name for a in job.artifacts]
     check_lead(page, server, job, prepared["db"])

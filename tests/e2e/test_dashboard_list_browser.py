@@ -2,9 +2,9 @@
 sortable columns, paging past 200 jobs, an unknown filter named in the page, and a
 train.fabric-sized metrics table that stays on the page.
 
-The server, the browser page and its problem log come from
-:mod:`tests.e2e.test_dashboard_browser`; this module prepares its own data directory
-(230 jobs) and registers its own test kind in the server process.
+The server, the browser page and its problem log come from :mod:`tests.e2e.browser`; this
+module prepares its own data directory (230 jobs) and registers its own test kind in the
+server process.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ from jobapi.context import JobContext
 from jobapi.kinds import Axis, Figure, Kind
 from jobapi.params import StrictModel
 from service import kinds
-from service.settings import Settings
 from service.submission import submit
 from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
@@ -31,13 +30,9 @@ from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
 from storage.jobs import JobStore
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 N_QUEUED = 230
 #: The run of the chart's beaten point: clicking it opens this job's page (there is none).
@@ -128,9 +123,7 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     kinds.load_builtin()
     kind = wide_kind()
     jobapi_kinds.register(kind)
-    data = tmp_path_factory.mktemp("dashboard-list") / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard-list")
     jobs, store = JobStore(settings.db_path), ArtifactStore(settings.store_dir)
     try:
         done, _ = submit({"kind": kind.name, "name": "wide table", "params": {}}, jobs, store)
@@ -144,19 +137,13 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
                 spec={"kind": "render", "seed": i, "params": {}}
                 | ({"batch": "nightly 2026-12-01"} if i >= N_QUEUED - 5 else {}),
             )
-        yield {"data": data, "done": jobs.get(done.id), "jobs": jobs}
+        yield {"data": settings.data_dir, "done": jobs.get(done.id), "jobs": jobs}
     finally:
         jobs.close()
         jobapi_kinds._KINDS.pop(kind.name, None)
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """``serve()`` on a free port, with a token and no workers; yields its URL."""
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_list_browser:wide_kind"
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_list_browser:wide_kind")
 
 
 def url_has(pg: Any, part: str) -> None:
@@ -169,7 +156,7 @@ def row_names(pg: Any) -> list[str]:
     return [n.strip() for n in pg.locator("#jobs-body .job-name").all_inner_texts()]
 
 
-def test01_search_sort_and_pages(page: Any, server: str) -> None:  # noqa: F811
+def test01_search_sort_and_pages(page: Any, server: str) -> None:
     pg = page
     pg.goto(f"{server}/?token={TOKEN}")
     pg.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0")
@@ -206,7 +193,7 @@ def test01_search_sort_and_pages(page: Any, server: str) -> None:  # noqa: F811
     assert pg.problems == [], pg.problems
 
 
-def test02_unknown_filter_is_named(page: Any, server: str) -> None:  # noqa: F811
+def test02_unknown_filter_is_named(page: Any, server: str) -> None:
     page.goto(f"{server}/?kind=scor&token={TOKEN}")
     page.wait_for_function(
         "() => document.querySelector('#status-line').textContent.includes('kind')"
@@ -217,9 +204,7 @@ def test02_unknown_filter_is_named(page: Any, server: str) -> None:  # noqa: F81
 
 
 def test03_wide_metrics_table_stays_on_the_page(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
     table = page.locator("#metrics-table")
@@ -239,9 +224,7 @@ def test03_wide_metrics_table_stays_on_the_page(
 
 
 def test04_pictures_lead_axes_and_square_pixels(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
+    page: Any, server: str, prepared: dict[str, Any]
 ) -> None:
     """Issue 14 §4: the kind's lead picture first at its full size, a plot with labelled
     axes, and no upscaling blur on a small picture."""
@@ -267,7 +250,7 @@ def test04_pictures_lead_axes_and_square_pixels(
     assert page.problems == [], page.problems
 
 
-def test05_group_by_batch_with_thumbnails(page: Any, server: str) -> None:  # noqa: F811
+def test05_group_by_batch_with_thumbnails(page: Any, server: str) -> None:
     page.goto(f"{server}/?token={TOKEN}")
     page.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0")
     page.check("#f-group")
@@ -295,11 +278,7 @@ def test05_group_by_batch_with_thumbnails(page: Any, server: str) -> None:  # no
     assert page.problems == [], page.problems
 
 
-def test06_charts_fit_the_data(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
-) -> None:
+def test06_charts_fit_the_data(page: Any, server: str, prepared: dict[str, Any]) -> None:
     """Issue 14 §2: no chart for a constant column, a metric's baseline beside it, the best
     row highlighted and the better direction named."""
     page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
@@ -324,11 +303,7 @@ def test06_charts_fit_the_data(
     assert page.problems == [], page.problems
 
 
-def test07_curves_and_pareto_charts(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
-) -> None:
+def test07_curves_and_pareto_charts(page: Any, server: str, prepared: dict[str, Any]) -> None:
     """Issue 14 §2: curves.json and pareto.json drawn with Chart.js: the front highlighted,
     seed spread as error bars, the configuration on hover, its run's job on click."""
     job_id = prepared["done"].id
@@ -375,11 +350,7 @@ def test07_curves_and_pareto_charts(
     page.problems.clear()
 
 
-def test08_live_curves_of_a_running_job(
-    page: Any,  # noqa: F811
-    server: str,
-    prepared: dict[str, Any],
-) -> None:
+def test08_live_curves_of_a_running_job(page: Any, server: str, prepared: dict[str, Any]) -> None:
     """Issue 14 §2: a running training job's curves grow on its page."""
     from jobapi.context import LIVE_PREFIX
 

@@ -12,32 +12,24 @@ from __future__ import annotations
 import json
 import statistics
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from service import kinds
-from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job
 
-from .harness import dashboard_server
-from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
+from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (`make setup`)"),
-]
+pytestmark = BROWSER
 
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     kinds.load_builtin()
-    data = Path(tmp_path_factory.mktemp("dashboard-methods")) / "data"
-    (data / "scratch").mkdir(parents=True)
-    settings = Settings.from_env({}).with_(data_dir=data, pool_processes=1)
+    settings = data_settings(tmp_path_factory, "dashboard-methods")
 
     def run(spec: dict[str, Any]) -> Job:
         job = run_in_process(spec, settings)
@@ -51,18 +43,13 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
         for w in (16, 32)
     ]
     report = run({"kind": "report.pareto", "params": {"runs": [f"job:{j.id}" for j in trained]}})
-    yield {"data": data, "report": report, "store": ArtifactStore(settings.store_dir)}
+    yield {"data": settings.data_dir, "report": report, "store": ArtifactStore(settings.store_dir)}
 
 
-@pytest.fixture(scope="module")
-def server(prepared: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    log_dir = tmp_path_factory.mktemp("server-log")
-    kind = "tests.e2e.test_dashboard_browser:gallery_kind"  # any test kind: none is needed
-    with dashboard_server(prepared["data"], kind, TOKEN, log_dir) as url:
-        yield url
+server = browser_server("tests.e2e.test_dashboard_browser:gallery_kind")
 
 
-def test_methods_table_of_a_report(page: Any, server: str, prepared: dict[str, Any]) -> None:  # noqa: F811
+def test_methods_table_of_a_report(page: Any, server: str, prepared: dict[str, Any]) -> None:
     pg = page
     report: Job = prepared["report"]
     record = next(a for a in report.artifacts if a.name == "rows.json")

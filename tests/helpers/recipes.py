@@ -42,3 +42,18 @@ def artifact(settings: Settings, job: Job, name: str) -> bytes:
     """The bytes of ``job``'s artifact ``name``."""
     (digest,) = [a.digest for a in job.artifacts if a.name == name]
     return ArtifactStore(settings.store_dir).read(digest)
+
+
+def shrink_btf(spec: dict[str, Any]) -> dict[str, Any]:
+    """A BTF recipe's step shrunk for the tests: ``generate.btf`` at the ``small``
+    directions, 8 x 8 texels, 2 spp; ``train.btf`` at one epoch (Lafortune: 16 slices, 5
+    iterations). Other steps unchanged."""
+    params = dict(spec["params"])
+    if spec["kind"] == "generate.btf":
+        params.update(directions={"preset": "small"}, resolution=8, spp=2, shard_slices=12)
+    if spec["kind"] == "train.btf":
+        if params["model"] == "lafortune":
+            params.update(lafortune_slices=16, lafortune_iterations=5)
+        else:
+            params.update(epochs=1, check_steps=16)
+    return {**spec, "params": params}

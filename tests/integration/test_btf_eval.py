@@ -22,7 +22,7 @@ import pytest
 
 from service.settings import Settings
 from storage.jobs import Job
-from tests.helpers.recipes import artifact, run_recipe
+from tests.helpers.recipes import artifact, run_recipe, shrink_btf
 
 #: The shrunk recipe chain runs in the module fixture, charged to the first test: the slow
 #: limit (600 s, tests/conftest.py) holds it on a loaded machine (about 16 s when quiet).
@@ -32,17 +32,11 @@ MODELS = ("lafortune", "neumip", "neumip8", "teacher", "c2f", "c2f_distill")
 
 
 def shrink(spec: dict[str, Any]) -> dict[str, Any]:
-    params = dict(spec["params"])
-    if spec["kind"] == "generate.btf":
-        params.update(directions={"preset": "small"}, resolution=8, spp=2, shard_slices=12)
-    if spec["kind"] == "train.btf":
-        if params["model"] == "lafortune":
-            params.update(lafortune_slices=16, lafortune_iterations=5)
-        else:
-            params.update(epochs=1, check_steps=16)
+    spec = shrink_btf(spec)
     if spec["kind"] == "render":
+        params = spec["params"]
         params.update(resolution=[32, 32], spp=16 if params["spp"] > 64 else 4)
-    return {**spec, "params": params}
+    return spec
 
 
 @pytest.fixture(scope="module")

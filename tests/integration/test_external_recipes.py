@@ -25,7 +25,7 @@ from evaluators.metrics.brdf import DEFAULT_PAIRS, PAIRS_SEED, TableSampler, dir
 from service.submission import import_file
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
-from tests.helpers.recipes import artifact, run_recipe
+from tests.helpers.recipes import artifact, run_recipe, shrink_btf
 
 pytestmark = pytest.mark.slow
 
@@ -131,18 +131,6 @@ def test01_brdf_mlp_through_the_recipe(
     assert [r["cost"] for r in ladder["rungs"]] == sorted(r["cost"] for r in ladder["rungs"])
     stability = json.loads(artifact(conf, steps["stability"], "stability.json"))
     assert any(f.get("candidate") == "mine" for f in stability["families"])
-
-
-def shrink_btf(spec: dict[str, Any]) -> dict[str, Any]:
-    params = dict(spec["params"])
-    if spec["kind"] == "generate.btf":
-        params.update(directions={"preset": "small"}, resolution=8, spp=2, shard_slices=12)
-    if spec["kind"] == "train.btf":
-        if params["model"] == "lafortune":
-            params.update(lafortune_slices=16, lafortune_iterations=5)
-        else:
-            params.update(epochs=1, check_steps=16)
-    return {**spec, "params": params}
 
 
 def train_btf(rgb: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> tuple[Any, Any]:

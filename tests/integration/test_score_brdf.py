@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -25,7 +24,8 @@ from service.submission import import_file, run_in_process
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import write_exr
 from storage.formats.merl import MerlTable, write_merl
-from storage.jobs import Job, JobStore
+from storage.jobs import JobStore
+from tests.helpers.score_jobs import metrics_json, run_score
 
 ALPHAS = (0.2, 0.25, 0.35)
 
@@ -44,16 +44,6 @@ def upload_table(
     record = import_file(path, jobs, store)
     assert record.media_type == "application/x-merl-binary"
     return f"sha256:{record.digest}"
-
-
-def run_score(params: dict[str, Any], settings: Settings) -> Job:
-    return run_in_process({"kind": "score", "seed": 0, "params": params}, settings)
-
-
-def metrics_json(job: Job, store: ArtifactStore) -> Any:
-    assert job.state == "succeeded", job.error
-    art = next(a for a in job.artifacts if a.name == "metrics.json")
-    return json.loads(store.read(art.digest))
 
 
 def direct_scores(ref: MerlTable, *cands: MerlTable) -> tuple[list[tuple[float, float]], int]:

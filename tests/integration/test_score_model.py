@@ -29,11 +29,12 @@ from materials.tabulate import tabulate_analytic
 from models.brdf.networks import Architecture, build_model
 from models.brdf.portable import eval_portable, to_portable
 from service.settings import Settings
-from service.submission import import_file, run_in_process
+from service.submission import import_file
 from storage.artifacts import ArtifactStore
 from storage.formats.exr import write_exr
 from storage.formats.merl import MerlTable, write_merl
-from storage.jobs import Job, JobStore
+from storage.jobs import JobStore
+from tests.helpers.score_jobs import metrics_json, run_score
 
 NAMES = ["gold", "plastic"]
 
@@ -67,16 +68,6 @@ def upload(path: Path, jobs: JobStore, store: ArtifactStore) -> str:
 def upload_json(doc: dict[str, Any], path: Path, jobs: JobStore, store: ArtifactStore) -> str:
     path.write_text(json.dumps(doc, sort_keys=True))
     return upload(path, jobs, store)
-
-
-def run_score(params: dict[str, Any], settings: Settings) -> Job:
-    return run_in_process({"kind": "score", "seed": 0, "params": params}, settings)
-
-
-def metrics_json(job: Job, store: ArtifactStore) -> Any:
-    assert job.state == "succeeded", job.error
-    art = next(a for a in job.artifacts if a.name == "metrics.json")
-    return json.loads(store.read(art.digest))
 
 
 def direct(table: MerlTable, doc: dict[str, Any], material: str) -> tuple[float, float]:

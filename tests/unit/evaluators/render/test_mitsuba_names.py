@@ -44,6 +44,18 @@ def test01_the_checked_in_list_matches_mitsuba(mi: types.ModuleType) -> None:
         mi.load_dict({"type": "conductor", "material": name})
 
 
+def assert_refused(material: dict[str, Any], words: list[str]) -> None:
+    """``validate_spec`` refuses a render of ``material`` with a ``SpecError`` naming
+    ``params.material`` and every one of ``words``."""
+    kinds.load_builtin()
+    with pytest.raises(SpecError) as exc:
+        validate_spec(render(material))
+    text = str(exc.value)
+    assert "params.material" in text
+    for word in words:
+        assert word in text, text
+
+
 @pytest.mark.parametrize(
     ("material", "words"),
     [
@@ -56,13 +68,7 @@ def test01_the_checked_in_list_matches_mitsuba(mi: types.ModuleType) -> None:
     ],
 )
 def test02_typos_are_refused_before_queueing(material: dict[str, Any], words: list[str]) -> None:
-    kinds.load_builtin()
-    with pytest.raises(SpecError) as exc:
-        validate_spec(render(material))
-    text = str(exc.value)
-    assert "params.material" in text
-    for word in words:
-        assert word in text, text
+    assert_refused(material, words)
 
 
 @pytest.mark.parametrize(
@@ -165,13 +171,7 @@ def test06_listed_properties_are_what_mitsuba_reads(mi: types.ModuleType) -> Non
 def test07_unknown_properties_are_refused_before_queueing(
     material: dict[str, Any], words: list[str]
 ) -> None:
-    kinds.load_builtin()
-    with pytest.raises(SpecError) as exc:
-        validate_spec(render(material))
-    text = str(exc.value)
-    assert "params.material" in text
-    for word in words:
-        assert word in text, text
+    assert_refused(material, words)
 
 
 @pytest.mark.parametrize(

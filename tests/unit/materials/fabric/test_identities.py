@@ -26,35 +26,18 @@ from materials.fabric.array_ops import NumpyOps
 from materials.fabric.integrand import visibility
 from materials.fabric.params import FabricParams
 from materials.fabric.patterns import PATTERNS
+from tests.helpers.fabric_identities import area_over_cosine, direction, reciprocity_sides
 
 OPS = NumpyOps()
-
-
-def direction(theta: float, phi: float) -> np.ndarray:
-    t, p = math.radians(theta), math.radians(phi)
-    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
 
 
 @pytest.mark.parametrize("name", sorted(PATTERNS))
 @pytest.mark.parametrize("beta", [0.7, 2.0])
 def test01_projected_areas_are_cosines(name: str, beta: float) -> None:
     params = FabricParams(PATTERNS[name], beta=beta, u_max_deg=30.0, psi_deg=20.0)
-    thetas = [0.0, 30.0, 50.0, 65.0, 75.0]
-    wo = np.stack([direction(t, 25.0) for t in thetas])
-    wi = np.stack([direction(t, 160.0) for t in thetas])
-    q = FootprintQueries(
-        centre=np.full((len(thetas), 2), 0.31), size=np.full(len(thetas), 2.0), wi=wi, wo=wo
-    )
     # J = 1 / n_z is heavy-tailed on the steep sides of long floats: enough samples that
     # the seeds' spread estimates the error.
-    runs = [
-        estimate(params, q, samples=8192, sampler="independent", seed=s, backend="drjit")
-        for s in range(8)
-    ]
-    for attr, w in (("area", wo), ("area_in", wi)):
-        vals = np.stack([getattr(r, attr) for r in runs]) / w[:, 2]
-        mean = vals.mean(axis=0)
-        err = vals.std(axis=0, ddof=1) / math.sqrt(len(runs))
+    for attr, (mean, err) in area_over_cosine(params, samples=8192).items():
         # 4 standard errors, plus 1 % for the march's coarse steps at grazing angles
         # (integrand.py: -0.2 to -0.5 % on average against a 0.01-cell march).
         assert np.all(np.abs(mean - 1.0) <= 4 * err + 0.01), (attr, mean, err)
@@ -116,14 +99,7 @@ def test02_visibility_against_ray_casting(name: str) -> None:
 )
 def test03_reciprocity_of_the_numerator(name: str, backend: str) -> None:
     params = FabricParams(PATTERNS[name], beta=1.0, u_max_deg=30.0, w=1.0)
-    a = np.stack([direction(t, p) for t, p in ((20, 10), (50, 100), (70, 200), (35, 300))])
-    b = np.stack([direction(t, p) for t, p in ((60, 250), (15, 40), (45, 20), (80, 130))])
-    centre, size = np.tile([0.2, 0.7], (4, 1)), np.full(4, 0.5)
-    kw = {"samples": 1024, "seed": 5, "backend": backend}
-    fwd = estimate(params, FootprintQueries(centre, size, a, b), **kw)  # type: ignore[arg-type]
-    bwd = estimate(params, FootprintQueries(centre, size, b, a), **kw)  # type: ignore[arg-type]
-    lhs = fwd.mean * fwd.area[:, None]
-    rhs = bwd.mean * bwd.area[:, None]
+    lhs, rhs = reciprocity_sides(params, backend)
     np.testing.assert_allclose(lhs, rhs, rtol=1e-9, atol=1e-12)
 
 

@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 
 from materials.fabric import yarn
-from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.array_ops import NumpyOps
 from materials.fabric.params import FabricParams, params_json
 from materials.fabric.patterns import PATTERNS
+from tests.helpers.fabric_identities import area_over_cosine, reciprocity_sides
 
 OPS = NumpyOps()
 STEEP = math.radians(70.0)
@@ -83,31 +83,13 @@ def test01_jin_profile_has_jins_share_of_steep_facets(name: str) -> None:
     assert abs(inner_smooth - inner_ref) > 0.03, (inner_smooth, inner_ref)
 
 
-def direction(theta: float, phi: float) -> np.ndarray:
-    t, p = math.radians(theta), math.radians(phi)
-    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
-
-
 @pytest.mark.parametrize("name", ["plain", "twill_3x3", "satin_5x5"])
 @pytest.mark.parametrize("beta", [0.7, 2.0])
 def test02_projected_areas_are_cosines_with_jins_profile(name: str, beta: float) -> None:
     params = FabricParams(
         PATTERNS[name], beta=beta, u_max_deg=U_MAX, psi_deg=20.0, yarn_profile="jin"
     )
-    thetas = [0.0, 30.0, 50.0, 65.0, 75.0]
-    wo = np.stack([direction(t, 25.0) for t in thetas])
-    wi = np.stack([direction(t, 160.0) for t in thetas])
-    q = FootprintQueries(
-        centre=np.full((len(thetas), 2), 0.31), size=np.full(len(thetas), 2.0), wi=wi, wo=wo
-    )
-    runs = [
-        estimate(params, q, samples=131072, sampler="independent", seed=s, backend="drjit")
-        for s in range(8)
-    ]
-    for attr, w in (("area", wo), ("area_in", wi)):
-        vals = np.stack([getattr(r, attr) for r in runs]) / w[:, 2]
-        mean = vals.mean(axis=0)
-        err = vals.std(axis=0, ddof=1) / math.sqrt(len(runs))
+    for attr, (mean, err) in area_over_cosine(params, samples=131072).items():
         # The bar: 0.02 (1 % for the march's coarse steps at grazing angles, as in
         # test_identities.py, plus Monte Carlo error), and 4 standard errors besides.
         assert np.all(np.abs(mean - 1.0) <= 0.02), (attr, mean, err)
@@ -117,14 +99,8 @@ def test02_projected_areas_are_cosines_with_jins_profile(name: str, beta: float)
 @pytest.mark.parametrize("name", ["plain", "twill_3x3", "satin_5x5"])
 def test03_reciprocity_with_jins_profile(name: str) -> None:
     params = FabricParams(PATTERNS[name], beta=1.0, u_max_deg=U_MAX, w=1.0, yarn_profile="jin")
-    a = np.stack([direction(t, p) for t, p in ((20, 10), (50, 100), (70, 200), (35, 300))])
-    b = np.stack([direction(t, p) for t, p in ((60, 250), (15, 40), (45, 20), (80, 130))])
-    centre, size = np.tile([0.2, 0.7], (4, 1)), np.full(4, 0.5)
-    fwd = estimate(params, FootprintQueries(centre, size, a, b), samples=1024, seed=5)
-    bwd = estimate(params, FootprintQueries(centre, size, b, a), samples=1024, seed=5)
-    np.testing.assert_allclose(
-        fwd.mean * fwd.area[:, None], bwd.mean * bwd.area[:, None], rtol=1e-9, atol=1e-12
-    )
+    lhs, rhs = reciprocity_sides(params)
+    np.testing.assert_allclose(lhs, rhs, rtol=1e-9, atol=1e-12)
 
 
 def test04_profile_is_validated_and_the_default_keeps_its_string() -> None:
