@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from generators.fabric.document import FabricMaterials, FabricStats
 from generators.fabric.params import (
     MAX_MATERIALS,
     MAX_QUERIES,
@@ -410,6 +411,7 @@ register(
         description="Woven-fabric training set (Chen et al. 2024, Sec. 5.1): aggregated BSDF "
         "components C/S warp/weft with standard errors at stratified footprint queries.",
         artifacts=("shard-*.npz", "materials.json", "maps/*.exr", "stats.json", "preview.png"),
+        documents={"materials.json": FabricMaterials, "stats.json": FabricStats},
         figures=(
             Figure(
                 "preview.png",

@@ -61,6 +61,7 @@ from generators.merl.collections import (
     SheenDistribution,
     draw_collection,
 )
+from generators.merl.document import MerlMaterials
 from generators.rows import summary_rows
 from jobapi.errors import JobFailed
 from jobapi.kinds import Axis, Figure, Kind, register
@@ -497,6 +498,7 @@ register(
         description="MERL-format isotropic BRDF tables of known ground truth from Mitsuba 3 "
         "BSDFs, analytic models or seeded collections of material families.",
         artifacts=("*.binary", "*.png", "materials.json"),
+        documents={"materials.json": MerlMaterials},
         smoke={"source": {"analytic": {"model": "ggx", "alpha": 0.3, "material": "Au"}}},
         summary=summarize,
         rows=summary_rows(summarize, ("missing_bins",), prefix="tabulation."),

@@ -47,6 +47,7 @@ from jobapi.kinds import Figure, Kind, register
 from jobapi.params import JobRef, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.row_sources import measured_timings
+from models.brdf.document import BrdfFamilies, BrdfSpread
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -310,7 +311,11 @@ register(
                 lead=True,
             ),
         ),
-        documents={"pareto.json": ParetoDocument},
+        documents={
+            "pareto.json": ParetoDocument,
+            "spread.json": BrdfSpread,
+            "families.json": BrdfFamilies,
+        },
         summary=summarize,
     )
 )
