@@ -8,7 +8,7 @@ reference lists their fields.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NotRequired
 
 from typing_extensions import TypedDict
 
@@ -97,3 +97,8 @@ class FabricStats(TypedDict):
     """The estimator's backend."""
     note: str
     """Where the timings are."""
+    seconds: NotRequired[float]
+    """Wall seconds of the estimation: only in a job made before timings moved to the
+    manifest (``timings.measured.throughput``)."""
+    samples_per_second: NotRequired[float]
+    """Its throughput: likewise only in such a job."""

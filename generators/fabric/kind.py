@@ -80,6 +80,7 @@ from generators.fabric.preview import (
 from generators.fabric.queries import design_queries
 from generators.fabric.rows import fabric_stats_rows
 from generators.fabric.scene_queries import SceneDesign, scene_queries
+from jobapi.documents import read_typed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate
@@ -371,28 +372,25 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``materials.json``, one row per material (pattern, sets, shards),
     with the counts of ``stats.json`` in the settings (the throughput is in the manifest,
     ``timings.measured.throughput``; a job made before it moved there has it here)."""
-    doc = read("materials.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("materials"), list):
+    doc = read_typed(read("materials.json"), FabricMaterials)
+    if doc is None or not doc["materials"]:
         return None
     columns = ["pattern", "texture_set", "shading_set", "shards"]
     rows = {
-        str(m["name"]): {
-            "pattern": m.get("pattern"),
-            "texture_set": m.get("texture_set"),
-            "shading_set": m.get("shading_set"),
-            "shards": len(m.get("shards") or []),
+        m["name"]: {
+            "pattern": m["pattern"],
+            "texture_set": m["texture_set"],
+            "shading_set": m["shading_set"],
+            "shards": len(m["shards"]),
         }
         for m in doc["materials"]
-        if isinstance(m, dict) and "name" in m
     }
-    if not rows:
-        return None
     return ResultTable(
         title="Materials",
         label_header="Material",
         columns=columns,
         rows=rows,
-        settings={"config": doc.get("config"), "stats": read("stats.json")},
+        settings={"config": doc["config"], "stats": read("stats.json")},
     )
 
 

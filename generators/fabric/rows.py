@@ -6,7 +6,10 @@ to the manifest."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
+from generators.fabric.document import FabricStats
+from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, number
 
 
@@ -14,17 +17,17 @@ def fabric_stats_rows(src: RowSource) -> list[ResultRow]:
     """``generate.fabric``: ``samples_per_second`` and ``seconds`` of the manifest's
     ``timings.measured.throughput`` (older jobs: of ``stats.json``), its ``backend`` from
     ``stats.json``."""
-    doc = src.read("stats.json")
-    if not isinstance(doc, Mapping):
+    doc = read_typed(src.read("stats.json"), FabricStats)
+    if doc is None:
         return []
     timed = src.job.measured.get("throughput")
-    times = timed if isinstance(timed, Mapping) else doc
+    times: Mapping[str, Any] = timed if isinstance(timed, Mapping) else doc
     return [
         base_row(
             src,
             k,
             v,
-            candidate=str(doc.get("backend") or "monte carlo"),
+            candidate=doc["backend"],
             lower_is_better=k == "seconds",
         )
         for k in ("samples_per_second", "seconds")

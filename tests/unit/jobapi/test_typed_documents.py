@@ -223,14 +223,16 @@ def test08_documents_of_every_train_and_generate_kind_are_declared() -> None:
 
 
 def test09_readers_test_documents_are_whole() -> None:
-    """The documents the readers' tests build (``tests.helpers.train_documents``) are of
+    """The documents the readers' tests build (``tests.helpers.job_documents``) are of
     their types, so those tests read what the kinds write; a row of ``evaluate.tss`` whose
     ``pass`` (a keyword, so the type's functional form) is missing fails naming it."""
     from evaluators.tss.document import TssMetrics, TssTiming
+    from generators.fabric.document import FabricStats
+    from generators.merl.document import MerlMaterials
     from models.brdf.document import TrainBrdfMaterials, TrainBrdfMetrics
     from models.btf.document import TrainBtfMetrics
     from models.fabric.document import TrainFabricMetrics
-    from tests.helpers import train_documents as td
+    from tests.helpers import job_documents as td
 
     gold = td.brdf_scores("gold", "metal", smape=0.4)
     check_typed("metrics.json", td.brdf_metrics([gold], smape=0.4), TrainBrdfMetrics)
@@ -242,6 +244,9 @@ def test09_readers_test_documents_are_whole() -> None:
     row = td.tss_row(64, 2, flip_mean=0.1, flip_max=0.2, psnr_mean=None, psnr_min=None)
     check_typed("metrics.json", td.tss_metrics([row]), TssMetrics)
     check_typed("timing.json", td.tss_timing({"64/N=2": (0.01, None)}), TssTiming)
+    check_typed("stats.json", td.fabric_stats(seconds=1.0, samples_per_second=2.0), FabricStats)
+    merl = td.merl_materials([{"name": "a", "family": "custom", "source": {}, "tabulation": {}}])
+    check_typed("materials.json", merl, MerlMaterials)
     passless = {k: v for k, v in row.items() if k != "pass"}
     with pytest.raises(DocumentError, match=r"metrics\.json: rows\.0\.pass: Field required"):
         check_typed("metrics.json", td.tss_metrics([passless]), TssMetrics)

@@ -39,7 +39,7 @@ from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.png import write_png
 from storage.jobs import JobStore
-from tests.helpers.train_documents import brdf_metrics, brdf_scores, fabric_metrics
+from tests.helpers.job_documents import brdf_metrics, brdf_scores, fabric_metrics
 
 TRAIN_METRICS = brdf_metrics(
     [brdf_scores("gold", "metal", "train", smape=0.11, smape_floor=0.1, mae=0.02,

@@ -12,12 +12,14 @@ import pytest
 from jobapi.rows import JobFacts, ResultRow, RowSource
 from service import kinds
 from tests.helpers.glint_stats import glint_stats
-from tests.helpers.train_documents import (
+from tests.helpers.job_documents import (
     brdf_materials,
     brdf_metrics,
     brdf_scores,
     btf_metrics,
     fabric_metrics,
+    fabric_stats,
+    merl_materials,
     tss_metrics,
     tss_row,
     tss_timing,
@@ -277,28 +279,20 @@ def test07_generators_measure_their_output() -> None:
         "stderr_mean": (0.01, 16),
         "stderr_relative": (0.05, 16),
     }
-    merl = {
-        "materials": [
-            {
-                "name": "gold",
-                "family": "metal",
-                "source": {"mitsuba": {}},
-                "tabulation": {"max_rel_error": 0.001, "bins": 90},
-            }
-        ]
-    }
+    merl = merl_materials([{"name": "gold", "family": "metal", "source": {"mitsuba": {}},
+                            "tabulation": {"max_rel_error": 0.001, "bins": 90}}])  # fmt: skip
     rows = by_metric(rows_of(FakeSource("generate.merl", {}, {"materials.json": merl})))
     assert {k: r.value for k, r in rows.items()} == {
         "tabulation.max_rel_error": 0.001,
         "tabulation.bins": 90,
     }
-    stats = {"samples_per_second": 8.0e6, "seconds": 3.0, "backend": "drjit"}
+    stats = fabric_stats("drjit", samples_per_second=8.0e6, seconds=3.0)
     rows = by_metric(rows_of(FakeSource("generate.fabric", {}, {"stats.json": stats})))
     assert rows["samples_per_second"].lower_is_better is False
     assert rows["seconds"].value == 3.0 and rows["seconds"].candidate == "drjit"
     # A job made since timings moved to the manifest: stats.json has the counts and the
     # backend, timings.measured.throughput the times.
-    counts = {"samples": 24_000_000, "backend": "numpy"}
+    counts = fabric_stats("numpy")
     throughput = {"seconds": 2.0, "samples_per_second": 1.2e7}
     src = FakeSource("generate.fabric", {}, {"stats.json": counts},
                      measured={"throughput": throughput})  # fmt: skip

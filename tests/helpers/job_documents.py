@@ -1,7 +1,8 @@
-"""Whole documents of ``train.brdf``, ``train.btf``, ``train.fabric`` and ``evaluate.tss``
-(their types: ``models.*.document``, ``evaluators.tss.document``) for tests of their
-readers: each builder gives a document its type accepts (``tests/unit/jobapi/
-test_typed_documents.py`` checks that), with the values a test cares about passed in."""
+"""Whole documents of ``train.brdf``, ``train.btf``, ``train.fabric``, ``evaluate.tss``,
+``generate.merl`` and ``generate.fabric`` (their types: ``models.*.document``,
+``evaluators.tss.document``, ``generators.*.document``) for tests of their readers: each
+builder gives a document its type accepts (``tests/unit/jobapi/test_typed_documents.py``
+checks that), with the values a test cares about passed in."""
 
 from __future__ import annotations
 
@@ -109,3 +110,24 @@ def tss_timing(costs: Mapping[str, tuple[float, float | None]]) -> dict[str, Any
         "passes": {"screen_space": times, "shading": {"64": times}, "lookup": {"64": times}},
         "environment": {"threads": 1}, "units": {}, "note": "test",
     }  # fmt: skip
+
+
+def merl_materials(materials: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """``generate.merl``'s ``materials.json`` of ``{"name", "family", "source",
+    "tabulation"}`` materials (no measurement, one source)."""
+    return {
+        "materials": [
+            {"params": {}, "measurement": None, **m,
+             "artifacts": {"table": f"{m['name']}.binary", "picture": f"{m['name']}.png"}}
+            for m in materials
+        ],
+        "phi_d_bins": 180, "preset": None, "families": None, "distributions": None,
+        "allow_anisotropic": False, "anisotropy_tol": 0.01,
+    }  # fmt: skip
+
+
+def fabric_stats(backend: str = "numpy", **legacy: float) -> dict[str, Any]:
+    """``generate.fabric``'s ``stats.json``; ``legacy`` adds the ``seconds`` and
+    ``samples_per_second`` of a job made before timings moved to the manifest."""
+    return {"materials": 3, "queries": 3 * 1280, "samples_per_query": 2048,
+            "samples": 3 * 1280 * 2048, "backend": backend, "note": "test", **legacy}  # fmt: skip
