@@ -30,6 +30,7 @@ from storage.artifacts import ArtifactStore
 from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
 from storage.jobs import JobStore
+from tests.helpers.job_documents import fabric_metrics
 
 from .harness import dashboard_server
 from .test_dashboard_browser import CHROMIUM, SHOTS, TOKEN, page  # noqa: F401
@@ -101,7 +102,8 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
     )  # fmt: skip
     mats = [material(i, f"fabric_material_with_a_long_name_{i}") for i in range(3)]
     mean = {k: v for k, v in material(9, "mean").items() if k not in ("name", "pattern")}
-    ctx.put_json("metrics.json", {"materials": mats, "mean": mean, "settings": {}})
+    # train.fabric's whole metrics.json (its summary reads it typed)
+    ctx.put_json("metrics.json", fabric_metrics(mats, mean))
 
 
 def wide_kind() -> Kind:
