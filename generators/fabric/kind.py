@@ -54,7 +54,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from generators.fabric.document import FabricMaterials, FabricStats
 from generators.fabric.params import (
     MAX_MATERIALS,
     MAX_QUERIES,
@@ -86,6 +85,7 @@ from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.aggregate import FootprintQueries, estimate
 from materials.fabric.params import FabricParams, YarnPair, sample_params
 from materials.fabric.yarn import YarnGeometry
+from storage.formats.fabric_documents import FabricMaterials, FabricStats
 from storage.formats.npz import npz_bytes
 
 if TYPE_CHECKING:

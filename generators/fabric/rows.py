@@ -8,9 +8,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from generators.fabric.document import FabricStats
 from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, number
+from storage.formats.fabric_documents import FabricStats
 
 
 def fabric_stats_rows(src: RowSource) -> list[ResultRow]:

@@ -61,7 +61,6 @@ from generators.merl.collections import (
     SheenDistribution,
     draw_collection,
 )
-from generators.merl.document import MerlMaterials
 from generators.rows import summary_rows
 from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
@@ -72,6 +71,7 @@ from materials.analytic import ANALYTIC_MODELS, build_analytic
 from materials.measurement import simulate_measurement
 from materials.tabulate import ANISOTROPY_TOL, tabulate_analytic, tabulate_mitsuba
 from storage.formats.merl import MerlTable, merl_bytes
+from storage.formats.merl_materials import MerlMaterials
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext

@@ -192,12 +192,12 @@ def test08_documents_of_every_train_and_generate_kind_are_declared() -> None:
     have their type (a real job's document of each is checked in
     ``tests/integration/test_kinds_smoke.py``)."""
     from evaluators.tss.document import TssMetrics, TssPath, TssTiming
-    from generators.fabric.document import FabricMaterials, FabricStats
-    from generators.merl.document import MerlMaterials
     from models.brdf.document import BrdfFamilies, BrdfModelDocument, BrdfSpread, TrainBrdfMaterials
     from models.btf.document import BtfModelDocument
     from models.fabric.document import FabricLatents, FabricModelDocument
     from service import kinds
+    from storage.formats.fabric_documents import FabricMaterials, FabricStats
+    from storage.formats.merl_materials import MerlMaterials
 
     kinds.load_builtin()
     declared = {(k.name, n): t for k in jobapi_kinds.registered().values()
@@ -227,11 +227,11 @@ def test09_readers_test_documents_are_whole() -> None:
     their types, so those tests read what the kinds write; a row of ``evaluate.tss`` whose
     ``pass`` (a keyword, so the type's functional form) is missing fails naming it."""
     from evaluators.tss.document import TssMetrics, TssTiming
-    from generators.fabric.document import FabricStats
-    from generators.merl.document import MerlMaterials
     from models.brdf.document import TrainBrdfMaterials, TrainBrdfMetrics
     from models.btf.document import TrainBtfMetrics
     from models.fabric.document import TrainFabricMetrics
+    from storage.formats.fabric_documents import FabricStats
+    from storage.formats.merl_materials import MerlMaterials
     from tests.helpers import job_documents as td
 
     gold = td.brdf_scores("gold", "metal", smape=0.4)

@@ -1,17 +1,21 @@
 """``materials.json`` of ``generate.merl``: the one definition of the document.
 
 :func:`generators.merl.kind.run_generate_merl` builds it; ``put_json`` validates it against
-:class:`MerlMaterials`; the summary reads it with :func:`jobapi.documents.read_typed`; the
-kinds reference lists its fields.
+:class:`MerlMaterials`; its summary, ``train.brdf``'s dataset loader and ``score``'s sets of
+tables read it with :func:`jobapi.documents.read_typed` (or ``check_typed``); the kinds
+reference lists its fields. Here in :mod:`storage.formats` because the generator, the
+models and the scorers read it, and none of them may import another.
 """
 
 from __future__ import annotations
 
-from typing import Any, NotRequired
+from typing import Any, NotRequired  # pydantic needs this TypedDict on 3.11
 
+from pydantic import ConfigDict, with_config
 from typing_extensions import TypedDict
 
-from jobapi.documents import document
+#: Unknown keys are refused; each field's docstring is its description in the docs.
+document = with_config(ConfigDict(extra="forbid", use_attribute_docstrings=True))
 
 
 @document

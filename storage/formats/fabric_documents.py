@@ -2,17 +2,21 @@
 (:class:`FabricMaterials`) and ``stats.json`` (:class:`FabricStats`).
 
 :func:`generators.fabric.kind.run_generate_fabric` builds them; ``put_json`` validates them
-against these types; readers parse them with :func:`jobapi.documents.read_typed`; the kinds
-reference lists their fields.
+against these types; its summary and rows, and ``train.fabric``'s dataset loader, read them
+with :func:`jobapi.documents.read_typed` (or ``check_typed``); the kinds reference lists
+their fields. Here in :mod:`storage.formats` because the generator and the models read
+them, and neither may import the other.
 """
 
 from __future__ import annotations
 
-from typing import Any, NotRequired
+from typing import Any, NotRequired  # pydantic needs this TypedDict on 3.11
 
+from pydantic import ConfigDict, with_config
 from typing_extensions import TypedDict
 
-from jobapi.documents import document
+#: Unknown keys are refused; each field's docstring is its description in the docs.
+document = with_config(ConfigDict(extra="forbid", use_attribute_docstrings=True))
 
 
 @document
