@@ -435,7 +435,9 @@ def document_fields(typed: type) -> list[tuple[str, str, bool, str]]:
         s = resolve(s)
         required = set(s.get("required", ()))
         for key, prop in s.get("properties", {}).items():
-            desc = " ".join(str(prop.get("description", "")).split())
+            # pydantic leaves out a field's description equal to its type's: use the type's
+            found = prop.get("description") or resolve(prop).get("description", "")
+            desc = " ".join(str(found).split())
             out.append((prefix + key, type_of(prop), key in required, desc))
             if "properties" in resolve(prop):
                 walk(prop, f"{prefix}{key}.")

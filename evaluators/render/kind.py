@@ -31,11 +31,13 @@ from pydantic import Field, model_validator
 
 from evaluators.metrics.tonemap import tonemap
 from evaluators.render.bsdfs.external_onnx import wavefront_scope
+from evaluators.render.document import RenderDocument
 from evaluators.render.integrators import integrator_for
 from evaluators.render.rows import render_rows
 from evaluators.render.scenes import SCENES, Camera, PointLight, SceneSetup, build_scene
 from evaluators.render.sources import MaterialParam, resolve_material
 from evaluators.render.sources.common import mitsuba_message
+from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import StrictModel
@@ -352,24 +354,24 @@ def _metadata(
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``render.json``, one row (the scene) with size, samples and the
     image's mean RGB and maximum."""
-    doc = read("render.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("image"), dict):
+    doc = read_typed(read("render.json"), RenderDocument)
+    if doc is None:
         return None
-    image, renderer = doc["image"], doc.get("renderer") or {}
-    mean = image.get("mean_rgb") or [None, None, None]
+    image = doc["image"]
+    mean: list[float | None] = [*image["mean_rgb"], None, None, None]
     row = {
-        "width": image.get("width"),
-        "height": image.get("height"),
-        "spp": doc.get("spp"),
+        "width": image["width"],
+        "height": image["height"],
+        "spp": doc["spp"],
         "mean_r": mean[0],
         "mean_g": mean[1],
         "mean_b": mean[2],
-        "max": image.get("max"),
-        "integrator": doc.get("integrator"),
-        "variant": renderer.get("variant"),
+        "max": image["max"],
+        "integrator": doc["integrator"],
+        "variant": doc["renderer"]["variant"],
     }
     return ResultTable(
-        title="Render", label_header="Scene", columns=list(row), rows={str(doc["scene"]): row}
+        title="Render", label_header="Scene", columns=list(row), rows={doc["scene"]: row}
     )
 
 
@@ -382,6 +384,7 @@ register(
         description="Path-traced reference image of a material in a built-in scene (Mitsuba 3, "
         "MATFORGE_VARIANT: LLVM or CUDA).",
         artifacts=("image.exr", "preview.png", "render.json"),
+        documents={"render.json": RenderDocument},
         smoke={"resolution": [32, 32], "spp": 4, "max_depth": 4},
         figures=(
             Figure(

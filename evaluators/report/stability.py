@@ -46,6 +46,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import Field, StringConstraints, model_validator
 
+from evaluators.report.stability_document import StabilityDocument
+from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register, registered, report_facts
 from jobapi.params import JobRef, StrictModel, job_id_of
@@ -354,25 +356,22 @@ COLUMNS = (
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """One row per run (``"<candidate> / seed <s>"``)."""
-    doc = read("stability.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("runs"), list):
+    doc = read_typed(read("stability.json"), StabilityDocument)
+    if doc is None:
         return None
     rows = {}
     for r in doc["runs"]:
-        if isinstance(r, dict):
-            conv = r.get("convergence") or {}
-            row = {c: r.get(c) for c in COLUMNS}
-            row.update(
-                flattened=conv.get("flattened"), second_half_drop=conv.get("second_half_drop")
-            )
-            who = r.get("label") if r.get("kind") == SCORE_KIND else r.get("candidate")
-            rows[f"{who} / seed {r.get('seed')} ({r.get('run')})"] = row
+        conv = r["convergence"]
+        row = {c: r.get(c) for c in COLUMNS}
+        row.update(flattened=conv["flattened"], second_half_drop=conv.get("second_half_drop"))
+        who = r.get("label") if r["kind"] == SCORE_KIND else r["candidate"]
+        rows[f"{who} / seed {r['seed']} ({r['run']})"] = row
     return ResultTable(
         title="Stability",
         label_header="Run",
         columns=list(COLUMNS),
         rows=rows,
-        settings=doc.get("settings"),
+        settings=doc["settings"],
     )
 
 
@@ -388,6 +387,7 @@ register(
         "drawn as a heat table, whether each training loss had flattened, and for BRDF "
         "models NaN/Inf at extreme inputs, directional albedo above 1 and reciprocity error.",
         artifacts=("stability.json", "stability.png"),
+        documents={"stability.json": StabilityDocument},
         smoke={"runs": ["step:train.brdf"]},
         figures=(
             Figure(

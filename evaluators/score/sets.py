@@ -27,7 +27,7 @@ the set does not name are not scored (listed under ``settings.candidate_models``
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -43,8 +43,10 @@ from evaluators.score.brdf import (
     reference_pairs,
     score_candidate,
 )
+from jobapi.documents import DocumentError, check_typed
 from jobapi.errors import FormatError, JobFailed
 from storage.formats.merl import read_merl
+from storage.formats.merl_materials import MerlMaterials
 
 if TYPE_CHECKING:
     from evaluators.score.params import ScoreParams
@@ -63,14 +65,15 @@ def reference_tables(reference: str | dict[str, str], ctx: JobContext) -> dict[s
             f"reference: job {job_id} ({job.kind}) has no materials.json; give a generate.merl "
             "job or a mapping {material name: table ref}"
         )
-    records = json.loads(ctx.read_ref(f"job:{job_id}/materials.json")).get("materials", [])
-    tables = {
-        str(r["name"]): f"job:{job_id}/{r['artifacts']['table']}"
-        for r in records
-        if isinstance(r, dict)
-        and isinstance(r.get("artifacts"), dict)
-        and "table" in r["artifacts"]
-    }
+    name = f"job:{job_id}/materials.json"
+    doc = json.loads(ctx.read_ref(name))
+    try:
+        check_typed(name, doc, MerlMaterials)
+    except DocumentError as exc:  # e.g. a train.brdf job's materials.json
+        raise JobFailed(f"reference: job {job_id} lists no MERL tables in its materials.json "
+                        f"({exc})") from None  # fmt: skip
+    records = cast(MerlMaterials, doc)["materials"]
+    tables = {r["name"]: f"job:{job_id}/{r['artifacts']['table']}" for r in records}
     if not tables:
         raise JobFailed(f"reference: job {job_id} lists no MERL tables in its materials.json")
     return tables

@@ -44,9 +44,10 @@ import json
 import math
 from typing import TYPE_CHECKING, Any
 
-from evaluators.tss.document import TssMetrics
+from evaluators.tss.document import TssMetrics, TssPath, TssTiming
 from evaluators.tss.params import PLANE_SIDE, ExternalBtfRef, TssParams
 from evaluators.tss.rows import tss_rows
+from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import job_id_of
@@ -255,29 +256,23 @@ def run_evaluate_tss(params: TssParams, ctx: JobContext) -> None:
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """One row per ``(R, N)`` (``metrics.json`` with ``timing.json``'s costs) and a
     ``screen space`` row (FLIP 0, relative cost 1)."""
-    doc = read("metrics.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("rows"), list):
+    doc = read_typed(read("metrics.json"), TssMetrics)
+    if doc is None:
         return None
-    timing = read("timing.json")
-    timing = timing if isinstance(timing, dict) else {}
-    cost_rows = timing.get("rows")
-    costs: dict[str, Any] = cost_rows if isinstance(cost_rows, dict) else {}
+    timing = read_typed(read("timing.json"), TssTiming)
+    costs = timing["rows"] if timing is not None else {}
     rows: dict[str, dict[str, Any]] = {}
     for row in doc["rows"]:
-        if not isinstance(row, dict):
-            continue
-        label = str(row.get("label"))
-        cost = costs.get(label) or {}
-        rows[label] = {c: row.get(c, cost.get(c)) for c in COLUMNS}
-    frames = (doc.get("settings") or {}).get("frames")
-    screen = (timing.get("passes") or {}).get("screen_space") or {}
+        found: dict[str, Any] = {**costs.get(row["label"], {}), **row}
+        rows[row["label"]] = {c: found.get(c) for c in COLUMNS}
+    screen = timing["passes"]["screen_space"]["kernel_s"] if timing is not None else None
     rows["screen space"] = {"flip_mean": 0.0, "flip_max": 0.0, "psnr_mean": None,
-                            "shading_passes": frames, "seconds_per_frame": screen.get("kernel_s"),
-                            "relative_cost": 1.0}  # fmt: skip
+                            "shading_passes": doc["settings"].get("frames"),
+                            "seconds_per_frame": screen, "relative_cost": 1.0}  # fmt: skip
     return ResultTable(
         title="Texture-space shading (Table 2)", label_header="R / interval",
         columns=list(COLUMNS), rows=rows, reference="per-frame screen-space shading",
-        settings=doc.get("settings"),
+        settings=doc["settings"],
     )  # fmt: skip
 
 
@@ -306,7 +301,7 @@ register(
                 lead=True,
             ),
         ),
-        documents={"metrics.json": TssMetrics},
+        documents={"metrics.json": TssMetrics, "timing.json": TssTiming, "path.json": TssPath},
         summary=summarize,
         rows=tss_rows,
         layout=LAYOUT,

@@ -6,8 +6,9 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
 
+from evaluators.tss.document import TssMetrics, TssTiming
+from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 
 #: The metrics of a ``metrics.json`` row.
@@ -15,38 +16,32 @@ METRICS = ("flip_mean", "flip_max", "psnr_mean", "psnr_min")
 
 
 def tss_rows(src: RowSource) -> list[ResultRow]:
-    """The rows of a finished ``evaluate.tss`` job."""
-    doc = src.read("metrics.json")
-    if not isinstance(doc, Mapping):
+    """The rows of a finished ``evaluate.tss`` job (its documents read typed: a job without
+    them, or with another shape, has no rows; one without ``timing.json`` has no costs)."""
+    doc = read_typed(src.read("metrics.json"), TssMetrics)
+    if doc is None:
         return []
-    timing = src.read("timing.json")
-    costs: Mapping[str, Any] = (
-        (timing or {}).get("rows") or {} if isinstance(timing, Mapping) else {}
-    )
+    timing = read_typed(src.read("timing.json"), TssTiming)
+    costs = timing["rows"] if timing is not None else {}
     dataset = dataset_of(src.job.params, "model")
-    given = src.job.params.get("model")
-    if dataset is None and isinstance(given, Mapping):  # a user's model: its file
-        dataset = (given.get("external") or {}).get("model")
-    found_info = doc.get("model")
-    info: Mapping[str, Any] = found_info if isinstance(found_info, Mapping) else {}
+    external = doc["model"]["external"]
+    if dataset is None and external is not None:  # a user's model: its file
+        dataset = external.get("model")
     rows: list[ResultRow] = []
-    for r in doc.get("rows") or []:
-        if not isinstance(r, Mapping):
-            continue
-        label = str(r.get("label"))
-        found = costs.get(label)
-        cost: Mapping[str, Any] = found if isinstance(found, Mapping) else {}
-        spf = number(cost.get("seconds_per_frame"))
+    for r in doc["rows"]:
+        cost = costs.get(r["label"])
+        spf = cost["seconds_per_frame"] if cost is not None else None
         fields = {
-            "candidate": label,
+            "candidate": r["label"],
             "dataset": dataset,
-            "config": {k: r.get(k) for k in ("resolution", "interval", "pass", "shading_passes")},
+            "config": {k: r[k] for k in ("resolution", "interval", "pass", "shading_passes")},
             "ms_per_frame": None if spf is None else 1000.0 * spf,
-            "runtime": str(info.get("runtime") or "drjit-fused"),
+            "runtime": doc["model"]["runtime"],
         }
+        values: Mapping[str, object] = r
         rows += [
-            base_row(src, k, v, **fields) for k in METRICS if (v := number(r.get(k))) is not None
+            base_row(src, k, v, **fields) for k in METRICS if (v := number(values[k])) is not None
         ]
-        if (rel := number(cost.get("relative_cost"))) is not None:
+        if cost is not None and (rel := number(cost["relative_cost"])) is not None:
             rows.append(base_row(src, "relative_cost", rel, **fields))
     return rows

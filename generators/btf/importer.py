@@ -28,7 +28,7 @@ from jobapi.errors import FormatError, JobFailed, TooLargeError
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Ref, StrictModel
 from materials.btf.directions import check_pairs, pair_count_label, to_vector
-from storage.formats.btf import index_document, shard_name, write_shard
+from storage.formats.btf import BtfIndexDocument, index_document, shard_name, write_shard
 from storage.formats.btf_folder import SliceEntry, SliceFolder
 from storage.formats.npz import MAX_NPZ_BYTES
 from storage.formats.ubo_btf import UboBtf, check_pixels, sniff
@@ -276,6 +276,7 @@ register(
         "a decompressed UBO2014 archive gives, or a Bonn .btf file: UBO2014's DFMF, or FMF) "
         "into generate.btf's shard layout.",
         artifacts=("slices-0000.npz", "btf.json", "preview.png"),
+        documents={"btf.json": BtfIndexDocument},
         figures=(Figure("preview.png", caption="A few of the imported slices.", lead=True),),
         summary=summarize,
     )

@@ -41,7 +41,7 @@ from jobapi.results import ArtifactReader, ResultTable
 from materials.backend import active_variant, load_mitsuba
 from materials.btf.directions import pair_count_label, to_angles
 from materials.btf.surfaces import SurfaceMaps, procedural_surface
-from storage.formats.btf import index_document, shard_bytes, shard_name
+from storage.formats.btf import BtfIndexDocument, index_document, shard_bytes, shard_name
 from storage.formats.exr import exr_bytes
 
 if TYPE_CHECKING:
@@ -232,6 +232,7 @@ register(
         "UBO2014's convention: a flat plane of any Mitsuba BSDF or a procedural displaced "
         "surface (leather, fabric, wood, stone), one slice per light x view pair.",
         artifacts=("slices-0000.npz", "btf.json", "height.exr", "preview.png"),
+        documents={"btf.json": BtfIndexDocument},
         figures=(
             Figure(
                 "preview.png",

@@ -77,9 +77,11 @@ from generators.fabric.preview import (
 )
 from generators.fabric.rows import fabric_stats_rows
 from generators.fabric.shards import ShardTask, estimate_shard, estimate_shards
+from jobapi.documents import read_typed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
 from materials.fabric.params import FabricParams, YarnPair, sample_params
+from storage.formats.fabric_documents import FabricMaterials, FabricStats
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -337,28 +339,25 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``materials.json``, one row per material (pattern, sets, shards),
     with the counts of ``stats.json`` in the settings (the throughput is in the manifest,
     ``timings.measured.throughput``; a job made before it moved there has it here)."""
-    doc = read("materials.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("materials"), list):
+    doc = read_typed(read("materials.json"), FabricMaterials)
+    if doc is None or not doc["materials"]:
         return None
     columns = ["pattern", "texture_set", "shading_set", "shards"]
     rows = {
-        str(m["name"]): {
-            "pattern": m.get("pattern"),
-            "texture_set": m.get("texture_set"),
-            "shading_set": m.get("shading_set"),
-            "shards": len(m.get("shards") or []),
+        m["name"]: {
+            "pattern": m["pattern"],
+            "texture_set": m["texture_set"],
+            "shading_set": m["shading_set"],
+            "shards": len(m["shards"]),
         }
         for m in doc["materials"]
-        if isinstance(m, dict) and "name" in m
     }
-    if not rows:
-        return None
     return ResultTable(
         title="Materials",
         label_header="Material",
         columns=columns,
         rows=rows,
-        settings={"config": doc.get("config"), "stats": read("stats.json")},
+        settings={"config": doc["config"], "stats": read("stats.json")},
     )
 
 
@@ -377,6 +376,7 @@ register(
         description="Woven-fabric training set (Chen et al. 2024, Sec. 5.1): aggregated BSDF "
         "components C/S warp/weft with standard errors at stratified footprint queries.",
         artifacts=("shard-*.npz", "materials.json", "maps/*.exr", "stats.json", "preview.png"),
+        documents={"materials.json": FabricMaterials, "stats.json": FabricStats},
         figures=(
             Figure(
                 "preview.png",

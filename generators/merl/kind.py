@@ -62,6 +62,7 @@ from generators.merl.collections import (
     draw_collection,
 )
 from generators.rows import summary_rows
+from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Axis, Figure, Kind, register
 from jobapi.params import StrictModel
@@ -70,6 +71,7 @@ from materials.analytic import ANALYTIC_MODELS, build_analytic
 from materials.measurement import simulate_measurement
 from materials.tabulate import ANISOTROPY_TOL, tabulate_analytic, tabulate_mitsuba
 from storage.formats.merl import MerlTable, merl_bytes
+from storage.formats.merl_materials import MerlMaterials
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -455,22 +457,18 @@ def run_generate_merl(params: MerlParams, ctx: JobContext) -> None:
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """The result table: ``materials.json``, one row per material (family, source, the
     tabulation's and the measurement's figures)."""
-    doc = read("materials.json")
-    if not isinstance(doc, dict) or not isinstance(doc.get("materials"), list):
+    doc = read_typed(read("materials.json"), MerlMaterials)
+    if doc is None:
         return None
     rows: dict[str, dict[str, Any]] = {}
     for m in doc["materials"]:
-        if not isinstance(m, dict) or "name" not in m:
-            continue
-        source = m.get("source")
-        row = {"family": m.get("family"), "source": next(iter(source), None)
-               if isinstance(source, dict) else source}  # fmt: skip
-        for key, value in flatten({"tabulation": m.get("tabulation") or {}}).items():
+        row: dict[str, Any] = {"family": m["family"], "source": next(iter(m["source"]), None)}
+        for key, value in flatten({"tabulation": m["tabulation"]}).items():
             if isinstance(value, int | float | str | bool):
                 row[key] = value
-        if isinstance(m.get("measurement"), dict):
+        if m["measurement"] is not None:
             row["missing_bins"] = m["measurement"].get("missing_bins")
-        rows[str(m["name"])] = row
+        rows[m["name"]] = row
     if not rows:
         return None
     columns: list[str] = []
@@ -497,6 +495,7 @@ register(
         description="MERL-format isotropic BRDF tables of known ground truth from Mitsuba 3 "
         "BSDFs, analytic models or seeded collections of material families.",
         artifacts=("*.binary", "*.png", "materials.json"),
+        documents={"materials.json": MerlMaterials},
         smoke={"source": {"analytic": {"model": "ggx", "alpha": 0.3, "material": "Au"}}},
         summary=summarize,
         rows=summary_rows(summarize, ("missing_bins",), prefix="tabulation."),

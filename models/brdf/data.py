@@ -22,17 +22,19 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import PurePosixPath
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from jobapi.documents import DocumentError, check_typed
 from jobapi.errors import JobFailed
 from jobapi.params import JOB_REF
 from materials import halfdiff as hd
 from storage.errors import FormatError
 from storage.formats.merl import MerlTable, merl_from_bytes
+from storage.formats.merl_materials import MerlMaterial, MerlMaterials
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -65,13 +67,19 @@ class MaterialTable:
 # -- loading -----------------------------------------------------------------------------------
 
 
-def _job_materials(ctx: JobContext, job_id: str) -> list[dict[str, Any]] | None:
-    """The ``materials`` list of a job's ``materials.json``, or ``None`` if it has none."""
+def _job_materials(ctx: JobContext, job_id: str) -> list[MerlMaterial] | None:
+    """The ``materials`` of a job's ``materials.json`` (a ``generate.merl`` job's,
+    :class:`~storage.formats.merl_materials.MerlMaterials`), or ``None`` if it has none;
+    :class:`JobFailed` naming the field if it is not of that type."""
     job = ctx.input_job(job_id, "dataset")
     if "materials.json" not in {a.name for a in job.artifacts}:
         return None
     doc = json.loads(ctx.read_ref(f"job:{job_id}/materials.json"))
-    return list(doc.get("materials", []))
+    try:
+        check_typed(f"job:{job_id}/materials.json", doc, MerlMaterials)
+    except DocumentError as exc:
+        raise JobFailed(f"dataset: {exc}") from None
+    return cast(MerlMaterials, doc)["materials"]
 
 
 def _read_table(ctx: JobContext, ref: str, label: str) -> MerlTable:
@@ -120,7 +128,16 @@ def _name_from_ref(ctx: JobContext, ref: str, cache: dict[str, dict[str, str]]) 
     artifact = m["name"]
     if m["job"] not in cache:
         records = _job_materials(ctx, m["job"]) or []
-        cache[m["job"]] = {a: r["family"] for r in records for a in r.get("artifacts", {}).values()}
+        cache[m["job"]] = {
+            a: r["family"]
+            for r in records
+            for a in (
+                r["artifacts"]["table"],
+                r["artifacts"]["picture"],
+                r["artifacts"].get("truth"),
+            )
+            if a is not None
+        }
     stem = str(PurePosixPath(artifact).with_suffix("")).replace("/", "-")
     return stem, cache[m["job"]].get(artifact, "custom")
 

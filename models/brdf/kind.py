@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
-from jobapi.documents import CurvesDocument
+from jobapi.documents import CurvesDocument, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
@@ -62,7 +62,7 @@ from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.brdf.claims import brdf_claims
-from models.brdf.document import TrainBrdfMetrics
+from models.brdf.document import BrdfModelDocument, TrainBrdfMaterials, TrainBrdfMetrics
 from models.brdf.rows import train_brdf_rows
 
 if TYPE_CHECKING:
@@ -359,8 +359,8 @@ def model_checks(ctx: JobContext, job_id: str) -> dict[str, Any]:
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
-    """The result table: ``metrics.json``, one row per material then the mean."""
-    return per_material_table(read("metrics.json"), MATERIAL_COLUMNS)
+    """The result table: ``metrics.json`` (read typed), one row per material then the mean."""
+    return per_material_table(read_typed(read("metrics.json"), TrainBrdfMetrics), MATERIAL_COLUMNS)
 
 
 register(
@@ -394,7 +394,12 @@ register(
                 lead=True,
             ),
         ),
-        documents={"curves.json": CurvesDocument, "metrics.json": TrainBrdfMetrics},
+        documents={
+            "curves.json": CurvesDocument,
+            "metrics.json": TrainBrdfMetrics,
+            "model.json": BrdfModelDocument,
+            "materials.json": TrainBrdfMaterials,
+        },
         summary=summarize,
         rows=train_brdf_rows,
         report=ReportFacts(

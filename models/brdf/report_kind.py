@@ -37,22 +37,24 @@ vary between runs, as the runs' timings do).
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from pydantic import Field
 
-from jobapi.documents import ParetoDocument
+from jobapi.documents import DocumentError, ParetoDocument, check_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import JobRef, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.row_sources import measured_timings
+from models.brdf.document import BrdfFamilies, BrdfModelDocument, BrdfSpread, TrainBrdfMetrics
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
     from models.brdf.study import Run
 
 REPORT_FORMAT = "matforge.brdf-report/1"
+T = TypeVar("T")
 
 
 class ReportBrdfParams(StrictModel):
@@ -97,7 +99,8 @@ def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
     def read(name: str) -> Any:
         return json.loads(ctx.read_ref(f"job:{job_id}/{name}"))
 
-    metrics, doc = read("metrics.json"), read("model.json")
+    metrics = _document(read("metrics.json"), TrainBrdfMetrics, f"{ref}/metrics.json")
+    doc = _document(read("model.json"), BrdfModelDocument, f"{ref}/model.json")
     arch = doc["architecture"]
     speed, source = None, "none"
     # The speed document: the manifest's timings.measured.speed, or the speed.json artifact
@@ -112,17 +115,27 @@ def load_run(ref: str, ctx: JobContext) -> tuple[Run, dict[str, Any]]:
     run = Run(
         job_id=job_id,
         seed=job.seed,
-        model=str(doc["model"]),
-        width=int(arch["width"]),
-        depth=int(arch["depth"]),
-        latent_dim=int(arch["latent_dim"]),
-        per_material_params=int(arch["per_material_params"]),
-        materials=tuple(metrics["materials"]),
+        model=doc["model"],
+        width=arch["width"],
+        depth=arch["depth"],
+        latent_dim=arch["latent_dim"],
+        per_material_params=arch["per_material_params"],
+        materials=tuple(dict(m) for m in metrics["materials"]),
         speed=speed,
         speed_source=source,
-        stored_mean=float(metrics["mean"]["smape"]),
+        stored_mean=metrics["mean"]["smape"],
     )
-    return run, doc
+    return run, dict(doc)
+
+
+def _document(doc: Any, typed: type[T], name: str) -> T:
+    """``doc`` as a ``typed`` document of a run; :class:`JobFailed` naming the run's file
+    and the field if it is not one."""
+    try:
+        check_typed(name, doc, typed)
+    except DocumentError as exc:
+        raise JobFailed(f"runs: {exc}") from None
+    return cast(T, doc)
 
 
 def _time_config(doc: dict[str, Any], batch: int) -> dict[str, Any] | None:
@@ -310,7 +323,11 @@ register(
                 lead=True,
             ),
         ),
-        documents={"pareto.json": ParetoDocument},
+        documents={
+            "pareto.json": ParetoDocument,
+            "spread.json": BrdfSpread,
+            "families.json": BrdfFamilies,
+        },
         summary=summarize,
     )
 )

@@ -19,7 +19,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+from models.brdf.document import (
+    BrdfMaterialScores,
+    BrdfScoreMeans,
+    TrainBrdfMaterials,
+    TrainBrdfMetrics,
+)
 
 #: The metrics of a material's row in ``metrics.json``.
 METRICS = (
@@ -43,21 +50,32 @@ def _trained_speed(doc: Any) -> Mapping[str, Any] | None:
                 None)  # fmt: skip
 
 
+def _scores(scores: BrdfMaterialScores | BrdfScoreMeans) -> dict[str, float]:
+    """The :data:`METRICS` of a material's scores or of their means that are numbers."""
+    values = {"smape": scores["smape"], "smape_floor": scores["smape_floor"],
+              "mae": scores["mae"], "smape_analytic": scores["smape_analytic"],
+              "smape_floor_analytic": scores["smape_floor_analytic"],
+              "mae_analytic": scores["mae_analytic"]}  # fmt: skip
+    return {k: v for k in METRICS if (v := number(values[k])) is not None}
+
+
 def train_brdf_rows(src: RowSource) -> list[ResultRow]:
-    """The rows of a finished ``train.brdf`` job (see the module docstring)."""
-    metrics, info = src.read("metrics.json"), src.read("materials.json")
-    if not isinstance(metrics, Mapping) or not isinstance(info, Mapping):
+    """The rows of a finished ``train.brdf`` job (see the module docstring; its
+    ``metrics.json`` and ``materials.json`` read typed: none for a job without them, or
+    with another shape)."""
+    metrics = read_typed(src.read("metrics.json"), TrainBrdfMetrics)
+    info = read_typed(src.read("materials.json"), TrainBrdfMaterials)
+    if metrics is None or info is None:
         return []
-    arch = info.get("architecture") or {}
-    model = str(info.get("model") or metrics.get("model"))
-    width, depth = int(arch.get("width", 0)), int(arch.get("depth", 0))
-    floats = info.get("per_material_params")
+    arch = info["architecture"]
+    model, width, depth = info["model"], arch["width"], arch["depth"]
+    floats = info["per_material_params"]
     params = src.job.params
     config = {
         "model": model,
         "width": width,
         "depth": depth,
-        "latent_dim": arch.get("latent_dim"),
+        "latent_dim": arch["latent_dim"],
         "per_material_params": floats,
         "preset": params.get("preset"),
         "steps": params.get("steps"),
@@ -68,23 +86,18 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
         "dataset": dataset_of(params, "dataset"),
         "config": config,
         "ns_per_eval": number(speed.get("fused_kernel_ns")) if speed else None,
-        "bytes_per_material": 4.0 * floats if isinstance(floats, int) else None,
+        "bytes_per_material": 4.0 * floats,
         "bytes_per_network": number(speed.get("bytes_per_network")) if speed else None,
         "train_seconds": src.job.run_seconds,
         "runtime": RUNTIME,
     }
     rows: list[ResultRow] = []
-    materials = [m for m in metrics.get("materials") or [] if isinstance(m, Mapping)]
-    for m in materials:
-        fields = {**common, "material": str(m.get("name")), "family": m.get("family"),
-                  "config": {**config, "split": m.get("split")}}  # fmt: skip
-        rows += [
-            base_row(src, k, v, **fields) for k in METRICS if (v := number(m.get(k))) is not None
-        ]
-    mean = metrics.get("mean")
-    if isinstance(mean, Mapping):
-        rows += [base_row(src, k, v, material="mean", **common)
-                 for k in METRICS if (v := number(mean.get(k))) is not None]  # fmt: skip
+    for m in metrics["materials"]:
+        fields = {**common, "material": m["name"], "family": m["family"],
+                  "config": {**config, "split": m["split"]}}  # fmt: skip
+        rows += [base_row(src, k, v, **fields) for k, v in _scores(m).items()]
+    rows += [base_row(src, k, v, material="mean", **common)
+             for k, v in _scores(metrics["mean"]).items()]  # fmt: skip
     if speed:
         rows += [base_row(src, k, v, **common)
                  for k in SPEED_METRICS if (v := number(speed.get(k))) is not None]  # fmt: skip

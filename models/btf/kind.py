@@ -24,13 +24,13 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-from jobapi.documents import CurvesDocument
+from jobapi.documents import CurvesDocument, read_typed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
-from models.btf.document import TrainBtfMetrics
+from models.btf.document import BtfModelDocument, TrainBtfMetrics
 from models.btf.rows import train_btf_rows
 
 if TYPE_CHECKING:
@@ -196,19 +196,19 @@ def run_train_btf(params: TrainBtfParams, ctx: JobContext) -> None:
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
     """One row: the model's L1 (whole BTF, held-out) and storage (Table 1)."""
-    doc = read("metrics.json")
-    if not isinstance(doc, dict):
+    doc = read_typed(read("metrics.json"), TrainBtfMetrics)
+    if doc is None:
         return None
     row = {
-        "l1": doc.get("l1"),
-        "l1_heldout": doc.get("l1_heldout"),
-        "relative_l1": doc.get("relative_l1"),
-        "storage_bytes": (doc.get("storage") or {}).get("total_bytes"),
-        "network_bytes": (doc.get("storage") or {}).get("network_bytes"),
+        "l1": doc["l1"],
+        "l1_heldout": doc["l1_heldout"],
+        "relative_l1": doc["relative_l1"],
+        "storage_bytes": doc["storage"]["total_bytes"],
+        "network_bytes": doc["storage"]["network_bytes"],
     }
     return ResultTable(
         title="BTF model (Table 1)", label_header="Model", columns=list(row),
-        rows={str(doc.get("label", doc.get("model"))): row},
+        rows={doc["label"]: row},
     )  # fmt: skip
 
 
@@ -237,7 +237,11 @@ register(
                 lead=True,
             ),
         ),
-        documents={"curves.json": CurvesDocument, "metrics.json": TrainBtfMetrics},
+        documents={
+            "curves.json": CurvesDocument,
+            "metrics.json": TrainBtfMetrics,
+            "model.json": BtfModelDocument,
+        },
         summary=summarize,
         rows=train_btf_rows,
         # failure cases (shadowed / specular slices, models.btf.cases) differ in scale:

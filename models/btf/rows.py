@@ -6,10 +6,9 @@ and fine_detail: the paper's Fig. 15 failure, the detail within 2 x 2 blocks).""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
+from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+from models.btf.document import TrainBtfMetrics
 
 #: The metrics of ``metrics.json``.
 METRICS = ("l1", "l1_train", "l1_heldout", "relative_l1")
@@ -24,29 +23,28 @@ CONFIG_KEYS = ("model", "preset", "width", "epochs", "distill")
 
 
 def train_btf_rows(src: RowSource) -> list[ResultRow]:
-    """The rows of a finished ``train.btf`` job."""
-    doc = src.read("metrics.json")
-    if not isinstance(doc, Mapping):
+    """The rows of a finished ``train.btf`` job (its ``metrics.json`` read typed: none for
+    a job without it, or with another shape)."""
+    doc = read_typed(src.read("metrics.json"), TrainBtfMetrics)
+    if doc is None:
         return []
     params = src.job.params
-    found = doc.get("storage")
-    storage: Mapping[str, Any] = found if isinstance(found, Mapping) else {}
     fields = {
-        "candidate": str(doc.get("label") or params.get("model")),
+        "candidate": doc["label"],
         "dataset": dataset_of(params, "data"),
         "config": {k: params[k] for k in CONFIG_KEYS if params.get(k) is not None},
-        "bytes_per_material": number(storage.get("texture_bytes")),
-        "bytes_per_network": number(storage.get("network_bytes")),
+        "bytes_per_material": float(doc["storage"]["texture_bytes"]),
+        "bytes_per_network": float(doc["storage"]["network_bytes"]),
         "train_seconds": src.job.run_seconds,
         "runtime": RUNTIME,
     }
-    rows = [base_row(src, k, v, **fields) for k in METRICS if (v := number(doc.get(k))) is not None]
-    cases = doc.get("cases")
-    for case in cases if isinstance(cases, list) else []:
-        if not isinstance(case, Mapping) or not case.get("case"):
-            continue
-        name = str(case["case"])
+    values = {"l1": doc["l1"], "l1_train": doc["l1_train"], "l1_heldout": doc["l1_heldout"],
+              "relative_l1": doc["relative_l1"]}  # fmt: skip
+    rows = [base_row(src, k, v, **fields) for k in METRICS if (v := number(values[k])) is not None]
+    for case in doc["cases"]:
+        errors = {"l1": case["l1"], "relative_l1": case["relative_l1"]}
         for k in CASE_METRICS:
-            if (v := number(case.get(k))) is not None:
-                rows.append(base_row(src, k, v, material=name, family=name, **fields))
+            if (v := number(errors[k])) is not None:
+                rows.append(base_row(src, k, v, material=case["case"], family=case["case"],
+                                     **fields))  # fmt: skip
     return rows

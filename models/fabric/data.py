@@ -20,14 +20,16 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from jobapi.documents import DocumentError, check_typed
 from jobapi.errors import JobFailed
 from models.fabric.networks import map_tensor, param_vector
 from storage.errors import FormatError
 from storage.formats.exr import read_exr
+from storage.formats.fabric_documents import FabricMaterial, FabricMaterials
 from storage.formats.npz import read_npz
 
 if TYPE_CHECKING:
@@ -82,15 +84,23 @@ def holdout_split(name: str, n: int, fraction: float) -> tuple[np.ndarray, np.nd
     return np.sort(perm[k:]), np.sort(perm[:k])
 
 
-def _job_materials(ctx: JobContext, job_id: str) -> list[dict[str, Any]]:
+def _job_materials(ctx: JobContext, job_id: str) -> list[FabricMaterial]:
+    """The materials of a ``generate.fabric`` job's ``materials.json``
+    (:class:`~storage.formats.fabric_documents.FabricMaterials`); :class:`JobFailed` naming
+    the field if it is not of that type."""
     ctx.input_job(job_id, "dataset", "generate.fabric")
-    doc = json.loads(ctx.read_ref(f"job:{job_id}/materials.json"))
-    if doc.get("components") != DATASET_COMPONENTS:
+    name = f"job:{job_id}/materials.json"
+    raw = json.loads(ctx.read_ref(name))
+    try:
+        check_typed(name, raw, FabricMaterials)
+    except DocumentError as exc:
+        raise JobFailed(f"dataset: {exc}") from None
+    doc = cast(FabricMaterials, raw)
+    if doc["components"] != DATASET_COMPONENTS:
         raise JobFailed(f"dataset: job {job_id}'s components are not {DATASET_COMPONENTS}")
-    materials = list(doc.get("materials", []))
-    if not materials:
+    if not doc["materials"]:
         raise JobFailed(f"dataset: job {job_id} lists no materials")
-    return materials
+    return doc["materials"]
 
 
 def _read_shard(ctx: JobContext, ref: str, index: int) -> dict[str, np.ndarray]:

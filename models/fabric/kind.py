@@ -35,14 +35,14 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field
 
-from jobapi.documents import CurvesDocument
+from jobapi.documents import CurvesDocument, read_typed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.params import Device, JobRef, Ref, StrictModel, device_field
 from jobapi.presets import preset_note, resolve_preset
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.fabric.claims import fabric_claims
-from models.fabric.document import TrainFabricMetrics
+from models.fabric.document import FabricLatents, FabricModelDocument, TrainFabricMetrics
 from models.fabric.rows import train_fabric_rows
 
 if TYPE_CHECKING:
@@ -297,8 +297,8 @@ FABRIC_COLUMNS = (
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
-    """The result table: ``metrics.json``, one row per material then the mean."""
-    return per_material_table(read("metrics.json"), FABRIC_COLUMNS)
+    """The result table: ``metrics.json`` (read typed), one row per material then the mean."""
+    return per_material_table(read_typed(read("metrics.json"), TrainFabricMetrics), FABRIC_COLUMNS)
 
 
 register(
@@ -332,7 +332,12 @@ register(
                 lead=True,
             ),
         ),
-        documents={"curves.json": CurvesDocument, "metrics.json": TrainFabricMetrics},
+        documents={
+            "curves.json": CurvesDocument,
+            "metrics.json": TrainFabricMetrics,
+            "model.json": FabricModelDocument,
+            "latents.json": FabricLatents,
+        },
         summary=summarize,
         rows=train_fabric_rows,
         # the headline: the network's rows (its Monte Carlo baselines have rows too)

@@ -13,8 +13,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from jobapi.documents import read_typed
 from jobapi.results import flatten
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+from models.fabric.document import TrainFabricMetrics
 
 #: Keys of a material's row that are counts, not measurements.
 NOT_METRICS = frozenset({"queries", "count"})
@@ -36,9 +38,10 @@ def _rows_of(src: RowSource, values: Mapping[str, Any], fields: dict[str, Any]) 
 
 
 def train_fabric_rows(src: RowSource) -> list[ResultRow]:
-    """The rows of a finished ``train.fabric`` job (see the module docstring)."""
-    doc = src.read("metrics.json")
-    if not isinstance(doc, Mapping):
+    """The rows of a finished ``train.fabric`` job (see the module docstring; its
+    ``metrics.json`` read typed: none for a job without it, or with another shape)."""
+    doc = read_typed(src.read("metrics.json"), TrainFabricMetrics)
+    if doc is None:
         return []
     params = src.job.params
     common: dict[str, Any] = {
@@ -47,16 +50,15 @@ def train_fabric_rows(src: RowSource) -> list[ResultRow]:
         "train_seconds": src.job.run_seconds,
     }
     rows: list[ResultRow] = []
-    for m in doc.get("materials") or []:
-        if isinstance(m, Mapping):
-            fields = {**common, "material": str(m.get("name")), "family": m.get("pattern")}
-            rows += _rows_of(src, {k: v for k, v in m.items() if k not in ("name", "pattern")},
-                             fields)  # fmt: skip
-    if isinstance(doc.get("mean"), Mapping):
-        rows += _rows_of(src, doc["mean"], {**common, "material": "mean"})
-    footprints = doc.get("footprints")
-    for case in footprints if isinstance(footprints, list) else []:
-        if not isinstance(case, Mapping) or not case.get("case"):
+    # A material's row and the footprint cases are trees of error measures, typed as objects
+    # (models.fabric.document): their names and keys are read as the report writes them.
+    for m in doc["materials"]:
+        fields = {**common, "material": str(m.get("name")), "family": m.get("pattern")}
+        rows += _rows_of(src, {k: v for k, v in m.items() if k not in ("name", "pattern")},
+                         fields)  # fmt: skip
+    rows += _rows_of(src, doc["mean"], {**common, "material": "mean"})
+    for case in doc["footprints"]:
+        if not case.get("case"):
             continue
         fields = {**common, "material": str(case["case"]), "family": str(case["case"])}
         for cand, key in (("network", "rgb_rel"), ("baseline", "baseline_rgb_rel")):

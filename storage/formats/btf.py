@@ -22,9 +22,11 @@ import json
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NotRequired  # pydantic needs this TypedDict on 3.11
 
 import numpy as np
+from pydantic import ConfigDict, with_config
+from typing_extensions import TypedDict
 
 from storage.errors import FormatError
 from storage.formats.npz import StreamedArray, npz_bytes, read_npz, write_npz
@@ -138,6 +140,55 @@ def read_shard(path: Path, name: str | None = None) -> Shard:
     if np.any(rgb < 0):
         raise FormatError(label, "rgb has negative values")
     return Shard(wi=arrays["wi"], wo=arrays["wo"], rgb=rgb, stderr=arrays["stderr"])
+
+
+#: ``btf.json`` is open: each source adds its own keys (``surface``, ``spp``, ``ubo``, ...).
+_OPEN = ConfigDict(extra="allow", use_attribute_docstrings=True)
+
+
+@with_config(ConfigDict(extra="forbid", use_attribute_docstrings=True))
+class BtfShardEntry(TypedDict):
+    """One shard of the index."""
+
+    name: str
+    """``slices-XXXX.npz``."""
+    count: int
+    """Its slices."""
+
+
+@with_config(_OPEN)
+class BtfIndexDocument(TypedDict):
+    """``btf.json`` of ``generate.btf`` and ``import.btf``: the index of the slice shards
+    (:func:`index_document`; :func:`parse_index` checks the counts add up). Other keys are
+    the source's own (``generate.btf``: ``surface``, ``spp``, ``max_depth``, ``jitter``,
+    ``patch``, ``mitsuba_variant``; ``import.btf``: ``archive``, ``archive_name``,
+    ``scale``, a Bonn file's ``ubo``)."""
+
+    format: str
+    """``matforge.btf``."""
+    version: int
+    """The index's version (1)."""
+    resolution: list[int]
+    """The slices' ``[H, W]``."""
+    count: int
+    """Slices, all shards."""
+    shards: list[BtfShardEntry]
+    """The shards, in slice order."""
+    convention: str
+    """What a value is (UBO2014's ``L_o / E_perp``, foreshortening included)."""
+    units: str
+    """``1/sr``."""
+    layout: str
+    """The arrays' layout."""
+    source: NotRequired[str]
+    """The kind that wrote it."""
+    directions: NotRequired[list[list[float]]]
+    """Per slice ``[theta_i, phi_i, theta_o, phi_o]``, degrees."""
+    dtype: NotRequired[str]
+    """The slices' float type (``float32``, ``float16``)."""
+    stderr: NotRequired[dict[str, float] | None]
+    """The slices' Monte Carlo standard errors: ``mean``, ``max`` and ``relative`` (to the
+    mean BTF value; ``null``: measured slices)."""
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from storage.artifacts import ArtifactStore
 from storage.formats.exr import exr_bytes
 from storage.formats.png import write_png
 from storage.jobs import JobStore
+from tests.helpers.job_documents import fabric_metrics
 
 from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
 
@@ -96,7 +97,8 @@ def run_wide(params: WideParams, ctx: JobContext) -> None:
     )  # fmt: skip
     mats = [material(i, f"fabric_material_with_a_long_name_{i}") for i in range(3)]
     mean = {k: v for k, v in material(9, "mean").items() if k not in ("name", "pattern")}
-    ctx.put_json("metrics.json", {"materials": mats, "mean": mean, "settings": {}})
+    # train.fabric's whole metrics.json (its summary reads it typed)
+    ctx.put_json("metrics.json", fabric_metrics(mats, mean))
 
 
 def wide_kind() -> Kind:

@@ -7,6 +7,10 @@ smoke params as ``step:<kind>`` (the whole job) or ``step:<kind>/<artifact>``: t
 of that kind, made first (once per module) and substituted as ``job:<id>[/<artifact>]``.
 A kind that cannot have smoke params must be listed in :data:`NO_SMOKE` with the reason.
 
+Each typed document a kind declares (:attr:`jobapi.kinds.Kind.documents`) is checked when
+the smoke job writes it; here the real document also reads typed, and the same document with
+its first required field removed, or of the wrong type, is refused naming the file and field.
+
 Same spec, same bytes (CONTRACT.md, "Job spec"): each smoke spec is run a second time
 (``force``, the same resolved spec, so the same input jobs) and every artifact's digest must
 equal the first run's, except those its kind declares as timings
@@ -24,6 +28,7 @@ from typing import Any
 
 import pytest
 
+from jobapi.documents import DocumentError, check_typed, document_fields, read_typed
 from jobapi.kinds import Kind
 from service import kinds
 from service.cli.batch import substitute_refs
@@ -111,6 +116,30 @@ def test01_smoke(kind: Kind, smoke: SmokeRuns) -> None:
         assert table is not None, f"{kind.name}: the summary hook found no table"
         assert table["labels"] and table["names"], table
         assert all(set(row) <= set(table["names"]) for row in table["rows"].values())
+
+
+DOCUMENTS = [(k, name) for k in KINDS if k.smoke for name in k.documents]
+
+
+@pytest.mark.parametrize(("kind", "name"), DOCUMENTS, ids=lambda x: getattr(x, "name", x))
+def test01_typed_documents_of_a_real_job(kind: Kind, name: str, smoke: SmokeRuns) -> None:
+    """The oracle for "valid" is the job itself (``put_json`` checked the document against
+    its type); the malformed copies each break one field the type requires, so the type
+    must refuse them and name that field."""
+    job = smoke.job(kind.name)
+    assert job.state == "succeeded", job.error
+    typed = kind.documents[name]
+    (art,) = [a for a in job.artifacts if a.name == name]
+    doc = json.loads(ArtifactStore(smoke.settings.store_dir).read(art.digest))
+    check_typed(name, doc, typed)
+    assert read_typed(doc, typed) is not None, (kind.name, name)
+    field = next(f for f, _, required, _ in document_fields(typed) if required and "." not in f)
+    missing = {k: v for k, v in doc.items() if k != field}
+    mistyped = {**doc, field: [True]}  # no field of any document is a list of booleans
+    for bad in (missing, mistyped):
+        with pytest.raises(DocumentError, match=rf"^{re.escape(name)}: {re.escape(field)}\b"):
+            check_typed(name, bad, typed)
+        assert read_typed(bad, typed) is None
 
 
 @pytest.mark.slow

@@ -185,3 +185,68 @@ def test07_score_metrics_of_every_scorer_shape() -> None:
     with pytest.raises(DocumentError, match=r"metrics\.json: metrics\.same\.flip: "):
         check_typed("metrics.json", bad, ScoreMetrics)
     assert read_typed(bad, ScoreMetrics) is None
+
+
+def test08_documents_of_every_train_and_generate_kind_are_declared() -> None:
+    """The JSON documents of the train, generate, report.brdf and evaluate.tss kinds each
+    have their type (a real job's document of each is checked in
+    ``tests/integration/test_kinds_smoke.py``)."""
+    from evaluators.tss.document import TssMetrics, TssPath, TssTiming
+    from models.brdf.document import BrdfFamilies, BrdfModelDocument, BrdfSpread, TrainBrdfMaterials
+    from models.btf.document import BtfModelDocument
+    from models.fabric.document import FabricLatents, FabricModelDocument
+    from service import kinds
+    from storage.formats.fabric_documents import FabricMaterials, FabricStats
+    from storage.formats.merl_materials import MerlMaterials
+
+    kinds.load_builtin()
+    declared = {(k.name, n): t for k in jobapi_kinds.registered().values()
+                for n, t in k.documents.items()}  # fmt: skip
+    assert (
+        declared.items()
+        >= {
+            ("train.brdf", "model.json"): BrdfModelDocument,
+            ("train.brdf", "materials.json"): TrainBrdfMaterials,
+            ("train.btf", "model.json"): BtfModelDocument,
+            ("train.fabric", "model.json"): FabricModelDocument,
+            ("train.fabric", "latents.json"): FabricLatents,
+            ("report.brdf", "spread.json"): BrdfSpread,
+            ("report.brdf", "families.json"): BrdfFamilies,
+            ("evaluate.tss", "metrics.json"): TssMetrics,
+            ("evaluate.tss", "timing.json"): TssTiming,
+            ("evaluate.tss", "path.json"): TssPath,
+            ("generate.merl", "materials.json"): MerlMaterials,
+            ("generate.fabric", "materials.json"): FabricMaterials,
+            ("generate.fabric", "stats.json"): FabricStats,
+        }.items()
+    )
+
+
+def test09_readers_test_documents_are_whole() -> None:
+    """The documents the readers' tests build (``tests.helpers.job_documents``) are of
+    their types, so those tests read what the kinds write; a row of ``evaluate.tss`` whose
+    ``pass`` (a keyword, so the type's functional form) is missing fails naming it."""
+    from evaluators.tss.document import TssMetrics, TssTiming
+    from models.brdf.document import TrainBrdfMaterials, TrainBrdfMetrics
+    from models.btf.document import TrainBtfMetrics
+    from models.fabric.document import TrainFabricMetrics
+    from storage.formats.fabric_documents import FabricStats
+    from storage.formats.merl_materials import MerlMaterials
+    from tests.helpers import job_documents as td
+
+    gold = td.brdf_scores("gold", "metal", smape=0.4)
+    check_typed("metrics.json", td.brdf_metrics([gold], smape=0.4), TrainBrdfMetrics)
+    check_typed("materials.json", td.brdf_materials([("gold", "metal", "train")]),
+                TrainBrdfMaterials)  # fmt: skip
+    check_typed("metrics.json", td.btf_metrics(), TrainBtfMetrics)
+    check_typed("metrics.json", td.fabric_metrics([{"name": "a"}], {"count": 1}),
+                TrainFabricMetrics)  # fmt: skip
+    row = td.tss_row(64, 2, flip_mean=0.1, flip_max=0.2, psnr_mean=None, psnr_min=None)
+    check_typed("metrics.json", td.tss_metrics([row]), TssMetrics)
+    check_typed("timing.json", td.tss_timing({"64/N=2": (0.01, None)}), TssTiming)
+    check_typed("stats.json", td.fabric_stats(seconds=1.0, samples_per_second=2.0), FabricStats)
+    merl = td.merl_materials([{"name": "a", "family": "custom", "source": {}, "tabulation": {}}])
+    check_typed("materials.json", merl, MerlMaterials)
+    passless = {k: v for k, v in row.items() if k != "pass"}
+    with pytest.raises(DocumentError, match=r"metrics\.json: rows\.0\.pass: Field required"):
+        check_typed("metrics.json", td.tss_metrics([passless]), TssMetrics)

@@ -454,19 +454,19 @@ def test_result_tables_flatten_to_label_column_metrics() -> None:
     from evaluators.score.kind import summarize as score_summary
     from jobapi.results import ResultTable
     from models.brdf.kind import summarize as brdf_summary
+    from tests.helpers.job_documents import brdf_metrics, brdf_scores
 
     doc = {"reference": "sha256:00", "metrics": {"a": {"flip": 0.1, "psnr": None}}, "settings": {}}
     score = score_summary(lambda name: doc)
     assert score is not None
     assert ResultTable.from_document(score.document()).flat() == {"a.flip": 0.1}
-    doc = {
-        "materials": [{"name": "gold", "family": "metal", "pairs": 10, "smape": 0.2, "mae": 0.5}],
-        "mean": {"count": 1, "smape": 0.2, "mae": 0.5, "smape_analytic": None},
-    }
+    gold = brdf_scores("gold", "metal", smape=0.2, smape_floor=0.1, mae=0.5)
+    doc = brdf_metrics([gold], smape=0.2, mae=0.5)
     brdf = brdf_summary(lambda name: doc if name == "metrics.json" else None)
     assert brdf is not None
     assert brdf.flat() == {
         "gold.smape": 0.2,
+        "gold.smape_floor": 0.1,
         "gold.mae": 0.5,
         "mean.smape": 0.2,
         "mean.mae": 0.5,

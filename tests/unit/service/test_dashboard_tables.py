@@ -39,19 +39,15 @@ from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.png import write_png
 from storage.jobs import JobStore
+from tests.helpers.job_documents import brdf_metrics, brdf_scores, fabric_metrics
 
-TRAIN_METRICS = {
-    "model": "hybrid",
-    "materials": [
-        {"name": "gold", "family": "metal", "split": "train", "smape": 0.11, "mae": 0.02,
-         "smape_analytic": 0.3, "mae_analytic": 0.05, "pairs": 2048},
-        {"name": "film", "family": "iridescent", "split": "heldout", "smape": 0.4, "mae": 0.1,
-         "smape_analytic": 0.6, "mae_analytic": 0.2, "pairs": 2000},
-    ],
-    "mean": {"count": 2, "smape": 0.255, "mae": 0.06, "smape_analytic": 0.45,
-             "mae_analytic": 0.125},
-    "settings": {"pairs": 2048},
-}  # fmt: skip
+TRAIN_METRICS = brdf_metrics(
+    [brdf_scores("gold", "metal", "train", smape=0.11, smape_floor=0.1, mae=0.02,
+                 smape_analytic=0.3, mae_analytic=0.05),
+     brdf_scores("film", "iridescent", "heldout", smape=0.4, smape_floor=0.35, mae=0.1,
+                 smape_analytic=0.6, mae_analytic=0.2)],
+    smape=0.255, smape_floor=0.225, mae=0.06, smape_analytic=0.45, mae_analytic=0.125,
+)  # fmt: skip
 PARETO = {
     # report.brdf's document: its configurations (points, what its summary reads) and the
     # panels of the one pareto.json schema (docs/artifacts.md)
@@ -82,11 +78,11 @@ def _fabric_row(name: str, rel: float) -> dict[str, Any]:
 
 
 #: ``train.fabric``'s nested per-component metrics.json.
-FABRIC_METRICS = {
-    "materials": [_fabric_row("plain-0", 0.2), _fabric_row("twill-0", 0.4)],
-    "mean": {"count": 2, "loss": 0.15, "rgb": {"mse": 0.03, "rel": 0.3},
-             "baseline": {"loss": 0.4, "rgb": {"mse": 0.1, "rel": 1.1}}},
-}  # fmt: skip
+FABRIC_METRICS = fabric_metrics(
+    [_fabric_row("plain-0", 0.2), _fabric_row("twill-0", 0.4)],
+    {"count": 2, "loss": 0.15, "rgb": {"mse": 0.03, "rel": 0.3},
+     "baseline": {"loss": 0.4, "rgb": {"mse": 0.1, "rel": 1.1}}},
+)  # fmt: skip
 
 #: ``score`` of whole models against a set of tables (means, then rows per material).
 SET_SCORE = {
@@ -161,7 +157,8 @@ def test01_training_metrics_per_material(client: TestClient, settings: Settings)
     text, data = page(client, settings, "train")
     assert "Metrics per material" in text and "<th>Material</th>" in text
     assert data["labels"] == ["gold", "film", "mean"]
-    assert data["names"] == ["family", "split", "smape", "mae", "smape_analytic", "mae_analytic"]
+    assert data["names"] == ["family", "split", "smape", "smape_floor", "mae", "smape_analytic",
+                             "mae_analytic"]  # fmt: skip
     assert data["rows"]["film"]["smape"] == 0.4 and data["rows"]["mean"]["mae"] == 0.06
     assert data["rows"]["gold"]["family"] == "metal"
     assert len(re.findall(r"<tr><td>(gold|film|mean)</td>", text)) == 3

@@ -12,6 +12,18 @@ import pytest
 from jobapi.rows import JobFacts, ResultRow, RowSource
 from service import kinds
 from tests.helpers.glint_stats import glint_stats
+from tests.helpers.job_documents import (
+    brdf_materials,
+    brdf_metrics,
+    brdf_scores,
+    btf_metrics,
+    fabric_metrics,
+    fabric_stats,
+    merl_materials,
+    tss_metrics,
+    tss_row,
+    tss_timing,
+)
 
 A, B, C = "a" * 32, "b" * 32, "c" * 32
 
@@ -113,27 +125,9 @@ def test02_score_of_a_whole_model_per_material() -> None:
 
 
 def test03_train_brdf() -> None:
-    metrics = {
-        "model": "hybrid",
-        "materials": [
-            {
-                "name": "gold",
-                "family": "metal",
-                "split": "train",
-                "smape": 0.4,
-                "smape_floor": 0.3,
-                "mae": 0.1,
-                "smape_analytic": 0.5,
-                "mae_analytic": None,
-            }
-        ],
-        "mean": {"smape": 0.4, "mae": 0.1, "smape_analytic": 0.5, "mae_analytic": None},
-    }
-    info = {
-        "model": "hybrid",
-        "per_material_params": 11,
-        "architecture": {"width": 32, "depth": 3, "latent_dim": 4},
-    }
+    gold = brdf_scores("gold", "metal", smape=0.4, smape_floor=0.3, mae=0.1, smape_analytic=0.5)
+    metrics = brdf_metrics([gold], smape=0.4, mae=0.1, smape_analytic=0.5)
+    info = brdf_materials([("gold", "metal", "train")], width=32, depth=3, latent_dim=4)
     speed = {
         "rows": [
             {"trained": False, "fused_kernel_ns": 1.0},
@@ -180,7 +174,7 @@ def test04_train_fabric_network_and_baseline() -> None:
         "rgb": {"rel": 0.2, "mse": 0.01},
         "baseline": {"loss": 0.9, "rgb": {"rel": 0.6}},
     }
-    doc = {"materials": [mat], "mean": {"count": 1, "loss": 0.5, "rgb": {"rel": 0.2}}}
+    doc = fabric_metrics([mat], {"count": 1, "loss": 0.5, "rgb": {"rel": 0.2}})
     rows = rows_of(
         FakeSource("train.fabric", {"dataset": f"job:{B}", "steps": 10}, {"metrics.json": doc})
     )
@@ -193,14 +187,8 @@ def test04_train_fabric_network_and_baseline() -> None:
 
 
 def test05_train_btf_and_tss() -> None:
-    doc = {
-        "label": "c2f",
-        "l1": 0.02,
-        "l1_train": 0.019,
-        "l1_heldout": None,
-        "relative_l1": 0.1,
-        "storage": {"texture_bytes": 1000, "network_bytes": 200},
-    }
+    doc = btf_metrics("c2f", l1=0.02, l1_train=0.019, l1_heldout=None, relative_l1=0.1,
+                      texture_bytes=1000, network_bytes=200)  # fmt: skip
     rows = by_metric(
         rows_of(
             FakeSource("train.btf", {"data": f"job:{B}", "model": "c2f"}, {"metrics.json": doc})
@@ -208,22 +196,9 @@ def test05_train_btf_and_tss() -> None:
     )
     assert set(rows) == {"l1", "l1_train", "relative_l1"}
     assert (rows["l1"].bytes_per_material, rows["l1"].bytes_per_network) == (1000, 200)
-    metrics = {
-        "rows": [
-            {
-                "label": "64/N=2",
-                "resolution": 64,
-                "interval": 2,
-                "pass": "amortised",
-                "flip_mean": 0.05,
-                "flip_max": 0.08,
-                "psnr_mean": 35.0,
-                "psnr_min": None,
-                "shading_passes": 2,
-            }
-        ]
-    }
-    timing = {"rows": {"64/N=2": {"seconds_per_frame": 0.004, "relative_cost": 0.5}}}
+    row = tss_row(64, 2, flip_mean=0.05, flip_max=0.08, psnr_mean=35.0, psnr_min=None)
+    metrics = tss_metrics([row])
+    timing = tss_timing({"64/N=2": (0.004, 0.5)})
     tss = by_metric(
         rows_of(
             FakeSource(
@@ -236,6 +211,14 @@ def test05_train_btf_and_tss() -> None:
     assert set(tss) == {"flip_mean", "flip_max", "psnr_mean", "relative_cost"}
     assert tss["flip_mean"].ms_per_frame == pytest.approx(4.0)
     assert tss["flip_mean"].candidate == "64/N=2" and tss["flip_mean"].config["interval"] == 2
+    # The documents are read typed: a metrics.json of another shape gives no rows, and a
+    # timing.json of another shape no costs (the FLIP rows stay).
+    params = {"model": f"job:{C}/model.json"}
+    assert rows_of(FakeSource("evaluate.tss", params, {"metrics.json": {"rows": [row]}})) == []
+    untimed = by_metric(rows_of(FakeSource("evaluate.tss", params, {
+        "metrics.json": metrics, "timing.json": {"rows": timing["rows"]}})))  # fmt: skip
+    assert set(untimed) == {"flip_mean", "flip_max", "psnr_mean"}
+    assert untimed["flip_mean"].ms_per_frame is None
 
 
 def test06_render_and_missing_artifacts() -> None:
@@ -296,28 +279,20 @@ def test07_generators_measure_their_output() -> None:
         "stderr_mean": (0.01, 16),
         "stderr_relative": (0.05, 16),
     }
-    merl = {
-        "materials": [
-            {
-                "name": "gold",
-                "family": "metal",
-                "source": {"mitsuba": {}},
-                "tabulation": {"max_rel_error": 0.001, "bins": 90},
-            }
-        ]
-    }
+    merl = merl_materials([{"name": "gold", "family": "metal", "source": {"mitsuba": {}},
+                            "tabulation": {"max_rel_error": 0.001, "bins": 90}}])  # fmt: skip
     rows = by_metric(rows_of(FakeSource("generate.merl", {}, {"materials.json": merl})))
     assert {k: r.value for k, r in rows.items()} == {
         "tabulation.max_rel_error": 0.001,
         "tabulation.bins": 90,
     }
-    stats = {"samples_per_second": 8.0e6, "seconds": 3.0, "backend": "drjit"}
+    stats = fabric_stats("drjit", samples_per_second=8.0e6, seconds=3.0)
     rows = by_metric(rows_of(FakeSource("generate.fabric", {}, {"stats.json": stats})))
     assert rows["samples_per_second"].lower_is_better is False
     assert rows["seconds"].value == 3.0 and rows["seconds"].candidate == "drjit"
     # A job made since timings moved to the manifest: stats.json has the counts and the
     # backend, timings.measured.throughput the times.
-    counts = {"samples": 24_000_000, "backend": "numpy"}
+    counts = fabric_stats("numpy")
     throughput = {"seconds": 2.0, "samples_per_second": 1.2e7}
     src = FakeSource("generate.fabric", {}, {"stats.json": counts},
                      measured={"throughput": throughput})  # fmt: skip
