@@ -116,6 +116,8 @@ CLOSEUP = {
     ("closeup_score", "tiny"): "closeup_tiny",
     ("closeup_score", "yan"): "closeup_yan64",
     ("closeup_stochastic_score", "tiny_stochastic"): "closeup_stochastic",
+    ("closeup_stochastic_score", "yan_os1"): "closeup_stochastic_yan_os1",
+    ("closeup_stochastic_score", "yan16"): "closeup_stochastic_yan16",
 }
 
 
@@ -165,7 +167,7 @@ def print_closeup(settings: Any, jobs: dict[str, Any], walls: dict[str, float]) 
         "Yan, tiled (export, lobes; setup of closeup_yan)": _setup(
             walls, "closeup_yan", jobs["closeup_yan"]
         ),
-        "Yan, stochastic (export, lobes; setup of closeup_stochastic_yan)": _setup(
+        "Yan, stochastic, oversample 2 (export, lobes; setup of closeup_stochastic_yan)": _setup(
             walls, "closeup_stochastic_yan", jobs["closeup_stochastic_yan"]
         ),
     }

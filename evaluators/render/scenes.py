@@ -415,7 +415,7 @@ def glint_sphere(
 _CLOSEUP_ELEVATION = math.radians(40.0)
 #: The close-up's camera: 0.5 units from the bent quad's apex, 40 degrees above it. The
 #: image's short side spans 2 * 0.5 * tan(15 deg) = 0.27 units, i.e. 0.089 uv (184 texels at
-#: 2048 per uv): 1.9 texels per pixel across at 96 rows, 2.6 at 72 (times 1.56 along v,
+#: 2048 per uv): 1.9 texels per pixel across at 96 rows, 2.5 at 72 (times 1.56 along v,
 #: foreshortened).
 CLOSEUP_CAMERA = Camera(
     origin=(0.0, 0.5 * math.sin(_CLOSEUP_ELEVATION), 0.5 * math.cos(_CLOSEUP_ELEVATION)),
