@@ -242,7 +242,7 @@ def export_normal_map(
     """
     k = int(oversample)
     side = size * k
-    s = np.empty((side, side, 2))
+    grid = np.empty((side, side, 2))
     # In blocks of EXPORT_BLOCK^2 texels: a stochastic surface's owner test visits every
     # instance near the positions it is given, so one call over the whole map costs
     # (texels x instances); per block, only the block's few dozen. Each position's normal
@@ -252,8 +252,8 @@ def export_normal_map(
             i1, j1 = min(i0 + EXPORT_BLOCK, side), min(j0 + EXPORT_BLOCK, side)
             y, x = (np.mgrid[i0:i1, j0:j1].astype(np.float64) + 0.5) / k
             u = np.stack([x.ravel() + origin[0], y.ravel() + origin[1]], axis=1)
-            s[i0:i1, j0:j1] = surface.normal_at(u).reshape(i1 - i0, j1 - j0, 2)
-    s = s.reshape(-1, 2)
+            grid[i0:i1, j0:j1] = surface.normal_at(u).reshape(i1 - i0, j1 - j0, 2)
+    s = grid.reshape(-1, 2)
     r2 = (s * s).sum(axis=1)
     s = s * np.where(r2 > 1.0 - 1e-6, np.sqrt((1.0 - 1e-6) / np.maximum(r2, 1e-12)), 1.0)[:, None]
     nz = np.sqrt(1.0 - (s * s).sum(axis=1))
