@@ -14,9 +14,20 @@ With the brushed-metal glint ladder's steps run (issue 13: smooth GGX, tiny exam
 FLIP, PSNR and SSIM, render seconds and bytes per rung from the score's result rows, the
 Pareto fronts of ``report.pareto`` and the rung ``select`` chose.
 
+With the close-up's steps run (``glint_closeup``: about 2.5 example texels per pixel), it
+prints their table: FLIP, PSNR and SSIM of the tiled tiny model, the smooth GGX and Yan at
+64 spp against the tiled Yan reference, and of the stochastic tiny model against Yan of the
+stochastic surface; render and setup seconds (setup: the step's wall time outside its
+passes, which for Yan is its precompute: the export and its lobes); memory; the tiny
+model's precompute (its ``generate.glint`` step); and the glint figures: the high-pass
+correlation (:mod:`tests.helpers.glint_highpass`) of the tiny model between two seeds, of the
+smooth GGX between two seeds (the control: speckle only), and of the tiny model with the
+lights moved, with that change over the seed-to-seed difference.
+
 Run: ``.venv/bin/python benchmarks/bench_glint_eval.py [--data-dir DIR] [--out glint_eval.json]``
 (about 25 minutes on 2 cores: the references dominate), or only the ladder (and the steps it
-needs) with ``--only brushed_metal`` (about 4 minutes quiet, 20 at load average 10).
+needs) with ``--only brushed_metal`` (about 4 minutes quiet, 20 at load average 10), or only
+the close-up with ``--only closeup``.
 """
 
 from __future__ import annotations
@@ -52,14 +63,17 @@ def run_recipe(data_dir: Path, only: str | None = None) -> dict[str, Any]:
     settings = Settings.from_env({}).with_(data_dir=data_dir, pool_processes=1)
     steps = [s for s in load_batch(RECIPE).steps if only is None or s.name.startswith(only)]
 
+    walls: dict[str, float] = {}
+
     def done(step: Any, job: Any, seconds: float) -> None:
+        walls[step.name] = seconds
         print(f"  {step.name}: {seconds:.0f} s", file=sys.stderr, flush=True)
 
     try:
         jobs = run_steps_in_process(steps, settings, on_step=done)
     except StepFailed as exc:
         sys.exit(str(exc))
-    return {"settings": settings, "jobs": jobs}
+    return {"settings": settings, "jobs": jobs, "walls": walls}
 
 
 def _read(settings: Any, job: Any, name: str) -> Any:
@@ -69,11 +83,114 @@ def _read(settings: Any, job: Any, name: str) -> Any:
     return json.loads(ArtifactStore(settings.store_dir).read(digest))
 
 
-def _seconds(job: Any) -> float:
+def _passes(job: Any) -> tuple[int, float]:
+    """``(spp, seconds)`` of a render's passes, from its message."""
     m = re.search(r"at (\d+) spp in ([0-9.]+) s", job.message or "")
     if m is None:
         raise ValueError(f"no timing in {job.message!r}")
-    return float(m.group(2)) / int(m.group(1))
+    return int(m.group(1)), float(m.group(2))
+
+
+def _seconds(job: Any) -> float:
+    spp, seconds = _passes(job)
+    return seconds / spp
+
+
+def _setup(walls: dict[str, float], name: str, job: Any) -> float:
+    """A render step's seconds outside its passes: loading the data, building the layer
+    (for Yan: the export and its lobes, the precompute) and the scene."""
+    return walls[name] - _passes(job)[1]
+
+
+def _image(settings: Any, job: Any) -> Any:
+    from storage.artifacts import ArtifactStore
+    from storage.formats.exr import read_exr
+
+    (digest,) = [a.digest for a in job.artifacts if a.name == "image.exr"]
+    return read_exr(ArtifactStore(settings.store_dir).open_verified(digest), "image.exr")
+
+
+#: The close-up's candidates: (score step, candidate) -> render step.
+CLOSEUP = {
+    ("closeup_score", "smooth_ggx"): "closeup_smooth",
+    ("closeup_score", "tiny"): "closeup_tiny",
+    ("closeup_score", "yan"): "closeup_yan64",
+    ("closeup_stochastic_score", "tiny_stochastic"): "closeup_stochastic",
+    ("closeup_stochastic_score", "yan_os1"): "closeup_stochastic_yan_os1",
+    ("closeup_stochastic_score", "yan16"): "closeup_stochastic_yan16",
+}
+
+
+def print_closeup(settings: Any, jobs: dict[str, Any], walls: dict[str, float]) -> dict[str, Any]:
+    """The close-up's table (FLIP, PSNR, SSIM against Yan of the same surface, time, memory),
+    the precompute of each method and the glint figures (high-pass correlations)."""
+    from service.results import select_rows
+    from storage.artifacts import ArtifactStore
+    from storage.jobs import JobStore
+    from tests.helpers.glint_highpass import HIGHPASS_SIGMA, highpass_correlation
+
+    rows = select_rows(
+        JobStore(settings.db_path),
+        ArtifactStore(settings.store_dir),
+        job_ids=[jobs["closeup_score"].id, jobs["closeup_stochastic_score"].id],
+    )
+    nbytes = {str(r.candidate): r.bytes_per_material for r in rows}
+    table = []
+    for (score, cand), step in CLOSEUP.items():
+        m = _read(settings, jobs[score], "metrics.json")["metrics"][cand]
+        spp, secs = _passes(jobs[step])
+        ref = "closeup_yan" if score == "closeup_score" else "closeup_stochastic_yan"
+        table.append(
+            {
+                "method": cand, "reference": ref, "flip": m["flip"], "psnr": m["psnr"],
+                "ssim": m["ssim"], "spp": spp, "render_s": secs, "ms_per_spp": 1e3 * secs / spp,
+                "setup_s": _setup(walls, step, jobs[step]), "bytes": nbytes.get(cand),
+            }
+        )  # fmt: skip
+    print(
+        "\nclose-up (glint_closeup, 96x72, scratches 32x32; 2048 texels per uv, the "
+        "stochastic pair 1024)"
+    )
+    print(
+        "| method | reference | FLIP | PSNR dB | SSIM | spp | render s | ms/spp | setup s | MiB |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in table:
+        mib = "-" if r["bytes"] is None else f"{r['bytes'] / 2**20:.3f}"
+        print(
+            f"| {r['method']} | {r['reference']} | {r['flip']:.3f} | {r['psnr']:.1f} | "
+            f"{r['ssim']:.3f} | {r['spp']} | {r['render_s']:.1f} | {r['ms_per_spp']:.1f} | "
+            f"{r['setup_s']:.1f} | {mib} |"
+        )
+    pre = {
+        "tiny (generate.glint: example, lobes, NDF maps)": walls["closeup_scratches"],
+        "Yan, tiled (export, lobes; setup of closeup_yan)": _setup(
+            walls, "closeup_yan", jobs["closeup_yan"]
+        ),
+        "Yan, stochastic, oversample 2 (export, lobes; setup of closeup_stochastic_yan)": _setup(
+            walls, "closeup_stochastic_yan", jobs["closeup_stochastic_yan"]
+        ),
+    }
+    for k, v in pre.items():
+        print(f"precompute: {k}: {v:.1f} s")
+    figures: dict[str, float] = {}
+    if "closeup_tiny_moved" in jobs:
+        img = {k: _image(settings, jobs[k]).astype("float64") for k in (
+            "closeup_tiny", "closeup_tiny_seed2", "closeup_smooth", "closeup_smooth_seed2",
+            "closeup_tiny_moved")}  # fmt: skip
+        a, b, moved = img["closeup_tiny"], img["closeup_tiny_seed2"], img["closeup_tiny_moved"]
+        figures = {
+            "tiny_seed1_vs_seed2": highpass_correlation(a, b),
+            "smooth_seed1_vs_seed2": highpass_correlation(
+                img["closeup_smooth"], img["closeup_smooth_seed2"]
+            ),
+            "tiny_seed1_vs_lights_moved": highpass_correlation(a, moved),
+            "lights_moved_change_over_seed_noise": float(abs(a - moved).mean() / abs(a - b).mean()),
+        }
+        print(f"glints are glints (high-pass: log luminance minus a {HIGHPASS_SIGMA}-px blur):")
+        for k, v in figures.items():
+            print(f"  {k}: {v:.3f}")
+    return {"rows": table, "precompute_s": pre, "glint_figures": figures}
 
 
 def print_ladder(settings: Any, jobs: dict[str, Any]) -> dict[str, Any]:
@@ -128,7 +245,7 @@ def main() -> None:
     args = parser.parse_args()
     data = args.data_dir or Path(tempfile.mkdtemp(prefix="glint_eval-"))
     ran = run_recipe(data, args.only)
-    settings, jobs = ran["settings"], ran["jobs"]
+    settings, jobs, walls = ran["settings"], ran["jobs"], ran["walls"]
     rows = []
     for name in PAPER:
         if f"{name}_score" not in jobs:
@@ -152,6 +269,7 @@ def main() -> None:
                 "ssim": metrics["ssim"],
                 "ms_per_spp_tiny": 1e3 * t_tiny,
                 "ms_per_spp_yan": 1e3 * t_yan,
+                "yan_setup_s": _setup(walls, f"{name}_yan", jobs[f"{name}_yan"]),
                 "speedup": t_yan / t_tiny,
                 "bytes_tiny": stats["bytes"]["total"],
                 "bytes_yan": ref_bytes,
@@ -161,19 +279,21 @@ def main() -> None:
     print(
         "| type | example | reference | FLIP | PSNR dB | SSIM | tiny ms/spp "
         "| brute-force Yan ms/spp "
-        "| speed-up | tiny MiB | Yan MiB | memory | paper (Table 3) |"
+        "| speed-up | Yan setup s | tiny MiB | Yan MiB | memory | paper (Table 3) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         print(
             f"| {r['type']} | {r['example']}x{r['example']} | {r['reference']}^2 x {r['rate']}^2 | "
             f"{r['flip']:.3f} | {r['psnr']:.1f} | {r['ssim']:.3f} | {r['ms_per_spp_tiny']:.1f} "
-            f"| {r['ms_per_spp_yan']:.1f} | {r['speedup']:.1f}x | {r['bytes_tiny'] / 2**20:.2f} "
+            f"| {r['ms_per_spp_yan']:.1f} | {r['speedup']:.1f}x | {r['yan_setup_s']:.1f} "
+            f"| {r['bytes_tiny'] / 2**20:.2f} "
             f"| {r['bytes_yan'] / 2**20:.0f} | {100 * r['bytes_tiny'] / r['bytes_yan']:.2f} % "
             f"| {r['paper']} |"
         )
     ladder = print_ladder(settings, jobs) if "brushed_metal_select" in jobs else None
-    doc = {"rows": rows, "ladder": ladder, "data_dir": str(data)}
+    closeup = print_closeup(settings, jobs, walls) if "closeup_stochastic_score" in jobs else None
+    doc = {"rows": rows, "ladder": ladder, "closeup": closeup, "data_dir": str(data)}
     args.out.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"\ncommand: .venv/bin/python benchmarks/bench_glint_eval.py; data in {data}")
 

@@ -87,7 +87,13 @@ class RenderParams(StrictModel):
     """
 
     scene: Literal[
-        "sphere_env", "sphere_points", "plane_points", "cloth_plane", "bent_quad", "glint_sphere"
+        "sphere_env",
+        "sphere_points",
+        "plane_points",
+        "cloth_plane",
+        "bent_quad",
+        "glint_sphere",
+        "glint_closeup",
     ] = Field(
         default="sphere_env",
         description="Built-in scene: 'sphere_env' (unit sphere under "
@@ -95,7 +101,8 @@ class RenderParams(StrictModel):
         "lights), 'plane_points' (a textured plane seen at an angle, three point lights), "
         "'cloth_plane' (a square of cloth under the studio environment and a light), "
         "'bent_quad' or 'glint_sphere' (a bent sheet or the sphere under four point lights "
-        "and a dim environment, for glints).",
+        "and a dim environment, for glints), 'glint_closeup' (the bent quad's apex close up under "
+        "two point lights: about 2-4 example texels per pixel at 2048 texels per uv).",
     )
     material: MaterialParam = Field(
         default_factory=lambda: copy.deepcopy(DEFAULT_MATERIAL),

@@ -218,6 +218,10 @@ class Surface:
         return out
 
 
+#: Side of the blocks :func:`export_normal_map` evaluates at a time (export texels).
+EXPORT_BLOCK = 128
+
+
 def export_normal_map(
     surface: Surface,
     size: int,
@@ -238,9 +242,18 @@ def export_normal_map(
     """
     k = int(oversample)
     side = size * k
-    y, x = (np.mgrid[0:side, 0:side].astype(np.float64) + 0.5) / k
-    u = np.stack([x.ravel() + origin[0], y.ravel() + origin[1]], axis=1)
-    s = surface.normal_at(u)
+    grid = np.empty((side, side, 2))
+    # In blocks of EXPORT_BLOCK^2 texels: a stochastic surface's owner test visits every
+    # instance near the positions it is given, so one call over the whole map costs
+    # (texels x instances); per block, only the block's few dozen. Each position's normal
+    # does not depend on the others, so the blocks give the same values.
+    for i0 in range(0, side, EXPORT_BLOCK):
+        for j0 in range(0, side, EXPORT_BLOCK):
+            i1, j1 = min(i0 + EXPORT_BLOCK, side), min(j0 + EXPORT_BLOCK, side)
+            y, x = (np.mgrid[i0:i1, j0:j1].astype(np.float64) + 0.5) / k
+            u = np.stack([x.ravel() + origin[0], y.ravel() + origin[1]], axis=1)
+            grid[i0:i1, j0:j1] = surface.normal_at(u).reshape(i1 - i0, j1 - j0, 2)
+    s = grid.reshape(-1, 2)
     r2 = (s * s).sum(axis=1)
     s = s * np.where(r2 > 1.0 - 1e-6, np.sqrt((1.0 - 1e-6) / np.maximum(r2, 1e-12)), 1.0)[:, None]
     nz = np.sqrt(1.0 - (s * s).sum(axis=1))
