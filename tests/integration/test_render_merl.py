@@ -42,15 +42,9 @@ from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
 from storage.formats.merl import MEDIA_TYPE, MerlTable, write_merl
 from storage.jobs import JobStore
+from tests.helpers.mitsuba_probes import AU_03, PLASTIC_03
 
 SIZE, SPP, MAX_DEPTH = 64, 64, 3
-AU_03 = {"type": "roughconductor", "distribution": "ggx", "alpha": 0.3, "material": "Au"}
-PLASTIC_03 = {
-    "type": "roughplastic",
-    "distribution": "ggx",
-    "alpha": 0.3,
-    "diffuse_reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]},
-}
 #: (material, a slightly different material the statistic must tell apart)
 CASES = {
     "conductor": (AU_03, {**AU_03, "alpha": 0.27}),
