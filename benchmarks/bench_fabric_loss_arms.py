@@ -10,6 +10,10 @@ spread (min..max) over the seeds. A difference inside the spreads is "not resolv
 
 The machine is shared with other work: the load average is printed with the table.
 
+The two additions of ``relative_l2_mean`` each alone: ``--losses relative_l2
+relative_l2_stderr relative_l2_meanterm relative_l2_mean`` (neither, the Monte Carlo
+weights only, the mean term only, both).
+
 Run: ``nice -n 5 .venv/bin/python benchmarks/bench_fabric_loss_arms.py [--steps 1500]
 [--seeds 0 1 2] [--losses relative_l2 relative_l2_mean]``
 """
