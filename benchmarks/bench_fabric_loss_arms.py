@@ -10,8 +10,12 @@ spread (min..max) over the seeds. A difference inside the spreads is "not resolv
 
 The machine is shared with other work: the load average is printed with the table.
 
+The two additions of ``relative_l2_mean`` each alone: ``--losses relative_l2
+relative_l2_stderr relative_l2_meanterm relative_l2_mean`` (neither, the Monte Carlo
+weights only, the mean term only, both).
+
 Run: ``nice -n 5 .venv/bin/python benchmarks/bench_fabric_loss_arms.py [--steps 1500]
-[--seeds 0 1 2] [--losses relative_l2 relative_l2_mean]``
+[--seeds 0 1 2] [--losses relative_l2 relative_l2_mean] [--out runs.json]``
 """
 
 from __future__ import annotations
@@ -76,9 +80,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--losses", nargs="+", default=["relative_l2", "relative_l2_mean"])
+    parser.add_argument("--out", default=None, help="write every run's figures as JSON")
     args = parser.parse_args()
     print(f"load average before: {os.getloadavg()[0]:.2f}, cores: {os.cpu_count()}")
     arms = run_arms(args.steps, args.seeds, args.losses)
+    if args.out:
+        Path(args.out).write_text(json.dumps(arms, indent=1))
     print(f"\ntrain.fabric medium architecture, {args.steps} steps, small dataset, seeds "
           f"{args.seeds} (load average now {os.getloadavg()[0]:.2f})")  # fmt: skip
     print("| held-out figure | " + " | ".join(f"{a} mean (min..max)" for a in arms) + " |")

@@ -113,7 +113,12 @@ __all__ = [
 
 @dataclass(frozen=True)
 class PlannedFabric:
-    """One material: its name, place in the plan, parameters and design seed."""
+    """One material: its name, place in the plan, parameters, design seed and query set.
+
+    ``query_set`` names the seeds of the material's queries and footprint samples: the
+    material's own name, or with the ``beta`` preset its pattern and texture set, so every
+    beta of a texture set is estimated at the same queries with the same samples.
+    """
 
     name: str
     pattern: str
@@ -121,10 +126,17 @@ class PlannedFabric:
     shading_set: int
     params: FabricParams
     design_seed: int
+    query_set: str
 
 
 def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
-    """Draw every material (seeded per pattern and set, so adding one leaves others)."""
+    """Draw every material (seeded per pattern and set, so adding one leaves others).
+
+    With ``beta_sweep`` (the ``beta`` preset) the materials of one texture set share one
+    query set: the same design seed (centres, sizes, directions) and the same footprint
+    sample seeds (common random numbers), so a difference between two betas is a paired
+    difference, query by query. Otherwise each material has its own.
+    """
     out = []
     for name, j, k in plan_sets(cfg):
         geometry = sample_params(ctx.rng(f"generate.fabric/{name}/texture/{j}"), name)
@@ -139,8 +151,9 @@ def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
             psi_deg=geometry.psi_deg, u_max_deg=geometry.u_max_deg, yarn_profile=cfg.yarn_profile
         )
         label = f"{name}-t{j:02d}-s{k:02d}"
-        seed = ctx.sub_seed(f"generate.fabric/queries/{label}")
-        out.append(PlannedFabric(label, name, j, k, params, seed))
+        query_set = f"{name}-t{j:02d}" if cfg.beta_sweep else label
+        seed = ctx.sub_seed(f"generate.fabric/queries/{query_set}")
+        out.append(PlannedFabric(label, name, j, k, params, seed, query_set))
     return out
 
 
@@ -219,7 +232,7 @@ def _shard_tasks(
                     btdf_fraction=cfg.btdf_fraction,
                     samples=cfg.samples,
                     sampler=cfg.sampler,
-                    sample_seed=ctx.sub_seed(f"generate.fabric/samples/{m.name}/{first}"),
+                    sample_seed=ctx.sub_seed(f"generate.fabric/samples/{m.query_set}/{first}"),
                     backend=cfg.backend,
                     sizes=cfg.sizes,
                     scene=cfg.scene,

@@ -70,7 +70,8 @@ PRESETS: dict[str, FabricPreset] = {
     ),
     # A data set that can teach beta: per pattern, 16 materials that differ only in beta
     # (both yarns, evenly spaced over BETA_SWEEP, ends included); geometry, alpha, w and
-    # the albedos are one draw per texture set, as Eq. 7 leaves w and the albedos out.
+    # the albedos are one draw per texture set, as Eq. 7 leaves w and the albedos out. The
+    # materials of a texture set share one query set (generators.fabric.kind.plan_materials).
     "beta": FabricPreset(
         patterns=("plain", "twill_3x3", "satin_5x5"),
         texture_sets={"*": 1},
@@ -229,7 +230,8 @@ class FabricGenParams(StrictModel):
         description="Named defaults: 'small' (3 materials, one per weave family, 1280 "
         "queries each), 'paper' (Sec. 5.1: 465 materials, 3.28 M queries each) or 'beta' "
         "(per weave family, shading_sets materials (16) that differ only in beta, evenly "
-        "spaced over 0.1-1; alpha, w, albedos and geometry held).",
+        "spaced over 0.1-1; alpha, w, albedos and geometry held, and one query set: the same "
+        "queries and footprint samples for every beta).",
     )
     patterns: list[str] | None = Field(
         default=None,

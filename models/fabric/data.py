@@ -66,6 +66,8 @@ class MaterialData:
     stderr: np.ndarray | None = None
     #: Side of the dataset's own maps (before :func:`map_tensor` resampled them).
     map_source_resolution: int | None = None
+    #: ``(N,)`` each kept row's index among the material's shard rows (``None``: unknown).
+    rows: np.ndarray | None = None
 
     def albedos(self) -> np.ndarray:
         """``(4, 3)`` albedos of Eq. 8: rows kd_warp, kd_weft, ks_warp, ks_weft."""
@@ -181,6 +183,7 @@ def load_dataset(
                 test=test,
                 stderr=None if se is None else se[keep].astype(np.float32),
                 map_source_resolution=int(normal.shape[0]),
+                rows=keep,
             )
         )
     return out

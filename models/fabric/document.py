@@ -33,8 +33,9 @@ class TrainFabricMetrics(TypedDict):
     """What each error measure is."""
     beta_response: NotRequired[list[dict[str, Any]]]
     """With ``held_out_beta``: per pattern with two or more held-out betas, each component's
-    slope of the mean against beta, the network's beside Monte Carlo's, their ratio and
-    whether the goal is met."""
+    slope of the mean against beta, the network's beside Monte Carlo's, their standard
+    errors, their ratio, whether Monte Carlo's sign is resolved and whether the goal is
+    met."""
 
 
 @document

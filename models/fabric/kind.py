@@ -221,14 +221,22 @@ class TrainFabricParams(StrictModel):
         "Sec. 5.2 trains on about 160 M of the data set's queries, 344,000 per material); "
         "unset: the preset's (small all, paper 344000).",
     )  # fmt: skip
-    loss: Literal["paper", "relative_l2", "relative_l2_mean"] | None = Field(
+    loss: (
+        Literal[
+            "paper", "relative_l2", "relative_l2_mean", "relative_l2_stderr",
+            "relative_l2_meanterm",
+        ]
+        | None
+    ) = Field(  # fmt: skip
         default=None,
         description="Training loss: 'paper' (Eq. 9-11: specular in log space, which fits "
         "E[ln(1 + kS)] and so biases S low) or 'relative_l2' (unbiased in linear units: "
         "(p - y)^2 / (sg(p)^2 + m^2), minimised by the conditional mean; C and S balanced) or "
         "'relative_l2_mean' (the same with Monte Carlo standard errors in the denominators "
-        "and a term holding each material's mean per component and light side); "
-        "metrics.json reports both" + _preset("loss"),
+        "and a term holding each material's mean per component and light side), or each "
+        "addition alone: 'relative_l2_stderr' (the standard errors only), "
+        "'relative_l2_meanterm' (the mean term only); metrics.json reports both the Eq. 11 "
+        "and the relative L2 figures" + _preset("loss"),
     )  # fmt: skip
     centre_encoding: Literal["one_blob", "periodic"] | None = Field(
         default=None,

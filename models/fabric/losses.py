@@ -54,6 +54,10 @@ is 0 exactly when the batch's mean prediction of that group equals its mean targ
 ``MEAN_WEIGHT * mean_{g, c} M_gc`` joins the total (the C terms of light from below are
 left out, as above). Its gradient is ``2 r_gc / (n_g m_gc^2)`` per row, bounded by the
 floored scale.
+
+Each addition alone, to measure them apart: ``loss: "relative_l2_stderr"`` (the Monte
+Carlo weights only) and ``loss: "relative_l2_meanterm"`` (the mean-preserving term only);
+``relative_l2_mean`` has both (:data:`STDERR_LOSSES`, :data:`MEAN_TERM_LOSSES`).
 """
 
 from __future__ import annotations
@@ -69,7 +73,17 @@ from models.fabric.networks import K_BRDF, K_BTDF, log_k
 #: Eq. 11 weights (Sec. 4.2: "set as 0.4 and 0.1 in practice").
 LAMBDA_S, LAMBDA_C = 0.4, 0.1
 #: Training losses: Eq. 9-11 and the unbiased relative L2.
-LOSSES: tuple[str, ...] = ("paper", "relative_l2", "relative_l2_mean")
+LOSSES: tuple[str, ...] = (
+    "paper",
+    "relative_l2",
+    "relative_l2_mean",
+    "relative_l2_stderr",
+    "relative_l2_meanterm",
+)
+#: The relative L2 losses with the Monte Carlo weights (stored standard errors).
+STDERR_LOSSES: tuple[str, ...] = ("relative_l2_mean", "relative_l2_stderr")
+#: The relative L2 losses with the mean-preserving term.
+MEAN_TERM_LOSSES: tuple[str, ...] = ("relative_l2_mean", "relative_l2_meanterm")
 #: Weight of the mean-preserving term of ``relative_l2_mean`` against the relative L2.
 MEAN_WEIGHT = 1.0
 #: Floor of the relative L2's denominator (squared component units).

@@ -243,36 +243,108 @@ def response_slope(beta: np.ndarray, mean: np.ndarray) -> np.ndarray:
     return (b @ (y - y.mean(axis=0))) / float(b @ b)
 
 
+def _slope_weights(beta: np.ndarray) -> np.ndarray:
+    """``c`` with ``slope = c @ means`` (the least-squares slope is linear in the means)."""
+    b = np.asarray(beta, np.float64) - np.mean(beta)
+    return b / float(b @ b)
+
+
+def slope_with_stderr(
+    beta: np.ndarray, values: Sequence[np.ndarray], paired: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares slope of the means against ``beta`` and its standard error.
+
+    ``values`` holds per material ``(Q_m, K)`` values at its queries. ``paired``: every
+    material has the same ``Q`` queries, row by row; the slope is then the mean of the
+    per-query slopes and its standard error their spread over ``sqrt(Q)``. Otherwise the
+    materials' means are independent, each with its variance over its queries / ``Q_m``.
+    """
+    c = _slope_weights(beta)
+    means = np.array([np.mean(v, axis=0) for v in values])
+    if paired:
+        per_query = np.einsum("m,mqk->qk", c, np.stack([np.asarray(v) for v in values]))
+        return c @ means, per_query.std(axis=0, ddof=1) / math.sqrt(len(per_query))
+    var = np.array([np.var(v, axis=0, ddof=1) / len(v) for v in values])
+    return c @ means, np.sqrt(c**2 @ var)
+
+
+def _held_out_rows(materials: Sequence[MaterialData], idx: Sequence[int]) -> list[np.ndarray]:
+    """Rows of each held-out material to score, in shard order: all its kept rows (it was
+    never trained on), restricted to the shard rows every one of them kept, so that
+    materials with one query set are scored query by query on the same queries."""
+    rows = [materials[i].rows for i in idx]
+    known = [r for r in rows if r is not None]
+    if len(known) < len(rows):
+        return [np.arange(len(materials[i].query)) for i in idx]
+    common = known[0]
+    for r in known[1:]:
+        common = np.intersect1d(common, r)
+    out = []
+    for r in known:
+        pos = np.argsort(r)
+        out.append(pos[np.searchsorted(r, common, sorter=pos)])
+    return out
+
+
 def beta_response(
     net: FabricNetwork, materials: Sequence[MaterialData], latents: np.ndarray, held: Sequence[int]
 ) -> list[dict[str, Any]]:
     """Per pattern with two or more held-out betas: each component's (and the Eq. 8 RGB
-    value's, mean of channels) mean over the held-out queries against beta, network and
-    Monte Carlo on the same queries; the least-squares slopes, their ratio, and whether the
-    network has Monte Carlo's sign and at least half its size (the goal)."""
+    value's, mean of channels) mean over the held-out materials' queries against beta,
+    network and Monte Carlo on the same queries; the least-squares slopes, their ratio, and
+    whether the network has Monte Carlo's sign and at least half its size (the goal).
+
+    Queries: a held-out material was never trained on, so all its queries are scored. When
+    the materials share one query set (the ``beta`` preset), ``paired`` is true and the
+    slope is the mean over queries of each query's own slope; its standard error
+    (``se_slope_monte_carlo``, ``se_slope_model``) is the spread of those per-query slopes
+    over sqrt(queries). Otherwise (each material its own queries) the standard error comes
+    from each material's spread over its queries, as independent samples. Either way it
+    counts both the choice of queries and the Monte Carlo noise. ``se_slope_noise`` is the
+    Monte Carlo noise alone, from the stored standard errors (materials and components
+    taken as independent: with shared footprint samples the true noise of a difference
+    is smaller). ``sign_resolved``: ``|slope_monte_carlo| > 2 se_slope_monte_carlo``.
+    """
     by_pattern: dict[str, list[int]] = {}
     for i in held:
-        if len(materials[i].test):
+        if len(materials[i].query):
             by_pattern.setdefault(materials[i].pattern, []).append(i)
     out = []
     for pattern, idx in sorted(by_pattern.items()):
         beta = np.array([float(materials[i].record["beta"][0]) for i in idx])
         if len(idx) < 2 or np.ptp(beta) <= 0.0:
             continue
-        mc, nn = [], []
-        for i in idx:
+        rows = _held_out_rows(materials, idx)
+        gts, preds, noise = [], [], []
+        for i, r in zip(idx, rows, strict=True):
             m = materials[i]
-            q = m.query[m.test]
+            q = m.query[r]
             pred = components_numpy(decode_raw(net, latents[i], q), q[:, 5]).astype(np.float64)
-            gt = m.value[m.test].astype(np.float64)
+            gt = m.value[r].astype(np.float64)
             rgb = m.albedos().mean(axis=1)  # the RGB mean is linear in the components
-            mc.append([*gt.mean(axis=0), float(gt.mean(axis=0) @ rgb)])
-            nn.append([*pred.mean(axis=0), float(pred.mean(axis=0) @ rgb)])
-        s_mc, s_nn = response_slope(beta, np.array(mc)), response_slope(beta, np.array(nn))
+            gts.append(np.concatenate([gt, (gt @ rgb)[:, None]], axis=1))
+            preds.append(np.concatenate([pred, (pred @ rgb)[:, None]], axis=1))
+            if m.stderr is not None:
+                se = m.stderr[r].astype(np.float64)
+                var = np.concatenate([se**2, ((se**2) @ rgb**2)[:, None]], axis=1)
+                noise.append(var.sum(axis=0) / len(r) ** 2)  # variance of each mean
+        first = materials[idx[0]].query[rows[0]]
+        paired = all(
+            len(r) == len(rows[0]) and np.array_equal(materials[i].query[r], first)
+            for i, r in zip(idx, rows, strict=True)
+        )
+        c = _slope_weights(beta)
+        mc = np.array([g.mean(axis=0) for g in gts])
+        nn = np.array([p.mean(axis=0) for p in preds])
+        s_mc, se_mc = slope_with_stderr(beta, gts, paired)
+        s_nn, se_nn = slope_with_stderr(beta, preds, paired)
+        se_noise = np.sqrt(c**2 @ np.array(noise)) if len(noise) == len(idx) else None
         entry: dict[str, Any] = {
             "pattern": pattern,
             "materials": [materials[i].name for i in idx],
             "beta": beta.tolist(),
+            "queries": [len(r) for r in rows],
+            "paired": paired,
         }
         for k, name in enumerate([*COMPONENTS, "rgb"]):
             ratio = float(s_nn[k] / s_mc[k]) if s_mc[k] != 0.0 else None
@@ -281,6 +353,10 @@ def beta_response(
                 "model": [float(r[k]) for r in nn],
                 "slope_monte_carlo": float(s_mc[k]),
                 "slope_model": float(s_nn[k]),
+                "se_slope_monte_carlo": float(se_mc[k]),
+                "se_slope_model": float(se_nn[k]),
+                "se_slope_noise": None if se_noise is None else float(se_noise[k]),
+                "sign_resolved": bool(abs(s_mc[k]) > 2.0 * se_mc[k]),
                 "slope_ratio": ratio,
                 "goal": ratio is not None and ratio >= 0.5,
             }

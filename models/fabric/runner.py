@@ -132,9 +132,13 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
             )
             metrics["settings"]["beta_response"] = (
                 "per pattern with >= 2 held-out betas: each component's mean (and the RGB "
-                "value's, mean of channels) over the held-out queries, Monte Carlo and "
-                "model on the same queries; least-squares slopes against beta, their ratio "
-                "(model / Monte Carlo), goal = same sign and at least half the size"
+                "value's, mean of channels) over all the held-out materials' queries (never "
+                "trained on), Monte Carlo and model on the same queries; least-squares "
+                "slopes against beta, their ratio (model / Monte Carlo), goal = same sign "
+                "and at least half the size; paired = the materials share one query set; "
+                "se_slope_* = standard errors from the spread over queries (of per-query "
+                "slopes when paired), se_slope_noise = Monte Carlo noise alone from the "
+                "stored standard errors; sign_resolved = |MC slope| > 2 se_slope_monte_carlo"
             )
     ctx.progress(P_SCORED, "writing artifacts")
     _write(ctx, params, net, materials, latents, metrics, curves)

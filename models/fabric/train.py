@@ -36,7 +36,14 @@ import torch
 
 from jobapi.errors import JobFailed
 from models.fabric.data import MaterialData
-from models.fabric.losses import component_scales, fabric_loss, log_targets, relative_l2_loss
+from models.fabric.losses import (
+    MEAN_TERM_LOSSES,
+    STDERR_LOSSES,
+    component_scales,
+    fabric_loss,
+    log_targets,
+    relative_l2_loss,
+)
 from models.fabric.networks import COMPONENTS, FabricNetwork, components
 
 #: Divergence: a loss above max(factor * the first step's loss, floor) fails the job.
@@ -76,6 +83,11 @@ LOSS_DEFINITIONS = {
     "standard error), plus 1.0 x mean over (material, light side, component) of "
     "(batch mean residual)^2 / m^2; the curves' per-component values are the relative L2 "
     "terms",
+    "relative_l2_stderr": "relative L2 with each denominator + se^2 (the target's Monte Carlo "
+    "standard error), no mean term; the curves' per-component values are these terms",
+    "relative_l2_meanterm": "relative L2 plus 1.0 x mean over (material, light side, "
+    "component) of (batch mean residual)^2 / m^2, no standard errors; the curves' "
+    "per-component values are the relative L2 terms",
 }
 
 
@@ -139,10 +151,10 @@ class TrainingSet:
             )
             self.value = torch.from_numpy(value).to(device)
             self.scale = torch.from_numpy(scale).to(device)
-        if loss == "relative_l2_mean":
+        if loss in STDERR_LOSSES:
             se = [m.stderr[m.train] if m.stderr is not None else None for m in materials]
             if any(x is None for x in se):
-                raise JobFailed("dataset: relative_l2_mean needs the shards' stderr arrays")
+                raise JobFailed(f"dataset: {loss} needs the shards' stderr arrays")
             self.stderr = torch.from_numpy(np.concatenate(se)).to(device)  # type: ignore[arg-type]
         counts = [len(m.train) for m in materials]
         if min(counts) < 1:
@@ -214,16 +226,16 @@ def fit(
         if config.loss.startswith("relative_l2"):
             if data.value is None or data.scale is None:
                 raise ValueError(f"{config.loss} needs TrainingSet(..., loss={config.loss!r})")
-            mean = config.loss == "relative_l2_mean"
-            if mean and data.stderr is None:
-                raise ValueError("relative_l2_mean needs TrainingSet(..., loss='relative_l2_mean')")
+            weighted = config.loss in STDERR_LOSSES
+            if weighted and data.stderr is None:
+                raise ValueError(f"{config.loss} needs TrainingSet(..., loss={config.loss!r})")
             parts = relative_l2_loss(
                 raw,
                 data.value[rows],
                 query[:, 5],
                 data.scale[rows],
-                stderr=data.stderr[rows] if mean and data.stderr is not None else None,
-                group=index if mean else None,
+                stderr=data.stderr[rows] if weighted and data.stderr is not None else None,
+                group=index if config.loss in MEAN_TERM_LOSSES else None,
             )
         else:
             parts = fabric_loss(raw, data.target[rows])

@@ -216,6 +216,26 @@ def test06_log_uniform_size_design(settings: Settings) -> None:
     assert "sizes" not in json.loads(read(settings, default, "materials.json"))["config"]
 
 
+def test06a_beta_preset_shares_one_query_set(settings: Settings) -> None:
+    """The ``beta`` preset's materials differ only in beta: every one of a texture set has the
+    identical query arrays (centres, sizes, directions: a paired design), its values differ
+    with beta, and the shared design seed is the one materials.json records."""
+    params = {"preset": "beta", "patterns": ["plain"], "shading_sets": 3,
+              "queries_per_material": 128, "shard_queries": 128, "samples": 64,
+              "map_resolution": 16}  # fmt: skip
+    job = run_in_process(spec(params), settings)
+    assert job.state == "succeeded", job.error
+    mats = json.loads(read(settings, job, "materials.json"))["materials"]
+    assert len(mats) == 3 and len({m["design_seed"] for m in mats}) == 1
+    shards = [shard(settings, job, i) for i in range(3)]
+    for z in shards[1:]:
+        for key in ("center", "size", "wi", "wo"):
+            np.testing.assert_array_equal(z[key], shards[0][key], err_msg=key)
+        assert not np.array_equal(z["value"], shards[0]["value"])  # beta changes the values
+    ref = design_queries(mats[0]["design_seed"], 0, 128)
+    np.testing.assert_array_equal(shards[0]["wo"], ref.wo.astype(np.float32))
+
+
 def test06b_jin_yarn_profile_is_recorded_and_used(settings: Settings) -> None:
     """``yarn_profile: jin`` reaches every material: recorded in materials.json (config and
     params), its maps are those of :func:`materials.fabric.yarn.rasterize` with Jin's

@@ -314,30 +314,39 @@ def test06_held_out_beta_is_never_trained_on_and_scored(
     (resp,) = metrics["beta_response"]
     assert resp["pattern"] == "plain" and resp["materials"] == sorted(held)
     np.testing.assert_allclose(resp["beta"], [0.4, 0.7], atol=1e-12)
-    # Monte Carlo's means on the held-out queries, from the shards and the same split.
-    from models.fabric.data import holdout_split
-
+    # Monte Carlo's means over all the held-out materials' queries (never trained on), from
+    # the shards; the preset gives them one query set, so the response is paired.
+    assert resp["paired"] is True and resp["queries"] == [256, 256]
     store = ArtifactStore(settings.store_dir)
     doc = json.loads(
         store.read(next(a.digest for a in gen.artifacts if a.name == "materials.json"))
     )
+    values, stderrs = [], []
     for j, name in enumerate(resp["materials"]):
         (mat,) = [m for m in doc["materials"] if m["name"] == name]
         (shard,) = mat["shards"]
         digest = next(a.digest for a in gen.artifacts if a.name == shard)
         with np.load(io.BytesIO(store.read(digest))) as z:
-            value = z["value"].astype(np.float64)
-        _, test = holdout_split(name, len(value), TINY["holdout"])
+            values.append(z["value"].astype(np.float64))
+            stderrs.append(z["stderr"].astype(np.float64))
         for k, comp in enumerate(("C_warp", "C_weft", "S_warp", "S_weft")):
-            assert resp[comp]["monte_carlo"][j] == pytest.approx(value[test, k].mean(), rel=1e-9)
-    for comp in ("C_warp", "C_weft", "S_warp", "S_weft", "rgb"):
+            assert resp[comp]["monte_carlo"][j] == pytest.approx(values[j][:, k].mean(), rel=1e-9)
+    for k, comp in enumerate(("C_warp", "C_weft", "S_warp", "S_weft", "rgb")):
         entry = resp[comp]
         # Two points: the slope is the difference quotient.
-        slope = (entry["monte_carlo"][1] - entry["monte_carlo"][0]) / (
-            resp["beta"][1] - resp["beta"][0]
-        )
+        db = resp["beta"][1] - resp["beta"][0]
+        slope = (entry["monte_carlo"][1] - entry["monte_carlo"][0]) / db
         assert entry["slope_monte_carlo"] == pytest.approx(slope, rel=1e-9, abs=1e-12)
         assert set(entry) == {"monte_carlo", "model", "slope_monte_carlo", "slope_model",
-                              "slope_ratio", "goal"}  # fmt: skip
+                              "slope_ratio", "goal", "se_slope_monte_carlo", "se_slope_model",
+                              "se_slope_noise", "sign_resolved"}  # fmt: skip
+        if k < 4:  # paired: the spread of the per-query difference quotients / sqrt(Q)
+            per_query = (values[1][:, k] - values[0][:, k]) / db
+            se = per_query.std(ddof=1) / np.sqrt(len(per_query))
+            assert entry["se_slope_monte_carlo"] == pytest.approx(se, rel=1e-6, abs=1e-12)
+            noise = np.sqrt((stderrs[0][:, k] ** 2).sum() + (stderrs[1][:, k] ** 2).sum())
+            assert entry["se_slope_noise"] == pytest.approx(noise / 256 / db, rel=1e-5)
+            resolved = bool(abs(slope) > 2 * se)
+            assert entry["sign_resolved"] is resolved
     bad = train(settings, {**params, "held_out_beta": [0.5]})
     assert bad.state == "failed" and "held_out_beta" in (bad.error or "")

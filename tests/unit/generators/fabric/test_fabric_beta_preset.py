@@ -48,3 +48,34 @@ def test02_other_presets_still_draw_beta() -> None:
     plan = plan_materials(cfg, _Ctx())  # type: ignore[arg-type]
     betas = {m.params.beta for m in plan if m.pattern == "plain"}
     assert len(betas) == 3  # independent draws (continuous: a tie has probability 0)
+
+
+def test03_beta_preset_materials_share_one_query_set() -> None:
+    """Every beta of a texture set is estimated at the same queries with the same footprint
+    samples (paired differences); the query set is named by pattern and texture set."""
+    cfg = FabricGenParams(preset="beta", texture_sets=2).resolved()
+    plan = plan_materials(cfg, _Ctx())  # type: ignore[arg-type]
+    ctx = _Ctx()
+    for pattern in cfg.patterns:
+        for j in range(2):
+            mats = [m for m in plan if m.pattern == pattern and m.texture_set == j]
+            assert len(mats) == 16
+            assert {m.query_set for m in mats} == {f"{pattern}-t{j:02d}"}
+            assert {m.design_seed for m in mats} == {
+                ctx.sub_seed(f"generate.fabric/queries/{pattern}-t{j:02d}")
+            }
+    # Two texture sets of a pattern, or two patterns, still have their own queries.
+    assert len({m.design_seed for m in plan}) == 2 * len(cfg.patterns)
+
+
+def test04_other_presets_keep_one_query_set_per_material() -> None:
+    """The ``small`` and ``paper`` presets keep the seeds they had before the ``beta`` preset
+    shared its query sets: keyed by the material's own name (so their bytes are unchanged)."""
+    ctx = _Ctx()
+    for preset in ("small", "paper"):
+        cfg = FabricGenParams(preset=preset).resolved()
+        plan = plan_materials(cfg, ctx)  # type: ignore[arg-type]
+        for m in plan:
+            assert m.query_set == m.name
+            assert m.design_seed == ctx.sub_seed(f"generate.fabric/queries/{m.name}")
+        assert len({m.design_seed for m in plan}) == len(plan)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import types
 
 import numpy as np
+import pytest
 import torch
 
 from materials.fabric.array_ops import NumpyOps
@@ -155,3 +156,71 @@ def test03_c_is_zero_below_the_horizon_in_every_decoder(mi: types.ModuleType) ->
     dr.eval(out)
     got = np.stack([o.numpy() for o in out], axis=1)
     assert np.all(got[below, :2] == 0) and np.all(got[~below, :2] > 0)
+
+
+@pytest.mark.parametrize("addition", ["stderr", "meanterm", "both"])
+def test04_each_loss_addition_alone_has_a_bounded_gradient_at_its_targets(addition: str) -> None:
+    """The losses that measure the two additions apart (``relative_l2_stderr``: Monte Carlo
+    weights only; ``relative_l2_meanterm``: the mean term only; ``relative_l2_mean``: both)
+    on the batch above, two material slots: 1e-6 off the targets every gradient is finite
+    and within the hand-written bound (the relative L2's ``2 |p - y| / (N_c m_floor^2)``,
+    larger denominators only shrink it, plus the mean term's ``2 |r| / (n_g m_floor^2)``),
+    and at the targets it is 0."""
+    wi_z, value, scale = _batch()
+    n = len(value)
+    stderr = 0.1 * value if addition in ("stderr", "both") else None  # 0 where the target is
+    group = torch.arange(n) // (n // 2) if addition in ("meanterm", "both") else None
+    delta = 1e-6
+    raw = _raw_for(value + delta, wi_z).requires_grad_(True)
+    parts = relative_l2_loss(raw, value, wi_z, scale, stderr=stderr, group=group)
+    (g_raw,) = torch.autograd.grad(parts.total, raw)
+    (dp_draw,) = torch.autograd.grad(linear_prediction(raw, wi_z).sum(), raw)
+    grad = g_raw / dp_draw
+    keep = torch.from_numpy(fittable_mask(wi_z.numpy()))
+    m = torch.maximum(scale, SCALE_FLOOR * scale.amax(dim=1, keepdim=True))
+    smallest_group = n // 4  # two slots x two light sides, 16 rows each
+    for c in range(4):
+        n_c = max(int(keep[:, c].sum()), 1)
+        bound = 2 * delta / (4 * n_c * (m[:, c] ** 2 + EPS))
+        if group is not None:
+            bound = bound + 2 * delta / (smallest_group * m[:, c] ** 2)
+        assert torch.isfinite(grad[:, c]).all(), c
+        assert torch.all(grad[:, c].abs() <= bound * (1 + 1e-6)), (c, grad[:, c].abs().max())
+        assert torch.all(grad[~keep[:, c], c] == 0.0), c
+    exact = _raw_for(value, wi_z).requires_grad_(True)
+    relative_l2_loss(exact, value, wi_z, scale, stderr=stderr, group=group).total.backward()
+    assert exact.grad is not None and float(exact.grad.abs().max()) < 1e-9
+
+
+@pytest.mark.parametrize(
+    ("loss", "weighted", "mean_term"),
+    [("relative_l2", False, False), ("relative_l2_stderr", True, False),
+     ("relative_l2_meanterm", False, True), ("relative_l2_mean", True, True)],
+)  # fmt: skip
+def test05_loss_names_switch_the_additions_on_alone(
+    loss: str, weighted: bool, mean_term: bool, synthetic_materials, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """``fit`` passes the stored standard errors and the material slots exactly as the loss
+    name says, and trains to finite losses."""
+    import dataclasses
+
+    import models.fabric.train as train
+
+    seen: list[tuple[bool, bool]] = []
+    original = train.relative_l2_loss
+
+    def record(*args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append((kwargs.get("stderr") is not None, kwargs.get("group") is not None))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(train, "relative_l2_loss", record)
+    mats = [dataclasses.replace(m, stderr=0.01 * np.abs(m.value) + 1e-4)
+            for m in synthetic_materials]  # fmt: skip
+    config = train.FitConfig(steps=5, batch=64, materials_per_step=2, lr=0.05, momentum=0.9,
+                             weight_decay=0.0, clip=1.0, loss=loss)  # fmt: skip
+    torch.manual_seed(0)
+    net = build_network(TINY, len(mats))
+    curves = train.fit(net, train.TrainingSet(mats, "cpu", loss), config,
+                       torch.Generator().manual_seed(5))  # fmt: skip
+    assert all(np.isfinite(curves.loss))
+    assert set(seen) == {(weighted, mean_term)}
