@@ -405,22 +405,10 @@ CLOSEUP_LIGHTS = (
 )
 
 
-def glint_closeup(
-    mi: types.ModuleType,
-    bsdf: Any,
-    camera: Camera,
-    lights: tuple[PointLight, ...],
-    max_depth: int,
-    resolution: tuple[int, int],
-    spp: int,
-) -> dict[str, Any]:
-    """The bent quad close up under ``lights`` (by default :data:`CLOSEUP_LIGHTS`) and no
-    environment: the point lights carry the glints, and an environment reached through the
-    BSDF's sampling would add Monte Carlo speckle that no microstructure puts there."""
-    scene = _base(mi, camera, max_depth, resolution, spp)
-    scene["quad"] = bent_quad_mesh(mi, bsdf)
-    scene.update(_point_lights(lights))
-    return scene
+#: The bent quad close up under ``lights`` (by default :data:`CLOSEUP_LIGHTS`) and no
+#: environment: the point lights carry the glints, and an environment reached through the
+#: BSDF's sampling would add Monte Carlo speckle that no microstructure puts there.
+glint_closeup = LitScene(_quad)
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,9 @@ module, without torch, so that registering the kind stays light.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
+from pydantic import Field
 from typing_extensions import TypedDict
 
 from jobapi.documents import document
@@ -153,20 +154,22 @@ class BrdfNetwork(TypedDict):
     """The neural model's frame module (``null``: hybrid)."""
 
 
+class _BrdfMaterialParams(TypedDict):
+    """A material's name and analytic parameters, shared by :class:`BrdfModelMaterial` and
+    :class:`BrdfFittedMaterial` (their descriptions are ``Field``'s: pydantic reads the
+    attribute docstrings of a typed dict's own fields only, not of those it inherits)."""
+
+    name: Annotated[str, Field(description="The material.")]
+    family: Annotated[str, Field(description="Its family.")]
+    kd: Annotated[list[float] | None, Field(description="Diffuse albedo RGB (``null``: neural).")]
+    eta: Annotated[list[float] | None, Field(description="Real IOR RGB (``null``: neural).")]
+    alpha: Annotated[float | None, Field(description="GGX roughness (``null``: neural).")]
+
+
 @document
-class BrdfModelMaterial(TypedDict):
+class BrdfModelMaterial(_BrdfMaterialParams):
     """One material's parameters, constrained."""
 
-    name: str
-    """The material."""
-    family: str
-    """Its family."""
-    kd: list[float] | None
-    """Diffuse albedo RGB (``null``: neural)."""
-    eta: list[float] | None
-    """Real IOR RGB (``null``: neural)."""
-    alpha: float | None
-    """GGX roughness (``null``: neural)."""
     z: list[float]
     """Its latent code (empty: analytic)."""
 
@@ -207,19 +210,9 @@ class BrdfArchitecture(TypedDict):
 
 
 @document
-class BrdfFittedMaterial(TypedDict):
+class BrdfFittedMaterial(_BrdfMaterialParams):
     """One material's fitted parameters."""
 
-    name: str
-    """The material."""
-    family: str
-    """Its family."""
-    kd: list[float] | None
-    """Diffuse albedo RGB (``null``: neural)."""
-    eta: list[float] | None
-    """Real IOR RGB (``null``: neural)."""
-    alpha: float | None
-    """GGX roughness (``null``: neural)."""
     z: list[float]
     """Its latent code."""
     split: str

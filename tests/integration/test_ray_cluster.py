@@ -109,6 +109,7 @@ def test02_shards_stored_by_their_tasks_on_both_nodes(
     from service.workers.executors import make_executor
     from storage.artifacts import ArtifactStore, ObjectInfo
     from storage.jobs import JobStore
+    from tests.helpers.monitors import CrashAfter
     from tests.helpers.ray_probe import ProbeItem, probe_shard
 
     shared = settings.with_(executor="ray", shared_store=True)
@@ -141,16 +142,6 @@ def test02_shards_stored_by_their_tasks_on_both_nodes(
 
     # Interrupted after its second recorded shard (the job's thread dies, as a killed
     # worker's would), then run again: the two are registered, not computed again.
-    class CrashAfter(NullMonitor):
-        def __init__(self, n: int) -> None:
-            super().__init__()
-            self.n = n
-
-        def report(self, progress: float, message: str | None) -> None:
-            self.n -= 1
-            if self.n == 0:
-                raise KeyboardInterrupt  # not an Exception: nothing on the way catches it
-
     resumed = tmp_path / "resumed"
     resumed.mkdir()
     jobs, store = JobStore(shared.db_path), ArtifactStore(shared.store_dir)
@@ -165,8 +156,9 @@ def test02_shards_stored_by_their_tasks_on_both_nodes(
             monitor=monitor, executor=executor,
         )  # fmt: skip
 
+    # KeyboardInterrupt: not an Exception, so nothing on the way catches it.
     with pytest.raises(KeyboardInterrupt):
-        ctx(CrashAfter(3)).map_artifact_shards(probe_shard, items, names)
+        ctx(CrashAfter(3, KeyboardInterrupt)).map_artifact_shards(probe_shard, items, names)
     recorded = jobs.shards(queued.id)
     assert len(recorded) == 2
     first = set(calls(resumed))

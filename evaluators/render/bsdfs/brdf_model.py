@@ -38,7 +38,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
+from evaluators.render.bsdfs.common import GlossyDiffuseReflector, MixtureReflector, MixtureSampling
 from evaluators.render.plugins import register_vectorised_bsdf
 from models.brdf.fused import BakedMaterial, bake_material, model_brdf, read_model
 
@@ -58,7 +58,7 @@ def register_model_bsdf(mi: types.ModuleType) -> type:
     return register_vectorised_bsdf(mi, MODEL_BSDF_NAME, ModelBSDF, "model BSDF")
 
 
-class ModelBSDF(MixtureReflector):
+class ModelBSDF(GlossyDiffuseReflector):
     """One material of a trained BRDF model (plugin ``"brdf_model"``).
 
     ====================  =======  ========  ============================================
@@ -112,14 +112,6 @@ class ModelBSDF(MixtureReflector):
         neural = not int(ctx.type_mask) & ANALYTIC_ONLY
         value = model_brdf(mi, self.material, wi, wo, neural=neural)
         return dr.select(active, value, 0.0)
-
-    def enabled(self, ctx: Any, active: Any) -> Any:
-        """``active`` where the context asks for glossy or diffuse reflection."""
-        mi = self.mi
-        enabled = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-            mi.BSDFFlags.DiffuseReflection, 0
-        )
-        return active & enabled
 
     def to_string(self) -> str:
         m = self.material

@@ -133,6 +133,19 @@ class MixtureReflector(VariantPlugin):
         return bs, dr.select(active, value / dr.maximum(pdf, 1e-30), 0.0)
 
 
+class GlossyDiffuseReflector(MixtureReflector):
+    """A :class:`MixtureReflector` whose lobe is glossy and diffuse reflection at once (a
+    learned or user-supplied BRDF): enabled where the context asks for either."""
+
+    def enabled(self, ctx: Any, active: Any) -> Any:
+        """``active`` where the context asks for glossy or diffuse reflection."""
+        mi = self.mi
+        on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
+            mi.BSDFFlags.DiffuseReflection, 0
+        )
+        return active & on
+
+
 def mixture_reflector_base(mi: types.ModuleType) -> type:
     """:class:`MixtureReflector` for Mitsuba's current variant (:func:`class_for_variant`),
     for a subclass defined once Mitsuba is loaded (e.g. a benchmark's)."""

@@ -25,7 +25,7 @@ from __future__ import annotations
 import types
 from typing import Any
 
-from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
+from evaluators.render.bsdfs.common import GlossyDiffuseReflector, MixtureReflector, MixtureSampling
 from evaluators.render.plugins import register_vectorised_bsdf
 
 #: The plugin name.
@@ -37,7 +37,23 @@ def register_external_mlp_bsdf(mi: types.ModuleType) -> type:
     return register_vectorised_bsdf(mi, EXTERNAL_MLP_NAME, ExternalMlpBSDF, "external MLP BSDF")
 
 
-class ExternalMlpBSDF(MixtureReflector):
+def fused_mlp(mi: types.ModuleType, props: Any, plugin: str, kind: str) -> Any:
+    """The :class:`~models.external.fused.FusedMlp` of the plugin ``plugin``'s ``filename``
+    property, a network of ``kind`` (``"brdf"`` or ``"btf"``); ``ValueError`` naming the
+    plugin if the property is missing or the file holds the other kind."""
+    from models.external.fused import FusedMlp
+    from models.external.mlp import read_mlp
+
+    if "filename" not in props:
+        raise ValueError(f"{plugin}: 'filename' is required")
+    material = read_mlp(str(props["filename"]))
+    if material.kind != kind:
+        other = "BTF" if kind == "brdf" else "BRDF"
+        raise ValueError(f"{plugin}: {material.source} is a {other}, not a {kind.upper()}")
+    return FusedMlp(material, mi)
+
+
+class ExternalMlpBSDF(GlossyDiffuseReflector):
     """A user's BRDF network (plugin ``"external_mlp"``).
 
     ============  ======  =======  ==============================================
@@ -53,19 +69,11 @@ class ExternalMlpBSDF(MixtureReflector):
 
     def __init__(self, props: Any) -> None:
         MixtureReflector.__init__(self, props)
-        from models.external.fused import FusedMlp
-        from models.external.mlp import read_mlp
-
         mi = self.mi
         flags = (
             mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
         )
-        if "filename" not in props:
-            raise ValueError("external_mlp: 'filename' is required")
-        material = read_mlp(str(props["filename"]))
-        if material.kind != "brdf":
-            raise ValueError(f"external_mlp: {material.source} is a BTF, not a BRDF")
-        self.fused = FusedMlp(material, mi)
+        self.fused = fused_mlp(mi, props, "external_mlp", "brdf")
         alpha = self.fused.alpha
         self.specular_weight = self.fused.specular_weight
         self.sampling = MixtureSampling(alpha if alpha is not None else 1.0, self.specular_weight)
@@ -77,13 +85,6 @@ class ExternalMlpBSDF(MixtureReflector):
         dr = self.dr
         active = active & (wi.z > 0.0) & (wo.z > 0.0)
         return dr.select(active, self.fused.eval(wi, wo), 0.0)
-
-    def enabled(self, ctx: Any, active: Any) -> Any:
-        mi = self.mi
-        on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-            mi.BSDFFlags.DiffuseReflection, 0
-        )
-        return active & on
 
     def to_string(self) -> str:
         doc = self.fused.material.doc

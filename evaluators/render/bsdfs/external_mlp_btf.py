@@ -15,6 +15,7 @@ import types
 from typing import Any
 
 from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
+from evaluators.render.bsdfs.external_mlp import fused_mlp
 from evaluators.render.plugins import register_vectorised_bsdf
 
 #: The plugin name.
@@ -47,16 +48,7 @@ class ExternalMlpBtfBSDF(BtfReflector):
 
     def __init__(self, props: Any) -> None:
         BtfReflector.__init__(self, props)
-        from models.external.fused import FusedMlp
-        from models.external.mlp import read_mlp
-
-        mi = self.mi
-        if "filename" not in props:
-            raise ValueError("external_mlp_btf: 'filename' is required")
-        material = read_mlp(str(props["filename"]))
-        if material.kind != "btf":
-            raise ValueError(f"external_mlp_btf: {material.source} is a BRDF, not a BTF")
-        self.fused = FusedMlp(material, mi)
+        self.fused = fused_mlp(self.mi, props, "external_mlp_btf", "btf")
         self.uv_scale = uv_scale_of(props)
 
     def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:

@@ -56,7 +56,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
-from evaluators.render.bsdfs.common import MixtureReflector, MixtureSampling
+from evaluators.render.bsdfs.common import GlossyDiffuseReflector, MixtureReflector, MixtureSampling
 from evaluators.render.plugins import VariantPlugin, class_for_variant, register_vectorised_bsdf
 from models.external.onnx_model import DEFAULT_THREADS, OnnxMaterial, load_onnx
 from storage.errors import FormatError, TooLargeError
@@ -178,7 +178,7 @@ def _load(props: Any) -> OnnxMaterial:
         raise ValueError(f"external_onnx: {exc}") from None
 
 
-class OnnxBrdf(MixtureReflector):
+class OnnxBrdf(GlossyDiffuseReflector):
     """An ONNX BRDF (``kind = brdf``), cosine-sampled or with a GGX lobe (MIS)."""
 
     def __init__(self, props: Any, model: OnnxMaterial) -> None:
@@ -205,13 +205,6 @@ class OnnxBrdf(MixtureReflector):
         mi, dr = self.mi, self.dr
         active = active & (wi.z > 0.0) & (wo.z > 0.0)
         return dr.select(active, _call_model(mi, self, self.model, active, wi, wo), 0.0)
-
-    def enabled(self, ctx: Any, active: Any) -> Any:
-        mi = self.mi
-        on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0) or ctx.is_enabled(
-            mi.BSDFFlags.DiffuseReflection, 0
-        )
-        return active & on
 
     def to_string(self) -> str:
         return f"OnnxBrdf[{self.model.name}, {self.model.param_bytes} parameter bytes]"

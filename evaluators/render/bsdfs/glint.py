@@ -43,6 +43,8 @@ from __future__ import annotations
 
 import math
 import types
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -111,13 +113,39 @@ class GlintLayer:
     placement: JitPlacement | None = None
 
 
-_LAYERS: dict[str, tuple[GlintLayer, GlintLayer | None]] = {}
+@dataclass(frozen=True, eq=False)
+class _Prepared:
+    """A base layer and its clearcoat, as :func:`put_layers` registered them."""
+
+    base: GlintLayer
+    coat: GlintLayer | None
+
+
+#: How many registered layer pairs :func:`put_layers` keeps alive that no ``glint`` BSDF
+#: holds (the latest ones): a Yan export's lobes are hundreds of MiB, so the registry must
+#: not keep every render's layers for the life of the process.
+KEPT_LAYERS = 2
+#: The last :data:`KEPT_LAYERS` registrations, oldest first.
+_RECENT: OrderedDict[str, _Prepared] = OrderedDict()
+#: Every registration still alive: kept by :data:`_RECENT` or by a ``glint`` BSDF (which
+#: holds its pair), so that a key stays valid while a scene uses it.
+_LAYERS: weakref.WeakValueDictionary[str, _Prepared] = weakref.WeakValueDictionary()
 
 
 def put_layers(key: str, base: GlintLayer, coat: GlintLayer | None = None) -> str:
     """Register a base layer (and optional clearcoat) under ``key`` for the ``layers``
-    property; returns ``key``."""
-    _LAYERS[key] = (base, coat)
+    property; returns ``key``.
+
+    The registry holds the pair while a ``glint`` BSDF made from it is alive, and holds the
+    last :data:`KEPT_LAYERS` pairs registered; older ones are released with the last BSDF
+    (and so the scene) that uses them, and their key is then unknown.
+    """
+    prepared = _Prepared(base, coat)
+    _LAYERS[key] = prepared
+    _RECENT[key] = prepared
+    _RECENT.move_to_end(key)
+    while len(_RECENT) > KEPT_LAYERS:
+        _RECENT.popitem(last=False)
     return key
 
 
@@ -253,9 +281,11 @@ class GlintBSDF(MixtureReflector):
         mi = self.mi
         flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
         key = str(props.get("layers"))
-        if key not in _LAYERS:
+        prepared = _LAYERS.get(key)
+        if prepared is None:
             raise ValueError(f"glint: no prepared layers {key!r} (see put_layers)")
-        self.base, self.coat = _LAYERS[key]
+        self._prepared = prepared  # keeps the key registered while this BSDF lives
+        self.base, self.coat = prepared.base, prepared.coat
         self.texels_per_uv = float(props.get("texels_per_uv", 256.0))
         if not (math.isfinite(self.texels_per_uv) and self.texels_per_uv > 0):
             raise ValueError("glint: texels_per_uv must be > 0")

@@ -16,12 +16,13 @@ from typing import Any
 
 import pytest
 
-from jobapi.context import JobContext, NullMonitor
+from jobapi.context import JobContext
 from jobapi.errors import JobFailed
 from jobapi.executor import InlineExecutor, StoreShard, uses_shared_store
 from storage.artifacts import ArtifactStore, ObjectInfo
 from storage.errors import IntegrityError, NotFoundError
 from storage.jobs import JobStore
+from tests.helpers.monitors import CrashAfter
 
 CALLS: list[int] = []
 
@@ -54,20 +55,6 @@ class ElsewhereStore(InlineExecutor):
 
 class Crash(Exception):
     """The job's thread dies mid-job (as a killed worker would, from the store's view)."""
-
-
-class CrashAfter(NullMonitor):
-    """A monitor whose ``n``-th progress report raises :class:`Crash` (the first report
-    of a map is its start, then one after each recorded shard)."""
-
-    def __init__(self, n: int) -> None:
-        super().__init__()
-        self.n = n
-
-    def report(self, progress: float, message: str | None) -> None:
-        self.n -= 1
-        if self.n == 0:
-            raise Crash
 
 
 def context(tmp_path: Path, executor: Any, **kw: Any) -> JobContext:
@@ -123,7 +110,7 @@ def test01_same_digests_and_the_job_thread_writes_no_shard(
 def test02_a_crash_mid_job_loses_no_recorded_shard(tmp_path: Path) -> None:
     CALLS.clear()
     with pytest.raises(Crash):
-        context(tmp_path, SharedInline(), monitor=CrashAfter(4)).map_artifact_shards(
+        context(tmp_path, SharedInline(), monitor=CrashAfter(4, Crash)).map_artifact_shards(
             shard, range(5), NAMES
         )
     assert CALLS == [0, 1, 2]  # the third shard was stored and recorded, then the crash
