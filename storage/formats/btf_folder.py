@@ -34,8 +34,14 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from storage.errors import FormatError, TooLargeError
-from storage.formats.exr import MAX_PIXELS, exr_header_info, read_exr
-from storage.formats.png import level_table, levels_to_float, png_size, read_png_levels
+from storage.formats.exr import MAX_PIXELS, check_exr_size, exr_header_info, read_exr
+from storage.formats.png import (
+    check_png_size,
+    level_table,
+    levels_to_float,
+    png_size,
+    read_png_levels,
+)
 
 ANGLE_FILES = ("angles.csv", "angles.json")
 IMAGE_SUFFIXES = (".exr", ".png")
@@ -229,10 +235,15 @@ class SliceFolder:
     def _size(self, entry: SliceEntry) -> tuple[int, int]:
         path, where = self._local(entry), f"{self.label}: {entry.file}"
         if entry.file.lower().endswith(".exr"):
-            info = exr_header_info(path, where)
+            info = exr_header_info(path, where, check_limits=False)
             return info.height, info.width
         w, h = png_size(path, where)
         return h, w
+
+    def _check_size(self, entry: SliceEntry, size: tuple[int, int]) -> None:
+        """Refuse an image its reader would not decode, from its header's ``(H, W)``."""
+        check = check_exr_size if entry.file.lower().endswith(".exr") else check_png_size
+        check(size[1], size[0], f"{self.label}: {entry.file}")
 
     def check_images(self, max_pixels: int | None = None) -> tuple[int, int]:
         """Read every image's header: all must be readable and of one size ``(H, W)``, and,
@@ -246,8 +257,10 @@ class SliceFolder:
                     f"{self.label}: {e.file}",
                     f"is {s[1]}x{s[0]} pixels, but {first.file} is {sizes[0][1]}x{sizes[0][0]}",
                 )
-        if max_pixels is not None:
+        if max_pixels is not None:  # first: over the cap is 413, whatever else is wrong
             check_decoded_pixels(self.label, [e.file for e in self.entries], sizes, max_pixels)
+        for e in self.entries:
+            self._check_size(e, sizes[0])
         self.resolution = sizes[0]
         return sizes[0]
 

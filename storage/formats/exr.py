@@ -93,15 +93,9 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
-def _info(f: OpenEXR.File, name: str) -> ExrInfo:
-    header = f.header()
-    try:
-        (x0, y0), (x1, y1) = (tuple(int(v) for v in corner) for corner in header["dataWindow"])
-    except (KeyError, TypeError, ValueError):
-        raise FormatError(name, "OpenEXR header has no valid dataWindow") from None
-    width, height = x1 - x0 + 1, y1 - y0 + 1
-    if width < 1 or height < 1:
-        raise FormatError(name, f"empty image ({width}x{height} pixels)")
+def check_exr_size(width: int, height: int, name: str) -> None:
+    """Refuse a size :func:`read_exr` would not decode (over :data:`MAX_SIDE` per side or
+    :data:`MAX_PIXELS` in all), naming ``name`` and the size."""
     if width > MAX_SIDE or height > MAX_SIDE:
         raise FormatError(
             name,
@@ -112,6 +106,19 @@ def _info(f: OpenEXR.File, name: str) -> ExrInfo:
             name,
             f"image of {width}x{height} pixels exceeds the limit of {MAX_PIXELS} pixels",
         )
+
+
+def _info(f: OpenEXR.File, name: str, check_limits: bool = True) -> ExrInfo:
+    header = f.header()
+    try:
+        (x0, y0), (x1, y1) = (tuple(int(v) for v in corner) for corner in header["dataWindow"])
+    except (KeyError, TypeError, ValueError):
+        raise FormatError(name, "OpenEXR header has no valid dataWindow") from None
+    width, height = x1 - x0 + 1, y1 - y0 + 1
+    if width < 1 or height < 1:
+        raise FormatError(name, f"empty image ({width}x{height} pixels)")
+    if check_limits:
+        check_exr_size(width, height, name)
     channels = tuple(str(getattr(c, "name", c)) for c in header.get("channels", ()))
     missing = [c for c in ("R", "G", "B") if c not in channels]
     if missing:
@@ -140,11 +147,15 @@ def validate_exr(path: str | Path, name: str | None = None) -> ExrInfo:
     return info
 
 
-def exr_header_info(path: str | Path, name: str | None = None) -> ExrInfo:
+def exr_header_info(
+    path: str | Path, name: str | None = None, *, check_limits: bool = True
+) -> ExrInfo:
     """Size and channels from the header alone (no pixels read): a cheap first check of
-    many files. Raises :class:`FormatError` as :func:`validate_exr` does for the header."""
+    many files. Raises :class:`FormatError` as :func:`validate_exr` does for the header;
+    with ``check_limits`` false, a size over the readers' limits is returned, not refused
+    (the caller checks it later with :func:`check_exr_size`)."""
     label = name or str(path)
-    return _info(_open(Path(path), label, header_only=True), label)
+    return _info(_open(Path(path), label, header_only=True), label, check_limits)
 
 
 def read_exr(path: str | Path, name: str | None = None) -> np.ndarray:

@@ -78,8 +78,10 @@ def write_npz(fp: BinaryIO, arrays: Mapping[str, np.ndarray | StreamedArray]) ->
 
 def check_npz_headers(path: Path, label: str, max_bytes: int = MAX_NPZ_BYTES) -> None:
     """Refuse an ``.npz`` from its headers alone: members that decompress to more than
-    ``max_bytes`` in all, or whose array header (shape x itemsize) disagrees with the
-    member's size, e.g. a header claiming ``(2**40,)`` elements. Nothing large is read."""
+    ``max_bytes`` in all, a member that is not a ``.npy`` array (``np.load`` would hand its
+    raw bytes to the reader), or an array whose header (shape x itemsize) disagrees with
+    the member's size, e.g. a header claiming ``(2**40,)`` elements. Nothing large is
+    read."""
     try:
         with zipfile.ZipFile(path) as zf:
             infos = zf.infolist()
@@ -91,7 +93,11 @@ def check_npz_headers(path: Path, label: str, max_bytes: int = MAX_NPZ_BYTES) ->
                 )
             for info in infos:
                 if not info.filename.endswith(".npy"):
-                    continue
+                    raise FormatError(
+                        label,
+                        f"member {info.filename!r} is not a .npy array (an .npz holds only "
+                        f"arrays, each a '<name>.npy' member)",
+                    )
                 with zf.open(info) as fh:
                     version = np.lib.format.read_magic(fh)
                     if version == (1, 0):

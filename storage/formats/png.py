@@ -12,6 +12,7 @@ and zlib.
 from __future__ import annotations
 
 import io
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -73,29 +74,10 @@ def read_png_levels(path: str | Path, name: str | None = None) -> tuple[np.ndarr
     """
     p = Path(path)
     label = name or str(p)
-    try:
-        with open(p, "rb") as fh:
-            magic = fh.read(len(_MAGIC))
-    except OSError as exc:
-        raise FormatError(label, f"cannot read: {exc.strerror or exc}") from None
-    if magic != _MAGIC:
-        raise FormatError(label, "not a PNG file (bad signature)")
+    width, height = png_size(p, label)
+    check_png_size(width, height, label)  # before Pillow opens it: its bomb guard says less
     try:
         with Image.open(p, formats=["PNG"]) as img:
-            width, height = img.size
-            if width < 1 or height < 1:
-                raise FormatError(label, f"empty image ({width}x{height} pixels)")
-            if width > MAX_SIDE or height > MAX_SIDE:
-                raise FormatError(
-                    label,
-                    f"image of {width}x{height} pixels exceeds the limit "
-                    f"of {MAX_SIDE} pixels per side",
-                )
-            if width * height > MAX_PIXELS:
-                raise FormatError(
-                    label,
-                    f"image of {width}x{height} pixels exceeds the limit of {MAX_PIXELS} pixels",
-                )
             img.load()
             if img.mode in ("I;16", "I;16B", "I;16L", "I"):
                 # 16-bit grey: Pillow keeps it as integers (32-bit for mode "I").
@@ -131,19 +113,40 @@ def levels_to_float(levels: np.ndarray, table: np.ndarray) -> np.ndarray:
 
 
 def png_size(path: str | Path, name: str | None = None) -> tuple[int, int]:
-    """``(width, height)`` from the PNG header alone (no pixels decoded)."""
+    """``(width, height)`` from the PNG header alone (no pixels decoded, no limit applied):
+    the ``IHDR`` chunk, which the format puts first, read as 24 bytes. A size that no reader
+    accepts (a 100000 x 100000 header in a 300-byte file) is reported to the caller, which
+    names it (:func:`check_png_size`); Pillow's own decompression-bomb guard is not in the
+    way of saying so."""
     p = Path(path)
     label = name or str(p)
     try:
         with open(p, "rb") as fh:
-            if fh.read(len(_MAGIC)) != _MAGIC:
-                raise FormatError(label, "not a PNG file (bad signature)")
-        with Image.open(p, formats=["PNG"]) as img:
-            return int(img.size[0]), int(img.size[1])
-    except FormatError:
-        raise
-    except (OSError, UnidentifiedImageError, SyntaxError, ValueError) as exc:
-        raise FormatError(label, f"unreadable PNG header: {exc}") from None
+            head = fh.read(len(_MAGIC) + 16)
+    except OSError as exc:
+        raise FormatError(label, f"cannot read: {exc.strerror or exc}") from None
+    if head[: len(_MAGIC)] != _MAGIC:
+        raise FormatError(label, "not a PNG file (bad signature)")
+    length, chunk, width, height = struct.unpack(">I4sII", head[len(_MAGIC) :].ljust(16, b"\0"))
+    if len(head) < len(_MAGIC) + 16 or chunk != b"IHDR" or length != 13:
+        raise FormatError(label, "unreadable PNG header: the first chunk is not a whole IHDR")
+    if width < 1 or height < 1:
+        raise FormatError(label, f"empty image ({width}x{height} pixels)")
+    return int(width), int(height)
+
+
+def check_png_size(width: int, height: int, name: str) -> None:
+    """Refuse a size :func:`read_png_levels` would not decode (over :data:`MAX_SIDE` per side
+    or :data:`MAX_PIXELS` in all), naming ``name`` and the size."""
+    if width > MAX_SIDE or height > MAX_SIDE:
+        raise FormatError(
+            name,
+            f"image of {width}x{height} pixels exceeds the limit of {MAX_SIDE} pixels per side",
+        )
+    if width * height > MAX_PIXELS:
+        raise FormatError(
+            name, f"image of {width}x{height} pixels exceeds the limit of {MAX_PIXELS} pixels"
+        )
 
 
 def validate_png(path: str | Path, name: str | None = None) -> tuple[int, int]:
