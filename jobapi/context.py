@@ -24,7 +24,7 @@ import numpy as np
 from jobapi.documents import check_document, check_typed
 from jobapi.errors import IntegrityError, JobCancelled, JobFailed, NotFoundError
 from jobapi.executor import Executor, InlineExecutor, StoreShard, uses_shared_store
-from jobapi.params import JOB_REF, SHA_REF
+from jobapi.params import JOB_REF, SHA_REF, StoredAs, stored_format
 from storage.artifacts import ArtifactStore, ObjectInfo
 from storage.formats.btf_folder import MAX_ARCHIVE_PIXELS
 from storage.formats.media import media_type_for
@@ -184,6 +184,18 @@ class JobContext:
                 media_type="application/octet-stream",
             )
         raise JobFailed(f"not an artifact reference: {ref!r}")
+
+    def stored_format(self, ref: str, field: str, marker: StoredAs) -> tuple[str, str]:
+        """``(ending, name)``: the ending of ``marker`` (:class:`jobapi.params.StoredAs`)
+        that ``ref``'s object was validated as when it was stored, and the name it was
+        uploaded under then, from the store's upload records of it (never from its bytes);
+        :class:`JobFailed` naming ``field`` otherwise."""
+        digest = self.ref_record(ref).digest
+        records = [(r.name, r.media_type) for r in self.jobs.upload_records(digest)]
+        try:
+            return stored_format(ref, records, marker)
+        except ValueError as exc:
+            raise JobFailed(f"{field}: {exc}") from None
 
     def resolve(self, ref: str) -> Path:
         """A verified, read-only path to the bytes of ``ref``."""

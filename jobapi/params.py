@@ -13,6 +13,8 @@ whole job); a kind never writes its own pattern for either.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
@@ -61,6 +63,67 @@ def _check_job_ref(value: str) -> str:
 
 #: An artifact reference field: ``job:<id>/<name>`` or ``sha256:<hex>``.
 Ref = Annotated[str, AfterValidator(_check_ref)]
+
+
+@dataclass(frozen=True)
+class StoredAs:
+    """Marks a :data:`Ref` field (``Annotated[Ref, StoredAs(...)]``) whose object must have
+    been validated as one of ``endings`` (upload formats, the keys of
+    :data:`storage.formats.VALIDATORS` and ``COMPOUND_VALIDATORS``: ``".btf.zip"``) when it
+    was stored. The store's record of the object decides (:func:`stored_format`), never its
+    bytes: a PNG with a zip appended passes the PNG check and reads as a zip. Checked at
+    submission (422 naming the field) and again by the job
+    (:meth:`jobapi.context.JobContext.stored_format`). ``hint`` ends the refusal."""
+
+    endings: tuple[str, ...]
+    hint: str = ""
+
+
+def stored_as_fields(model: BaseModel, loc: str = "params") -> Iterator[tuple[str, str, StoredAs]]:
+    """``(location, ref, marker)`` of every set field of ``model`` (and of the models nested
+    in it, in lists, tuples and dicts too) marked :class:`StoredAs`."""
+    for name, info in type(model).model_fields.items():
+        value = getattr(model, name)
+        here = f"{loc}.{name}"
+        marker = next((m for m in info.metadata if isinstance(m, StoredAs)), None)
+        if marker is not None and isinstance(value, str):
+            yield here, value, marker
+        yield from _nested_stored_as(value, here)
+
+
+def _nested_stored_as(value: Any, loc: str) -> Iterator[tuple[str, str, StoredAs]]:
+    if isinstance(value, BaseModel):
+        yield from stored_as_fields(value, loc)
+    elif isinstance(value, list | tuple):
+        for i, v in enumerate(value):
+            yield from _nested_stored_as(v, f"{loc}.{i}")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            yield from _nested_stored_as(v, f"{loc}.{k}")
+
+
+def stored_format(
+    ref: str, records: Sequence[tuple[str, str]], marker: StoredAs
+) -> tuple[str, str]:
+    """``(ending, name)``: the ending of ``marker`` that ``ref``'s object was validated as
+    when it was stored, and the name it was uploaded under then, from ``records``, its
+    upload records ``(name, media type)``; ``ValueError`` saying what it was stored as
+    otherwise (the caller names the field)."""
+    from storage.formats import validated_as
+
+    for name, media_type in records:
+        ending = validated_as(name, media_type)
+        if ending is not None and ending in marker.endings:
+            return ending, name
+    wanted = " or ".join(f"'{e}'" for e in marker.endings)
+    if records:
+        seen = ", ".join(f"{name!r} ({media_type})" for name, media_type in records)
+        what = f"{ref} was stored as {seen}, not checked as a {wanted} file"
+    else:
+        what = f"{ref} is not an uploaded {wanted} file (no upload or import stored it)"
+    raise ValueError(f"{what}{'; ' + marker.hint if marker.hint else ''}")
+
+
 #: A whole-job reference field: ``job:<id>`` (a dataset, a set of tables, a run).
 JobRef = Annotated[str, AfterValidator(_check_job_ref)]
 

@@ -11,7 +11,7 @@ from typing import Any
 
 from jobapi.context import media_type_for
 from jobapi.errors import SpecError
-from jobapi.params import JOB_REF, SHA_REF
+from jobapi.params import JOB_REF, SHA_REF, stored_as_fields, stored_format
 from service.settings import Settings
 from service.specs import SHORT_JOB_REF, ValidSpec, validate_spec
 from service.workers.backend import start_backend
@@ -57,9 +57,31 @@ def check_refs(spec: ValidSpec, jobs: JobStore, store: ArtifactStore) -> None:
         if m and not store.exists(m["digest"]):
             errors.append((loc, f"{value}: no such object in the store"))
     if not errors:
+        errors = _stored_as_errors(spec, jobs)
+    if not errors:
         errors = _external_model_errors(spec.params.model_dump(mode="json"), jobs, store)
     if errors:
         raise SpecError(errors)
+
+
+def _stored_as_errors(spec: ValidSpec, jobs: JobStore) -> list[tuple[str, str]]:
+    """A ref field marked :class:`jobapi.params.StoredAs` (``import.btf``'s ``archive``)
+    whose object was not checked as one of its formats when it was stored: refused before
+    queueing, from the store's upload records (the job checks again)."""
+    errors: list[tuple[str, str]] = []
+    for loc, ref, marker in stored_as_fields(spec.params):
+        if (m := SHA_REF.match(ref)) is not None:
+            digest = m["digest"]
+        elif (m := JOB_REF.match(ref)) is not None:
+            digest = jobs.artifact(m["job"], m["name"]).digest  # it exists: checked above
+        else:
+            continue
+        records = [(r.name, r.media_type) for r in jobs.upload_records(digest)]
+        try:
+            stored_format(ref, records, marker)
+        except ValueError as exc:
+            errors.append((loc, str(exc)))
+    return errors
 
 
 def _may_hold_refs(canonical: str) -> bool:

@@ -97,6 +97,16 @@ CREATE TABLE IF NOT EXISTS uploads (
     size INTEGER NOT NULL,
     created_at REAL NOT NULL
 );
+-- Every format an uploaded object was validated as (one row per media type, the first
+-- name it was uploaded under): the same bytes can pass two validators (a PNG with a zip
+-- appended is a valid .png and may be a valid .btf.zip), and ``uploads`` keeps only the
+-- first upload's record.
+CREATE TABLE IF NOT EXISTS upload_formats (
+    digest TEXT NOT NULL,
+    media_type TEXT NOT NULL,
+    name TEXT NOT NULL,
+    PRIMARY KEY (digest, media_type)
+);
 """
 
 
@@ -385,12 +395,35 @@ class JobStore(JobListing):
         return self.get(job_id)
 
     def record_upload(self, digest: str, name: str, media_type: str, size: int) -> None:
+        """Record an object that was validated as a file called ``name`` of ``media_type``
+        (:func:`service.submission.import_file`); the first upload of a digest names it, and
+        each format it passed is kept (:meth:`upload_records`)."""
         with self._write() as db:
             db.execute(
                 "INSERT OR IGNORE INTO uploads (digest, name, media_type, size, "
                 "created_at) VALUES (?,?,?,?,?)",
                 (digest, name, media_type, size, self._clock()),
             )
+            db.execute(
+                "INSERT OR IGNORE INTO upload_formats (digest, media_type, name) VALUES (?,?,?)",
+                (digest, media_type, name),
+            )
+
+    def upload_records(self, digest: str) -> list[ArtifactRecord]:
+        """Every record of ``digest`` as an upload: one per format it was validated as when
+        it was stored (the first name it was uploaded under); ``[]`` for an
+        object no upload or ``matforge import`` stored."""
+        rows = (
+            self._conn()
+            .execute(
+                "SELECT u.name, u.digest, u.size, u.media_type FROM uploads u WHERE u.digest=? "
+                "UNION SELECT f.name, f.digest, u.size, f.media_type FROM upload_formats f "
+                "JOIN uploads u ON u.digest = f.digest WHERE f.digest=?",
+                (digest, digest),
+            )
+            .fetchall()
+        )
+        return [ArtifactRecord(**dict(r)) for r in rows]
 
     # -- leasing -------------------------------------------------------------------------
     def claim(self, worker: str, lease_seconds: float, job_id: str | None = None) -> Job | None:

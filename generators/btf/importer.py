@@ -16,7 +16,7 @@ import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -26,15 +26,24 @@ from generators.btf.kind import summarize
 from generators.btf.preview import PreviewCollector
 from jobapi.errors import FormatError, JobFailed, TooLargeError
 from jobapi.kinds import Figure, Kind, register
-from jobapi.params import Ref, StrictModel
+from jobapi.params import Ref, StoredAs, StrictModel
 from materials.btf.directions import check_pairs, pair_count_label, to_vector
 from storage.formats.btf import BtfIndexDocument, index_document, shard_name, write_shard
 from storage.formats.btf_folder import SliceEntry, SliceFolder
 from storage.formats.npz import MAX_NPZ_BYTES
-from storage.formats.ubo_btf import UboBtf, check_pixels, sniff
+from storage.formats.ubo_btf import UboBtf, check_pixels
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
+
+
+#: What ``archive`` must have been stored as: the upload check of a ``.btf.zip`` (the slice
+#: folder, :func:`storage.formats.btf_folder.validate_btf_archive`) or of a Bonn ``.btf``.
+ARCHIVE = StoredAs(
+    (".btf.zip", ".btf"),
+    hint="upload the slice folder as '<name>.btf.zip' (`matforge import DIR` packs a folder) "
+    "or a Bonn file as '<name>.btf'",
+)
 
 
 class ImportBtfParams(StrictModel):
@@ -46,11 +55,12 @@ class ImportBtfParams(StrictModel):
          "png": "srgb", "scale": 1.0}}
     """
 
-    archive: Ref = Field(
+    archive: Annotated[Ref, ARCHIVE] = Field(
         description="The slice folder as an uploaded '<name>.btf.zip' (`matforge import DIR` "
         "packs a directory): images plus angles.csv (file,theta_i,phi_i,theta_o,phi_o) or "
-        "angles.json, angles in degrees; or a Bonn '.btf' file (UBO2014's DFMF, or FMF), "
-        "recognised by its signature."
+        "angles.json, angles in degrees; or an uploaded Bonn '<name>.btf' file (UBO2014's "
+        "DFMF, or FMF). Only an object checked as one of these when it was stored is read: "
+        "the store's record of its upload decides, not its bytes."
     )
     png: Literal["srgb", "linear"] = Field(
         default="srgb", description="How PNG slices are encoded: 'srgb' (decoded) or 'linear'."
@@ -137,13 +147,16 @@ def check_shard_size(per: int, resolution: tuple[int, int], dtype: str) -> None:
 def run_import_btf(params: ImportBtfParams, ctx: JobContext) -> None:
     """Check the folder, convert its images shard by shard, write the index and preview.
 
-    Before any pixel is decoded: every image's header is read, and the pixels of all of
-    them together must stay within the operator's cap (``ctx.limits.archive_pixels``,
-    ``MATFORGE_ARCHIVE_MPIX``), whatever way the archive reached the store; and a shard
+    The archive is read as what its upload was checked as (``archive``'s :data:`ARCHIVE`:
+    a slice folder for a ``.btf.zip``, a Bonn file for a ``.btf``), from the store's record,
+    and refused naming the field when it was stored as anything else. Before any pixel is
+    decoded: every image's header is read, and the pixels of all of them together must
+    stay within the operator's cap (``ctx.limits.archive_pixels``,
+    ``MATFORGE_ARCHIVE_MPIX``), whatever cap the archive was stored under; and a shard
     must fit the shard readers' limit."""
+    stored_as, label = ctx.stored_format(params.archive, "archive", ARCHIVE)
     path = ctx.resolve(params.archive)
-    label = ctx.ref_record(params.archive).name
-    if sniff(path):
+    if stored_as == ".btf":
         run_import_ubo(params, ctx, path, label)
         return
     try:

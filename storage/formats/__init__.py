@@ -92,6 +92,29 @@ COMPOUND_VALIDATORS: dict[str, FileFormat] = {
 }
 
 
+def format_for(name: str) -> tuple[str, FileFormat] | None:
+    """The format :func:`validate_file` checks a file called ``name`` as: its ending (a key
+    of :data:`COMPOUND_VALIDATORS`, else of :data:`VALIDATORS`) and the format; ``None``
+    for an unsupported name."""
+    lower = name.lower()
+    for end, compound in COMPOUND_VALIDATORS.items():
+        if lower.endswith(end):
+            return end, compound
+    suffix = Path(name).suffix.lower()
+    fmt = VALIDATORS.get(suffix)
+    return (suffix, fmt) if fmt is not None else None
+
+
+def validated_as(name: str, media_type: str) -> str | None:
+    """The ending (``".btf.zip"``, ``".png"``, ...) of the format an upload recorded as
+    ``name`` with ``media_type`` was validated as when it was stored (the record of
+    :func:`validate_file`'s answer), or ``None`` when the record is not one it gives."""
+    found = format_for(name)
+    if found is None or found[1].media_type != media_type:
+        return None
+    return found[0]
+
+
 def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = None) -> str:
     """Validate a user's file and return its media type.
 
@@ -113,14 +136,13 @@ def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = Non
     TooLargeError
         An archive whose images decode to more than ``max_archive_pixels``.
     """
-    lower = name.lower()
-    suffix = Path(name).suffix.lower()
-    compound = next((f for end, f in COMPOUND_VALIDATORS.items() if lower.endswith(end)), None)
-    fmt = compound or VALIDATORS.get(suffix)
-    if fmt is None:
+    found = format_for(name)
+    if found is None:
+        suffix = Path(name).suffix.lower()
         known = ", ".join(sorted(VALIDATORS))
         shown = f"'{suffix}'" if suffix else "(no extension)"
         raise FormatError(name, f"unsupported file type {shown}; known: {known}")
+    fmt = found[1]
     if fmt.pixel_cap and max_archive_pixels is not None:
         fmt.validate(Path(path), name, max_pixels=max_archive_pixels)
     else:
@@ -133,6 +155,8 @@ __all__ = [
     "VALIDATORS",
     "FileFormat",
     "FormatError",
+    "format_for",
     "validate_file",
+    "validated_as",
     "validate_json",
 ]

@@ -54,6 +54,15 @@ MAX_THETA = 89.0
 #: 151 x 151 slices of 400 x 400, is 3650 Mpix); checked from the headers before any pixel
 #: is decoded.
 MAX_ARCHIVE_PIXELS = 64_000_000
+#: The most slices an angle list may list (a whole UBO2014 material is 151 x 151 = 22801).
+MAX_SLICES = 1 << 16
+#: The most bytes an angle list may hold (about 64 bytes a slice): checked from the zip
+#: directory (or the file's size) before it is read, and read no further than that.
+MAX_LIST_BYTES = 64 * MAX_SLICES
+#: The most lines ``angles.csv`` may have, blank ones included: a list's parsed rows cost
+#: about 64 bytes of Python objects a line even when blank (a 20 KB deflated list of blank
+#: lines took a worker from 393 to 2,032 MiB when it was read whole).
+MAX_LIST_LINES = MAX_SLICES + 1
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 #: The most bytes one image member of an archive may inflate to: the largest image read
 #: (:data:`~storage.formats.exr.MAX_PIXELS`) as uncompressed float32 RGBA, plus 1 MiB of
@@ -77,11 +86,26 @@ class SliceEntry:
 
 
 def _parse_csv(text: str, label: str) -> list[SliceEntry]:
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows or tuple(c.strip() for c in rows[0]) != COLUMNS:
-        raise FormatError(label, f"the first line must be the header {','.join(COLUMNS)}")
+    lines = text.count("\n") + (not text.endswith("\n"))
+    if lines > MAX_LIST_LINES:
+        raise FormatError(
+            label,
+            f"has {lines} lines, over the limit of {MAX_LIST_LINES} (a header and at most "
+            f"{MAX_SLICES} slices)",
+        )
+    rows = csv.reader(io.StringIO(text))  # row by row: only the entries are kept
+    try:
+        header = next(rows, None)
+        if header is None or tuple(c.strip() for c in header) != COLUMNS:
+            raise FormatError(label, f"the first line must be the header {','.join(COLUMNS)}")
+        return _csv_entries(rows, label)
+    except csv.Error as exc:
+        raise FormatError(label, f"line {rows.line_num}: {exc}") from None
+
+
+def _csv_entries(rows: Iterator[list[str]], label: str) -> list[SliceEntry]:
     out = []
-    for k, row in enumerate(rows[1:], start=2):
+    for k, row in enumerate(rows, start=2):
         if not row or all(not c.strip() for c in row):
             continue
         if len(row) != 5:
@@ -95,6 +119,14 @@ def _parse_csv(text: str, label: str) -> list[SliceEntry]:
 
 
 def _parse_json(text: str, label: str) -> list[SliceEntry]:
+    # Every entry is an object: more brackets than slices can only be a list of other
+    # things, each a Python object once parsed (counted before parsing).
+    containers = text.count("{") + text.count("[")
+    if containers > MAX_SLICES + 2:
+        raise FormatError(
+            label, f"has {containers} JSON objects and lists, more than a list of at most "
+            f"{MAX_SLICES} slices has"
+        )  # fmt: skip
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -184,7 +216,7 @@ class SliceFolder:
         self.list_name = lists[0]
         parent = PurePosixPath(self.list_name).parent
         self.root = "" if str(parent) == "." else f"{parent}/"
-        text = self._read_bytes(self.list_name).decode("utf-8", errors="strict")
+        text = self._read_list(self.list_name)
         list_label = f"{self.label}: {self.list_name}"
         parse = _parse_csv if self.list_name.endswith(".csv") else _parse_json
         self.entries = parse(text, list_label)
@@ -209,10 +241,35 @@ class SliceFolder:
         self.resolution: tuple[int, int] | None = None
 
     # -- access ----------------------------------------------------------------------------
-    def _read_bytes(self, member: str) -> bytes:
+    def _read_list(self, member: str) -> str:
+        """The angle list's text, at most :data:`MAX_LIST_BYTES` (its size is checked from
+        the zip directory, or the file, before a byte is read); the upload check and the
+        job read it with this one function."""
+        label = f"{self.label}: {member}"
         if self._zip is not None:
-            return self._zip.read(member)
-        return (self.path / member).read_bytes()
+            size = self._zip.getinfo(member).file_size
+        else:
+            size = (self.path / member).stat().st_size
+        if size > MAX_LIST_BYTES:
+            raise FormatError(
+                label, f"holds {size} bytes, over the limit of {MAX_LIST_BYTES} bytes for an "
+                f"angle list (at most {MAX_SLICES} slices)"
+            )  # fmt: skip
+        try:
+            if self._zip is not None:
+                with self._zip.open(member) as fh:
+                    data = fh.read(MAX_LIST_BYTES + 1)
+            else:
+                with open(self.path / member, "rb") as fh:
+                    data = fh.read(MAX_LIST_BYTES + 1)
+        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+            raise FormatError(label, f"unreadable: {exc}") from None
+        if len(data) > MAX_LIST_BYTES:
+            raise FormatError(label, f"holds more than {MAX_LIST_BYTES} bytes")
+        try:
+            return data.decode("utf-8", errors="strict")
+        except UnicodeDecodeError as exc:
+            raise FormatError(label, f"is not UTF-8 text (byte {exc.start})") from None
 
     def _local(self, entry: SliceEntry) -> Path:
         member = self.root + entry.file
