@@ -20,7 +20,13 @@ from rich.table import Table
 from rich.text import Text
 
 from service.cli.client import BadInput
-from service.cli.fetch_output import Fill, Write, write_stream, write_verified
+from service.cli.fetch_output import (
+    Fill,
+    Write,
+    check_subfolders,
+    write_stream,
+    write_verified,
+)
 from service.cli.state import out_console, print_json, print_line, state_of
 from storage.errors import FormatError, IntegrityError, NotFoundError
 from storage.formats.btf_folder import pack_folder
@@ -153,6 +159,7 @@ def fetch_many(
         rel = Path(name)
         if rel.is_absolute() or ".." in rel.parts:
             raise FormatError(name, "an artifact name that leaves the directory")
+        check_subfolders(out_dir, rel)
         dest = out_dir / rel
         dest.parent.mkdir(parents=True, exist_ok=True)
         return dest
@@ -275,7 +282,9 @@ def fetch(
     A file is written atomically once verified, with the mode your umask gives new files.
     A FIFO or a terminal is written in place (never replaced), and so is stdout (``-o -``),
     once the bytes were verified; a digest mismatch exits 1 with nothing written. Block
-    devices and sockets are refused (exit 2).
+    devices and sockets are refused (exit 2). A symbolic link is never written through or
+    replaced: one to a FIFO or a terminal is written in place, any other (a dangling one
+    too) is refused (exit 2), and so is a link among the sub-folders of a whole job's.
     """
     # A str, not a Path: a trailing "/" (a directory to create) must survive.
     output = Path(output_arg)

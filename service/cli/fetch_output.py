@@ -12,12 +12,25 @@ Every byte is checked against its digest before any reaches the destination:
   stdout before the error);
 - a block device, a socket or anything else is refused (:class:`BadInput`, exit 2).
 
-A symbolic link is followed: the file it names is what gets written (or replaced).
+**A symbolic link is never written through, nor replaced** (fetch replaces only what it
+could have made: a regular file). The destination is looked at with ``lstat``: a link to a
+FIFO or a terminal (``/dev/stdout``) is written in place, as the FIFO itself would be;
+any other link, a dangling one included, is refused with exit 2, naming the link and
+where it points, and nothing is written (a link planted at ``/tmp/x.png`` pointing at
+``~/.bashrc`` used to have ``~/.bashrc`` replaced, and a dangling one had its target
+created). The temporary file is created with ``O_EXCL | O_NOFOLLOW``, the destination is
+looked at again just before the rename, and the rename itself replaces a name, never what
+a link there points to. A folder named by ``-o`` (or a sub-folder of an artifact's name
+under it) is not a destination file: ``-o DIR`` may be a link to a directory, but the
+sub-folders fetch creates under it for a whole job must not be links
+(:func:`check_subfolders`).
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import secrets
 import shutil
 import stat
 import tempfile
@@ -60,11 +73,49 @@ def _target_type(path: Path) -> str | None:
         return None
 
 
+def _lstat_type(path: Path) -> str | None:
+    """The type of ``path`` itself (a link is ``symbolic link``), or ``None`` if nothing
+    is there."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return None
+    return "symbolic link" if stat.S_ISLNK(mode) else file_type(mode)
+
+
 def _refuse(path: Path, what: str) -> BadInput:
     return BadInput(
         f"{path}: is a {what}; fetch writes regular files, FIFOs, terminals (character "
         "devices) and stdout (-o -) only"
     )
+
+
+def _refuse_link(path: Path) -> BadInput:
+    try:
+        points = os.readlink(path)
+    except OSError:
+        points = "?"
+    what = _target_type(path)
+    to = f"a {what}" if what is not None else "nothing (a dangling link)"
+    return BadInput(
+        f"{path}: is a symbolic link to {points} ({to}); fetch never writes a file through a "
+        "link or replaces one (only a FIFO or a terminal a link points to is written in "
+        "place): remove the link, or give the path it points to"
+    )
+
+
+def check_subfolders(base: Path, rel: Path) -> None:
+    """Refuse (:class:`BadInput`) when a folder of ``rel`` (an artifact's name with
+    sub-folders) under ``base`` is a symbolic link: fetch creates those folders, and a
+    planted link would send the files elsewhere."""
+    here = base
+    for part in rel.parts[:-1]:
+        here = here / part
+        if here.is_symlink():
+            raise BadInput(
+                f"{here}: is a symbolic link; fetch writes a job's artifacts into folders it "
+                "creates under the output directory, never through a link"
+            )
 
 
 def spool(fill: Fill) -> tuple[BinaryIO, int]:
@@ -89,12 +140,20 @@ def write_stream(fill: Fill, out: BinaryIO) -> int:
     return size
 
 
-def _write_in_place(path: Path, fill: Fill) -> int:
+def _write_in_place(path: Path, fill: Fill, *, follow: bool) -> int:
     buf, size = spool(fill)
     with buf:
         # No O_CREAT, no rename: the FIFO or device itself is opened (a FIFO waits here for
-        # its reader). O_NOCTTY: a terminal does not become our controlling one.
-        fd = os.open(path, os.O_WRONLY | os.O_NOCTTY)
+        # its reader). O_NOCTTY: a terminal does not become our controlling one. O_NOFOLLOW
+        # unless the destination was a link to a FIFO or terminal: a link put in its place
+        # meanwhile is not opened.
+        flags = os.O_WRONLY | os.O_NOCTTY | (0 if follow else os.O_NOFOLLOW)
+        try:
+            fd = os.open(path, flags)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:  # a link appeared where the FIFO was
+                raise _refuse_link(path) from None
+            raise
         with os.fdopen(fd, "wb") as out:
             what = file_type(os.fstat(out.fileno()).st_mode)
             if what not in _IN_PLACE:  # replaced since we looked: write nothing
@@ -103,30 +162,52 @@ def _write_in_place(path: Path, fill: Fill) -> int:
     return size
 
 
+def _private_temp(path: Path) -> tuple[int, Path]:
+    """A new file beside ``path`` only this process made: ``O_CREAT | O_EXCL | O_NOFOLLOW``
+    (never opened through a link), mode 0600 until it is complete."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.part"
+        try:
+            return os.open(tmp, flags, 0o600), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path.parent}: no free temporary name for {path.name}")
+
+
 def _write_atomic(path: Path, fill: Fill, mode: int) -> int:
-    real = Path(os.path.realpath(path))
-    real.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=real.parent, prefix=f".{real.name}.", suffix=".part")
-    tmp = Path(tmp_name)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = _private_temp(path)
+    made = True
     try:
         with os.fdopen(fd, "wb") as out:
             size = fill(out.write)
-        os.chmod(tmp, mode)
-        what = _target_type(real)
-        if what not in (None, "regular file"):  # appeared while we downloaded
+            os.fchmod(out.fileno(), mode)
+        what = _lstat_type(path)  # again: something may have appeared while we downloaded
+        if what == "symbolic link":
+            raise _refuse_link(path)
+        if what not in (None, "regular file"):
             raise _refuse(path, what)
-        os.replace(tmp, real)
+        os.replace(tmp, path)  # replaces the name: never what a link there points to
+        made = False
     finally:
-        tmp.unlink(missing_ok=True)
+        if made:
+            tmp.unlink(missing_ok=True)
     return size
 
 
 def write_verified(path: Path, fill: Fill, *, mode: int) -> int:
     """Write an object's verified bytes to ``path`` (see the module docstring); returns the
-    size. ``mode``: the permissions of a new or replaced regular file."""
-    what = _target_type(path)
+    size. ``mode``: the permissions of a new or replaced regular file. A symbolic link at
+    ``path`` is written through only to a FIFO or a terminal; any other link is refused
+    (:class:`BadInput`) with nothing written."""
+    what = _lstat_type(path)
+    if what == "symbolic link":
+        if _target_type(path) in _IN_PLACE:
+            return _write_in_place(path, fill, follow=True)
+        raise _refuse_link(path)
     if what in (None, "regular file"):
         return _write_atomic(path, fill, mode)
     if what in _IN_PLACE:
-        return _write_in_place(path, fill)
+        return _write_in_place(path, fill, follow=False)
     raise _refuse(path, what)

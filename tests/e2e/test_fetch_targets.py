@@ -1,9 +1,12 @@
-"""What ``matforge fetch -o PATH`` may write (issue 21, items 4 and 12).
+"""What ``matforge fetch -o PATH`` may write (issue 21, items 4 and 12; symbolic links).
 
 ``fetch`` used to rename its temporary file over whatever PATH was: as root, ``-o /dev/null``
 turned the device into a regular file. Now a FIFO (or a terminal) is written in place once
 the bytes are verified, a socket is refused with exit 2, and a regular file is replaced
 atomically. A corrupt object writes nothing, to a file, a FIFO or stdout (``-o -``).
+A symbolic link is never written through nor replaced, except that a link to a FIFO (or a
+terminal) is written in place: a planted ``x.png -> ~/.bashrc`` used to have the file it
+names replaced, and a dangling link had its target created; both are refused, exit 2.
 
 Never tested against ``/dev/null`` or any other device: a FIFO in a temporary directory
 stands in for one (a failing run can only break the test's own FIFO).
@@ -179,3 +182,33 @@ def test08_stdout_gets_verified_bytes(local: tuple[Path, str, bytes]) -> None:
     proc = _fetch(ref, "-o", "-", "--data-dir", str(data_dir), env=base_env())
     assert proc.returncode == 0, proc.stderr
     assert hashlib.sha256(proc.stdout).hexdigest() == hashlib.sha256(data).hexdigest()
+
+
+def test09_a_link_to_a_regular_file_is_refused_with_exit_2(
+    local: tuple[Path, str, bytes], tmp_path: Path
+) -> None:
+    """The planted ``/tmp/x.png -> ~/.bashrc``, in a temporary directory."""
+    data_dir, ref, _ = local
+    victim = tmp_path / "bashrc"
+    victim.write_bytes(b"the user's own file")
+    link = tmp_path / "x.png"
+    link.symlink_to(victim)
+    proc = _fetch(ref, "-o", str(link), "--data-dir", str(data_dir), env=base_env())
+    assert proc.returncode == 2, proc.stderr
+    assert f"{link}: is a symbolic link to {victim}".encode() in proc.stderr, proc.stderr
+    assert victim.read_bytes() == b"the user's own file"
+    assert link.is_symlink() and os.readlink(link) == str(victim)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bashrc", "x.png"]  # no temp left
+
+
+def test10_a_dangling_link_is_refused_and_its_target_not_created(
+    local: tuple[Path, str, bytes], tmp_path: Path
+) -> None:
+    data_dir, ref, _ = local
+    target = tmp_path / "not-yet"
+    link = tmp_path / "x.png"
+    link.symlink_to(target)
+    proc = _fetch(ref, "-o", str(link), "--data-dir", str(data_dir), env=base_env())
+    assert proc.returncode == 2, proc.stderr
+    assert b"a dangling link" in proc.stderr, proc.stderr
+    assert not target.exists() and link.is_symlink()
