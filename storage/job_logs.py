@@ -5,6 +5,12 @@ progress messages as the heartbeat publishes them, the log records of the proces
 runs the job (warnings, and whatever the process logs at its level), and the end (state,
 error). Every attempt appends, so a job re-queued after its worker died shows both runs.
 
+A log is for the users of the service, not only its operator: the server's file system
+paths are written without their folders (:func:`scrub_paths`). A traceback keeps its frames,
+each named relative to the package root (``service/workers/execution.py``, line 123), to
+its ``site-packages`` or standard-library folder (``numpy/...``, ``json/decoder.py``);
+the data directory reads ``<data-dir>``, the temporary folder ``<tmp>``.
+
 Lines are appended with ``O_APPEND`` (one ``write`` each, so lines of two writers never
 interleave within a line) and a log stops growing at :data:`MAX_LOG_BYTES` with one last
 line saying so: a chatty runner cannot fill the disk. Reading never fails for a job that
@@ -13,8 +19,12 @@ has not logged yet: the log is then empty.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
+import sys
+import sysconfig
+import tempfile
 import time
 from pathlib import Path
 
@@ -22,6 +32,44 @@ from pathlib import Path
 MAX_LOG_BYTES = 1 << 20
 _ID = re.compile(r"^[0-9a-f]{32}$")
 _DROPPED = "[log truncated: over {limit} bytes; later lines were dropped]\n"
+
+
+#: The folder our top-level packages (``service``, ``storage``, ...) sit in.
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+
+
+@functools.lru_cache(maxsize=16)
+def _prefixes(data_dir: str | None) -> tuple[tuple[str, str], ...]:
+    """``(folder + "/", what it is written as)``, longest first: the package root and the
+    import folders (standard library, ``site-packages``, ``sys.path``) as nothing, the data
+    directory as ``<data-dir>/``, the temporary folder as ``<tmp>/``; each as given and
+    resolved."""
+    pairs: dict[str, str] = {}
+
+    def add(folder: str | Path, shown: str) -> None:
+        for form in {str(folder), str(Path(folder).resolve())}:
+            if os.path.isabs(form) and len(form) > 1:
+                pairs.setdefault(form.rstrip("/") + "/", shown)
+
+    add(PACKAGE_ROOT, "")
+    if data_dir is not None:
+        add(data_dir, "<data-dir>/")
+    add(tempfile.gettempdir(), "<tmp>/")
+    for folder in (*sysconfig.get_paths().values(), *sys.path, sys.prefix, sys.base_prefix):
+        if folder and os.path.isabs(folder):
+            add(folder, "")
+    return tuple(sorted(pairs.items(), key=lambda kv: -len(kv[0])))
+
+
+def scrub_paths(text: str, data_dir: Path | None = None) -> str:
+    """``text`` with the server's folders taken out of every path in it (a traceback's
+    ``File "/srv/matforge/service/workers/execution.py"`` reads
+    ``File "service/workers/execution.py"``; see the module docstring). Longer folders are
+    replaced first, so a data directory inside the package root reads ``<data-dir>``."""
+    for folder, shown in _prefixes(None if data_dir is None else str(data_dir)):
+        if folder in text:
+            text = text.replace(folder, shown)
+    return text
 
 
 def log_dir(data_dir: Path) -> Path:
@@ -39,9 +87,11 @@ class JobLog:
         self.max_bytes = max_bytes
 
     def write(self, text: str) -> None:
-        """Append ``text`` as lines, each stamped with the UTC time. Never raises: a log
-        that cannot be written must not fail the job it describes."""
+        """Append ``text`` as lines, each stamped with the UTC time, without the server's
+        folders (:func:`scrub_paths`; the data directory is the log folder's parent).
+        Never raises: a log that cannot be written must not fail the job it describes."""
         stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        text = scrub_paths(text, self.path.parent.parent)
         lines = "".join(f"{stamp} {line}\n" for line in text.rstrip("\n").split("\n"))
         data = lines.encode("utf-8", "replace")
         if len(data) > self.max_bytes // 4:  # one huge message: keep its start

@@ -78,3 +78,34 @@ def test03_a_crash_leaves_its_full_traceback_in_the_log(toy_kind, settings) -> N
     assert "Traceback (most recent call last):" in text
     assert "RuntimeError: boom in the runner" in text and "in crash" in text
     assert text.rstrip().endswith(f"attempt 1: failed: {job.error}")
+
+
+def test04_a_traceback_names_files_without_the_servers_folders(toy_kind, settings) -> None:
+    """Frames are named relative to the package root (``service/workers/execution.py``),
+    the standard library's or ``site-packages``' folder; a path in the data directory
+    reads ``<data-dir>``. The log used to carry the server's absolute paths; the traceback
+    itself stays (the contract: a crash's traceback is in the log)."""
+    from storage.job_logs import PACKAGE_ROOT
+
+    where = settings.data_dir / "store" / "objects" / "ab"
+
+    def crash(params, ctx: JobContext) -> None:
+        import json
+
+        try:
+            json.loads("{")  # a frame in the standard library
+        except ValueError as exc:
+            raise RuntimeError(f"boom reading {where}") from exc
+
+    object.__setattr__(toy_kind, "runner", crash)
+    job = run_in_process({"kind": "toy", "params": {"n": 1}}, settings)
+    assert job.state == "failed"
+    with TestClient(create_app(settings)) as client:
+        text = client.get(f"/api/jobs/{job.id}/logs").text
+    assert "Traceback (most recent call last):" in text
+    assert 'File "service/workers/execution.py", line ' in text, text
+    assert 'File "tests/integration/test_job_logs.py", line ' in text, text
+    assert 'File "json/decoder.py", line ' in text, text
+    assert "RuntimeError: boom reading <data-dir>/store/objects/ab" in text, text
+    for folder in (PACKAGE_ROOT, settings.data_dir.resolve(), sys.prefix, sys.base_prefix):
+        assert f"{folder}/" not in text, (folder, text)
