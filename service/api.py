@@ -164,7 +164,15 @@ def _http_error(request: Request, exc: Exception) -> Response:
     detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
     if exc.status_code == 404 and detail == "Not Found":
         detail = f"no route {request.method} {request.url.path}"
+    if exc.status_code == 400 and detail == _BODY_UNPARSED:
+        # A JSON body FastAPI reads for a route (PATCH /api/jobs/{id}) that is not UTF-8:
+        # bad input like any other body that does not parse (a JSON syntax error is a 422).
+        return error_response(request, 422, "body: not a JSON document (not UTF-8 text)")
     return error_response(request, exc.status_code, detail, headers=exc.headers)
+
+
+#: FastAPI's 400 for a route's JSON body it could not decode (bytes that are not UTF-8).
+_BODY_UNPARSED = "There was an error parsing the body"
 
 
 def _busy_error(request: Request, exc: Exception) -> Response:
@@ -247,6 +255,15 @@ def _document_kind_filter(doc: dict[str, Any], names: list[str]) -> None:
             }
 
 
+def _document_step_kinds(schemas: dict[str, Any], names: list[str]) -> None:
+    """A batch step's ``spec.kind`` (``POST /api/results/batch``) is one of the registered
+    kinds, as the route checks."""
+    spec = schemas.get("BatchStep", {}).get("properties", {}).get("spec", {})
+    kind = spec.get("properties", {}).get("kind")
+    if kind is not None and names:
+        kind["enum"] = names
+
+
 def build_openapi(app: FastAPI) -> dict[str, Any]:
     """The OpenAPI document, with every kind's params schema and the job spec body as a
     ``oneOf`` over kinds (discriminated by ``kind``)."""
@@ -283,6 +300,7 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
     else:
         schemas["JobCreate"] = base
     _document_kind_filter(doc, sorted(refs))
+    _document_step_kinds(schemas, sorted(refs))
     doc.setdefault("components", {})["securitySchemes"] = {
         "bearer": {
             "type": "http",

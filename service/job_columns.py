@@ -32,7 +32,19 @@ from jobapi.errors import SpecError
 
 #: A column key: ``params.`` or ``metric.`` and a dotted path of names.
 KEY = re.compile(r"^(params|metric)\.[A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*$")
-_FILTER = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(<=|>=|!=|=|<|>)\s*(.*?)\s*$", re.DOTALL)
+_KEY_BODY = r"(?:params|metric)\.[A-Za-z0-9_\-]+(?:\.[A-Za-z0-9_\-]+)*"
+#: A number an order filter (``<``, ``<=``, ``>``, ``>=``) compares with.
+_NUMBER = r"[+\-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+\-]?[0-9]+)?"
+_FILTER_BODY = (
+    rf" *({_KEY_BODY}) *(?:(=|!=) *([^ ][\s\S]*)|(<=|>=|<|>) *({_NUMBER}) *)"
+)  # fmt: skip
+#: What a filter is, as the OpenAPI document states it (``GET /api/jobs?filter=``): the one
+#: rule :func:`parse_filters` applies, so a filter the schema allows is never refused. ECMA
+#: and Python read it alike (no ``.``, ``\d`` or ``\w``; matched whole).
+FILTER_PATTERN = f"^{_FILTER_BODY}$"
+_FILTER = re.compile(_FILTER_BODY)
+#: A looser reading of a filter that fails :data:`FILTER_PATTERN`, to say what is wrong.
+_LOOSE = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(<=|>=|!=|=|<|>)\s*(.*?)\s*$", re.DOTALL)
 _ORDER: dict[str, Callable[[float, float], bool]] = {
     "<": operator.lt,
     "<=": operator.le,
@@ -115,24 +127,35 @@ def parse_filters(texts: Iterable[str], where: str = "query.filter") -> list[Job
     and the text for one that does not parse."""
     out = []
     for text in texts:
-        m = _FILTER.match(text)
-        if m is None or not m[3]:
-            raise SpecError(
-                [
-                    (
-                        where,
-                        f"{text!r} is not a filter: use <column><op><value> with op one of "
-                        "=, !=, <, <=, >, >= (e.g. params.model=hybrid, metric.smape_mean<0.1)",
-                    )
-                ]
-            )
-        key = check_key(m[1], where)
-        if m[2] in _ORDER and _number(m[3]) is None:
-            raise SpecError([(where, f"{text!r}: {m[2]} needs a number, got {m[3]!r}")])
-        out.append(JobFilter(key, m[2], m[3]))
+        m = _FILTER.fullmatch(text)
+        if m is None:
+            raise _not_a_filter(text, where)
+        if m[2] is not None:
+            out.append(JobFilter(m[1], m[2], m[3].rstrip(" ")))
+        else:
+            out.append(JobFilter(m[1], m[4], m[5]))
     if len(out) > MAX_KEYS:
         raise SpecError([(where, f"at most {MAX_KEYS} filters")])
     return out
+
+
+def _not_a_filter(text: str, where: str) -> SpecError:
+    """What is wrong with ``text``, which does not match :data:`FILTER_PATTERN`."""
+    m = _LOOSE.match(text)
+    if m is not None and m[3]:
+        check_key(m[1], where)  # raises naming the column
+        if m[2] in _ORDER:
+            return SpecError([(where, f"{text!r}: {m[2]} needs a number, got {m[3]!r}")])
+    return SpecError(
+        [
+            (
+                where,
+                f"{text!r} is not a filter: use <column><op><value> with op one of "
+                "=, !=, <, <=, >, >= (e.g. params.model=hybrid, metric.smape_mean<0.1); "
+                "an order (<, <=, >, >=) takes a decimal number",
+            )
+        ]
+    )
 
 
 def param_value(spec: Mapping[str, Any], key: str) -> Any:

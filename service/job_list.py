@@ -11,10 +11,11 @@ from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, Query
+from pydantic import WithJsonSchema
 
 from jobapi.errors import SpecError
 from service import kinds
-from service.job_columns import JobFilter, parse_filters, parse_keys
+from service.job_columns import FILTER_PATTERN, JobFilter, parse_filters, parse_keys
 from service.schemas import JobState
 from storage.job_queries import JOB_SORTS
 
@@ -36,6 +37,11 @@ class JobListQuery:
     columns: tuple[str, ...] = ()
     filters: tuple[JobFilter, ...] = ()
     tag: str | None = None
+
+
+#: One ``filter``: its rule in the OpenAPI document (:data:`FILTER_PATTERN`), checked by
+#: :func:`parse_filters`, whose refusal names it (a schema-valid filter is never a 422).
+FilterText = Annotated[str, WithJsonSchema({"type": "string", "pattern": FILTER_PATTERN})]
 
 
 def _unknown(filter_name: str, value: str, known: list[str]) -> SpecError:
@@ -87,12 +93,12 @@ def job_list_query(
         ),
     ] = None,
     filter: Annotated[
-        list[str] | None,
+        list[FilterText] | None,
         Query(
             max_length=16,
             description="only jobs whose value passes `<column><op><value>` "
-            "(op: = != < <= > >=; repeatable, all must pass), e.g. `params.model=hybrid`, "
-            "`metric.smape_mean<0.1`",
+            "(op: = != < <= > >=, an order with a decimal number; spaces around allowed; "
+            "repeatable, all must pass), e.g. `params.model=hybrid`, `metric.smape_mean<0.1`",
         ),
     ] = None,
     tag: Annotated[

@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    ConfigDict,
     Field,
     SerializerFunctionWrapHandler,
     StringConstraints,
@@ -54,6 +55,51 @@ class Rung(StrictModel):
     )
 
 
+def _null(*keys: str) -> dict[str, Any]:
+    return {k: {"type": "null"} for k in keys}
+
+
+def _given(*keys: str) -> dict[str, Any]:
+    return {k: {"not": {"type": "null"}} for k in keys}
+
+
+#: The two modes in the JSON schema (``oneOf``), so that a spec the schema allows is not
+#: refused for its mode: ``runs`` with none of the scene mode's fields (each absent or
+#: null), and not ``cost: frame_seconds``; or ``scene``, ``reference`` and ``ladder``
+#: without ``runs``, with an image metric, a cost measured there or a model's, no
+#: ``scene.material`` and no rung called ``reference``. What a schema cannot state stays a
+#: 422 naming the field: rung names listed twice, a model's cost for a rung that is no
+#: model, a rung's render over the path budget.
+_MODES: dict[str, Any] = {
+    "oneOf": [
+        {
+            "title": "runs",
+            "required": ["runs"],
+            "properties": {
+                **_given("runs"),
+                **_null("scene", "reference", "ladder"),
+                "cost": {"not": {"const": "frame_seconds"}},
+            },
+        },
+        {
+            "title": "scene",
+            "required": ["scene", "reference", "ladder"],
+            "properties": {
+                **_null("runs"),
+                **_given("scene", "reference", "ladder"),
+                "scene": {"not": {"anyOf": [{"type": "null"}, {"required": ["material"]}]}},
+                "ladder": {
+                    "type": "array",
+                    "items": {"properties": {"name": {"not": {"const": "reference"}}}},
+                },
+                "metric": {"enum": list(IMAGE_METRICS)},
+                "cost": {"enum": list(SCENE_COSTS)},
+            },
+        },
+    ]
+}
+
+
 class SelectParams(StrictModel):
     """Parameters of ``select``: either ``runs`` (rungs already scored), or ``scene``,
     ``reference`` and ``ladder`` (the job renders and scores them).
@@ -97,6 +143,8 @@ class SelectParams(StrictModel):
                      "roughconductor", "alpha": 0.2}}}],
          "metric": "flip", "target": 0.1}}
     """
+
+    model_config = ConfigDict(json_schema_extra=_MODES)
 
     runs: list[JobRef] | None = Field(
         default=None,

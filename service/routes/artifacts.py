@@ -24,6 +24,7 @@ from service.schemas import ErrorPublic, UploadPublic
 from service.submission import import_file
 from storage.artifacts import check_digest
 from storage.errors import TooLargeError
+from storage.formats import upload_name_pattern
 
 router = APIRouter(prefix="/api/artifacts", tags=["artifacts"], dependencies=[AuthDep])
 
@@ -223,7 +224,11 @@ async def upload(
             min_length=1,
             max_length=255,
             description="file name; its extension selects the format check (`.exr`, "
-            "`.binary`, ...)",
+            "`.binary`, ...; a compound ending first: `.btf.zip`, `.normal.png`), in any case",
+            # The names with a format, stated in the schema (checked by the route and
+            # `validate_file`, whose 422 names the file): a schema-valid name is never
+            # refused for its name.
+            json_schema_extra={"pattern": upload_name_pattern()},
         ),
     ],
 ) -> dict[str, Any]:

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
 from fastapi.responses import PlainTextResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
 from jobapi.context import LIVE_PREFIX
@@ -258,7 +258,11 @@ def get_job(job_id: JobId, jobs: JobsDep) -> Any:
 
 
 #: A tag: what ``matforge tag`` accepts (no spaces or commas, so lists stay readable).
-TAG = re.compile(r"^[A-Za-z0-9_.:+\-]{1,64}$")
+TAG_PATTERN = r"^[A-Za-z0-9_.:+\-]{1,64}$"
+TAG = re.compile(TAG_PATTERN)
+#: A tag in the OpenAPI document: the rule :func:`patch_job` checks (matched whole, as the
+#: schema means it), whose refusal names the tag (a schema-valid tag is never a 422).
+TagText = Annotated[str, WithJsonSchema({"type": "string", "pattern": TAG_PATTERN})]
 
 
 class JobPatch(BaseModel):
@@ -267,8 +271,8 @@ class JobPatch(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str | None = Field(default=None, max_length=200, description='a new name (`""`: no name)')
-    add_tags: list[str] = Field(default_factory=list, max_length=64, description="tags to add")
-    remove_tags: list[str] = Field(
+    add_tags: list[TagText] = Field(default_factory=list, max_length=64, description="tags to add")
+    remove_tags: list[TagText] = Field(
         default_factory=list, max_length=64, description="tags to remove"
     )
 
@@ -280,7 +284,7 @@ def patch_job(job_id: JobId, patch: JobPatch, jobs: JobsDep) -> Any:
     is 1 to 64 letters, digits or `_.:+-` (a 422 names the one that is not)."""
     for field_name in ("add_tags", "remove_tags"):
         for i, t in enumerate(getattr(patch, field_name)):
-            if not TAG.match(t):
+            if not TAG.fullmatch(t):
                 raise SpecError(
                     [
                         (

@@ -65,7 +65,12 @@ class BatchStep(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     name: str = Field(min_length=1, max_length=200)
-    spec: dict[str, Any]
+    spec: dict[str, Any] = Field(
+        description="the step's job spec, as `POST /api/jobs` takes it (`step:<name>` refs "
+        "to earlier steps allowed); its `kind` is one of the registered kinds",
+        # The kinds are filled in when the OpenAPI document is built (service.api).
+        json_schema_extra={"required": ["kind"], "properties": {"kind": {"type": "string"}}},
+    )
 
 
 class BatchQuery(BaseModel):

@@ -105,6 +105,22 @@ def format_for(name: str) -> tuple[str, FileFormat] | None:
     return (suffix, fmt) if fmt is not None else None
 
 
+def _any_case(text: str) -> str:
+    """``text`` as a regular expression that matches it in any ASCII case."""
+    return "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else "\\" + c for c in text)
+
+
+def upload_name_pattern() -> str:
+    """The names :func:`validate_file` knows a format for, as one regular expression (read
+    alike by ECMA-262 and Python, matched whole): a plain name (no ``/``, ``\\`` or control
+    characters) ending in a compound ending, or in an extension after at least one other
+    character (``.png`` alone is a hidden file with no extension); any case."""
+    plain = r"[^/\\\x00-\x1f]"
+    compound = "|".join(_any_case(end) for end in sorted(COMPOUND_VALIDATORS))
+    suffixes = "|".join(_any_case(ext[1:]) for ext in sorted(VALIDATORS))
+    return f"^(?:{plain}*(?:{compound})|{plain}+\\.(?:{suffixes}))$"
+
+
 def validated_as(name: str, media_type: str) -> str | None:
     """The ending (``".btf.zip"``, ``".png"``, ...) of the format an upload recorded as
     ``name`` with ``media_type`` was validated as when it was stored (the record of
@@ -156,6 +172,7 @@ __all__ = [
     "FileFormat",
     "FormatError",
     "format_for",
+    "upload_name_pattern",
     "validate_file",
     "validated_as",
     "validate_json",
