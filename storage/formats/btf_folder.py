@@ -14,8 +14,12 @@ sub-folder, and image paths are relative to it):
 
 Checks (each refusal names the archive and the file): exactly one angle list; every listed
 file present and an image of the common size; no image left unlisted; no pair of angles
-listed twice; angles in range. UBO2014's compressed ``.btf`` files themselves are read by
-:mod:`storage.formats.ubo_btf`.
+listed twice; angles in range; the list at most :data:`MAX_LIST_BYTES` and
+:data:`MAX_SLICES` slices (a CSV at most :data:`MAX_LIST_LINES` lines, blank ones
+included), checked before it is parsed; every member at most :data:`MAX_MEMBER_BYTES`
+inflated, checked from the zip directory before it is extracted. The upload check and the
+``import.btf`` job apply them with this one reader. UBO2014's compressed ``.btf`` files
+themselves are read by :mod:`storage.formats.ubo_btf`.
 """
 
 from __future__ import annotations
