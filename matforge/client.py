@@ -174,7 +174,9 @@ class Client(_RestClient):
     def fetch(self, ref: str, dest: str | os.PathLike[str] | None = None, mode: int = 0o644) -> Any:
         """An artifact, by ``job:<id>/<name>`` or ``sha256:<hex>``: its bytes (``dest``
         ``None``), or written to the file ``dest`` atomically, only once its bytes matched
-        the digest (returns the size). A mismatch raises :class:`ServerUnreachable`."""
+        the digest (returns the size). A mismatch raises :class:`ServerUnreachable`. A
+        symbolic link at ``dest`` is never written through nor replaced (one to a FIFO or
+        a terminal is written in place): :class:`BadInput`, with nothing written."""
         digest = self.resolve(ref)
         if dest is None:
             return self.read_bytes(digest, max_bytes=1 << 62)
