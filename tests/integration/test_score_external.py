@@ -109,9 +109,15 @@ def upload(path: Path, settings: Settings) -> str:
 
 
 def upload_test_model(name: str, tmp_path: Path, settings: Settings) -> str:
+    """A ``{"format": <the kind's MLP format>, "test_model": NAME}`` file, stored without the
+    upload check (it is no valid MLP file): the submission check reads its format, the
+    job's loader (:func:`fake_load_external`) its name."""
     path = tmp_path / f"{name}.json"
-    path.write_text(json.dumps({"test_model": name}))
-    return upload(path, settings)
+    fmt = f"matforge.mlp-{MODELS[name].kind}/1"
+    path.write_text(json.dumps({"format": fmt, "test_model": name}))
+    jobs, store = stores(settings)
+    record = import_file(path, jobs, store, validate=lambda _path, _name: "application/json")
+    return f"sha256:{record.digest}"
 
 
 def lambert_table(tmp_path: Path, settings: Settings) -> str:
