@@ -57,9 +57,9 @@ def save(model: onnx.ModelProto, path: Path) -> Path:
 
 
 def _brdf_model(
-    nodes: list[onnx.NodeProto], inits: list[onnx.TensorProto], name: str
+    nodes: list[onnx.NodeProto], inits: list[onnx.TensorProto], name: str, kind: str = "brdf"
 ) -> onnx.ModelProto:
-    inputs, out = _io("brdf")
+    inputs, out = _io(kind)
     graph = helper.make_graph(nodes, name, inputs, [out], inits)
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
 
@@ -100,10 +100,10 @@ def quadratic_bomb() -> onnx.ModelProto:
     return _brdf_model(nodes, inits, "quadratic_bomb")
 
 
-def runtime_width_model(width: int = 4) -> onnx.ModelProto:
-    """A BRDF whose output is ``[N, width]`` at run time although shape inference cannot tell:
-    the first ``width`` columns of ``concat(wi, wo)``, sliced to an end computed from the
-    inputs' values (``max(wi * 0) + width``). Its declared output is ``[N, C]``, a symbolic
+def runtime_width_model(width: int = 4, kind: str = "brdf") -> onnx.ModelProto:
+    """A ``kind`` model whose output is ``[N, width]`` at run time although shape inference
+    cannot tell: the first ``width`` columns of ``concat(wi, wo)``, sliced to an end computed
+    from the inputs' values (``max(wi * 0) + width``). Its declared output is ``[N, C]``, a symbolic
     last dimension (allowed; each evaluation checks it)."""
     inits = [
         numpy_helper.from_array(np.array([0.0], np.float32), "zero"),
@@ -121,7 +121,7 @@ def runtime_width_model(width: int = 4) -> onnx.ModelProto:
         helper.make_node("Cast", ["end_f"], ["end"], to=TensorProto.INT64),
         helper.make_node("Slice", ["both", "start", "end", "axis"], ["rgb"]),
     ]
-    model = _brdf_model(nodes, inits, "runtime_width")
+    model = _brdf_model(nodes, inits, "runtime_width", kind)
     dim = model.graph.output[0].type.tensor_type.shape.dim[1]
     dim.Clear()
     dim.dim_param = "C"

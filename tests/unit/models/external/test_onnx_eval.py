@@ -9,6 +9,7 @@ whose tensor shapes are read off their construction; numpy for the expected valu
 
 from __future__ import annotations
 
+import types
 from pathlib import Path
 
 import numpy as np
@@ -109,3 +110,21 @@ def test03_a_wrong_output_width_names_the_model_by_its_label(tmp_path: Path) -> 
     msg = str(info.value)
     assert msg.startswith(f"{ref}: the model's output rgb has shape [5, 4] for 5 rows"), msg
     assert "needs [N, 3]" in msg and "0123abcd" not in msg
+
+
+def test04_a_failure_in_texture_space_shading_is_a_job_failure(
+    tmp_path: Path, mi: types.ModuleType
+) -> None:
+    """``evaluate.tss`` calls an ONNX BTF from its passes: the same failure is a
+    :class:`JobFailed` (the job's one-line error) naming the ref."""
+    from evaluators.tss.external import OnnxPlaneModel
+    from jobapi.errors import JobFailed
+
+    ref = "sha256:" + "cd" * 32
+    path = save(runtime_width_model(4, "btf"), tmp_path / "w.onnx")
+    plane = OnnxPlaneModel(load_onnx(path, "btf", threads=1, label=ref), mi)
+    up = mi.Vector3f([0.0, 0.6], [0.0, 0.0], [1.0, 0.8])
+    with pytest.raises(
+        JobFailed, match=r"^sha256:(cd)+: the model's output rgb has shape \[2, 4\]"
+    ):
+        plane.eval(mi.Point2f([0.1, 0.2], [0.3, 0.4]), up, up)
