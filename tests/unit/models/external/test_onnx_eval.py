@@ -24,7 +24,7 @@ from models.external.onnx_model import (
     OnnxEvalError,
     load_onnx,
 )
-from tests.helpers.onnx_models import hidden_square_model, runtime_width_model, save
+from tests.helpers.onnx_models import hidden_square_model, lambert_model, runtime_width_model, save
 
 WIDE = 256
 
@@ -128,3 +128,31 @@ def test04_a_failure_in_texture_space_shading_is_a_job_failure(
         JobFailed, match=r"^sha256:(cd)+: the model's output rgb has shape \[2, 4\]"
     ):
         plane.eval(mi.Point2f([0.1, 0.2], [0.3, 0.4]), up, up)
+
+
+class _FailingSession:
+    """An onnxruntime session stand-in whose every run raises ``message``."""
+
+    def __init__(self, message: str) -> None:
+        self.message = message
+
+    def run(self, names: list[str], feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        raise RuntimeError(self.message)
+
+
+def test05_onnxruntime_failures_name_the_model(tmp_path: Path) -> None:
+    """onnxruntime's own errors become an :class:`OnnxEvalError` naming the model; one that
+    could not allocate (onnxruntime's message for an arena request it cannot get) becomes a
+    ``MemoryError``, which the job reports as out of memory."""
+    ref = "sha256:" + "ef" * 32
+    m = load_onnx(save(lambert_model("brdf"), tmp_path / "l.onnx"), "brdf", threads=1, label=ref)
+    wi = _directions(4)
+    m.session = _FailingSession("[ONNXRuntimeError] : 2 : INVALID_ARGUMENT : bad input")
+    with pytest.raises(OnnxEvalError, match=rf"^{ref}: onnxruntime failed on the model: .*bad"):
+        m.eval(wi, wi)
+    m.session = _FailingSession(
+        "[ONNXRuntimeError] : 6 : RUNTIME_EXCEPTION : Failed to allocate memory for requested "
+        "buffer of size 17179869184"
+    )
+    with pytest.raises(MemoryError, match=rf"^{ref}: onnxruntime could not allocate"):
+        m.eval(wi, wi)
