@@ -5,6 +5,7 @@ Routes and commands stay thin and call these functions.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -100,7 +101,8 @@ def _external_model_errors(
     :data:`MODEL_HEAD_BYTES` (:func:`storage.formats.model_files.json_format`; a file
     whose first bytes do not tell is left to the job, which checks it again), an ONNX file
     up to the format's size limit. A check that fails on an object whose bytes no longer
-    match its digest reports that instead (the store's own verification)."""
+    match its digest reports that instead (the store's own verification). At most
+    :data:`MODEL_CHECKS` files are checked at once."""
     errors: list[tuple[str, str]] = []
     for loc, ext in _external_values(params, "params"):
         ref, kind = ext["model"], ext.get("kind")
@@ -124,18 +126,30 @@ def _external_model_errors(
 
 #: Bytes of a stored JSON model file read at submission to find its ``format``.
 MODEL_HEAD_BYTES = 256 * 1024
+#: Model files checked at once per web process (an ONNX file is parsed whole, up to its
+#: format's 64 MiB): more submissions naming models wait, in their worker threads.
+MODEL_CHECKS = 2
+_MODEL_CHECKS = threading.BoundedSemaphore(MODEL_CHECKS)
 
 
 def _model_file_error(
     store: ArtifactStore, digest: str, ref: str, kind: str
 ) -> tuple[str, str] | None:
     """``(field, message)`` of what is wrong with the stored model ``digest`` (named
-    ``ref``) as a ``kind`` model, else ``None`` (see :func:`_external_model_errors`)."""
+    ``ref``) as a ``kind`` model, else ``None`` (see :func:`_external_model_errors`); at
+    most :data:`MODEL_CHECKS` at once."""
+    path = store.path(digest)
+    with _MODEL_CHECKS:
+        return _check_model_file(store, digest, path, ref, kind)
+
+
+def _check_model_file(
+    store: ArtifactStore, digest: str, path: Path, ref: str, kind: str
+) -> tuple[str, str] | None:
     from storage.formats.mlp_model import FORMATS
     from storage.formats.model_files import json_format
     from storage.formats.onnx import check_onnx_file
 
-    path = store.path(digest)
     try:
         with open(path, "rb") as fh:
             head = fh.read(64).lstrip(b" \t\r\n\xef\xbb\xbf")

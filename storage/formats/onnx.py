@@ -29,6 +29,11 @@ each as a :class:`FormatError` naming the file and the problem (422), or a
 - inputs and outputs that are not exactly one of the two signatures above: names, ranks,
   a fixed last dimension (the output's may be symbolic: each evaluation checks it), a
   dynamic first one, float32.
+- what shape inference with a symbolic batch ``N`` shows to cost memory out of proportion
+  (:func:`batch_cost`): a tensor that grows faster than ``N``, a tensor computed from
+  initialisers and constants only (folded by onnxruntime when it opens the model) over
+  :data:`MAX_INITIALIZER_BYTES`, more than :data:`MAX_ROW_BYTES` per row, an output
+  computed with a last dimension other than 3.
 
 This module imports nothing of ours but :mod:`storage.errors`; ``onnx`` is imported lazily
 so that reading other formats never pays for it.

@@ -96,3 +96,37 @@ def test03_a_corrupt_stored_onnx_is_corrupt_on_disk(
     assert field == "params.material.external.model"
     assert "corrupt on disk" in message and digest in message, message
     assert "protobuf" not in message, message
+
+
+def test04_at_most_two_model_files_are_checked_at_once(
+    stores: tuple[JobStore, ArtifactStore], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Submissions naming ONNX models (each parsed whole) in many request threads: two
+    checks run, a third waits for one of them (the semaphore is taken), and all finish."""
+    import threading
+
+    import service.submission as submission
+    import storage.formats.onnx as onnx_format
+
+    inside, release = threading.Semaphore(0), threading.Event()
+
+    def held_check(path: Path, name: str, kind: str) -> None:
+        inside.release()
+        assert release.wait(timeout=30)
+
+    monkeypatch.setattr(onnx_format, "check_onnx_file", held_check)
+    data = lambert_model("brdf").SerializeToString()
+    results: list[list[Any]] = []
+    threads = [
+        threading.Thread(target=lambda: results.append(_check(stores, data, "brdf")))
+        for _ in range(3)
+    ]
+    for t in threads:
+        t.start()
+    assert inside.acquire(timeout=30) and inside.acquire(timeout=30)  # two are checking
+    assert submission.MODEL_CHECKS == 2
+    assert not submission._MODEL_CHECKS.acquire(blocking=False)  # the third one waits
+    release.set()
+    for t in threads:
+        t.join(timeout=30)
+    assert results == [[], [], []]
