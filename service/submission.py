@@ -168,8 +168,8 @@ def _check_model_file(
     except (FormatError, TooLargeError, OSError, ValueError) as exc:
         try:
             store.open_verified(digest)
-        except (IntegrityError, NotFoundError) as bad:
-            return "model", f"{ref}: {bad}"
+        except (IntegrityError, NotFoundError) as bad:  # the message names the object
+            return "model", str(bad) if ref == f"sha256:{digest}" else f"{ref}: {bad}"
         if isinstance(exc, FormatError | TooLargeError):
             return "model", str(exc)
         return "model", f"{ref}: {exc}"
