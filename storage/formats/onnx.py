@@ -421,10 +421,11 @@ def batch_cost(model: Any, name: str) -> BatchCost:
                 continue
             if size > MAX_INITIALIZER_BYTES:
                 source = "from initialisers and constants only" if folded else "of fixed size"
+                when = " (onnxruntime computes it when it opens the model)" if folded else ""
                 raise TooLargeError(
                     f"{name}: {label} computes '{out}' {_shown(dims)} {source}: "
                     f"{_mib(size)}, over the limit of {_mib(MAX_INITIALIZER_BYTES)} for "
-                    "initialisers"
+                    f"initialisers{when}"
                 )
             fixed_bytes += size
             if fixed_bytes > MAX_INITIALIZER_BYTES:
