@@ -158,6 +158,14 @@ def test09_a_constant_folded_tensor_over_the_initialiser_limit_is_413(tmp_path: 
     assert "from initialisers and constants only" in msg and "1024.0 MiB" in msg, msg
     path = save(constant_fold_bomb(64), tmp_path / "small.onnx")
     assert validate_file(path, "small.onnx") == "application/x-onnx"
+    # Two folded squares of 3300^2 float32 (41.5 MiB each): each under the limit, over it
+    # together.
+    m = constant_fold_bomb(3300)
+    m.graph.node.insert(1, helper.make_node("Mul", ["col", "row"], ["product"], name="fold_mul"))
+    m.graph.node.insert(2, helper.make_node("Add", ["square", "product"], ["both"]))
+    m.graph.node[3].input[0] = "both"
+    msg = _refusal(tmp_path, m, TooLargeError)
+    assert "the tensors of fixed size up to node 'fold_mul' (Mul) take 83.1 MiB in all" in msg, msg
 
 
 def test10_an_intermediate_growing_faster_than_the_batch_is_refused(tmp_path: Path) -> None:
