@@ -5,6 +5,7 @@ Routes and commands stay thin and call these functions.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,13 @@ from service.workers.backend import start_backend
 from service.workers.execution import execute_configured, worker_id
 from service.workers.executors import executor_for
 from storage.artifacts import ArtifactStore
-from storage.errors import AmbiguousIdError, FormatError, NotFoundError
+from storage.errors import (
+    AmbiguousIdError,
+    FormatError,
+    IntegrityError,
+    NotFoundError,
+    TooLargeError,
+)
 from storage.formats import validate_file
 from storage.job_queries import resolve_job_id
 from storage.jobs import ArtifactRecord, Job, JobStore
@@ -109,12 +116,15 @@ def _external_model_errors(
 ) -> list[tuple[str, str]]:
     """A user's model file whose signature is not its declared ``kind`` is refused before
     queueing: an ONNX file's inputs (:func:`storage.formats.onnx.check_onnx_file`) or an MLP
-    file's ``format`` (``matforge.mlp-brdf/1`` for ``brdf``, ``-btf`` for ``btf``)."""
-    import json
+    file's ``format`` (``matforge.mlp-brdf/1`` for ``brdf``, ``-btf`` for ``btf``).
 
-    from storage.formats.mlp_model import FORMATS
-    from storage.formats.onnx import check_onnx_file
-
+    Runs in a worker thread of the web process (the routes call the submission there), so
+    it reads no more than it needs: a JSON file's ``format`` from at most its first
+    :data:`MODEL_HEAD_BYTES` (:func:`storage.formats.model_files.json_format`; a file
+    whose first bytes do not tell is left to the job, which checks it again), an ONNX file
+    up to the format's size limit. A check that fails on an object whose bytes no longer
+    match its digest reports that instead (the store's own verification). At most
+    :data:`MODEL_CHECKS` files are checked at once."""
     errors: list[tuple[str, str]] = []
     for loc, ext in _external_values(params, "params"):
         ref, kind = ext["model"], ext.get("kind")
@@ -130,24 +140,62 @@ def _external_model_errors(
                 continue  # check_refs names it
         if digest is None or not store.exists(digest):
             continue
-        path = store.path(digest)
-        with open(path, "rb") as fh:
-            head = fh.read(1)
-        try:
-            if head == b"{":
-                doc = json.loads(path.read_text(encoding="utf-8"))
-                found = FORMATS.get(str(doc.get("format"))) if isinstance(doc, dict) else None
-                if found is not None and found != kind:
-                    errors.append(
-                        (f"{loc}.kind", f"{ref} is a {found} model ({doc['format']}), not {kind}")
-                    )
-            else:
-                check_onnx_file(path, ref, kind)
-        except FormatError as exc:
-            errors.append((f"{loc}.model", str(exc)))
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            errors.append((f"{loc}.model", f"{ref}: {exc}"))
+        found = _model_file_error(store, digest, ref, kind)
+        if found is not None:
+            errors.append((f"{loc}.{found[0]}", found[1]))
     return errors
+
+
+#: Bytes of a stored JSON model file read at submission to find its ``format``.
+MODEL_HEAD_BYTES = 256 * 1024
+#: Model files checked at once per web process (an ONNX file is parsed whole, up to its
+#: format's 64 MiB): more submissions naming models wait, in their worker threads.
+MODEL_CHECKS = 2
+_MODEL_CHECKS = threading.BoundedSemaphore(MODEL_CHECKS)
+
+
+def _model_file_error(
+    store: ArtifactStore, digest: str, ref: str, kind: str
+) -> tuple[str, str] | None:
+    """``(field, message)`` of what is wrong with the stored model ``digest`` (named
+    ``ref``) as a ``kind`` model, else ``None`` (see :func:`_external_model_errors`); at
+    most :data:`MODEL_CHECKS` at once."""
+    path = store.path(digest)
+    with _MODEL_CHECKS:
+        return _check_model_file(store, digest, path, ref, kind)
+
+
+def _check_model_file(
+    store: ArtifactStore, digest: str, path: Path, ref: str, kind: str
+) -> tuple[str, str] | None:
+    from storage.formats.mlp_model import FORMATS
+    from storage.formats.model_files import json_format
+    from storage.formats.onnx import check_onnx_file
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64).lstrip(b" \t\r\n\xef\xbb\xbf")
+        if head.startswith(b"{"):
+            fmt = json_format(path, ref, max_bytes=MODEL_HEAD_BYTES)
+            found = FORMATS.get(fmt) if fmt is not None else None
+            if fmt is not None and found is None:
+                return "model", (
+                    f"{ref} is a {fmt!r:.80} document, not a model of your own: an MLP file "
+                    "(matforge.mlp-brdf/1, matforge.mlp-btf/1) or an ONNX file"
+                )
+            if found is not None and found != kind:
+                return "kind", f"{ref} is a {found} model ({fmt}), not {kind}"
+        else:
+            check_onnx_file(path, ref, kind)
+    except (FormatError, TooLargeError, OSError, ValueError) as exc:
+        try:
+            store.open_verified(digest)
+        except (IntegrityError, NotFoundError) as bad:  # the message names the object
+            return "model", str(bad) if ref == f"sha256:{digest}" else f"{ref}: {bad}"
+        if isinstance(exc, FormatError | TooLargeError):
+            return "model", str(exc)
+        return "model", f"{ref}: {exc}"
+    return None
 
 
 def _has_short_ref(obj: Any) -> bool:
@@ -299,8 +347,6 @@ def import_file(
     Raises ``FormatError`` naming the file when it is malformed or of an unknown type, and
     ``TooLargeError`` above ``max_bytes``.
     """
-    from storage.errors import TooLargeError
-
     label = name or path.name
     size = path.stat().st_size
     if max_bytes is not None and size > max_bytes:

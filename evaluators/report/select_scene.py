@@ -272,7 +272,8 @@ def external_cost(rung: Rung, cost: str, index: int, ctx: JobContext) -> float:
     value = rung.material["external"]
     where = f"ladder.{index}.material.external"
     try:
-        measured = measure_cost(load_external(ctx.resolve(value["model"]), value["kind"]))
+        model = load_external(ctx.resolve(value["model"]), value["kind"], label=value["model"])
+        measured = measure_cost(model)
     except (ValueError, FormatError) as exc:
         raise JobFailed(f"{where}: {value['model']}: {exc}") from None
     if measured.get(cost) is None:

@@ -59,7 +59,7 @@ def open_external(path: Path, name: str, kind: str) -> ExternalModel:
     from models.external import load_external
 
     try:
-        model = load_external(path, kind)
+        model = load_external(path, kind, label=name)
     except FormatError as exc:  # named after the store's object file: name the ref
         raise FormatError(name, exc.problem) from None
     except ValueError as exc:

@@ -106,7 +106,12 @@ class OnnxPlaneModel:
         n = max(dr.width(a) for a in arrays)
         host = [np.broadcast_to(np.asarray(a.numpy(), np.float32).T, (n, len(a)))
                 for a in arrays]  # fmt: skip
-        out = self.material.eval(host[1], host[2], uv=host[0])
+        from models.external.onnx_model import OnnxEvalError
+
+        try:
+            out = self.material.eval(host[1], host[2], uv=host[0])
+        except OnnxEvalError as exc:
+            raise JobFailed(str(exc)) from None
         return mi.Color3f(mi.Float(out[:, 0]), mi.Float(out[:, 1]), mi.Float(out[:, 2]))
 
 
@@ -119,7 +124,7 @@ def load_external_btf(value: dict[str, Any], ctx: JobContext, mi: types.ModuleTy
     where = "model.external.model"
     ref = value["model"]
     try:
-        model = load_external(ctx.resolve(ref), "btf")
+        model = load_external(ctx.resolve(ref), "btf", label=ref)
     except (ValueError, FormatError) as exc:
         problem = exc.problem if isinstance(exc, FormatError) else str(exc)
         raise JobFailed(f"{where}: {ref}: {problem}") from None

@@ -68,11 +68,12 @@ def model_format(path: Path) -> Literal["mlp", "onnx"]:
     )
 
 
-def load_external(path: Path, kind: str) -> ExternalModel:
+def load_external(path: Path, kind: str, *, label: str | None = None) -> ExternalModel:
     """The user's model in ``path`` as a ``kind`` (``"brdf"`` | ``"btf"``) model.
 
     Raises ``ValueError`` naming the file when it is malformed, of the other kind, or ONNX
-    while ONNX support is not installed.
+    while ONNX support is not installed. ``label`` (the user's ref) names an ONNX model in
+    the messages of its evaluation.
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be 'brdf' or 'btf', got {kind!r}")
@@ -86,7 +87,9 @@ def load_external(path: Path, kind: str) -> ExternalModel:
         onnx_model = importlib.import_module("models.external.onnx_model")
     except ImportError as exc:
         raise ValueError(f"{name}: ONNX models are not supported by this build ({exc})") from None
-    return onnx_model.load_onnx(Path(path), kind)  # type: ignore[no-any-return,unused-ignore]
+    return onnx_model.load_onnx(  # type: ignore[no-any-return,unused-ignore]
+        Path(path), kind, label=label
+    )
 
 
 __all__ = ["KINDS", "ExternalModel", "MlpMaterial", "load_external", "model_format", "read_mlp"]

@@ -11,7 +11,9 @@ The session is fixed so that the same inputs give the same bytes on a machine: t
 provider only, ``intra_op_num_threads`` set (default :data:`DEFAULT_THREADS`), one
 inter-op thread, sequential execution, deterministic compute, and no spinning between
 calls (the renderer's threads share the cores between two calls). Batches are cut into
-chunks of :data:`CHUNK` rows, so memory stays bounded whatever ``N``.
+chunks (:func:`chunk_rows`) so that the intermediate tensors of one call stay within
+:data:`CALL_BYTES` whatever ``N``: shape inference with a symbolic batch
+(:func:`storage.formats.onnx.batch_cost`) gives their bytes per row.
 """
 
 from __future__ import annotations
@@ -23,15 +25,26 @@ from typing import Any
 
 import numpy as np
 
-from storage.formats.onnx import check_onnx_file, load_onnx_proto
+from storage.formats.onnx import BatchCost, batch_cost, check_onnx_file, load_onnx_proto
 
 #: onnxruntime intra-op threads (the renders' machines have 2 cores per job).
 DEFAULT_THREADS = 2
-#: Rows per onnxruntime call: bounds the activations' memory (a 64-wide hidden layer of
-#: 2^18 rows is 64 MiB).
+#: The most rows per onnxruntime call.
 CHUNK = 1 << 18
+#: The bytes of intermediate tensors one call may make, summed over all of them (an upper
+#: bound: onnxruntime reuses buffers): its rows times the graph's bytes per row.
+CALL_BYTES = 256 * 1024 * 1024
+#: Rows per call of a graph with a tensor whose size shape inference cannot tell: even a
+#: hidden ``[N, N]`` float32 tensor is then 64 MiB.
+UNKNOWN_SHAPE_CHUNK = 4096
 #: The runtime named in cost rows.
 RUNTIME = "onnxruntime"
+
+
+class OnnxEvalError(ValueError):
+    """The model failed at evaluation time: onnxruntime refused the batch, or the output is
+    not ``[rows, 3]``. The message names the model (:attr:`OnnxMaterial.name`) and what is
+    wrong; renders turn it into the job's error."""
 
 
 @dataclass
@@ -63,7 +76,8 @@ class OnnxMaterial:
 
     Attributes: ``kind`` (``"brdf"`` or ``"btf"``), ``runtime`` (``"onnxruntime"``),
     ``param_bytes`` (bytes of the floating-point initialisers), ``threads`` (intra-op threads),
-    ``stats`` (:class:`EvalStats`), ``name`` (the file's name, for messages).
+    ``stats`` (:class:`EvalStats`), ``name`` (the user's ref or the file's name, for
+    messages), ``chunk`` (rows per onnxruntime call).
     """
 
     kind: str
@@ -73,6 +87,8 @@ class OnnxMaterial:
     session: Any = field(repr=False)
     runtime: str = RUNTIME
     stats: EvalStats = field(default_factory=EvalStats)
+    #: Rows per onnxruntime call (:func:`chunk_rows`).
+    chunk: int = CHUNK
 
     def eval(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
         """The model at ``N`` direction pairs: ``(N, 3)`` float32 RGB.
@@ -98,19 +114,33 @@ class OnnxMaterial:
             raise ValueError(f"{self.name}: a BRDF model takes no uv")
         out = np.empty((n, 3), np.float32)
         started = time.perf_counter()
-        for lo in range(0, n, CHUNK):
-            chunk = {k: v[lo : lo + CHUNK] for k, v in feeds.items()}
-            (rgb,) = self.session.run(["rgb"], chunk)
+        for lo in range(0, n, self.chunk):
+            chunk = {k: v[lo : lo + self.chunk] for k, v in feeds.items()}
+            rgb = self._run(chunk)
             rows = len(chunk["wi"])
             if rgb.shape != (rows, 3):
-                raise ValueError(
-                    f"{self.name}: the model returned rgb of shape {rgb.shape} for {rows} rows"
+                raise OnnxEvalError(
+                    f"{self.name}: the model's output rgb has shape {list(rgb.shape)} for "
+                    f"{rows} rows; the signature needs [N, 3] (N rows of RGB)"
                 )
             out[lo : lo + rows] = rgb
             self.stats.calls += 1
         self.stats.rows += n
         self.stats.seconds += time.perf_counter() - started
         return out
+
+    def _run(self, feeds: dict[str, np.ndarray]) -> np.ndarray:
+        """One onnxruntime call; its failures as :class:`OnnxEvalError` naming the model, or
+        ``MemoryError`` where it could not allocate (the job's error then says "out of
+        memory")."""
+        try:
+            (rgb,) = self.session.run(["rgb"], feeds)
+        except Exception as exc:  # onnxruntime's own exception types (pybind11)
+            text = " ".join(str(exc).split())[:300]
+            if "alloc" in text.lower():
+                raise MemoryError(f"{self.name}: onnxruntime could not allocate: {text}") from None
+            raise OnnxEvalError(f"{self.name}: onnxruntime failed on the model: {text}") from None
+        return np.asarray(rgb)
 
 
 def make_session(data: bytes, threads: int) -> Any:
@@ -129,22 +159,37 @@ def make_session(data: bytes, threads: int) -> Any:
     return ort.InferenceSession(data, sess_options=opts, providers=["CPUExecutionProvider"])
 
 
-def load_onnx(path: Path, kind: str, *, threads: int = DEFAULT_THREADS) -> OnnxMaterial:
-    """Validate ``path`` (:func:`storage.formats.onnx.check_onnx_file`: the upload checks
-    and the signature of ``kind``) and open it.
+def chunk_rows(cost: BatchCost) -> int:
+    """Rows per onnxruntime call for a graph of ``cost``: as many as keep its intermediate
+    tensors within :data:`CALL_BYTES`, at most :data:`CHUNK`, at most
+    :data:`UNKNOWN_SHAPE_CHUNK` where some tensor's size is unknown, at least 1."""
+    rows = CHUNK if cost.row_bytes <= 0 else CALL_BYTES // cost.row_bytes
+    if cost.unknown:
+        rows = min(rows, UNKNOWN_SHAPE_CHUNK)
+    return max(1, min(CHUNK, rows))
 
-    Raises :class:`storage.errors.FormatError` (or ``TooLargeError``) naming the file and
+
+def load_onnx(
+    path: Path, kind: str, *, threads: int = DEFAULT_THREADS, label: str | None = None
+) -> OnnxMaterial:
+    """Validate ``path`` (:func:`storage.formats.onnx.check_onnx_file`: the upload checks
+    and the signature of ``kind``) and open it. ``label`` names the model in messages (the
+    user's ``sha256:`` or ``job:`` ref; default the file's name).
+
+    Raises :class:`storage.errors.FormatError` (or ``TooLargeError``) naming the model and
     what is wrong, ``ValueError`` for an unknown ``kind`` or ``threads < 1``.
     """
     path = Path(path)
+    name = label or path.name
     if threads < 1:
         raise ValueError(f"threads must be >= 1, not {threads}")
-    check_onnx_file(path, path.name, kind)
-    model = load_onnx_proto(path, path.name)
+    check_onnx_file(path, name, kind)
+    model = load_onnx_proto(path, name)
     return OnnxMaterial(
         kind=kind,
         param_bytes=_param_bytes(model),
         threads=threads,
-        name=path.name,
+        name=name,
         session=make_session(path.read_bytes(), threads),
+        chunk=chunk_rows(batch_cost(model, name)),
     )

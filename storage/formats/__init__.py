@@ -14,12 +14,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from storage.errors import FormatError
+from storage.errors import FormatError, TooLargeError
 from storage.formats.btf_folder import validate_btf_archive
 from storage.formats.exr import validate_exr
 from storage.formats.media import MEDIA_TYPES
 from storage.formats.merl import validate_merl
 from storage.formats.mlp_model import is_mlp_document, parse_mlp_document
+from storage.formats.model_files import MODEL_FORMATS, json_format, not_a_model
 from storage.formats.normal_map import validate_normal_map
 from storage.formats.npz import validate_npz
 from storage.formats.onnx import validate_onnx
@@ -31,17 +32,24 @@ MAX_JSON_BYTES = 64 * 1024 * 1024
 
 
 def validate_json(path: Path, name: str) -> None:
-    """Check that ``path`` holds one UTF-8 JSON document (RFC 8259: no NaN or Infinity).
+    """Check that ``path`` holds one UTF-8 JSON document (RFC 8259: no NaN or Infinity)
+    that is a model file: an object whose ``format`` is one of
+    :data:`storage.formats.model_files.MODEL_FORMATS`. An unknown ``format`` near the start
+    is refused before the document is decoded (:func:`~storage.formats.model_files.json_format`).
 
-    A document that claims a user MLP material format (``matforge.mlp-brdf/1``,
+    A document in a user MLP material format (``matforge.mlp-brdf/1``,
     ``matforge.mlp-btf/1``) is also checked against it (:mod:`storage.formats.mlp_model`).
+    Over :data:`MAX_JSON_BYTES`: :class:`TooLargeError`.
     """
     try:
         size = path.stat().st_size
         if size > MAX_JSON_BYTES:
-            raise FormatError(
-                name, f"JSON document of {size} bytes exceeds the limit of {MAX_JSON_BYTES} bytes"
+            raise TooLargeError(
+                f"{name}: JSON document of {size} bytes exceeds the limit of {MAX_JSON_BYTES} bytes"
             )
+        fmt = json_format(path, name)
+        if fmt is not None and fmt not in MODEL_FORMATS:
+            raise not_a_model(fmt, name)
         text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         raise FormatError(name, f"cannot read: {exc.strerror or exc}") from None
@@ -59,6 +67,9 @@ def validate_json(path: Path, name: str) -> None:
         ) from None
     except (ValueError, RecursionError) as exc:
         raise FormatError(name, f"invalid JSON: {exc}") from None
+    fmt = doc.get("format") if isinstance(doc, dict) else None
+    if not isinstance(fmt, str) or fmt not in MODEL_FORMATS:
+        raise not_a_model(fmt, name)
     if is_mlp_document(doc):
         parse_mlp_document(doc, name)
 

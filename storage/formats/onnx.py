@@ -29,6 +29,11 @@ each as a :class:`FormatError` naming the file and the problem (422), or a
 - inputs and outputs that are not exactly one of the two signatures above: names, ranks,
   a fixed last dimension (the output's may be symbolic: each evaluation checks it), a
   dynamic first one, float32.
+- what shape inference with a symbolic batch ``N`` shows to cost memory out of proportion
+  (:func:`batch_cost`): a tensor that grows faster than ``N``, a tensor computed from
+  initialisers and constants only (folded by onnxruntime when it opens the model) over
+  :data:`MAX_INITIALIZER_BYTES`, more than :data:`MAX_ROW_BYTES` per row, an output
+  computed with a last dimension other than 3.
 
 This module imports nothing of ours but :mod:`storage.errors`; ``onnx`` is imported lazily
 so that reading other formats never pays for it.
@@ -36,6 +41,8 @@ so that reading other formats never pays for it.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +54,10 @@ MAX_ONNX_BYTES = 64 * 1024 * 1024
 MAX_INITIALIZER_BYTES = 64 * 1024 * 1024
 #: The most nodes in the graph.
 MAX_NODES = 10_000
+#: The most bytes of intermediate tensors one row of the batch may need (:func:`batch_cost`).
+MAX_ROW_BYTES = 16 * 1024 * 1024
+#: The batch dimension's symbol in :func:`batch_cost`'s shape inference.
+BATCH = "N"
 #: Opset versions of the default (``ai.onnx``) domain accepted, inclusive; onnxruntime 1.32
 #: runs all of them.
 OPSET_RANGE = (13, 23)
@@ -184,6 +195,15 @@ def _dims(value_info: Any) -> tuple[int, list[Any]]:
     return tt.elem_type, dims if tt.HasField("shape") else []
 
 
+def _inferred_dims(value_info: Any) -> tuple[int, list[Any] | None]:
+    """``(elem_type, dims)`` as :func:`_dims`, with ``dims`` ``None`` where no shape is known
+    at all (a scalar has ``[]``)."""
+    tt = value_info.type.tensor_type
+    if not value_info.type.HasField("tensor_type") or not tt.HasField("shape"):
+        return tt.elem_type, None
+    return _dims(value_info)
+
+
 def _check_tensor_io(vi: Any, last: int, what: str, name: str) -> None:
     import onnx
 
@@ -297,6 +317,138 @@ def _check_structure(model: Any, name: str) -> None:
         )
 
 
+@dataclass(frozen=True)
+class BatchCost:
+    """What shape inference with a symbolic batch ``N`` tells of a graph's intermediate
+    tensors (every node output): ``row_bytes``, the bytes of those whose size is ``N``
+    times a fixed number, per row; ``fixed_bytes``, the bytes of those of a fixed size
+    (``Constant`` values not counted: they are initialiser bytes); ``unknown``, the
+    tensors whose size inference could not tell (then only the memory limit of the job
+    bounds them)."""
+
+    row_bytes: int
+    fixed_bytes: int
+    unknown: tuple[str, ...]
+
+
+def _symbolic_copy(model: Any) -> Any:
+    """A copy of ``model`` for shape inference: every graph input's first dimension the one
+    symbol :data:`BATCH` (all inputs share the batch), and nothing of the file's own
+    ``value_info`` or output shapes (a file could declare small shapes for big tensors)."""
+    import onnx
+
+    copy = onnx.ModelProto()
+    copy.CopyFrom(model)
+    graph = copy.graph
+    init_names = {t.name for t in graph.initializer}
+    for vi in graph.input:
+        dims = vi.type.tensor_type.shape.dim
+        if vi.name not in init_names and len(dims):
+            dims[0].Clear()
+            dims[0].dim_param = BATCH
+    del graph.value_info[:]
+    for vi in graph.output:
+        vi.type.tensor_type.ClearField("shape")
+    return copy
+
+
+def _shown(dims: list[Any]) -> str:
+    return "[" + ", ".join("?" if d is None else str(d) for d in dims) + "]"
+
+
+def batch_cost(model: Any, name: str) -> BatchCost:
+    """Shape inference of ``model`` with a symbolic batch ``N`` (:data:`BATCH`) on every
+    input; refuses, naming the node, what would take memory out of proportion to the file
+    or the batch:
+
+    - a node output whose size grows faster than ``N`` (``N`` in two or more dimensions,
+      as ``[N, 1] + [1, N]`` gives ``[N, N]``): :class:`FormatError`;
+    - a tensor of a fixed size over :data:`MAX_INITIALIZER_BYTES`, or fixed-size tensors
+      over it in all; in particular a value computed from initialisers and constants only,
+      which onnxruntime folds when it opens the model: :class:`TooLargeError`;
+    - a value computed from initialisers and constants only whose shape cannot be told;
+    - rows that need more than :data:`MAX_ROW_BYTES` of intermediates each, and an output
+      ``rgb`` computed with a fixed last dimension other than 3.
+    """
+    import onnx
+
+    try:
+        inferred = onnx.shape_inference.infer_shapes(
+            _symbolic_copy(model), strict_mode=True, data_prop=True
+        )
+    except (onnx.shape_inference.InferenceError, onnx.checker.ValidationError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise FormatError(name, f"invalid ONNX graph: {first[:300]}") from None
+    graph = inferred.graph
+    shapes = {vi.name: _inferred_dims(vi) for vi in (*graph.value_info, *graph.output)}
+    constant = {t.name for t in graph.initializer}
+    row_bytes = fixed_bytes = 0
+    unknown: list[str] = []
+    for node in graph.node:
+        label = f"node '{node.name or node.op_type}' ({node.op_type})"
+        inputs = [i for i in node.input if i]
+        folded = node.op_type == "Constant" or (bool(inputs) and constant.issuperset(inputs))
+        for out in (o for o in node.output if o):
+            if folded:
+                constant.add(out)
+            elem, found = shapes.get(out, (-1, None))
+            dims = found or []
+            itemsize = _ITEMSIZE.get(elem, 8)
+            known = found is not None and all(d is not None for d in found)
+            if node.op_type == "Constant":
+                continue  # counted with the initialisers
+            if folded and not (known and all(isinstance(d, int) for d in dims)):
+                raise FormatError(
+                    name,
+                    f"{label} computes '{out}' from initialisers and constants only, but its "
+                    "shape cannot be inferred; onnxruntime would fold it when it opens the "
+                    "model, at any size",
+                )
+            grows = sum(1 for d in dims if d == BATCH)
+            if grows >= 2:
+                raise FormatError(
+                    name,
+                    f"{label} makes '{out}' of shape {_shown(dims)}: it grows faster than the "
+                    f"batch N (N^{grows} elements for N rows); every tensor may grow at most "
+                    "linearly with N",
+                )
+            if not known or any(isinstance(d, str) and d != BATCH for d in dims):
+                unknown.append(out)
+                continue
+            size = itemsize * math.prod(d for d in dims if isinstance(d, int))
+            if grows == 1:
+                row_bytes += size
+                continue
+            if size > MAX_INITIALIZER_BYTES:
+                source = "from initialisers and constants only" if folded else "of fixed size"
+                when = " (onnxruntime computes it when it opens the model)" if folded else ""
+                raise TooLargeError(
+                    f"{name}: {label} computes '{out}' {_shown(dims)} {source}: "
+                    f"{_mib(size)}, over the limit of {_mib(MAX_INITIALIZER_BYTES)} for "
+                    f"initialisers{when}"
+                )
+            fixed_bytes += size
+            if fixed_bytes > MAX_INITIALIZER_BYTES:
+                raise TooLargeError(
+                    f"{name}: the tensors of fixed size up to {label} take "
+                    f"{_mib(fixed_bytes)} in all, over the limit of "
+                    f"{_mib(MAX_INITIALIZER_BYTES)} for initialisers"
+                )
+    if row_bytes > MAX_ROW_BYTES:
+        raise TooLargeError(
+            f"{name}: one row needs {_mib(row_bytes)} of intermediate tensors, over the "
+            f"limit of {_mib(MAX_ROW_BYTES)}"
+        )
+    dims = shapes.get(OUTPUT[0], (-1, None))[1] or []
+    if len(dims) == 2 and isinstance(dims[1], int) and dims[1] != OUTPUT[1]:
+        raise FormatError(
+            name,
+            f"output '{OUTPUT[0]}' is computed with shape [N, {dims[1]}]; the signature "
+            f"needs [N, {OUTPUT[1]}]",
+        )
+    return BatchCost(row_bytes, fixed_bytes, tuple(unknown))
+
+
 def check_onnx_model(model: Any, name: str) -> str:
     """All of :func:`validate_onnx`'s checks on a parsed ``ModelProto``; returns its kind."""
     import onnx
@@ -308,6 +460,7 @@ def check_onnx_model(model: Any, name: str) -> str:
     except (onnx.checker.ValidationError, onnx.shape_inference.InferenceError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise FormatError(name, f"invalid ONNX graph: {first[:300]}") from None
+    batch_cost(model, name)
     return kind
 
 

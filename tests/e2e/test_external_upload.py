@@ -77,3 +77,25 @@ def test02_malformed_upload_is_a_422_naming_file_and_problem(
     import re
 
     assert re.search(problem, error), error
+
+
+def test03_a_json_that_is_no_model_file_is_refused(client: TestClient, tmp_path: Path) -> None:
+    """``{"format": "nope"}`` is a 422 naming the file and its format, through the API and
+    from ``matforge import`` (exit 2, nothing stored); a JSON file over 64 MiB is a 413."""
+    from storage.formats import MAX_JSON_BYTES
+
+    from .harness import base_env, run_cli
+
+    r = client.post("/api/artifacts?name=nope.json", content=b'{"format":"nope"}', headers=OCTETS)
+    assert r.status_code == 422, r.text
+    error = str(r.json()["error"])
+    assert error.startswith("nope.json: not a model file: ") and "'format' 'nope'" in error, error
+    path = tmp_path / "nope.json"
+    path.write_bytes(b'{"format":"nope"}')
+    res = run_cli("import", str(path), "--data-dir", str(tmp_path / "d"), env=base_env())
+    assert res.returncode == 2, res
+    assert "nope.json: not a model file: " in res.stderr and "Traceback" not in res.stderr, res
+    big = b'{"format": "matforge.mlp-brdf/1", "pad": "' + b" " * MAX_JSON_BYTES + b'"}'
+    r = client.post("/api/artifacts?name=big.json", content=big, headers=OCTETS)
+    assert r.status_code == 413, r.text
+    assert r.json()["error"].startswith("big.json: JSON document of "), r.text

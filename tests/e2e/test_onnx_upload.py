@@ -21,7 +21,9 @@ from service.api import create_app
 from service.settings import Settings
 from service.upload_check import UploadChecker
 from storage.errors import TooLargeError
-from tests.helpers.onnx_models import lambert_model, save
+from tests.helpers.onnx_models import constant_fold_bomb, lambert_model, quadratic_bomb, save
+
+from .harness import base_env, run_cli
 
 OCTETS = {"content-type": "application/octet-stream"}
 
@@ -71,6 +73,19 @@ CASES = [
     ("unsupported op", _op, 422, "operator Loop is not allowed"),
     ("custom domain", _domain, 422, "custom operator domain 'com.microsoft'"),
     ("truncated", lambda: lambert_model("btf").SerializeToString()[:40], 422, ""),
+    (
+        "constant-folding bomb",
+        constant_fold_bomb,
+        413,
+        "node 'fold_add' (Add) computes 'square' [16384, 16384] from initialisers and "
+        "constants only: 1024.0 MiB",
+    ),
+    (
+        "run-time quadratic",
+        quadratic_bomb,
+        422,
+        "node 'square' (Add) makes 'square' of shape [N, N]: it grows faster than the batch",
+    ),
 ]
 
 
@@ -147,3 +162,16 @@ def test05_an_mlp_file_of_the_other_kind_is_refused_before_queueing(
     res = client.post("/api/jobs", json=spec)
     assert res.status_code == 422, res.text
     assert "params.material.external.kind" in res.text and "matforge.mlp-brdf/1" in res.text
+
+
+def test06_matforge_import_refuses_both_bombs(tmp_path: Path) -> None:
+    """``matforge import`` (a local data directory) refuses the two graphs the upload
+    refuses, with the same message on stderr, exit 2 and no traceback."""
+    for name, make, says in (
+        ("fold.onnx", constant_fold_bomb, "node 'fold_add' (Add) computes 'square'"),
+        ("square.onnx", quadratic_bomb, "node 'square' (Add) makes 'square' of shape [N, N]"),
+    ):
+        path = save(make(), tmp_path / name)
+        res = run_cli("import", str(path), "--data-dir", str(tmp_path / "d"), env=base_env())
+        assert res.returncode == 2, res
+        assert f"{name}: {says}" in res.stderr and "Traceback" not in res.stderr, res

@@ -261,3 +261,28 @@ def test05_a_broken_onnx_file_in_the_store_is_refused_before_queueing(
         assert jobs.count_jobs() == before
     finally:
         jobs.close()
+
+
+def test06_an_onnx_output_of_the_wrong_width_fails_the_job_naming_the_ref(
+    settings: Settings, tmp_path: Path, mitsuba_llvm: None
+) -> None:
+    """A BRDF whose output is ``[N, 4]`` at run time (its width hidden from shape inference,
+    so the upload accepts it) fails its render with the shape, what the signature needs and
+    the user's ``sha256:`` ref in the job's ``error``, not an internal error naming Dr.Jit
+    or the store's file name (the reference: the graph's construction,
+    :func:`tests.helpers.onnx_models.runtime_width_model`)."""
+    from tests.helpers.onnx_models import runtime_width_model, save
+
+    ref = _import(settings, save(runtime_width_model(4), tmp_path / "wide.onnx"))
+    params = {
+        "scene": "sphere_env",
+        "spp": 1,
+        "resolution": [8, 8],
+        "material": {"external": {"model": ref, "kind": "brdf"}},
+    }
+    job = run_in_process({"kind": "render", "seed": 0, "params": params}, settings)
+    assert job.state == "failed"
+    error = job.error or ""
+    assert error.startswith(f"{ref}: the model's output rgb has shape ["), error
+    assert ", 4] for " in error and "needs [N, 3]" in error, error
+    assert "internal error" not in error and "drjit" not in error, error

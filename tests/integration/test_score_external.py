@@ -81,7 +81,7 @@ MODELS: dict[str, Any] = {
 REAL_LOAD = models.external.load_external
 
 
-def fake_load_external(path: Path, kind: str) -> Any:
+def fake_load_external(path: Path, kind: str, *, label: str | None = None) -> Any:
     """The test's loader: a JSON file ``{"test_model": NAME}`` is one of :data:`MODELS`;
     anything else goes to the real loader."""
     try:
@@ -90,7 +90,7 @@ def fake_load_external(path: Path, kind: str) -> Any:
         doc = None
     if isinstance(doc, dict) and "test_model" in doc:
         return MODELS[doc["test_model"]]
-    return REAL_LOAD(path, kind)
+    return REAL_LOAD(path, kind, label=label)
 
 
 @pytest.fixture
@@ -109,9 +109,15 @@ def upload(path: Path, settings: Settings) -> str:
 
 
 def upload_test_model(name: str, tmp_path: Path, settings: Settings) -> str:
+    """A ``{"format": <the kind's MLP format>, "test_model": NAME}`` file, stored without the
+    upload check (it is no valid MLP file): the submission check reads its format, the
+    job's loader (:func:`fake_load_external`) its name."""
     path = tmp_path / f"{name}.json"
-    path.write_text(json.dumps({"test_model": name}))
-    return upload(path, settings)
+    fmt = f"matforge.mlp-{MODELS[name].kind}/1"
+    path.write_text(json.dumps({"format": fmt, "test_model": name}))
+    jobs, store = stores(settings)
+    record = import_file(path, jobs, store, validate=lambda _path, _name: "application/json")
+    return f"sha256:{record.digest}"
 
 
 def lambert_table(tmp_path: Path, settings: Settings) -> str:

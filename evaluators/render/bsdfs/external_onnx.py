@@ -35,6 +35,7 @@ parameter             type    default  meaning
 ====================  ======  =======  ===============================================
 ``filename``          string  --       the ``.onnx`` file
 ``kind``              string  --       ``brdf`` or ``btf`` (the signature it must follow)
+``label``             string  file     the model's name in messages (the user's ref)
 ``threads``           int     2        onnxruntime intra-op threads
 ``alpha``             float   1        (BRDF) GGX roughness of the sampled lobe
 ``specular_weight``   float   0        (BRDF) probability of sampling the GGX lobe
@@ -58,7 +59,8 @@ import numpy as np
 from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
 from evaluators.render.bsdfs.common import GlossyDiffuseReflector, MixtureReflector, MixtureSampling
 from evaluators.render.plugins import VariantPlugin, class_for_variant, register_vectorised_bsdf
-from models.external.onnx_model import DEFAULT_THREADS, OnnxMaterial, load_onnx
+from jobapi.errors import JobFailed
+from models.external.onnx_model import DEFAULT_THREADS, OnnxEvalError, OnnxMaterial, load_onnx
 from storage.errors import FormatError, TooLargeError
 from storage.formats.onnx import check_onnx_file
 
@@ -97,7 +99,12 @@ def external_onnx_plugin(
         check_onnx_file(Path(path), label, kind)
     except (FormatError, TooLargeError) as exc:
         raise ValueError(str(exc)) from None
-    out: dict[str, Any] = {"type": EXTERNAL_ONNX_NAME, "filename": str(path), "kind": kind}
+    out: dict[str, Any] = {
+        "type": EXTERNAL_ONNX_NAME,
+        "filename": str(path),
+        "kind": kind,
+        "label": label,
+    }
     if "threads" in value:
         out["threads"] = int(value["threads"])
     sampling = value.get("sampling")
@@ -124,7 +131,9 @@ def onnx_bsdfs_alive() -> bool:
 def wavefront_scope(force: bool = False) -> Iterator[bool]:
     """Dr.Jit's evaluated mode (symbolic loops, calls and conditionals off) while an
     ``external_onnx`` BSDF is alive (or ``force``); yields whether it is on. The flags are
-    restored on exit, so renders without ONNX materials keep their fused kernels."""
+    restored on exit, so renders without ONNX materials keep their fused kernels. A model
+    that fails inside the render (:class:`OnnxEvalError`, which Dr.Jit wraps in its own
+    ``RuntimeError``) leaves the scope as a :class:`JobFailed` with the model's message."""
     import drjit as dr
 
     if not (force or onnx_bsdfs_alive()):
@@ -137,7 +146,26 @@ def wavefront_scope(force: bool = False) -> Iterator[bool]:
             dr.JitFlag.SymbolicConditionals,
         ):
             stack.enter_context(dr.scoped_set_flag(flag, False))
-        yield True
+        try:
+            yield True
+        except Exception as exc:
+            failure = model_failure(exc)
+            if failure is None:
+                raise
+            raise JobFailed(str(failure)) from None
+
+
+def model_failure(exc: BaseException) -> OnnxEvalError | None:
+    """The :class:`OnnxEvalError` that ``exc`` is or was raised from (its causes and
+    contexts), else ``None``."""
+    seen: list[BaseException] = []
+    cur: BaseException | None = exc
+    while cur is not None and all(cur is not e for e in seen):
+        if isinstance(cur, OnnxEvalError):
+            return cur
+        seen.append(cur)
+        cur = cur.__cause__ or cur.__context__
+    return None
 
 
 def _call_model(
@@ -172,8 +200,11 @@ def _load(props: Any) -> OnnxMaterial:
     if "filename" not in props or "kind" not in props:
         raise ValueError("external_onnx: 'filename' and 'kind' are required")
     threads = int(props.get("threads", DEFAULT_THREADS))
+    label = str(props["label"]) if "label" in props else None
     try:
-        return load_onnx(Path(str(props["filename"])), str(props["kind"]), threads=threads)
+        return load_onnx(
+            Path(str(props["filename"])), str(props["kind"]), threads=threads, label=label
+        )
     except Exception as exc:  # FormatError, TooLargeError: a one-line message naming the file
         raise ValueError(f"external_onnx: {exc}") from None
 

@@ -110,7 +110,7 @@ def test06_validate_file_dispatch(tmp_path: Path, rgb: np.ndarray) -> None:
     assert validate_file(tmp_path / "x.bin", "render.EXR") == "image/x-exr"
     write_png(tmp_path / "p", np.zeros((2, 2, 3), np.uint8))
     assert validate_file(tmp_path / "p", "preview.png") == "image/png"
-    (tmp_path / "ok.json").write_text('{"a": [1, 2.5]}')
+    (tmp_path / "ok.json").write_text('{"format": "matforge.brdf-model/1", "a": [1, 2.5]}')
     assert validate_file(tmp_path / "ok.json", "ok.json") == "application/json"
     (tmp_path / "nan.json").write_text('{"a": NaN}')
     with pytest.raises(FormatError, match=r"nan\.json: invalid JSON"):

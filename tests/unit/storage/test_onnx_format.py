@@ -18,8 +18,14 @@ from onnx import TensorProto, helper, numpy_helper
 
 from storage.errors import FormatError, TooLargeError
 from storage.formats import validate_file
-from storage.formats.onnx import MAX_ONNX_BYTES, check_onnx_file, onnx_kind
-from tests.helpers.onnx_models import lambert_model, save
+from storage.formats.onnx import MAX_ONNX_BYTES, batch_cost, check_onnx_file, onnx_kind
+from tests.helpers.onnx_models import (
+    constant_fold_bomb,
+    lambert_model,
+    quadratic_bomb,
+    runtime_width_model,
+    save,
+)
 
 
 def _refusal(tmp_path: Path, model: onnx.ModelProto | bytes, err: type = FormatError) -> str:
@@ -141,3 +147,77 @@ def test08_expand_only_to_another_tensors_shape(tmp_path: Path) -> None:
     m.graph.initializer.append(numpy_helper.from_array(np.array([2**40, 3], np.int64), "shape"))
     m.graph.node.append(helper.make_node("Expand", ["rgb", "shape"], ["big"]))
     assert "Expand's shape must come straight from a Shape node" in _refusal(tmp_path, m)
+
+
+def test09_a_constant_folded_tensor_over_the_initialiser_limit_is_413(tmp_path: Path) -> None:
+    """``[K, 1] + [1, K]`` initialisers (128 KiB at K = 16384) fold to ``[K, K]``, 1 GiB:
+    refused naming the node, with the size shape inference gives (4 K^2 bytes). At K = 64
+    the same graph (16 KiB folded) passes: the size decides, not the pattern."""
+    msg = _refusal(tmp_path, constant_fold_bomb(16384), TooLargeError)
+    assert "node 'fold_add' (Add) computes 'square' [16384, 16384]" in msg, msg
+    assert "from initialisers and constants only" in msg and "1024.0 MiB" in msg, msg
+    path = save(constant_fold_bomb(64), tmp_path / "small.onnx")
+    assert validate_file(path, "small.onnx") == "application/x-onnx"
+    # Two folded squares of 3300^2 float32 (41.5 MiB each): each under the limit, over it
+    # together.
+    m = constant_fold_bomb(3300)
+    m.graph.node.insert(1, helper.make_node("Mul", ["col", "row"], ["product"], name="fold_mul"))
+    m.graph.node.insert(2, helper.make_node("Add", ["square", "product"], ["both"]))
+    m.graph.node[3].input[0] = "both"
+    msg = _refusal(tmp_path, m, TooLargeError)
+    assert "the tensors of fixed size up to node 'fold_mul' (Mul) take 83.1 MiB in all" in msg, msg
+
+
+def test10_an_intermediate_growing_faster_than_the_batch_is_refused(tmp_path: Path) -> None:
+    """Slice(wi) ``[N, 1]`` -> Transpose ``[1, N]`` -> Add ``[N, N]``: every operator is on
+    the allow-list, and the square is refused naming the node and its shape."""
+    msg = _refusal(tmp_path, quadratic_bomb())
+    assert "node 'square' (Add) makes 'square' of shape [N, N]" in msg, msg
+    assert "grows faster than the batch N (N^2 elements" in msg, msg
+    # The file's own value_info cannot hide it: declared small, inferred anew.
+    m = quadratic_bomb()
+    m.graph.value_info.append(helper.make_tensor_value_info("square", TensorProto.FLOAT, ["N", 1]))
+    assert "of shape [N, N]" in _refusal(tmp_path, m)
+    # Nor can inputs naming their batch dimension differently.
+    m = quadratic_bomb()
+    m.graph.input[1].type.tensor_type.shape.dim[0].dim_param = "batch"
+    assert "of shape [N, N]" in _refusal(tmp_path, m)
+
+
+def test11_an_output_inferred_with_the_wrong_width_is_refused(tmp_path: Path) -> None:
+    """A declared ``[N, C]`` output that inference computes as ``[N, 4]``; the same shape
+    hidden from inference (a value-dependent Slice) passes, for the run-time check."""
+    m = lambert_model("brdf")
+    m.graph.initializer[0].CopyFrom(numpy_helper.from_array(np.full((1, 4), 0.1, np.float32), "k"))
+    m.graph.initializer[1].CopyFrom(numpy_helper.from_array(np.zeros((3, 4), np.float32), "zero"))
+    dim = m.graph.output[0].type.tensor_type.shape.dim[1]
+    dim.Clear()
+    dim.dim_param = "C"
+    assert "output 'rgb' is computed with shape [N, 4]" in _refusal(tmp_path, m)
+    path = save(runtime_width_model(4), tmp_path / "hidden.onnx")
+    assert validate_file(path, "hidden.onnx") == "application/x-onnx"
+
+
+def test12_batch_cost_of_good_models(tmp_path: Path) -> None:
+    """Bytes per row are the float32 node outputs' widths summed (the Lambert BTF: a
+    ``[N, 1]`` cosine and the ``[N, 3]`` output, 16 bytes); a torch-exported MLP is fully
+    inferred (nothing unknown) and accepted."""
+    import torch
+
+    from matforge.export_onnx import brdf_onnx
+
+    assert batch_cost(lambert_model("btf"), "m.onnx").row_bytes == 4 * (1 + 3)
+    net = torch.nn.Sequential(torch.nn.Linear(6, 32), torch.nn.ReLU(), torch.nn.Linear(32, 3))
+
+    class Brdf(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.net = net
+
+        def forward(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+            return torch.exp(self.net(torch.cat([wi, wo], dim=1)))
+
+    path = brdf_onnx(Brdf(), tmp_path / "mlp.onnx")
+    assert validate_file(path, "mlp.onnx") == "application/x-onnx"
+    cost = batch_cost(onnx.load(str(path)), "mlp.onnx")
+    assert cost.unknown == () and cost.row_bytes >= 4 * (6 + 32 + 32 + 3 + 3), cost
