@@ -32,7 +32,7 @@ LIMIT_MB = 1536
 #: Seconds one job of this test may take on a shared 2-core machine (the render: a few s).
 JOB_TIMEOUT_S = 120.0
 
-ALLOC_KIND = '''
+ALLOC_KIND = """
 from typing import Literal
 
 from jobapi.kinds import Kind, register
@@ -69,7 +69,7 @@ register(
     Kind(name="test.alloc", params=AllocParams, runner=run,
          description="allocates what it is told (a memory-limit test)")
 )
-'''
+"""
 
 
 def write_plugin(root: Path) -> Path:
@@ -160,6 +160,7 @@ def test_job_past_the_limit_fails_out_of_memory_and_the_next_runs(
             assert time.monotonic() < deadline, f"worker not replaced:\n{server.log_tail()}"
             time.sleep(0.1)
 
-        render = finished(http, submit(http, {**SMOKE_RENDER, "seed": {"numpy": 1, "drjit": 2}[how]}))
+        seed = {"numpy": 1, "drjit": 2}[how]
+        render = finished(http, submit(http, {**SMOKE_RENDER, "seed": seed}))
         assert render["state"] == "succeeded", (render, server.log_tail())
         assert health_seconds(server) < 1.0
