@@ -43,6 +43,16 @@ _ALLOCATION_FAILED = re.compile(
 )
 
 
+#: What a kind's own failure message holds when it wraps a failed allocation (Mitsuba
+#: reports a plugin's exception as a RuntimeError with its traceback as text, which a kind
+#: then names as its failure): the runtimes' words, or Python's ``MemoryError``.
+_WRAPPED_ALLOCATION_FAILED = re.compile(
+    r"can't allocate memory|failed to allocate memory|bad_alloc|cannot allocate memory|"
+    r"\bMemoryError\b",
+    re.IGNORECASE,
+)
+
+
 def limit_memory(max_bytes: int) -> int:
     """Cap this process's data segment (heap and private writable mappings) at
     ``max_bytes``, or at the hard limit already set if that is lower; returns the cap in
@@ -80,11 +90,17 @@ def is_out_of_memory(exc: BaseException) -> bool:
     return False
 
 
+def mentions_allocation_failure(message: str) -> bool:
+    """Whether a kind's failure message wraps a failed allocation (see
+    :data:`_WRAPPED_ALLOCATION_FAILED`)."""
+    return _WRAPPED_ALLOCATION_FAILED.search(message) is not None
+
+
 def describe_limit(limit: int | None) -> str:
-    """``"its memory limit of 4096 MiB (MATFORGE_JOB_MEMORY_MB)"``, or ``"no memory
-    limit"``."""
+    """``"its memory limit of 4096 MiB (MATFORGE_JOB_MEMORY_MB)"``, or ``"the machine's
+    memory (no limit set)"``."""
     if limit is None:
-        return "no memory limit (MATFORGE_JOB_MEMORY_MB=0)"
+        return "the machine's memory (no limit set)"
     return f"its memory limit of {limit >> 20} MiB (MATFORGE_JOB_MEMORY_MB)"
 
 

@@ -99,3 +99,27 @@ def test_kernel_limit_refuses_an_allocation_past_it() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
     )
     assert out.stdout.strip() == "refused", out
+
+
+def test_a_kinds_failure_that_wraps_a_failed_allocation_is_out_of_memory() -> None:
+    """Mitsuba reports a plugin's exception as text, which the render kind names as its
+    failure: onnxruntime's ``std::bad_alloc`` while its session starts (an ONNX model whose
+    constants fold to 1 GiB) reached the job as "material.external: At dictionary node
+    ...: Traceback ..." before."""
+    from jobapi.errors import JobFailed
+    from service.workers.execution import failure_message
+
+    wrapped = JobFailed(
+        'material.external: At dictionary node "root": failed to instantiate unknown plugin '
+        'of type "external_onnx": Traceback (most recent call last): File "x.py", line 1 '
+        "onnxruntime.capi.onnxruntime_pybind11_state.RuntimeException: [ONNXRuntimeError] : "
+        "6 : RUNTIME_EXCEPTION : Exception during initialization: std::bad_alloc"
+    )
+    msg = failure_message("render", wrapped, "starting Mitsuba")
+    assert msg.startswith("out of memory in render (starting Mitsuba): "), msg
+    assert msg.endswith(
+        '(material.external: At dictionary node "root": failed to instantiate '
+        'unknown plugin of type "external_onnx")'
+    ), msg
+    plain = JobFailed("material.external.model: sha256:ab: not an ONNX model")
+    assert failure_message("render", plain, None) == str(plain)
