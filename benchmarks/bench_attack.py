@@ -186,9 +186,19 @@ def _short(text: str, n: int = 150) -> str:
 
 
 def upload(ctx: Ctx, name: str, body: bytes) -> tuple[int, dict[str, Any]]:
-    r = ctx.http.post(
-        "/api/artifacts", params={"name": name}, content=body, headers=OCTETS, timeout=300
-    )
+    """``POST /api/artifacts`` on a connection of its own (a server that fails a request
+    may close the connection under the next one): ``(status, body)``, status 0 with the
+    client's error when no answer came."""
+    try:
+        r = httpx.post(
+            f"{ctx.srv.url}/api/artifacts",
+            params={"name": name},
+            content=body,
+            headers={**OCTETS, "connection": "close"},
+            timeout=300,
+        )
+    except httpx.HTTPError as exc:
+        return 0, {"error": f"no answer: {type(exc).__name__}: {exc}"}
     try:
         doc = r.json()
     except ValueError:
@@ -197,7 +207,8 @@ def upload(ctx: Ctx, name: str, body: bytes) -> tuple[int, dict[str, Any]]:
 
 
 def _said(code: int, doc: dict[str, Any]) -> str:
-    return f"{code}" + (f" {_short(doc['error'])}" if code >= 400 and "error" in doc else "")
+    shown = code >= 400 or code == 0
+    return f"{code}" + (f" {_short(doc['error'])}" if shown and "error" in doc else "")
 
 
 def run_job(ctx: Ctx, spec: dict[str, Any]) -> str:
@@ -208,7 +219,11 @@ def run_job(ctx: Ctx, spec: dict[str, Any]) -> str:
     job_id = r.json()["id"]
     deadline = time.monotonic() + ctx.job_timeout
     while time.monotonic() < deadline:
-        doc = ctx.http.get(f"/api/jobs/{job_id}", timeout=30).json()
+        try:
+            doc = ctx.http.get(f"/api/jobs/{job_id}", timeout=30).json()
+        except httpx.HTTPError:
+            time.sleep(0.5)
+            continue
         if doc["state"] in ("succeeded", "failed", "cancelled"):
             said = f"; {_short(doc['error'])}" if doc.get("error") else ""
             return f"submit {r.status_code}; job {doc['state']} (attempt {doc['attempts']}){said}"
@@ -360,8 +375,11 @@ def settle(ctx: Ctx, timeout: float = 60.0) -> None:
     """Wait (bounded) until no job runs and a worker is alive."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        running = ctx.http.get("/api/jobs", params={"state": "running"}, timeout=30)
-        busy = running.status_code == 200 and bool(running.json())
+        try:
+            running = httpx.get(f"{ctx.srv.url}/api/jobs", params={"state": "running"}, timeout=30)
+            busy = running.status_code != 200 or bool(running.json())
+        except httpx.HTTPError:
+            busy = True
         if not busy and groups(ctx.srv.proc.pid)["workers"]:
             return
         time.sleep(0.5)
