@@ -19,8 +19,9 @@ temporary data directory, and replays, one at a time:
 
 A thread samples every 0.2 s the RSS of the web process, of the job workers (with their
 shard processes) and of the upload checkers, from ``/proc``; another asks ``/api/health``
-every 0.2 s. Each row gives the outcome (HTTP status, job state and error), the peaks of
-those RSS sums during the finding, the slowest ``/api/health`` answer, and the wall time.
+every 0.2 s. A small render warms the worker up first. Each row gives the outcome (HTTP
+status, job state and error), the peaks of those RSS sums during the finding, the slowest
+``/api/health`` answer, and the wall time.
 Every request and every job wait is bounded (a job still running after ``--job-timeout``
 seconds is cancelled and reported as such), so the script never hangs; a finding that
 raises is reported as such and the next one runs.
@@ -53,6 +54,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.helpers import attack_files  # noqa: E402
 
 SAMPLE_S = 0.2
+WARM_UP: dict[str, Any] = {
+    "kind": "render",
+    "params": {
+        "scene": "sphere_env",
+        "material": {"mitsuba": {"type": "diffuse"}},
+        "resolution": [16, 16],
+        "spp": 1,
+    },
+}
 OCTETS = {"content-type": "application/octet-stream"}
 
 
@@ -335,7 +345,7 @@ def fetch_onto_link(dangling: bool) -> Callable[[Ctx], str]:
         if dangling:
             what = "dangling target created" if target.exists() else "no target created"
         else:
-            what = "target intact" if target.read_text() == "precious\n" else "TARGET REPLACED"
+            what = "target intact" if target.read_bytes() == b"precious\n" else "TARGET REPLACED"
         kind = "still a link" if link.is_symlink() else "link replaced by a file"
         said = (
             f": {_short(proc.stderr.strip().splitlines()[-1], 90)}" if proc.stderr.strip() else ""
@@ -399,7 +409,11 @@ def main() -> None:
     env: dict[str, str] = {}
     if a.job_memory_mb is not None:
         env["MATFORGE_JOB_MEMORY_MB"] = str(a.job_memory_mb)
-    todo = [f for f in findings() if a.only is None or f[0] in a.only]
+    every = findings()
+    unknown = sorted(set(a.only or ()) - {f[0] for f in every})
+    if unknown:
+        ap.error(f"unknown findings {unknown}; known: {', '.join(f[0] for f in every)}")
+    todo = [f for f in every if a.only is None or f[0] in a.only]
     rows: list[Row] = []
     t_all = time.perf_counter()
     with (
@@ -411,6 +425,10 @@ def main() -> None:
         watch = Watch(srv)
         try:
             settle(ctx, 120)
+            # a small render first: the worker has loaded Mitsuba, the web process its
+            # modules, before the first finding is measured
+            print(f"# warm-up: {run_job(ctx, WARM_UP)}", file=sys.stderr, flush=True)
+            settle(ctx)
             for name, size, attack in todo:
                 row = Row(name, size)
                 watch.row = row
