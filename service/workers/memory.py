@@ -1,12 +1,15 @@
 """The memory limit of the processes that run jobs, and what running out of it is called.
 
 A worker of ``matforge serve`` caps its own memory before it loads Mitsuba
-(:func:`limit_memory`, ``MATFORGE_JOB_MEMORY_MB``, :meth:`service.settings.Settings.
-job_memory_limit`); its shard processes inherit the cap, each its own. The kernel enforces
+(:func:`limit_memory`, ``MATFORGE_JOB_MEMORY_MB``,
+:meth:`~service.settings.Settings.job_memory_limit`); its shard processes inherit the cap,
+each its own. The kernel enforces
 it with ``RLIMIT_DATA``, which counts the heap and private writable mappings, what a process
 can actually fill, and not ``RLIMIT_AS``: Dr.Jit's LLVM JIT, torch and onnxruntime reserve
 address space far beyond what they use, and an address-space cap refuses them long before
-memory runs short. An allocation past the cap fails at once, before any page is touched, so
+memory runs short (``benchmarks/bench_memory_limits.py``: with 16 threads per runtime the
+same work holds 2.5 GiB of address space for 0.5 GiB of memory, and an address-space cap of
+1.5 GiB aborts it). An allocation past the cap fails at once, before any page is touched, so
 one job cannot take the machine's memory and leave the OOM killer to pick a victim.
 
 How a job meets the cap depends on the runtime, and all of it is reported as an error that

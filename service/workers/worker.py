@@ -241,6 +241,11 @@ class Supervisor:
             self.check()
 
     def start(self) -> None:
+        if self.n:
+            log.info(
+                "job memory limit: %s per worker process (MATFORGE_JOB_MEMORY_MB)",
+                f"{self.memory_limit >> 20} MiB" if self.memory_limit else "none",
+            )
         self.check()
         self._thread = threading.Thread(target=self._loop, name="supervisor", daemon=True)
         self._thread.start()
