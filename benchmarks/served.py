@@ -42,24 +42,27 @@ def served(
     env_extra: dict[str, str] | None = None,
     timeout: float = 60.0,
     cpus: str | None = None,
+    workers: int = 0,
+    log_path: str | None = None,
 ) -> Iterator[Served]:
-    """``matforge serve --workers 0`` until ``/api/health`` answers 200 (``SystemExit``
+    """``matforge serve --workers N`` (default 0) until ``/api/health`` answers 200 (``SystemExit``
     after ``timeout`` seconds); SIGTERM to its process group on exit. ``cpus``: a
-    ``taskset -c`` CPU list the server (and every process it starts) is pinned to."""
+    ``taskset -c`` CPU list the server (and every process it starts) is pinned to;
+    ``log_path``: where its output goes (default: discarded)."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {k: v for k, v in os.environ.items() if not k.startswith("MATFORGE_")}
     env.update(env_extra or {})
     exe = os.path.join(os.path.dirname(sys.executable), "matforge")
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as data:
-        args = [exe, "serve", "--host", "127.0.0.1", "--port", str(port), "--workers", "0",
+        args = [exe, "serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
                 "--http-workers", str(http_workers), "--data-dir", data]  # fmt: skip
         if cpus is not None:
             args = ["taskset", "-c", cpus, *args]  # taskset execs: the pid is the server's
+        out = open(log_path, "wb") if log_path else subprocess.DEVNULL  # noqa: SIM115
         proc = subprocess.Popen(
-            args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            start_new_session=True,
-        )  # fmt: skip
+            args, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+        )
         try:
             deadline = time.monotonic() + timeout
             while True:
@@ -79,3 +82,5 @@ def served(
                     proc.wait(60)
                 except subprocess.TimeoutExpired:
                     os.killpg(proc.pid, signal.SIGKILL)
+            if not isinstance(out, int):
+                out.close()

@@ -381,6 +381,8 @@ def create_app(settings: Settings | None = None, bind_host: str | None = None) -
         processes=settings.upload_checkers,
         queue_wait=settings.upload_queue_seconds,
         max_archive_pixels=settings.archive_max_pixels,
+        budget_seconds=settings.upload_budget_seconds,
+        inflate_ratio=settings.upload_inflate_ratio,
     )
     app.state.previews = PreviewMaker(
         app.state.upload_checker, max_pixels=settings.preview_max_pixels

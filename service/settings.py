@@ -39,6 +39,34 @@ def _float(env: dict[str, str], name: str, default: float) -> float:
         raise ValueError(f"environment variable {name}={raw!r} is not a number") from exc
 
 
+#: The least memory a job's process gets when the limit is shared out automatically.
+JOB_MEMORY_FLOOR = 1 << 30
+
+
+def physical_memory() -> int | None:
+    """This machine's memory in bytes (``None`` where the OS does not say)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _memory_mb(env: dict[str, str], name: str) -> int | None:
+    """``None`` for unset or ``auto``, else the MiB given as bytes (0: no limit)."""
+    raw = (env.get(name) or "").strip().lower()
+    if raw in ("", "auto"):
+        return None
+    try:
+        mb = int(raw)
+    except ValueError:
+        raise ValueError(
+            f"environment variable {name}={raw!r} is not a number of MiB (or auto)"
+        ) from None
+    if mb < 0:
+        raise ValueError(f"environment variable {name}={raw!r} must be 0 (no limit) or more")
+    return mb << 20
+
+
 def _flag(env: dict[str, str], name: str) -> bool:
     raw = (env.get(name) or "").strip().lower()
     if raw in ("", "0", "false", "no", "off"):
@@ -75,6 +103,7 @@ class Settings:
     ``MATFORGE_MAX_BODY_KB``      ``max_body_bytes``           1 MiB (JSON bodies)
     ``MATFORGE_UPLOAD_CHECK_MB``  ``upload_check_bytes``       2 GiB (memory to validate one)
     ``MATFORGE_ARCHIVE_MPIX``     ``archive_max_pixels``       64 Mpix (an archive's images)
+    ``MATFORGE_JOB_MEMORY_MB``    ``job_memory_bytes``         auto: a share of RAM (below)
     ``MATFORGE_ALLOWED_HOSTS``    ``allowed_hosts``            the bound host (and loopback)
     ``MATFORGE_POOL_PROCESSES``   ``pool_processes``           cores, at most 2
     ``MATFORGE_STALL_SECONDS``    ``stall_seconds``            unset: each kind's own
@@ -99,14 +128,32 @@ class Settings:
     Uploads are checked, and EXR previews made, in a pool of bounded child processes
     (:mod:`service.upload_check`):
 
-    =================================  ========================  ==============================
-    variable                           field                     default
-    =================================  ========================  ==============================
-    ``MATFORGE_UPLOAD_CHECKERS``       ``upload_checkers``       2 (files checked at once)
-    ``MATFORGE_UPLOAD_CHECK_SECONDS``  ``upload_check_seconds``  120 (time to check one)
-    ``MATFORGE_UPLOAD_QUEUE_SECONDS``  ``upload_queue_seconds``  10 (wait for a checker; 503)
-    ``MATFORGE_PREVIEW_MAX_PIXELS``    ``preview_max_pixels``    2**24 (largest EXR previewed)
-    =================================  ========================  ==============================
+    ==================================  =========================  =================================
+    variable                            field                      default
+    ==================================  =========================  =================================
+    ``MATFORGE_UPLOAD_CHECKERS``        ``upload_checkers``        2 (files checked at once)
+    ``MATFORGE_UPLOAD_CHECK_SECONDS``   ``upload_check_seconds``   120 (the most one check may take)
+    ``MATFORGE_UPLOAD_QUEUE_SECONDS``   ``upload_queue_seconds``   10 (wait for a checker; 503)
+    ``MATFORGE_UPLOAD_BUDGET_SECONDS``  ``upload_budget_seconds``  10 (plus 1 s per MiB; 413)
+    ``MATFORGE_UPLOAD_INFLATE_RATIO``   ``upload_inflate_ratio``   20 (x the upload + 16 MiB; 413)
+    ``MATFORGE_PREVIEW_MAX_PIXELS``     ``preview_max_pixels``     2**24 (largest EXR previewed)
+    ==================================  =========================  =================================
+
+    Each upload has a **budget** (:meth:`service.upload_check.UploadChecker.budget_for`):
+    its check may take ``upload_budget_seconds`` plus one
+    second per MiB uploaded (at most ``upload_check_seconds``), and the members of an
+    archive (``.btf.zip``, ``.npz``) may inflate to ``upload_inflate_ratio`` times the
+    upload's size plus 16 MiB, summed from the zip directory before anything is inflated.
+    Past either, the upload is refused with 413, the error naming what was over.
+
+    ``job_memory_bytes`` caps the memory of every process that runs a job's code in
+    ``matforge serve`` (a worker and each of its shard processes), enforced by the kernel
+    (``RLIMIT_DATA``: heap and private writable mappings, not reserved address space, which
+    Dr.Jit's LLVM JIT, torch and onnxruntime reserve far beyond their use). A job past it
+    fails with an error that starts ``out of memory`` and its worker is replaced
+    (:mod:`service.workers.memory`). Unset or ``auto``: :meth:`job_memory_limit` shares
+    three quarters of the machine's memory among the workers and their shard processes, at
+    least 1 GiB each; ``0``: no limit.
 
     ``stall_seconds``, when set, replaces every kind's stall limit
     (:attr:`jobapi.kinds.Kind.stall_seconds`): a running job that reports no progress for
@@ -144,6 +191,10 @@ class Settings:
     upload_queue_seconds: float = 10.0
     preview_max_pixels: int = 1 << 24
     archive_max_pixels: int = 64 * 1000 * 1000
+    upload_budget_seconds: float = 10.0
+    upload_inflate_ratio: float = 20.0
+    #: ``None``: a share of the machine's memory (:meth:`job_memory_limit`); 0: no limit.
+    job_memory_bytes: int | None = None
     allowed_hosts: tuple[str, ...] = ()
     pool_processes: int = 2
     stall_seconds: float | None = None
@@ -178,6 +229,9 @@ class Settings:
             upload_queue_seconds=_float(e, "MATFORGE_UPLOAD_QUEUE_SECONDS", 10.0),
             preview_max_pixels=_int(e, "MATFORGE_PREVIEW_MAX_PIXELS", 1 << 24),
             archive_max_pixels=int(_float(e, "MATFORGE_ARCHIVE_MPIX", 64.0) * 1e6),
+            upload_budget_seconds=_float(e, "MATFORGE_UPLOAD_BUDGET_SECONDS", 10.0),
+            upload_inflate_ratio=_float(e, "MATFORGE_UPLOAD_INFLATE_RATIO", 20.0),
+            job_memory_bytes=_memory_mb(e, "MATFORGE_JOB_MEMORY_MB"),
             allowed_hosts=tuple(
                 h.strip().lower()
                 for h in (e.get("MATFORGE_ALLOWED_HOSTS") or "").split(",")
@@ -212,6 +266,11 @@ class Settings:
             "MATFORGE_UPLOAD_QUEUE_SECONDS": repr(self.upload_queue_seconds),
             "MATFORGE_PREVIEW_MAX_PIXELS": str(self.preview_max_pixels),
             "MATFORGE_ARCHIVE_MPIX": repr(self.archive_max_pixels / 1e6),
+            "MATFORGE_UPLOAD_BUDGET_SECONDS": repr(self.upload_budget_seconds),
+            "MATFORGE_UPLOAD_INFLATE_RATIO": repr(self.upload_inflate_ratio),
+            "MATFORGE_JOB_MEMORY_MB": (
+                "auto" if self.job_memory_bytes is None else str(self.job_memory_bytes >> 20)
+            ),
             "MATFORGE_ALLOWED_HOSTS": ",".join(self.allowed_hosts),
             "MATFORGE_POOL_PROCESSES": str(self.pool_processes),
             "MATFORGE_GC_GRACE_HOURS": repr(self.gc_grace_seconds / 3600.0),
@@ -234,6 +293,18 @@ class Settings:
     def with_(self, **changes: object) -> Settings:
         """A copy with some fields replaced (settings are immutable)."""
         return replace(self, **changes)  # type: ignore[arg-type]
+
+    def job_memory_limit(self) -> int | None:
+        """Bytes each process running a job's code may use (``RLIMIT_DATA``), or ``None``
+        for no limit. ``auto``: three quarters of this machine's memory shared among
+        ``workers`` workers, each with ``pool_processes`` shard processes, at least 1 GiB."""
+        if self.job_memory_bytes is not None:
+            return self.job_memory_bytes or None
+        total = physical_memory()
+        if total is None:
+            return None
+        share = (3 * total // 4) // (max(1, self.workers) * (1 + max(1, self.pool_processes)))
+        return max(JOB_MEMORY_FLOOR, share)
 
     @property
     def db_path(self) -> Path:

@@ -21,6 +21,14 @@ zeros, a huge EXR). The format readers refuse what their headers already show to
   so children are started from one long-lived thread (:class:`_Spawner`), never from a
   request thread that may end. A child also exits when its request pipe closes.
 
+- **A budget per upload** (:meth:`UploadChecker.budget_for`): checking a file may take
+  ``MATFORGE_UPLOAD_BUDGET_SECONDS`` (10) plus one second per MiB of it, at most
+  ``MATFORGE_UPLOAD_CHECK_SECONDS``, and an archive's members may inflate to
+  ``MATFORGE_UPLOAD_INFLATE_RATIO`` (20) times its size plus 16 MiB, summed from its zip
+  directory before anything is inflated (:mod:`storage.formats.zip_budget`). A file over
+  either is an :class:`OverBudget` (413) naming what was over: a small file cannot hold a
+  checker for long, nor fill the temporary disk.
+
 Any module-level function runs in a child with :meth:`UploadChecker.run`
 (``checker.run(fn, *args, label=name)``); :meth:`UploadChecker.validate` is
 ``run(storage.formats.validate_file, path, name)``.
@@ -59,6 +67,15 @@ TIMEOUT_SECONDS = 120.0
 QUEUE_WAIT_SECONDS = 10.0
 #: Children in the pool (default of ``MATFORGE_UPLOAD_CHECKERS``).
 PROCESSES = 2
+#: Seconds a check of an upload may take before one second per MiB is added (default of
+#: ``MATFORGE_UPLOAD_BUDGET_SECONDS``).
+BUDGET_SECONDS = 10.0
+#: Times its own size an upload's archive members may inflate to (default of
+#: ``MATFORGE_UPLOAD_INFLATE_RATIO``), beside :data:`INFLATE_ALLOWANCE`.
+INFLATE_RATIO = 20.0
+#: Bytes any archive's members may inflate to beyond the ratio (a small archive of
+#: well-compressed members: an angle list, a few images).
+INFLATE_ALLOWANCE = 16 << 20
 _FRAME = struct.Struct("<Q")
 #: Environment variables a child does not get: it decodes hostile files and needs no secrets.
 _SECRETS = ("MATFORGE_TOKEN", "RAY_AUTH_TOKEN")
@@ -75,6 +92,18 @@ class CheckerBusy(Exception):
         super().__init__(
             f"{label}: every file checker is busy with other uploads; try again in {retry_after} s"
         )
+
+
+class OverBudget(TooLargeError):
+    """An upload over its budget (:meth:`UploadChecker.budget_for`): answered 413;
+    ``what`` is ``"seconds"`` or ``"inflated bytes"``."""
+
+    def __init__(self, message: str, what: str) -> None:
+        self.what = what
+        super().__init__(message)
+
+    def __reduce__(self) -> tuple[type[OverBudget], tuple[str, str]]:
+        return (type(self), (str(self), self.what))
 
 
 class CheckFailed(FormatError):
@@ -290,7 +319,8 @@ class UploadChecker:
     ``max_bytes``: each child's data segment; ``timeout``: seconds one call may take;
     ``queue_wait``: seconds a call waits for a free child before :class:`CheckerBusy`;
     ``max_archive_pixels``: the most pixels all the images of a BTF archive may decode to,
-    summed from their headers (:class:`~storage.formats.TooLargeError` above).
+    summed from their headers (:class:`~storage.formats.TooLargeError` above);
+    ``budget_seconds`` and ``inflate_ratio``: an upload's budget (:meth:`budget_for`).
     """
 
     def __init__(
@@ -301,6 +331,8 @@ class UploadChecker:
         processes: int = PROCESSES,
         queue_wait: float = QUEUE_WAIT_SECONDS,
         max_archive_pixels: int | None = None,
+        budget_seconds: float = BUDGET_SECONDS,
+        inflate_ratio: float = INFLATE_RATIO,
     ) -> None:
         if processes < 1:
             raise ValueError(f"an upload checker needs at least 1 process, not {processes}")
@@ -309,6 +341,8 @@ class UploadChecker:
         self.processes = processes
         self.queue_wait = queue_wait
         self.max_archive_pixels = max_archive_pixels
+        self.budget_seconds = budget_seconds
+        self.inflate_ratio = inflate_ratio
         #: Calls answered by a child (for statistics and tests).
         self.calls = 0
         self._free = threading.BoundedSemaphore(processes)
@@ -370,17 +404,36 @@ class UploadChecker:
         self._free.release()
 
     # -- calls ------------------------------------------------------------------------------
-    def run(self, fn: Callable[..., T], *args: Any, label: str) -> T:
+    def budget_for(self, size: int) -> tuple[float, int]:
+        """The budget of checking an upload of ``size`` bytes: ``(seconds, inflated
+        bytes)``. Seconds: ``budget_seconds`` plus one per MiB, at most the checker's
+        ``timeout``; inflated bytes: ``inflate_ratio`` times ``size`` plus
+        :data:`INFLATE_ALLOWANCE`."""
+        seconds = min(self.timeout, self.budget_seconds + size / (1 << 20))
+        return seconds, int(self.inflate_ratio * size) + INFLATE_ALLOWANCE
+
+    def run(
+        self,
+        fn: Callable[..., T],
+        *args: Any,
+        label: str,
+        timeout: float | None = None,
+        over_time: str | None = None,
+    ) -> T:
         """``fn(*args)`` in a child; its exceptions are raised here. ``fn`` must be a
         module-level function, and ``args`` and the result picklable. ``label`` (the user's
         file name) starts the messages of the errors raised here: :class:`CheckerBusy`,
-        :class:`TooLargeError` (out of memory) and :class:`CheckFailed` (crash, time-out)."""
+        :class:`TooLargeError` (out of memory) and :class:`CheckFailed` (crash, time-out).
+        ``timeout``: seconds this call may take (default: the checker's); with
+        ``over_time`` (what the time limit is made of), running past it is an
+        :class:`OverBudget` instead of a :class:`CheckFailed`."""
+        limit = self.timeout if timeout is None else timeout
         request = pickle.dumps((fn, args, label), protocol=pickle.HIGHEST_PROTOCOL)
         request = _FRAME.pack(len(request)) + request
         child = self._take(label)
         keep = False
         try:
-            status, value, retire = child.call(request, self.timeout)
+            status, value, retire = child.call(request, limit)
             keep = not retire
         except _ChildDied:
             log.warning("checking %s killed its checker process (pid %d)", label, child.pid)
@@ -388,10 +441,14 @@ class UploadChecker:
                 label, "checking it crashed the checker (out of memory, or a corrupt file)"
             ) from None
         except TimeoutError:
-            log.warning(
-                "checking %s took longer than %g s; killed pid %d", label, self.timeout, child.pid
-            )
-            raise CheckFailed(label, f"checking it took longer than {self.timeout:g} s") from None
+            log.warning("checking %s took longer than %g s; killed pid %d", label, limit, child.pid)
+            if over_time is not None:
+                raise OverBudget(
+                    f"{label}: over its time budget: checking it took longer than {limit:.3g} s "
+                    f"({over_time}); send a smaller or simpler file",
+                    "seconds",
+                ) from None
+            raise CheckFailed(label, f"checking it took longer than {limit:g} s") from None
         finally:
             self._give_back(child, keep)
         with self._lock:
@@ -402,11 +459,26 @@ class UploadChecker:
 
     def validate(self, path: Path, name: str) -> str:
         """The media type of the file at ``path`` (``storage.formats.validate_file``, in a
-        child); ``name`` is the user's file name."""
+        child, within the file's budget: :meth:`budget_for`); ``name`` is the user's file
+        name."""
         from storage.formats import validate_file
 
-        check = functools.partial(validate_file, max_archive_pixels=self.max_archive_pixels)
-        return self.run(check, Path(path), name, label=name)
+        size = Path(path).stat().st_size
+        seconds, inflated = self.budget_for(size)
+        check = functools.partial(
+            validate_file,
+            max_archive_pixels=self.max_archive_pixels,
+            max_inflated_bytes=inflated,
+            inflate_budget=(
+                f"{self.inflate_ratio:g} times the upload's size plus {INFLATE_ALLOWANCE >> 20} "
+                "MiB, MATFORGE_UPLOAD_INFLATE_RATIO"
+            ),
+        )
+        over_time = (
+            f"{self.budget_seconds:g} s plus 1 s per MiB uploaded, at most {self.timeout:g} s; "
+            "MATFORGE_UPLOAD_BUDGET_SECONDS, MATFORGE_UPLOAD_CHECK_SECONDS"
+        )
+        return self.run(check, Path(path), name, label=name, timeout=seconds, over_time=over_time)
 
     def close(self) -> None:
         """End every child (a call in flight gets a :class:`CheckFailed`); a later call

@@ -206,7 +206,11 @@ def _check_name(name: str) -> str:
     },
     responses={
         **_BUSY,
-        413: {"model": ErrorPublic, "description": "over the upload size limit"},
+        413: {
+            "model": ErrorPublic,
+            "description": "over the upload size limit, or over its checking budget "
+            "(time, or bytes its archive members inflate to); `error` names what was over",
+        },
         422: {
             "model": ErrorPublic,
             "description": "malformed file, or unknown type; `error` names the file",

@@ -31,6 +31,12 @@ from jobapi.version import __version__
 from service import kinds
 from service.settings import Settings
 from service.specs import canonical_json, validate_spec
+from service.workers.memory import (
+    current_limit,
+    describe_limit,
+    is_out_of_memory,
+    mentions_allocation_failure,
+)
 from service.workers.provenance import code_version, package_versions
 from storage.artifacts import ArtifactStore
 from storage.job_logs import JobLog, log_dir
@@ -258,22 +264,45 @@ def crash_message(kind: str, exc: BaseException, step: str | None) -> str:
     """The one-line ``error`` of a job whose runner raised ``exc`` (not a ``JobFailed``).
 
     Running out of memory is named as such, wherever it happened (in the runner, or in a
-    shard process whose MemoryError came back through the pool) and whatever it led to on
-    the way out (a file closed under a reader's feet used to be reported instead: "I/O
-    operation on closed file"); ``step`` is the runner's last progress line."""
+    shard process whose MemoryError came back through the pool), however the runtime said
+    it (:func:`~service.workers.memory.is_out_of_memory`: numpy, torch, onnxruntime) and
+    whatever it led to on the way out (a file closed under a reader's feet used to be
+    reported instead: "I/O operation on closed file"); a shard process that died (killed at
+    the memory limit, as native code is, or crashed) too. ``step`` is the runner's last
+    progress line."""
     at = f" ({step})" if step else ""
     chain = _chain(exc)
-    if any(isinstance(e, MemoryError) for e in chain):
+    if is_out_of_memory(exc):
         return (
             f"out of memory in {kind}{at}: the job needs more memory than this worker could "
-            "allocate; use smaller inputs or shards, or a worker with more memory"
+            f"allocate under {describe_limit(current_limit())}; use smaller inputs or shards, "
+            "or a worker with more memory"
         )
     if any(isinstance(e, BrokenProcessPool) for e in chain):
         return (
-            f"a shard process of {kind} died{at} (killed, or out of memory); "
-            "see the worker log, then submit the spec again"
+            f"out of memory in {kind}{at}, or a crash: a shard process died (killed at "
+            f"{describe_limit(current_limit())}, or crashed); see the worker log, then "
+            "submit the spec again with smaller inputs"
         )
     return f"internal error in {kind}: {type(exc).__name__}: {_one_line(exc)}"
+
+
+def failure_message(kind: str, exc: BaseException, step: str | None) -> str:
+    """The one-line ``error`` of a job whose runner raised a ``JobFailed`` (or a
+    ``SpecError``): its message, unless it wraps a failed allocation (a Mitsuba plugin's
+    exception reported as text, e.g. onnxruntime's ``std::bad_alloc`` while a session
+    starts), which is named as running out of memory, with the message's first part."""
+    text = _one_line(exc)
+    if text.startswith("out of memory") or not mentions_allocation_failure(text):
+        return text
+    at = f" ({step})" if step else ""
+    head = text.split(" Traceback (most recent call last)")[0].rstrip(": ")
+    head = head if len(head) <= 200 else head[:197] + "..."
+    return (
+        f"out of memory in {kind}{at}: the job needs more memory than this worker could "
+        f"allocate under {describe_limit(current_limit())}; use smaller inputs or shards, "
+        f"or a worker with more memory ({head})"
+    )
 
 
 def execute_configured(
@@ -405,7 +434,7 @@ def _execute(
             except (JobFailed, SpecError) as exc:
                 if hb.cancelled():  # stopped first; what the runner made of it is moot
                     return hb.outcome()
-                jobs.fail(job.id, job.lease_token, _one_line(exc))
+                jobs.fail(job.id, job.lease_token, failure_message(job.kind, exc, hb.last_message))
                 return "failed"
             except Exception as exc:
                 if hb.cancelled():  # e.g. the pool its shards ran in was killed on a stop

@@ -6,6 +6,10 @@
 one when one exits or dies, or when its beat stalls past the lease (a stopped or frozen
 worker, :mod:`~service.workers.liveness`). A worker ends by itself when its supervisor dies.
 Heavy work never runs in the web process.
+
+Every worker runs under a memory limit set by the kernel (``MATFORGE_JOB_MEMORY_MB``,
+:mod:`~service.workers.memory`): a job past it fails with an error that starts ``out of
+memory``, and the worker is replaced before it runs another job.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from service.workers.backend import start_backend
 from service.workers.execution import execute_configured, worker_id
 from service.workers.executors import executor_for
 from service.workers.liveness import Beat, beat_path, end_worker, stalled_for, watch_parent
+from service.workers.memory import NATIVE_OOM_SIGNALS, death_message, limit_memory
 from storage.artifacts import ArtifactStore
 from storage.jobs import JobStore
 
@@ -42,8 +47,9 @@ def run_worker(
     stop: threading.Event | None = None,
     on_wedged: Callable[[], None] | None = None,
 ) -> int:
-    """Claim and run jobs until ``max_jobs`` ran, ``stop`` is set, or the queue stayed empty
-    for ``idle_exit_seconds``. Returns the number of jobs run. ``on_wedged`` is called when
+    """Claim and run jobs until ``max_jobs`` ran, ``stop`` is set, the queue stayed empty
+    for ``idle_exit_seconds``, or a job ran out of memory (the next job gets a fresh
+    process). Returns the number of jobs run. ``on_wedged`` is called when
     a stopped job's runner does not return (:func:`~service.workers.execution.execute`);
     the worker process passes :func:`~service.workers.liveness.end_worker`."""
     # BackendUnavailable (MATFORGE_VARIANT cannot run here): exit before claiming. The
@@ -78,10 +84,26 @@ def run_worker(
             log.info("job %s: %s", job.id, state)
             ran += 1
             idle_since = time.monotonic()
+            if state == "failed" and _ran_out_of_memory(jobs, job.id):
+                log.warning(
+                    "worker %s: job %s ran out of memory; exiting so that a fresh worker "
+                    "takes the next job",
+                    me,
+                    job.id,
+                )
+                break
     finally:
         executor.close()
         jobs.close()
     return ran
+
+
+def _ran_out_of_memory(jobs: JobStore, job_id: str) -> bool:
+    try:
+        error = jobs.get(job_id).error or ""
+    except Exception:  # a busy database: keep the worker
+        return False
+    return error.startswith("out of memory")
 
 
 class Supervisor:
@@ -91,6 +113,12 @@ class Supervisor:
     out-of-memory kill or a SIGKILL of one loses only its job's lease, which the reaper
     turns back into a queued job. A worker whose beat stalled past the lease is killed (with
     its pool processes) and replaced; workers watch this process and end when it dies.
+
+    Each worker gets the memory limit :meth:`~service.settings.Settings.job_memory_limit`
+    computes for ``n`` workers (``memory_limit``). A worker that dies of a signal native
+    code dies of at that limit (:data:`~service.workers.memory.NATIVE_OOM_SIGNALS`) fails
+    the job it was running as out of memory, instead of leaving it to be retried: it would
+    only end another worker.
     """
 
     def __init__(self, settings: Settings, n: int, check_seconds: float = 0.5) -> None:
@@ -104,6 +132,10 @@ class Supervisor:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+        #: Bytes each worker process (and each of its shard processes) may use; ``None``:
+        #: no limit.
+        self.memory_limit = settings.with_(workers=max(1, self.n)).job_memory_limit()
+        self.oom_deaths = 0
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         cmd = [
@@ -116,6 +148,7 @@ class Supervisor:
             str(os.getpid()),
         ]
         env = {**os.environ, **self.settings.to_env()}
+        env["MATFORGE_JOB_MEMORY_MB"] = str((self.memory_limit or 0) >> 20)
         proc = subprocess.Popen(cmd, env=env, start_new_session=True)
         self.started_at[proc.pid] = time.time()
         self.started_total += 1
@@ -172,6 +205,8 @@ class Supervisor:
                     log.info("worker pid %d recycled", p.pid)
                 else:
                     log.warning("worker pid %d died (exit %s); replacing it", p.pid, code)
+                    if -code in NATIVE_OOM_SIGNALS:
+                        self._fail_jobs_of(p.pid, -code)
             while len(alive) < self.n and not self._stop.is_set():
                 alive.append(self._spawn())
             self.procs = alive
@@ -180,11 +215,37 @@ class Supervisor:
         except Exception:
             log.exception("reaper failed")
 
+    def _fail_jobs_of(self, pid: int, signum: int) -> None:
+        """Fail the jobs worker ``pid`` was running when it died of ``signum``."""
+        worker = f"{worker_id().rpartition(':')[0]}:{pid}"
+        try:
+            jobs = JobStore(self.settings.db_path)
+            try:
+                for job_id, who in jobs.running():
+                    if who != worker:
+                        continue
+                    job = jobs.get(job_id)
+                    if job.lease_token is None:
+                        continue
+                    error = death_message(job.kind, job.message, signum, self.memory_limit)
+                    if jobs.fail(job_id, job.lease_token, error):
+                        self.oom_deaths += 1
+                        log.warning("job %s failed: %s", job_id, error)
+            finally:
+                jobs.close()
+        except Exception:
+            log.exception("failing the jobs of dead worker pid %d failed", pid)
+
     def _loop(self) -> None:
         while not self._stop.wait(self.check_seconds):
             self.check()
 
     def start(self) -> None:
+        if self.n:
+            log.info(
+                "job memory limit: %s per worker process (MATFORGE_JOB_MEMORY_MB)",
+                f"{self.memory_limit >> 20} MiB" if self.memory_limit else "none",
+            )
         self.check()
         self._thread = threading.Thread(target=self._loop, name="supervisor", daemon=True)
         self._thread.start()
@@ -227,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if args.parent_pid is not None:
         watch_parent(args.parent_pid)
+    memory = settings.job_memory_limit()
+    if memory is not None:  # before Mitsuba, torch or a pool process starts: all inherit it
+        log.info("worker memory limit: %d MiB (MATFORGE_JOB_MEMORY_MB)", limit_memory(memory) >> 20)
     beat = Beat(settings.data_dir, settings.lease_seconds)
     beat.start()
     try:

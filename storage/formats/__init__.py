@@ -26,6 +26,7 @@ from storage.formats.npz import validate_npz
 from storage.formats.onnx import validate_onnx
 from storage.formats.png import validate_png
 from storage.formats.ubo_btf import validate_ubo_btf
+from storage.formats.zip_budget import check_inflated_size
 
 #: The largest JSON document accepted by :func:`validate_json`, in bytes.
 MAX_JSON_BYTES = 64 * 1024 * 1024
@@ -78,11 +79,13 @@ def validate_json(path: Path, name: str) -> None:
 class FileFormat:
     """A format known to :func:`validate_file`: its media type and validator
     ``validate(path, name)``; a format of many images (an archive) has ``pixel_cap`` set and
-    its validator also takes ``max_pixels``, the cap on all its images' decoded pixels."""
+    its validator also takes ``max_pixels``, the cap on all its images' decoded pixels; a
+    zip archive (``zipped``) may be given a cap on the bytes its members inflate to."""
 
     media_type: str
     validate: Callable[..., object]
     pixel_cap: bool = False
+    zipped: bool = False
 
 
 #: Extension (lower case, with the dot) → format. Extend here for new formats.
@@ -91,7 +94,7 @@ VALIDATORS: dict[str, FileFormat] = {
     ".png": FileFormat(MEDIA_TYPES[".png"], validate_png),
     ".json": FileFormat(MEDIA_TYPES[".json"], validate_json),
     ".binary": FileFormat(MEDIA_TYPES[".binary"], validate_merl),
-    ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz),
+    ".npz": FileFormat(MEDIA_TYPES[".npz"], validate_npz, zipped=True),
     ".btf": FileFormat(MEDIA_TYPES[".btf"], validate_ubo_btf, pixel_cap=True),
     ".onnx": FileFormat(MEDIA_TYPES[".onnx"], validate_onnx),
 }
@@ -99,7 +102,7 @@ VALIDATORS: dict[str, FileFormat] = {
 COMPOUND_VALIDATORS: dict[str, FileFormat] = {
     ".normal.exr": FileFormat(MEDIA_TYPES[".exr"], validate_normal_map),
     ".normal.png": FileFormat(MEDIA_TYPES[".png"], validate_normal_map),
-    ".btf.zip": FileFormat(MEDIA_TYPES[".zip"], validate_btf_archive, pixel_cap=True),
+    ".btf.zip": FileFormat(MEDIA_TYPES[".zip"], validate_btf_archive, pixel_cap=True, zipped=True),
 }
 
 
@@ -142,7 +145,14 @@ def validated_as(name: str, media_type: str) -> str | None:
     return found[0]
 
 
-def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = None) -> str:
+def validate_file(
+    path: Path,
+    name: str,
+    *,
+    max_archive_pixels: int | None = None,
+    max_inflated_bytes: int | None = None,
+    inflate_budget: str = "",
+) -> str:
     """Validate a user's file and return its media type.
 
     Parameters
@@ -155,13 +165,19 @@ def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = Non
         For archives of images (``.btf.zip``) and Bonn ``.btf`` files: the most pixels all
         its slices may decode to, summed from the headers before any is decoded (default:
         the format's own, :data:`storage.formats.btf_folder.MAX_ARCHIVE_PIXELS`).
+    max_inflated_bytes
+        For zip archives (``.btf.zip``, ``.npz``): the most bytes all their members may
+        inflate to, summed from the zip directory before anything is inflated
+        (:func:`~storage.formats.zip_budget.check_inflated_size`); ``inflate_budget`` says
+        in the error what that budget is made of.
 
     Raises
     ------
     FormatError
         Unsupported extension, or the bytes are not a valid file of that format.
     TooLargeError
-        An archive whose images decode to more than ``max_archive_pixels``.
+        An archive whose images decode to more than ``max_archive_pixels``, or whose
+        members inflate to more than ``max_inflated_bytes``.
     """
     found = format_for(name)
     if found is None:
@@ -170,6 +186,8 @@ def validate_file(path: Path, name: str, *, max_archive_pixels: int | None = Non
         shown = f"'{suffix}'" if suffix else "(no extension)"
         raise FormatError(name, f"unsupported file type {shown}; known: {known}")
     fmt = found[1]
+    if fmt.zipped and max_inflated_bytes is not None:
+        check_inflated_size(Path(path), name, max_inflated_bytes, inflate_budget)
     if fmt.pixel_cap and max_archive_pixels is not None:
         fmt.validate(Path(path), name, max_pixels=max_archive_pixels)
     else:

@@ -188,8 +188,9 @@ def test05_a_slow_check_does_not_hold_up_the_others(tmp_path: Path) -> None:
 
 def test06_busy_checker_is_503_with_retry_after_and_time_limit(tmp_path: Path) -> None:
     """One checker, a queue wait of 0.5 s and a time limit of 2 s: an upload behind a slow
-    one gets 503 with ``Retry-After`` at once, and the slow one 422 when its time is up.
-    Before the fix the small upload waited for the slow one to finish."""
+    one gets 503 with ``Retry-After`` at once, and the slow one 413 naming its time budget
+    when its time is up (a 422 before uploads had a budget). Before the fix the small
+    upload waited for the slow one to finish."""
     settings = Settings.from_env({}).with_(
         data_dir=tmp_path,
         upload_checkers=1,
@@ -221,8 +222,10 @@ def test06_busy_checker_is_503_with_retry_after_and_time_limit(tmp_path: Path) -
         assert r.headers["retry-after"] == "1"
         assert r.json()["error"].startswith("small.exr: every file checker is busy")
         slow = results["slow"]
-        assert slow.status_code == 422, slow.text
-        assert slow.json()["error"] == "slow.btf.zip: checking it took longer than 2 s"
+        assert slow.status_code == 413, slow.text
+        assert slow.json()["error"].startswith(
+            "slow.btf.zip: over its time budget: checking it took longer than 2 s ("
+        ), slow.text
         # The pool recovers: a fresh child checks the next upload.
         r = client.post(
             "/api/artifacts?name=small.exr", content=exr_bytes(np.ones((4, 4, 3))), headers=OCTETS
