@@ -60,6 +60,7 @@ from storage.errors import (
     NotFoundError,
     TooLargeError,
 )
+from storage.formats import onnx as onnx_format
 from storage.jobs import JobStore
 
 log = logging.getLogger("matforge.api")
@@ -343,6 +344,9 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # lazily, the first submissions after a start all waited for it, which was the p99 of
     # bench_submit.py at 20 clients (issue 15, B8).
     kinds.load()  # built-in kinds, then plugins (a broken plugin is logged, never fatal)
+    # The ONNX checker's library, imported on a submission's first ONNX ref, held the
+    # process for about 2 s (bench_attack.py's health latency); import it here instead.
+    onnx_format.preload()
     # What is alive now (the modules, numpy, the kinds) lives as long as the server: out of
     # the collector's sight, a full collection no longer walks it, which stalled every
     # request in flight for ~100 ms once in a few hundred submissions.

@@ -107,6 +107,13 @@ def _mib(n: int) -> str:
     return f"{n / 2**20:.1f} MiB"
 
 
+def preload() -> None:
+    """Import the ``onnx`` package now (about 2 s on a loaded 2-core machine), so that the
+    first submission naming an ONNX model does not hold the process for it."""
+    import onnx  # noqa: F401
+    import onnx.shape_inference  # noqa: F401
+
+
 def load_onnx_proto(path: Path, name: str) -> Any:
     """The ``onnx.ModelProto`` in ``path`` (size-checked, parsed, nothing else checked)."""
     import onnx
