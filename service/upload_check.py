@@ -27,7 +27,8 @@ zeros, a huge EXR). The format readers refuse what their headers already show to
   ``MATFORGE_UPLOAD_INFLATE_RATIO`` (20) times its size plus 16 MiB, summed from its zip
   directory before anything is inflated (:mod:`storage.formats.zip_budget`). A file over
   either is an :class:`OverBudget` (413) naming what was over: a small file cannot hold a
-  checker for long, nor fill the temporary disk.
+  checker for long, nor fill the temporary disk. A new child imports its readers and says
+  it is ready before it takes a call, so its start-up is never counted in a budget.
 
 Any module-level function runs in a child with :meth:`UploadChecker.run`
 (``checker.run(fn, *args, label=name)``); :meth:`UploadChecker.validate` is
@@ -63,6 +64,11 @@ T = TypeVar("T")
 
 #: Seconds one check may take (default of ``MATFORGE_UPLOAD_CHECK_SECONDS``).
 TIMEOUT_SECONDS = 120.0
+#: Seconds a new child may take to import its readers and say it is ready (not counted in
+#: any call's time budget).
+STARTUP_SECONDS = 120.0
+#: The first frame a child sends: it has imported its readers.
+READY = "ready"
 #: Seconds a call waits for a free child before :class:`CheckerBusy`.
 QUEUE_WAIT_SECONDS = 10.0
 #: Children in the pool (default of ``MATFORGE_UPLOAD_CHECKERS``).
@@ -201,6 +207,15 @@ def _answer(fn: Callable[..., Any], args: tuple[Any, ...], label: str) -> tuple[
         return ("err", exc, False)
 
 
+def _preload() -> None:
+    """Import what the format readers use (numpy, the readers, onnx) before the first call:
+    a call's time budget then measures the check, not the child's start-up, which takes
+    seconds on a loaded machine."""
+    from storage.formats import onnx as onnx_format  # the readers, numpy with them
+
+    onnx_format.preload()
+
+
 def child_main(argv: list[str]) -> None:
     """``python -m service.upload_check PARENT_PID MAX_BYTES``: answer calls from stdin on
     the original stdout until stdin closes (stray prints go to stderr)."""
@@ -209,6 +224,8 @@ def child_main(argv: list[str]) -> None:
     _limit_memory(max_bytes)
     reply_fd = os.dup(1)
     os.dup2(2, 1)  # a decoder's print must not corrupt the replies
+    _preload()
+    _send(reply_fd, (READY, None, False))
     while True:
         try:
             fn, args, label = _recv(0)
@@ -288,6 +305,17 @@ class _Child:
 
     def alive(self) -> bool:
         return self.proc.poll() is None
+
+    def wait_ready(self, timeout: float) -> None:
+        """Wait for the child's :data:`READY` frame (its readers imported)."""
+        try:
+            status, _, _ = _recv(self._out, time.monotonic() + timeout)
+        except TimeoutError:
+            raise
+        except (EOFError, OSError) as exc:
+            raise _ChildDied from exc
+        if status != READY:
+            raise _ChildDied
 
     def call(self, request: bytes, timeout: float) -> tuple[str, Any, bool]:
         deadline = time.monotonic() + timeout
@@ -372,6 +400,13 @@ class UploadChecker:
         with self._lock:
             generation = self._generation
         child = _Child(self._spawner.start(cmd, env), generation)
+        try:
+            child.wait_ready(STARTUP_SECONDS)
+        except (TimeoutError, _ChildDied):
+            child.kill()
+            raise CheckFailed(
+                "upload checker", f"a checker process did not start within {STARTUP_SECONDS:g} s"
+            ) from None
         log.info("started upload checker pid %d", child.pid)
         return child
 
