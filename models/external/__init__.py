@@ -5,7 +5,9 @@ Two ways in (issue 23):
 - the documented MLP formats ``matforge.mlp-brdf/1`` and ``matforge.mlp-btf/1``
   (:mod:`models.external.mlp`, one JSON file; rendered through the fused Dr.Jit kernel,
   :mod:`models.external.fused`);
-- an ONNX file (:mod:`models.external.onnx_model`, evaluated with onnxruntime).
+- an ONNX file: a graph that is an MLP is compiled into the same fused Dr.Jit kernel
+  (:mod:`models.external.onnx_mlp`, runtime ``drjit-fused``), any other graph is evaluated
+  with onnxruntime (:mod:`models.external.onnx_model`, runtime ``onnxruntime``).
 
 :func:`load_external` dispatches on the file's content, not its name: a JSON object is an
 MLP document; a file whose first byte is ``0x08`` (protobuf field 1, ``ir_version``, a
@@ -71,6 +73,10 @@ def model_format(path: Path) -> Literal["mlp", "onnx"]:
 def load_external(path: Path, kind: str) -> ExternalModel:
     """The user's model in ``path`` as a ``kind`` (``"brdf"`` | ``"btf"``) model.
 
+    An ONNX file whose graph is an MLP comes back as an
+    :class:`~models.external.onnx_mlp.OnnxMlpMaterial` (fused Dr.Jit kernel), any other as an
+    :class:`~models.external.onnx_model.OnnxMaterial` (onnxruntime).
+
     Raises ``ValueError`` naming the file when it is malformed, of the other kind, or ONNX
     while ONNX support is not installed.
     """
@@ -83,10 +89,11 @@ def load_external(path: Path, kind: str) -> ExternalModel:
             raise ValueError(f"{name}: is a {model.kind} model, not a {kind} one")
         return model  # type: ignore[no-any-return,unused-ignore]
     try:
-        onnx_model = importlib.import_module("models.external.onnx_model")
+        importlib.import_module("models.external.onnx_model")
+        onnx_mlp = importlib.import_module("models.external.onnx_mlp")
     except ImportError as exc:
         raise ValueError(f"{name}: ONNX models are not supported by this build ({exc})") from None
-    return onnx_model.load_onnx(Path(path), kind)  # type: ignore[no-any-return,unused-ignore]
+    return onnx_mlp.open_onnx(Path(path), kind)  # type: ignore[no-any-return,unused-ignore]
 
 
 __all__ = ["KINDS", "ExternalModel", "MlpMaterial", "load_external", "model_format", "read_mlp"]

@@ -73,13 +73,10 @@ def measure_cost(
     wi, wo, uv = cost_batch(model.kind, batch)
     runtime = str(model.runtime)
     if runtime == FUSED:
-        from models.external.fused import FusedMlp
-        from models.external.mlp import MlpMaterial
+        from models.external.fused import fused_of
 
-        if not isinstance(model, MlpMaterial):
-            raise ValueError(f"a {FUSED} model is an MLP material (models.external.mlp)")
         seconds = fused_seconds(
-            lambda mi: FusedMlp(model, mi).eval, model.kind, batch, repeats, uv_first=False
+            lambda mi: fused_of(model, mi).eval, model.kind, batch, repeats, uv_first=False
         )
         method = FUSED_METHOD
     else:

@@ -436,6 +436,7 @@ def _binary(
             return _Linear(b.xs, b.weight, b.bias + c)
     ra = _materialise(backend, a, dense)
     rb = _materialise(backend, b, dense)
+    ra, rb = _widen(ra, rb), _widen(rb, ra)
     if isinstance(ra, np.ndarray):
         assert isinstance(rb, _Row)
         ca = _as_columns(ra, len(rb.cols), where) if rb.rank == 2 else _scalar(ra, where)
@@ -456,6 +457,15 @@ def _binary(
     xs = ra.cols * n if wa == 1 else ra.cols
     ys = rb.cols * n if wb == 1 else rb.cols
     return _Row([backend.binary(op, x, y) for x, y in zip(xs, ys, strict=True)], ra.rank)
+
+
+def _widen(x: _Value, other: _Value) -> _Value:
+    """A one-column ``(N, 1)`` row broadcast to the width of a ``(1, C)`` constant."""
+    if isinstance(x, _Row) and x.rank == 2 and len(x.cols) == 1 and isinstance(other, np.ndarray):
+        size = int(np.asarray(other).size)
+        if size > 1 and np.asarray(other).ndim <= 2:
+            return _Row(x.cols * size)
+    return x
 
 
 def _scalar(c: np.ndarray, where: str) -> list[float]:
