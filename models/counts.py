@@ -35,6 +35,11 @@ BILINEAR_TAPS = 4
 ANALYTIC_FLOATS = 7
 
 
+#: A MERL table as the ``merl_table`` BSDF reads it: eight RGB bins of float32 per lookup
+#: (the interpolation of :mod:`evaluators.render.bsdfs.merl_table`), no network.
+MERL_TABLE_BYTES_PER_EVAL = 8 * 3 * FLOAT_BYTES
+
+
 def mlp_macs(n_in: int, width: int, depth: int, n_out: int) -> int:
     """Multiply-adds of a ``width x depth`` MLP: ``I W + (D - 1) W^2 + W O`` (0 when
     ``depth`` is 0: no network)."""
@@ -65,4 +70,9 @@ def counts(macs: int, bytes_read: int) -> dict[str, int]:
     return {"macs_per_eval": int(macs), "bytes_per_eval": int(bytes_read)}
 
 
-__all__ = ["counts", "dense_counts", "mlp_macs", "mlp_params"]
+def merl_table_counts() -> dict[str, int]:
+    """The counts of a MERL table (:data:`MERL_TABLE_BYTES_PER_EVAL`, 0 multiply-adds)."""
+    return counts(0, MERL_TABLE_BYTES_PER_EVAL)
+
+
+__all__ = ["counts", "merl_table_counts", "dense_counts", "mlp_macs", "mlp_params"]

@@ -1,13 +1,14 @@
 """The cost of a user's model, measured by matforge the same way as the built-in models'.
 
-An external model (:class:`ExternalModel`: an exported MLP evaluated by a fused Dr.Jit
-kernel, or an ONNX file evaluated by onnxruntime) is timed on the same fixed batch as a
+An external model (:class:`ExternalModel`: an exported MLP or an ONNX graph that is an MLP,
+evaluated by a fused Dr.Jit kernel, or any other ONNX file, evaluated by onnxruntime) is
+timed on the same fixed batch as a
 ``train.brdf`` model's ``speed.json``: :data:`COST_BATCH` cosine-weighted direction pairs
 from :func:`models.speed.cosine_pairs` (seed 0; a BTF also gets uniform ``uv`` in the unit
 square from the same seed), the median of :data:`COST_REPEATS` runs after one warm-up run.
 
-- ``drjit-fused`` models (MLP materials, traced by :class:`models.external.fused.FusedMlp`,
-  the kernel the renderer runs): :func:`models.speed.time_fused`, the kernel's own
+- ``drjit-fused`` models (MLP materials and recognised ONNX graphs, traced by
+  :func:`models.external.fused.fused_of`, the kernel the renderer runs): :func:`models.speed.time_fused`, the kernel's own
   execution time from Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is
   a ``train.brdf`` row's ``ns_per_eval``;
 - any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
@@ -22,6 +23,11 @@ networks' weights and biases), as ``train.btf``'s ``storage`` counts them; a BRD
 An ONNX graph does not say which initialisers are textures, so an ONNX model's
 ``bytes_per_network`` is all of its floating-point initialisers (= ``bytes_total``) and its
 ``bytes_per_material`` is not given.
+Beside the time, the counts that do not depend on the machine (:mod:`models.counts`):
+``macs_per_eval`` (multiply-adds of the dense layers per evaluation) and ``bytes_per_eval``
+(bytes one evaluation reads), from the JSON document's layers and textures, or from an ONNX
+graph's nodes and inferred shapes (:func:`models.external.onnx_mlp.graph_counts`); a
+built-in BTF's from its ``model.json`` (:func:`models.btf.counts.btf_counts`).
 The document (the measurement ``cost`` in a ``score`` job's manifest, :data:`COST_FORMAT`:
 not an artifact, since timings vary) names the ``runtime``
 and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
@@ -65,8 +71,8 @@ def cost_batch(
 def measure_cost(
     model: ExternalModel, *, batch: int = COST_BATCH, repeats: int = COST_REPEATS
 ) -> dict[str, Any]:
-    """``{"ns_per_eval", "runtime", "bytes_per_network", "method", "batch", "repeats"}`` of
-    ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
+    """``{"ns_per_eval", "runtime", "bytes_per_network", "macs_per_eval", "bytes_per_eval",
+    "method", "batch", "repeats"}`` of ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
     is not an MLP material, or for no Mitsuba LLVM variant to run it in."""
     from models.speed import time_call
 
@@ -87,6 +93,8 @@ def measure_cost(
         "ns_per_eval": round(seconds / batch * 1e9, 3),
         "runtime": runtime,
         **model_bytes(model),
+        "macs_per_eval": getattr(model, "macs_per_eval", None),
+        "bytes_per_eval": getattr(model, "bytes_per_eval", None),
         "method": method,
         "batch": batch,
         "repeats": repeats,
@@ -146,6 +154,8 @@ def measure_builtin_btf(
 
     seconds = fused_seconds(lambda mi: FusedBtf(model, mi).eval, "btf", batch, repeats,
                             uv_first=True)  # fmt: skip
+    from models.btf.counts import btf_counts
+
     storage = model.doc.get("storage") or {}
     return {
         "format": COST_FORMAT,
@@ -154,6 +164,7 @@ def measure_builtin_btf(
         "bytes_total": storage.get("total_bytes"),
         "bytes_per_material": storage.get("texture_bytes"),
         "bytes_per_network": storage.get("network_bytes"),
+        **btf_counts(model.doc),
         "method": FUSED_METHOD,
         "batch": batch,
         "repeats": repeats,
