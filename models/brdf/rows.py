@@ -22,13 +22,13 @@ from typing import Any
 
 from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
-from models.brdf.fused import brdf_counts
 from models.brdf.document import (
     BrdfMaterialScores,
     BrdfScoreMeans,
     TrainBrdfMaterials,
     TrainBrdfMetrics,
 )
+from models.brdf.fused import brdf_counts
 
 #: The metrics of a material's row in ``metrics.json``.
 METRICS = (

@@ -11,12 +11,13 @@ from models.counts import BILINEAR_TAPS, FLOAT_BYTES, dense_counts
 
 def btf_counts(doc: dict[str, Any]) -> dict[str, int | None]:
     """``{"macs_per_eval", "bytes_per_eval"}`` of a ``train.btf`` ``model.json``
-    (:mod:`models.counts`), for one :meth:`models.btf.fused.FusedBtf.eval` at arbitrary ``uv``: the dense
-    layers' multiply-adds (NeuMIP's MLP; the student's coarse and fine MLPs), and the bytes
-    read: every weight and bias, plus per lookup NeuMIP's texture bilinearly (4 texels), the
-    student's coarse texture at one texel and its fine texture bilinearly, Lafortune's 55
-    parameters at the nearest texel. The channels are the first layers' inputs less the
-    direction features. ``None`` for both for a document of another shape."""
+    (:mod:`models.counts`), for one :meth:`models.btf.fused.FusedBtf.eval` at arbitrary
+    ``uv``: the dense layers' multiply-adds (NeuMIP's MLP; the student's coarse and fine
+    MLPs), and the bytes read: every weight and bias, plus per lookup NeuMIP's texture
+    bilinearly (4 texels), the student's coarse texture at one texel and its fine texture
+    bilinearly, Lafortune's 55 parameters at the nearest texel. The channels are the first
+    layers' inputs less the direction features. ``None`` for both for a document of
+    another shape."""
     try:
         kind = doc["architecture"]["model"]
         layers = doc.get("layers") or {}

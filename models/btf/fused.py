@@ -332,4 +332,3 @@ class FusedLafortune(FusedBtf):
 FUSED_MODELS: dict[str, type[FusedBtf]] = {
     c.model_kind: c for c in (FusedNeumip, FusedStudent, FusedLafortune)
 }
-

@@ -2,15 +2,16 @@
 ``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
 storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
 the decoder's; multiply-adds and bytes read per evaluation from ``model.json``
-(:func:`models.btf.counts.btf_counts`). Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest,
-and fine_detail: the paper's Fig. 15 failure, the detail within 2 x 2 blocks)."""
+(:func:`models.btf.counts.btf_counts`). Then ``l1`` and ``relative_l1`` per failure case
+(shadowing, specular, rest, and fine_detail: the paper's Fig. 15 failure, the detail within
+2 x 2 blocks)."""
 
 from __future__ import annotations
 
 from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
-from models.btf.document import TrainBtfMetrics
 from models.btf.counts import btf_counts
+from models.btf.document import TrainBtfMetrics
 
 #: The metrics of ``metrics.json``.
 METRICS = ("l1", "l1_train", "l1_heldout", "relative_l1")

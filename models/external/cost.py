@@ -8,9 +8,9 @@ from :func:`models.speed.cosine_pairs` (seed 0; a BTF also gets uniform ``uv`` i
 square from the same seed), the median of :data:`COST_REPEATS` runs after one warm-up run.
 
 - ``drjit-fused`` models (MLP materials and recognised ONNX graphs, traced by
-  :func:`models.external.fused.fused_of`, the kernel the renderer runs): :func:`models.speed.time_fused`, the kernel's own
-  execution time from Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is
-  a ``train.brdf`` row's ``ns_per_eval``;
+  :func:`models.external.fused.fused_of`, the kernel the renderer runs):
+  :func:`models.speed.time_fused`, the kernel's own execution time from Dr.Jit's kernel
+  history -- exactly the ``fused_kernel_ns`` that is a ``train.brdf`` row's ``ns_per_eval``;
 - any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
   is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
 
@@ -72,8 +72,9 @@ def measure_cost(
     model: ExternalModel, *, batch: int = COST_BATCH, repeats: int = COST_REPEATS
 ) -> dict[str, Any]:
     """``{"ns_per_eval", "runtime", "bytes_per_network", "macs_per_eval", "bytes_per_eval",
-    "method", "batch", "repeats"}`` of ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
-    is not an MLP material, or for no Mitsuba LLVM variant to run it in."""
+    "method", "batch", "repeats"}`` of ``model`` (see the module docstring). ``ValueError``
+    for a ``drjit-fused`` model without a fused kernel, or for no Mitsuba LLVM variant to
+    run it in."""
     from models.speed import time_call
 
     wi, wo, uv = cost_batch(model.kind, batch)

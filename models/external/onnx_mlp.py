@@ -50,11 +50,14 @@ import types
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from models.fused_mlp import MAX_CHAIN, DenseLayer
+
+if TYPE_CHECKING:
+    from models.external.onnx_model import OnnxMaterial
 
 log = logging.getLogger("matforge.models.onnx_mlp")
 
@@ -317,9 +320,13 @@ def _interpret(
                 raise NotFusable(f"{where}: Clip bounds must be constants")
             cols = x.cols
             if lo is not None:
-                cols = [backend.binary("Max", c, float(np.asarray(lo).reshape(-1)[0])) for c in cols]
+                cols = [
+                    backend.binary("Max", c, float(np.asarray(lo).reshape(-1)[0])) for c in cols
+                ]
             if hi is not None:
-                cols = [backend.binary("Min", c, float(np.asarray(hi).reshape(-1)[0])) for c in cols]
+                cols = [
+                    backend.binary("Min", c, float(np.asarray(hi).reshape(-1)[0])) for c in cols
+                ]
             out = _Row(cols, x.rank)
         elif op == "Concat":
             rows = [row(n, where) for n in ins]
@@ -482,7 +489,9 @@ def _ints(v: Any, where: str) -> list[int]:
 
 def _slice(x: _Row, vals: list[Any], where: str) -> _Row:
     starts, ends = _ints(vals[1], where), _ints(vals[2], where)
-    axes = _ints(vals[3], where) if len(vals) > 3 and vals[3] is not None else list(range(len(starts)))
+    axes = (
+        _ints(vals[3], where) if len(vals) > 3 and vals[3] is not None else list(range(len(starts)))
+    )
     steps = _ints(vals[4], where) if len(vals) > 4 and vals[4] is not None else [1] * len(starts)
     cols = x.cols
     for s, e, ax, st in zip(starts, ends, axes, steps, strict=True):
@@ -607,9 +616,11 @@ def graph_counts(model: Any) -> dict[str, int | None]:
             if macs is None or not a or out is None:
                 macs = None
                 continue
-            k = a[0] if n.op_type == "Gemm" and any(
-                x.name == "transA" and x.i for x in n.attribute
-            ) else a[-1]
+            k = (
+                a[0]
+                if n.op_type == "Gemm" and any(x.name == "transA" and x.i for x in n.attribute)
+                else a[-1]
+            )
             macs = None if not isinstance(k, int) else macs + k * out
         if n.op_type in ("Gather", "GridSample") and n.input[0] in tensors:
             out = per_row(shapes.get(n.output[0]))
@@ -742,7 +753,7 @@ def fusable_reason(path: Path, kind: str) -> str | None:
 
 def open_onnx(
     path: Path, kind: str, *, threads: int | None = None, runtime: str = "auto"
-) -> Any:
+) -> OnnxMlpMaterial | OnnxMaterial:
     """The ONNX model in ``path`` as a ``kind`` model: an :class:`OnnxMlpMaterial` (fused
     Dr.Jit kernel) when its graph is recognised and ``runtime`` is ``"auto"``, else an
     :class:`~models.external.onnx_model.OnnxMaterial` (onnxruntime, ``threads`` intra-op

@@ -29,4 +29,7 @@ def fabric_counts(doc: dict[str, Any]) -> dict[str, int | None]:
         macs, net_bytes = dense_counts(shapes.values())
     except (KeyError, TypeError, IndexError, ValueError, AttributeError):
         return {"macs_per_eval": None, "bytes_per_eval": None}
-    return {"macs_per_eval": macs, "bytes_per_eval": net_bytes + FLOAT_BYTES * BILINEAR_TAPS * phase}
+    return {
+        "macs_per_eval": macs,
+        "bytes_per_eval": net_bytes + FLOAT_BYTES * BILINEAR_TAPS * phase,
+    }

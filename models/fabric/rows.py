@@ -38,9 +38,11 @@ def _rows_of(src: RowSource, values: Mapping[str, Any], fields: dict[str, Any]) 
         candidate, metric = (
             ("baseline", key[9:]) if key.startswith("baseline.") else ("network", key)
         )
-        own = fields if candidate == "network" else {
-            k: v for k, v in fields.items() if k not in COUNT_COLUMNS
-        }  # the mean predictor has no decoder
+        own = (
+            fields
+            if candidate == "network"
+            else {k: v for k, v in fields.items() if k not in COUNT_COLUMNS}
+        )  # the mean predictor has no decoder
         rows.append(base_row(src, metric, value, candidate=candidate, **own))
     return rows
 
@@ -73,9 +75,11 @@ def train_fabric_rows(src: RowSource) -> list[ResultRow]:
             continue
         fields = {**common, "material": str(case["case"]), "family": str(case["case"])}
         for cand, key in (("network", "rgb_rel"), ("baseline", "baseline_rgb_rel")):
-            own = fields if cand == "network" else {
-                k: v for k, v in fields.items() if k not in COUNT_COLUMNS
-            }
+            own = (
+                fields
+                if cand == "network"
+                else {k: v for k, v in fields.items() if k not in COUNT_COLUMNS}
+            )
             if (value := number(case.get(key))) is not None:
                 rows.append(base_row(src, "rgb.rel", value, candidate=cand, **own))
     return rows

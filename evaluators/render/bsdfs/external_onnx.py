@@ -6,7 +6,8 @@ the built-in models, inside Mitsuba's symbolic path loop (:class:`OnnxFusedBrdf`
 :class:`OnnxFusedBtf`; runtime ``drjit-fused``). Any other graph
 (:class:`models.external.onnx_model.OnnxMaterial`, signature in ``docs/onnx-models.md``)
 runs in onnxruntime, outside Dr.Jit, so it cannot be traced into a kernel: Dr.Jit's
-symbolic loops and calls cannot call out to Python. Renders with such a BSDF therefore run in Dr.Jit's **evaluated (wavefront) mode** (:func:`wavefront_scope`:
+symbolic loops and calls cannot call out to Python. Renders with such a BSDF therefore run
+in Dr.Jit's **evaluated (wavefront) mode** (:func:`wavefront_scope`:
 ``JitFlag.SymbolicLoops``, ``SymbolicCalls`` and ``SymbolicConditionals`` off for the
 render, restored afterwards). Mitsuba's path loop then runs one iteration (one bounce) at a
 time over all live paths, and each BSDF call receives concrete arrays of the lanes that hit
@@ -181,7 +182,7 @@ def _load(props: Any) -> OnnxMaterial | OnnxMlpMaterial:
     threads = int(props.get("threads", DEFAULT_THREADS))
     runtime = str(props.get("runtime", "auto"))
     try:
-        return open_onnx(  # type: ignore[no-any-return]
+        return open_onnx(
             Path(str(props["filename"])), str(props["kind"]), threads=threads, runtime=runtime
         )
     except Exception as exc:  # FormatError, TooLargeError: a one-line message naming the file

@@ -273,3 +273,21 @@ def test06_gather_table_counts_what_one_lookup_reads(tmp_path: Path) -> None:
     one = numpy_helper.from_array(np.array([1], np.int64), "one")
     counted = graph_counts(_graph(nodes, [table, idx, scale, one]))
     assert counted == {"macs_per_eval": 0, "bytes_per_eval": 12 + 4}
+
+
+def test07_cost_document_times_the_fused_kernel_and_counts(
+    mi: Any, exported: dict[str, Any]
+) -> None:
+    """The cost document of a recognised ONNX BRDF times the fused kernel (its method says
+    so) and carries the counts; of the same file in onnxruntime, the same counts."""
+    from models.external.cost import FUSED_METHOD, measure_cost
+
+    fused = measure_cost(open_onnx(exported["brdf"], "brdf"), batch=4096, repeats=1)
+    assert (fused["runtime"], fused["method"]) == ("drjit-fused", FUSED_METHOD)
+    assert fused["ns_per_eval"] > 0
+    macs = mlp_macs(6, 32, 3, 3)
+    assert fused["macs_per_eval"] == macs
+    ort = measure_cost(open_onnx(exported["brdf"], "brdf", runtime="onnxruntime"), batch=4096,
+                       repeats=1)  # fmt: skip
+    assert ort["runtime"] == "onnxruntime"
+    assert (ort["macs_per_eval"], ort["bytes_per_eval"]) == (macs, fused["bytes_per_eval"])
