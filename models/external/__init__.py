@@ -46,6 +46,16 @@ class ExternalModel(Protocol):
         """Bytes of its parameters (float32 counted as 4)."""
         ...
 
+    @property
+    def macs_per_eval(self) -> int | None:
+        """Multiply-adds of its dense layers per evaluation (:mod:`models.counts`)."""
+        ...
+
+    @property
+    def bytes_per_eval(self) -> int | None:
+        """Bytes one evaluation reads (:mod:`models.counts`)."""
+        ...
+
     def eval(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
         """``(N, 3)`` values at ``(N, 3)`` directions (and ``(N, 2)`` uv for a BTF)."""
         ...
