@@ -94,3 +94,40 @@ def test02_onnx_mlp_renders_as_the_same_weights_in_json(
     np.testing.assert_allclose(img, ref, rtol=1e-4, atol=1e-5)
     forced = external_onnx_plugin(onnx_path, {"kind": "brdf", "runtime": "onnxruntime"}, None, mi)
     assert type(mi.load_dict(forced)).__name__ == "OnnxBrdf"
+
+
+def test03_evaluate_tss_and_score_take_the_fused_kernel(
+    mi: types.ModuleType, tmp_path: Path
+) -> None:
+    """``evaluate.tss``'s plane model and ``score``'s candidate of a recognised ONNX BTF are
+    the fused kernel (runtime ``drjit-fused``), equal to the Lambertian closed form
+    ``albedo / pi * wi.z``; an opaque graph stays in onnxruntime in both."""
+    from evaluators.score.external import open_external
+    from evaluators.tss.external import ExternalPlaneModel, OnnxPlaneModel, load_external_btf
+
+    plain = save(lambert_model("btf", opaque=False), tmp_path / "plain.onnx")
+    opaque = save(lambert_model("btf"), tmp_path / "opaque.onnx")
+
+    class Ctx:
+        def __init__(self, path: Path) -> None:
+            self.path = path
+
+        def resolve(self, ref: str) -> Path:
+            return self.path
+
+    value = {"model": "sha256:" + "0" * 64, "kind": "btf"}
+    plane = load_external_btf(value, Ctx(plain), mi)  # type: ignore[arg-type]
+    assert isinstance(plane, ExternalPlaneModel) and plane.runtime == "drjit-fused"
+    assert plane.resolution == (32, 32)
+    rng = np.random.default_rng(2)
+    wi = rng.normal(size=(500, 3))
+    wi[:, 2] = np.abs(wi[:, 2])
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    uv = rng.random((500, 2))
+    out = plane.eval(mi.Point2f(*uv.T), mi.Vector3f(*wi.T), mi.Vector3f(*wi.T))
+    expect = np.asarray(ALBEDO) / np.pi * wi[:, 2:3]
+    np.testing.assert_allclose(np.asarray(out.numpy()).T, expect, rtol=1e-6, atol=1e-8)
+    other = load_external_btf(value, Ctx(opaque), mi)  # type: ignore[arg-type]
+    assert isinstance(other, OnnxPlaneModel) and other.runtime == "onnxruntime"
+    assert open_external(plain, "plain", "btf").runtime == "drjit-fused"
+    assert open_external(opaque, "opaque", "btf").runtime == "onnxruntime"
