@@ -113,7 +113,8 @@ def external_costs(
     """The ``cost`` document of the external candidates ``{label: model}`` and of the
     built-in ``train.btf`` ones (``builtins``, each a
     :class:`models.btf.portable.PortableBtf`, timed the same way; see the module)."""
-    from models.external.cost import COST_FORMAT, measure_builtin_btf, measure_cost
+    from jobapi.documents import check_typed
+    from models.external.cost import COST_FORMAT, CostDocument, measure_builtin_btf, measure_cost
 
     timers: list[tuple[str, Callable[[Any], dict[str, Any]], Any]] = [
         *((label, measure_cost, m) for label, m in sorted(models.items())),
@@ -126,7 +127,9 @@ def external_costs(
             out[label] = measure(model)
         except ValueError as exc:
             raise JobFailed(f"candidate {label!r}: cost: {exc}") from None
-    return {"format": COST_FORMAT, "candidates": out}
+    doc = {"format": COST_FORMAT, "candidates": out}
+    check_typed("cost", doc, CostDocument)  # a malformed record is a bug: it fails the job
+    return doc
 
 
 def external_settings(params: ScoreParams) -> dict[str, Any]:

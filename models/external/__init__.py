@@ -29,7 +29,9 @@ KINDS = ("brdf", "btf")
 
 @runtime_checkable
 class ExternalModel(Protocol):
-    """What matforge needs of a user's model, whatever its runtime."""
+    """What matforge needs of a user's model, whatever its runtime. The models matforge
+    opens also state ``macs_per_eval`` and ``bytes_per_eval`` (:mod:`models.counts`); a
+    model without them has its cost document give ``null`` for both."""
 
     @property
     def kind(self) -> str:
@@ -44,16 +46,6 @@ class ExternalModel(Protocol):
     @property
     def param_bytes(self) -> int:
         """Bytes of its parameters (float32 counted as 4)."""
-        ...
-
-    @property
-    def macs_per_eval(self) -> int | None:
-        """Multiply-adds of its dense layers per evaluation (:mod:`models.counts`)."""
-        ...
-
-    @property
-    def bytes_per_eval(self) -> int | None:
-        """Bytes one evaluation reads (:mod:`models.counts`)."""
         ...
 
     def eval(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:

@@ -29,7 +29,8 @@ Beside the time, the counts that do not depend on the machine (:mod:`models.coun
 graph's nodes and inferred shapes (:func:`models.external.onnx_mlp.graph_counts`); a
 built-in BTF's from its ``model.json`` (:func:`models.btf.counts.btf_counts`).
 The document (the measurement ``cost`` in a ``score`` job's manifest, :data:`COST_FORMAT`:
-not an artifact, since timings vary) names the ``runtime``
+not an artifact, since timings vary; typed, :class:`CostDocument` of :class:`CostRecord`,
+and checked when the score records it) names the ``runtime``
 and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
 run to run.
 """
@@ -39,6 +40,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from typing_extensions import TypedDict
+
+from jobapi.documents import document
 
 #: Pairs per measurement: ``train.brdf``'s default ``speed_batch`` (2^18).
 COST_BATCH = 1 << 18
@@ -51,6 +55,46 @@ if TYPE_CHECKING:
 
 #: The version tag of a cost document.
 COST_FORMAT = "matforge.cost/1"
+
+
+@document
+class CostRecord(TypedDict):
+    """One model's cost (:func:`measure_cost`, :func:`measure_builtin_btf`)."""
+
+    format: str
+    """``matforge.cost/1``."""
+    ns_per_eval: float
+    """ns per evaluation on the fixed batch, in ``runtime``."""
+    runtime: str
+    """What evaluated it: ``drjit-fused`` or ``onnxruntime``."""
+    bytes_total: int | None
+    """float32 bytes of everything needed to render it."""
+    bytes_per_network: int | None
+    """float32 bytes of the networks' weights and biases."""
+    bytes_per_material: int | None
+    """float32 bytes of the latent textures (``null``: not split)."""
+    macs_per_eval: int | None
+    """Multiply-adds of the dense layers per evaluation (:mod:`models.counts`)."""
+    bytes_per_eval: int | None
+    """Bytes one evaluation reads (:mod:`models.counts`)."""
+    method: str
+    """How the time was measured."""
+    batch: int
+    """Pairs in the batch."""
+    repeats: int
+    """Runs per median."""
+
+
+@document
+class CostDocument(TypedDict):
+    """The ``cost`` measurement of a ``score`` job: every timed candidate's record."""
+
+    format: str
+    """``matforge.cost/1``."""
+    candidates: dict[str, CostRecord]
+    """``{label: record}``."""
+
+
 #: The runtime whose time is the fused kernel's.
 FUSED = "drjit-fused"
 
@@ -94,8 +138,8 @@ def measure_cost(
         "ns_per_eval": round(seconds / batch * 1e9, 3),
         "runtime": runtime,
         **model_bytes(model),
-        "macs_per_eval": model.macs_per_eval,
-        "bytes_per_eval": model.bytes_per_eval,
+        "macs_per_eval": getattr(model, "macs_per_eval", None),
+        "bytes_per_eval": getattr(model, "bytes_per_eval", None),
         "method": method,
         "batch": batch,
         "repeats": repeats,

@@ -291,3 +291,12 @@ def test07_cost_document_times_the_fused_kernel_and_counts(
                        repeats=1)  # fmt: skip
     assert ort["runtime"] == "onnxruntime"
     assert (ort["macs_per_eval"], ort["bytes_per_eval"]) == (macs, fused["bytes_per_eval"])
+    # Both are typed records of the score's cost document; a record without the counts is not.
+    from jobapi.documents import DocumentError, check_typed
+    from models.external.cost import COST_FORMAT, CostDocument
+
+    check_typed("cost", {"format": COST_FORMAT, "candidates": {"a": fused, "b": ort}},
+                CostDocument)  # fmt: skip
+    old = {k: v for k, v in fused.items() if k != "macs_per_eval"}
+    with pytest.raises(DocumentError, match="macs_per_eval"):
+        check_typed("cost", {"format": COST_FORMAT, "candidates": {"a": old}}, CostDocument)
