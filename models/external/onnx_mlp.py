@@ -31,6 +31,9 @@ What is recognised (everything else is not, and :class:`NotFusable` says which n
 
 Semantics are the graph's own: the value is returned as the graph computes it (no clamp,
 no horizon mask: the BSDF plugins mask below the horizon as they do for onnxruntime).
+A graph that would unroll more than :data:`MAX_UNROLLED` operations per evaluation is not
+compiled (onnxruntime runs it), so that no file can make a kernel that takes long to trace
+and compile.
 Results differ from onnxruntime's float32 ones by summation order and the transcendental
 functions' rounding, about 1e-6 relative (``tests/unit/models/external/test_onnx_mlp.py``).
 
@@ -65,6 +68,15 @@ log = logging.getLogger("matforge.models.onnx_mlp")
 RUNTIME = "drjit-fused"
 #: The graph inputs of each kind, in the order ``eval`` takes them (``uv`` last here).
 SIGNATURE_WIDTHS = {"wi": 3, "wo": 3, "uv": 2}
+#: Operations per evaluation (a dense layer's ``in * out`` multiply-adds, one per column of
+#: an elementwise node) that a graph may unroll into the kernel: twice the MLP format's
+#: parameter limit (:data:`storage.formats.mlp_model.MAX_NETWORK_PARAMS`); a larger graph
+#: runs in onnxruntime, so that no file can make a kernel that takes long to trace and
+#: compile.
+MAX_UNROLLED = 1 << 17
+#: Elements a graph's constant-only nodes may read in all when folded at load (above it,
+#: onnxruntime runs the graph).
+MAX_FOLDED = 1 << 22
 
 
 class NotFusable(ValueError):
@@ -100,15 +112,31 @@ _Value = _Row | _Linear | np.ndarray
 
 
 class _Shapes:
-    """The back end of compilation: columns are placeholders, nothing is computed."""
+    """The back end of compilation: columns are placeholders, nothing is computed; counts
+    the operations the kernel would unroll, refused above :data:`MAX_UNROLLED`."""
+
+    def __init__(self, name: str) -> None:
+        self.ops = 0
+        self.name = name
+
+    def _count(self, n: int) -> None:
+        self.ops += n
+        if self.ops > MAX_UNROLLED:
+            raise NotFusable(
+                f"{self.name}: more than {MAX_UNROLLED} operations per evaluation, too many to "
+                "unroll into the fused kernel"
+            )
 
     def dense(self, xs: list[Any], weight: np.ndarray, bias: np.ndarray) -> list[Any]:
+        self._count(int(weight.size))
         return [None] * weight.shape[0]
 
     def unary(self, op: str, x: Any, arg: float = 0.0) -> Any:
+        self._count(1)
         return None
 
     def binary(self, op: str, a: Any, b: Any) -> Any:
+        self._count(1)
         return None
 
 
@@ -273,6 +301,7 @@ def _interpret(
     prog: OnnxProgram, backend: Any, feeds: dict[str, list[Any]]
 ) -> tuple[list[Any], list[tuple[int, int]]]:
     env: dict[str, _Value] = {k: np.asarray(v) for k, v in prog.constants.items()}
+    folded = 0
     for name in prog.inputs:
         env[name] = _Row(list(feeds[name]))
     dense: list[tuple[int, int]] = []
@@ -298,6 +327,9 @@ def _interpret(
         vals = [get(n, where) if n else None for n in ins]
         op = node.op
         if all(isinstance(v, np.ndarray) or v is None for v in vals):
+            folded += sum(int(np.asarray(v).size) for v in vals if v is not None)
+            if folded > MAX_FOLDED:
+                raise NotFusable(f"{where}: constants of more than {MAX_FOLDED} elements to fold")
             env.update(_fold_constant(node, vals, where))
             continue
         out: _Value | list[_Value]
@@ -564,7 +596,7 @@ def compile_onnx(model: Any, kind: str, name: str = "model.onnx") -> OnnxProgram
     uses[output] = uses.get(output, 0) + 1
     prog = OnnxProgram(kind, inputs, output, tuple(nodes), constants, uses)
     feeds = {n: [None] * SIGNATURE_WIDTHS[n] for n in inputs}
-    _, dense = _interpret(prog, _Shapes(), feeds)
+    _, dense = _interpret(prog, _Shapes(name), feeds)
     return OnnxProgram(kind, inputs, output, tuple(nodes), constants, uses, tuple(dense))
 
 

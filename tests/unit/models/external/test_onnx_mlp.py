@@ -300,3 +300,25 @@ def test07_cost_document_times_the_fused_kernel_and_counts(
     old = {k: v for k, v in fused.items() if k != "macs_per_eval"}
     with pytest.raises(DocumentError, match="macs_per_eval"):
         check_typed("cost", {"format": COST_FORMAT, "candidates": {"a": old}}, CostDocument)
+
+
+def test08_too_large_to_unroll_stays_in_onnxruntime(tmp_path: Path) -> None:
+    """A 512-wide layer pair (2 x 3 x 512 + 512 x 512 multiply-adds, over the unroll limit)
+    is not compiled: it runs in onnxruntime, and the reason names the limit."""
+    from models.external.onnx_mlp import MAX_UNROLLED
+
+    rng = np.random.default_rng(0)
+    f = lambda a, n: numpy_helper.from_array(np.asarray(a, np.float32), n)  # noqa: E731
+    inits = [f(rng.normal(size=(3, 512)), "w0"), f(rng.normal(size=(512, 512)), "w1"),
+             f(rng.normal(size=(512, 3)), "w2")]  # fmt: skip
+    nodes = [
+        helper.make_node("MatMul", ["wi", "w0"], ["a"]),
+        helper.make_node("MatMul", ["a", "w1"], ["b"]),
+        helper.make_node("MatMul", ["b", "w2"], ["rgb"]),
+    ]
+    assert 3 * 512 + 512 * 512 + 512 * 3 > MAX_UNROLLED
+    path = save(_graph(nodes, inits), tmp_path / "wide.onnx")
+    with pytest.raises(NotFusable, match=f"more than {MAX_UNROLLED} operations"):
+        compile_onnx(onnx.load(str(path)), "brdf")
+    model = open_onnx(path, "brdf")
+    assert model.runtime == "onnxruntime" and model.macs_per_eval == 3 * 512 * 2 + 512 * 512
