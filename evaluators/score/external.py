@@ -53,13 +53,13 @@ BTF_METRICS: tuple[str, ...] = ("l1", "relative_l1")
 EXTERNAL_BRDF = "external-brdf"
 
 
-def open_external(path: Path, name: str, kind: str) -> ExternalModel:
+def open_external(path: Path, name: str, kind: str, runtime: str | None = None) -> ExternalModel:
     """The model in ``path`` (:func:`models.external.load_external`: an MLP weight file or
     an ONNX file, by content); ``FormatError`` naming ``name`` and what is wrong."""
     from models.external import load_external
 
     try:
-        model = load_external(path, kind)
+        model = load_external(path, kind, runtime=runtime)
     except FormatError as exc:  # named after the store's object file: name the ref
         raise FormatError(name, exc.problem) from None
     except ValueError as exc:
@@ -72,7 +72,7 @@ def open_external(path: Path, name: str, kind: str) -> ExternalModel:
 def load_candidate(label: str, value: ExternalSpec, ctx: JobContext) -> ExternalModel:
     """Open candidate ``label``'s model; ``JobFailed`` naming the candidate."""
     try:
-        return open_external(ctx.resolve(value.model), value.model, value.kind)
+        return open_external(ctx.resolve(value.model), value.model, value.kind, value.runtime)
     except FormatError as exc:
         raise JobFailed(f"candidate {label!r}: {exc}") from None
 

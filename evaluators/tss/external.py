@@ -121,7 +121,7 @@ def load_external_btf(value: dict[str, Any], ctx: JobContext, mi: types.ModuleTy
     where = "model.external.model"
     ref = value["model"]
     try:
-        model = load_external(ctx.resolve(ref), "btf")
+        model = load_external(ctx.resolve(ref), "btf", runtime=value.get("runtime"))
     except (ValueError, FormatError) as exc:
         problem = exc.problem if isinstance(exc, FormatError) else str(exc)
         raise JobFailed(f"{where}: {ref}: {problem}") from None

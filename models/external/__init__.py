@@ -72,20 +72,24 @@ def model_format(path: Path) -> Literal["mlp", "onnx"]:
     )
 
 
-def load_external(path: Path, kind: str) -> ExternalModel:
+def load_external(path: Path, kind: str, *, runtime: str | None = None) -> ExternalModel:
     """The user's model in ``path`` as a ``kind`` (``"brdf"`` | ``"btf"``) model.
 
     An ONNX file whose graph is an MLP comes back as an
     :class:`~models.external.onnx_mlp.OnnxMlpMaterial` (fused Dr.Jit kernel), any other as an
     :class:`~models.external.onnx_model.OnnxMaterial` (onnxruntime).
 
+    ``runtime`` (ONNX only): ``"auto"`` (``None``) or ``"onnxruntime"`` (always).
+
     Raises ``ValueError`` naming the file when it is malformed, of the other kind, or ONNX
-    while ONNX support is not installed.
+    while ONNX support is not installed, or a ``runtime`` given for an MLP file.
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be 'brdf' or 'btf', got {kind!r}")
     name = Path(path).name
     if model_format(Path(path)) == "mlp":
+        if runtime is not None:
+            raise ValueError(f"{name}: runtime applies to ONNX models, not an MLP file")
         model: Any = read_mlp(path)
         if model.kind != kind:
             raise ValueError(f"{name}: is a {model.kind} model, not a {kind} one")
@@ -95,7 +99,9 @@ def load_external(path: Path, kind: str) -> ExternalModel:
         onnx_mlp = importlib.import_module("models.external.onnx_mlp")
     except ImportError as exc:
         raise ValueError(f"{name}: ONNX models are not supported by this build ({exc})") from None
-    return onnx_mlp.open_onnx(Path(path), kind)  # type: ignore[no-any-return,unused-ignore]
+    return onnx_mlp.open_onnx(  # type: ignore[no-any-return,unused-ignore]
+        Path(path), kind, runtime=runtime or "auto"
+    )
 
 
 __all__ = ["KINDS", "ExternalModel", "MlpMaterial", "load_external", "model_format", "read_mlp"]

@@ -106,7 +106,7 @@ def external_onnx_plugin(
     out: dict[str, Any] = {"type": EXTERNAL_ONNX_NAME, "filename": str(path), "kind": kind}
     if "threads" in value:
         out["threads"] = int(value["threads"])
-    if "runtime" in value:
+    if value.get("runtime") is not None:  # "auto" (default) or "onnxruntime"
         out["runtime"] = str(value["runtime"])
     sampling = value.get("sampling")
     if sampling is not None:

@@ -131,3 +131,52 @@ def test03_evaluate_tss_and_score_take_the_fused_kernel(
     assert isinstance(other, OnnxPlaneModel) and other.runtime == "onnxruntime"
     assert open_external(plain, "plain", "btf").runtime == "drjit-fused"
     assert open_external(opaque, "opaque", "btf").runtime == "onnxruntime"
+
+
+def test04_runtime_onnxruntime_is_asked_for_per_material(
+    mi: types.ModuleType, tmp_path: Path
+) -> None:
+    """``{"external": {..., "runtime": "onnxruntime"}}`` runs a recognised graph in
+    onnxruntime (render, score, evaluate.tss), labelled so; an MLP file refuses it, naming
+    the field."""
+    from pydantic import TypeAdapter
+
+    from evaluators.render.sources import MaterialParam, resolve_material
+    from evaluators.score.external import open_external
+    from evaluators.tss.external import OnnxPlaneModel, load_external_btf
+    from jobapi.errors import JobFailed
+    from models.external import load_external
+
+    plain = save(lambert_model("brdf", opaque=False), tmp_path / "plain.onnx")
+    btf = save(lambert_model("btf", opaque=False), tmp_path / "plain_btf.onnx")
+    ref = "sha256:" + "0" * 64
+
+    class Ctx:
+        def __init__(self, path: Path) -> None:
+            self.path = path
+
+        def resolve(self, ref: str) -> Path:
+            return self.path
+
+    def bsdf_of(path: Path, **extra: Any) -> Any:
+        spec = {"external": {"model": ref, "kind": "brdf", **extra}}
+        material = TypeAdapter(MaterialParam).validate_python(spec)
+        return resolve_material(material, Ctx(path), mi)  # type: ignore[arg-type]
+
+    assert type(bsdf_of(plain)).__name__ == "OnnxFusedBrdf"
+    assert type(bsdf_of(plain, runtime="auto")).__name__ == "OnnxFusedBrdf"
+    assert type(bsdf_of(plain, runtime="onnxruntime")).__name__ == "OnnxBrdf"
+    assert open_external(plain, "p", "brdf", "onnxruntime").runtime == "onnxruntime"
+    value = {"model": ref, "kind": "btf", "runtime": "onnxruntime"}
+    plane = load_external_btf(value, Ctx(btf), mi)  # type: ignore[arg-type]
+    assert isinstance(plane, OnnxPlaneModel) and plane.runtime == "onnxruntime"
+    mlp = tmp_path / "m.json"
+    mlp.write_text(json.dumps({
+        "format": "matforge.mlp-brdf/1", "inputs": ["wi", "wo"],
+        "layers": [{"weight": [[0.1] * 6] * 3, "bias": [0.0] * 3, "activation": "identity"}],
+        "output": {"combine": "network", "activation": "exp"},
+    }))  # fmt: skip
+    with pytest.raises(JobFailed, match=r"material\.external\.runtime"):
+        bsdf_of(mlp, runtime="onnxruntime")
+    with pytest.raises(ValueError, match="runtime applies to ONNX models"):
+        load_external(mlp, "brdf", runtime="onnxruntime")
