@@ -81,7 +81,7 @@ MODELS: dict[str, Any] = {
 REAL_LOAD = models.external.load_external
 
 
-def fake_load_external(path: Path, kind: str) -> Any:
+def fake_load_external(path: Path, kind: str, *, runtime: str | None = None) -> Any:
     """The test's loader: a JSON file ``{"test_model": NAME}`` is one of :data:`MODELS`;
     anything else goes to the real loader."""
     try:
@@ -90,7 +90,7 @@ def fake_load_external(path: Path, kind: str) -> Any:
         doc = None
     if isinstance(doc, dict) and "test_model" in doc:
         return MODELS[doc["test_model"]]
-    return REAL_LOAD(path, kind)
+    return REAL_LOAD(path, kind, runtime=runtime)
 
 
 @pytest.fixture
