@@ -50,7 +50,7 @@ from __future__ import annotations
 import logging
 import math
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -66,7 +66,7 @@ log = logging.getLogger("matforge.models.onnx_mlp")
 
 #: The runtime of a recognised graph (the built-in MLPs' kernel).
 RUNTIME = "drjit-fused"
-#: The graph inputs of each kind, in the order ``eval`` takes them (``uv`` last here).
+#: The columns of each signature input.
 SIGNATURE_WIDTHS = {"wi": 3, "wo": 3, "uv": 2}
 #: Operations per evaluation (a dense layer's ``in * out`` multiply-adds, one per column of
 #: an elementwise node) that a graph may unroll into the kernel: twice the MLP format's
@@ -772,17 +772,6 @@ class FusedOnnx:
 # -- opening a file -----------------------------------------------------------------------
 
 
-def fusable_reason(path: Path, kind: str) -> str | None:
-    """``None`` if the ONNX file at ``path`` (already checked) compiles, else why not."""
-    from storage.formats.onnx import load_onnx_proto
-
-    try:
-        compile_onnx(load_onnx_proto(Path(path), Path(path).name), kind, Path(path).name)
-    except NotFusable as exc:
-        return str(exc)
-    return None
-
-
 def open_onnx(
     path: Path, kind: str, *, threads: int | None = None, runtime: str = "auto"
 ) -> OnnxMlpMaterial | OnnxMaterial:
@@ -821,8 +810,3 @@ def open_onnx(
     model.macs_per_eval = counts["macs_per_eval"]
     model.bytes_per_eval = counts["bytes_per_eval"]
     return model
-
-
-def dense_macs(shapes: Sequence[tuple[int, int]]) -> int:
-    """Multiply-adds of dense layers of ``(in, out)`` shapes: ``sum(in * out)``."""
-    return int(sum(i * o for i, o in shapes))

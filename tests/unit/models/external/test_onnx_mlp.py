@@ -322,3 +322,26 @@ def test08_too_large_to_unroll_stays_in_onnxruntime(tmp_path: Path) -> None:
         compile_onnx(onnx.load(str(path)), "brdf")
     model = open_onnx(path, "brdf")
     assert model.runtime == "onnxruntime" and model.macs_per_eval == 3 * 512 * 2 + 512 * 512
+
+
+def test09_constant_subgraphs_are_folded(mi: Any, tmp_path: Path) -> None:
+    """Nodes of constants only (``Mul``, ``Concat`` of constants, a ``Shape`` of a constant)
+    are computed at load and used as constants; the result equals onnxruntime's."""
+    f = lambda a, n: numpy_helper.from_array(np.asarray(a, np.float32), n)  # noqa: E731
+    inits = [f([[0.5]], "c1"), f([[2.0, 3.0]], "c2"), f([[1.0]], "c3"), f(np.ones((2, 2)), "m")]
+    nodes = [
+        helper.make_node("Mul", ["c1", "c2"], ["c12"]),  # [[1, 1.5]]
+        helper.make_node("Concat", ["c12", "c3"], ["bias"], axis=1),  # [[1, 1.5, 1]]
+        helper.make_node("Shape", ["m"], ["ms"]),
+        helper.make_node("Cast", ["ms"], ["msf"], to=TensorProto.FLOAT),  # [2, 2]
+        helper.make_node("ReduceSum", ["msf"], ["four"], keepdims=1),  # [4]
+        helper.make_node("Mul", ["wi", "four"], ["w4"]),
+        helper.make_node("Add", ["w4", "bias"], ["rgb"]),
+    ]
+    path = save(_graph(nodes, inits), tmp_path / "folded.onnx")
+    model = open_onnx(path, "brdf")
+    assert isinstance(model, OnnxMlpMaterial)
+    wi, wo, _ = _batch(512)
+    ref = load_onnx(path, "brdf").eval(wi, wo)
+    np.testing.assert_allclose(ref, wi * 4.0 + np.array([1.0, 1.5, 1.0], np.float32), rtol=1e-6)
+    np.testing.assert_allclose(model.eval(wi, wo), ref, rtol=RTOL, atol=ATOL)
