@@ -18,7 +18,8 @@ What is recognised (everything else is not, and :class:`NotFusable` says which n
 
 - tensors of shape ``(N, C)`` (the batch and ``C`` columns; ``(N,)`` after a ``Gather`` or
   ``Squeeze`` of one column) and constants (initialisers, ``Constant`` nodes, and
-  anything computed from constants only, folded with numpy);
+  anything computed from constants only, folded once when the graph is compiled, by
+  onnx's reference evaluator);
 - ``MatMul`` and ``Gemm`` (``transA = 0``) of a row tensor by a constant matrix, plus an
   optional constant bias; ``Add``, ``Sub``, ``Mul``, ``Div``, ``Max``, ``Min``, ``Pow``
   (constant exponent) between row tensors of the same width (or one of width 1) or with a
@@ -260,7 +261,7 @@ class OnnxProgram:
 
     def run(self, backend: Any, feeds: dict[str, list[Any]]) -> list[Any]:
         """The output's 3 columns for input columns ``feeds`` (``name -> columns``)."""
-        out, _ = _interpret(self, backend, feeds)
+        out, _, _ = _interpret(self, backend, feeds)
         return out
 
 
@@ -299,7 +300,7 @@ def _axis(attrs: dict[str, Any], rank: int, where: str, default: int = 1) -> Non
 
 def _interpret(
     prog: OnnxProgram, backend: Any, feeds: dict[str, list[Any]]
-) -> tuple[list[Any], list[tuple[int, int]]]:
+) -> tuple[list[Any], list[tuple[int, int]], dict[str, Any]]:
     env: dict[str, _Value] = {k: np.asarray(v) for k, v in prog.constants.items()}
     folded = 0
     for name in prog.inputs:
@@ -389,7 +390,7 @@ def _interpret(
     final = row(prog.output, "output")
     if len(final.cols) != 3 or final.rank != 2:
         raise NotFusable(f"output '{prog.output}' has {len(final.cols)} columns, not 3")
-    return final.cols, dense
+    return final.cols, dense, env
 
 
 def _fold_constant(node: _Node, vals: list[Any], where: str) -> dict[str, np.ndarray]:
@@ -596,8 +597,11 @@ def compile_onnx(model: Any, kind: str, name: str = "model.onnx") -> OnnxProgram
     uses[output] = uses.get(output, 0) + 1
     prog = OnnxProgram(kind, inputs, output, tuple(nodes), constants, uses)
     feeds = {n: [None] * SIGNATURE_WIDTHS[n] for n in inputs}
-    _, dense = _interpret(prog, _Shapes(name), feeds)
-    return OnnxProgram(kind, inputs, output, tuple(nodes), constants, uses, tuple(dense))
+    _, dense, env = _interpret(prog, _Shapes(name), feeds)
+    # Constant-only nodes are folded once, here: the program keeps their values, not them.
+    folded = {k: v for k, v in env.items() if isinstance(v, np.ndarray)}
+    live = tuple(n for n in nodes if not all(o in folded for o in n.outputs))
+    return OnnxProgram(kind, inputs, output, live, folded, uses, tuple(dense))
 
 
 # -- counts without a clock ---------------------------------------------------------------

@@ -341,6 +341,7 @@ def test09_constant_subgraphs_are_folded(mi: Any, tmp_path: Path) -> None:
     path = save(_graph(nodes, inits), tmp_path / "folded.onnx")
     model = open_onnx(path, "brdf")
     assert isinstance(model, OnnxMlpMaterial)
+    assert [n.op for n in model.program.nodes] == ["Mul", "Add"]  # folded once, not per trace
     wi, wo, _ = _batch(512)
     ref = load_onnx(path, "brdf").eval(wi, wo)
     np.testing.assert_allclose(ref, wi * 4.0 + np.array([1.0, 1.5, 1.0], np.float32), rtol=1e-6)
