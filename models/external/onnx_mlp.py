@@ -28,7 +28,10 @@ What is recognised (everything else is not, and :class:`NotFusable` says which n
   ``Softplus``, ``Neg``, ``Abs``, ``Sqrt``, ``Reciprocal``, ``Clip`` (constant bounds),
   ``Identity``, ``Cast`` to float32;
 - ``Concat``, ``Slice`` (positive steps), ``Split``, ``Gather`` (constant indices) along
-  the column axis, and ``Unsqueeze`` / ``Squeeze`` of that axis.
+  the column axis, and ``Unsqueeze`` / ``Squeeze`` of that axis;
+- reductions over the columns (``ReduceSum``, ``ReduceMean``, ``ReduceL2``,
+  ``ReduceSumSquare``, ``ReduceMax``, ``ReduceMin``), and ``Expand`` to the ``Shape`` of a
+  per-row tensor (what ``torch.nn.functional.normalize`` exports).
 
 Semantics are the graph's own: the value is returned as the graph computes it (no clamp,
 no horizon mask: the BSDF plugins mask below the horizon as they do for onnxruntime).
@@ -106,7 +109,15 @@ class _Linear:
     bias: np.ndarray
 
 
-_Value = _Row | _Linear | np.ndarray
+@dataclass(frozen=True)
+class _Shape:
+    """The shape of a per-row tensor (a ``Shape`` node's output), for ``Expand`` only."""
+
+    rank: int
+    width: int
+
+
+_Value = _Row | _Linear | _Shape | np.ndarray
 
 
 # -- back ends ----------------------------------------------------------------------------
@@ -382,6 +393,20 @@ def _interpret(
             out = _Row(picked, 1) if idx.ndim == 0 else _Row(picked)
         elif op in ("Unsqueeze", "Squeeze"):
             out = _squeeze(node, row(ins[0], where), vals, where)
+        elif op in _REDUCE:
+            out = _reduce(node, backend, row(ins[0], where), vals, where)
+        elif op == "Shape":
+            x = row(ins[0], where)
+            if node.attrs.get("start") is not None or node.attrs.get("end") is not None:
+                raise NotFusable(f"{where}: Shape with start or end")
+            out = _Shape(x.rank, len(x.cols))
+        elif op == "Expand":
+            x, shape = row(ins[0], where), vals[1]
+            if not isinstance(shape, _Shape) or shape.rank != x.rank:
+                raise NotFusable(f"{where}: Expand other than to the shape of a per-row tensor")
+            if len(x.cols) not in (1, shape.width):
+                raise NotFusable(f"{where}: Expand of {len(x.cols)} columns to {shape.width}")
+            out = _Row(x.cols * (shape.width // len(x.cols)), x.rank)
         else:
             raise NotFusable(f"{where}: operator {op} on a per-row tensor")
         outs = out if isinstance(out, list) else [out]
@@ -391,6 +416,33 @@ def _interpret(
     if len(final.cols) != 3 or final.rank != 2:
         raise NotFusable(f"output '{prog.output}' has {len(final.cols)} columns, not 3")
     return final.cols, dense, env
+
+
+_REDUCE = frozenset({"ReduceSum", "ReduceMean", "ReduceL2", "ReduceSumSquare", "ReduceMax",
+                     "ReduceMin"})  # fmt: skip
+
+
+def _reduce(node: _Node, backend: Any, x: _Row, vals: list[Any], where: str) -> _Row:
+    """A reduction over the columns of an ``(N, C)`` tensor (``axes`` ``[1]`` or ``[-1]``,
+    an attribute or, from opset 18 and for ``ReduceSum`` from 13, an input)."""
+    if len(vals) > 1 and vals[1] is not None:
+        axes = _ints(vals[1], where)
+    else:
+        axes = [int(a) for a in node.attrs.get("axes", [])]
+    if x.rank != 2 or axes not in ([1], [-1]):
+        raise NotFusable(f"{where}: {node.op} other than over the columns of an (N, C) tensor")
+    op, cols = node.op, x.cols
+    if op in ("ReduceL2", "ReduceSumSquare"):
+        cols = [backend.binary("Mul", c, c) for c in cols]
+    pick = {"ReduceMax": "Max", "ReduceMin": "Min"}.get(op, "Add")
+    acc = cols[0]
+    for c in cols[1:]:
+        acc = backend.binary(pick, acc, c)
+    if op == "ReduceMean":
+        acc = backend.binary("Mul", acc, 1.0 / len(cols))
+    elif op == "ReduceL2":
+        acc = backend.unary("Sqrt", acc)
+    return _Row([acc], 2 if int(node.attrs.get("keepdims", 1)) else 1)
 
 
 def _fold_constant(node: _Node, vals: list[Any], where: str) -> dict[str, np.ndarray]:

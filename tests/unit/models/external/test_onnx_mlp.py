@@ -346,3 +346,27 @@ def test09_constant_subgraphs_are_folded(mi: Any, tmp_path: Path) -> None:
     ref = load_onnx(path, "brdf").eval(wi, wo)
     np.testing.assert_allclose(ref, wi * 4.0 + np.array([1.0, 1.5, 1.0], np.float32), rtol=1e-6)
     np.testing.assert_allclose(model.eval(wi, wo), ref, rtol=RTOL, atol=ATOL)
+
+
+def test10_a_torch_ggx_with_normalize_is_compiled(mi: Any, tmp_path: Path) -> None:
+    """A torch GGX + Lambert BRDF (``tests/helpers/external_models.py``: ``normalize``, a
+    column sum, ``Pow``, ``Sqrt``, ``Div``, ``Clip``) exports ``ReduceL2``, ``Shape``,
+    ``Expand`` and ``ReduceSum``: compiled, and equal to onnxruntime on cosine-weighted
+    pairs (the tolerance of the module docstring: a few float32 roundings per operation)."""
+    import torch
+
+    from tests.helpers.external_models import ggx_lambert
+
+    class Ggx(torch.nn.Module):
+        def forward(self, wi: Any, wo: Any) -> Any:
+            kd, eta = torch.tensor([0.2, 0.3, 0.4]), torch.tensor([1.5, 1.6, 1.7])
+            return ggx_lambert(wi, wo, kd, 0.3, eta)
+
+    path = _export(Ggx(), tmp_path / "ggx.onnx", "brdf")
+    ops = {n.op_type for n in onnx.load(str(path)).graph.node}
+    assert {"ReduceL2", "Shape", "Expand", "ReduceSum"} <= ops
+    fused = open_onnx(path, "brdf")
+    assert isinstance(fused, OnnxMlpMaterial)
+    wi, wo = cosine_pairs(4096, 9)
+    ref = load_onnx(path, "brdf").eval(wi, wo)
+    np.testing.assert_allclose(fused.eval(wi, wo), ref, rtol=RTOL, atol=ATOL)
