@@ -29,6 +29,9 @@ What is recognised (everything else is not, and :class:`NotFusable` says which n
   ``Identity``, ``Cast`` to float32;
 - ``Concat``, ``Slice`` (positive steps), ``Split``, ``Gather`` (constant indices) along
   the column axis, and ``Unsqueeze`` / ``Squeeze`` of that axis;
+- comparisons (``Greater``, ``Less``, ``GreaterOrEqual``, ``LessOrEqual``, ``Equal``),
+  ``Not``, ``And``, ``Or`` and ``Where`` (a horizon mask, ``torch.where``), and ``Cast`` of
+  a comparison to float;
 - reductions over the columns (``ReduceSum``, ``ReduceMean``, ``ReduceL2``,
   ``ReduceSumSquare``, ``ReduceMax``, ``ReduceMin``), and ``Expand`` to the ``Shape`` of a
   per-row tensor (what ``torch.nn.functional.normalize`` exports).
@@ -97,6 +100,9 @@ class _Row:
 
     cols: list[Any]
     rank: int = 2
+    #: Boolean columns (a comparison's result), for ``Where``, ``Not``, ``And``, ``Or`` and
+    #: ``Cast`` to float only.
+    mask: bool = False
 
 
 @dataclass
@@ -151,6 +157,18 @@ class _Shapes:
         self._count(1)
         return None
 
+    def where(self, c: Any, a: Any, b: Any) -> Any:
+        self._count(1)
+        return None
+
+    def to_float(self, m: Any) -> Any:
+        self._count(1)
+        return None
+
+    def logical_not(self, m: Any) -> Any:
+        self._count(1)
+        return None
+
 
 class _Numpy:
     """float32 numpy columns (the compiled program's reference, tested against
@@ -167,8 +185,37 @@ class _Numpy:
 
     def binary(self, op: str, a: Any, b: Any) -> Any:
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            if op in _NUMPY_LOGIC:
+                return np.asarray(_NUMPY_LOGIC[op](a, b))
             return np.asarray(_NUMPY_BINARY[op](a, b), np.float32)
 
+    def where(self, c: Any, a: Any, b: Any) -> Any:
+        return np.asarray(np.where(c, a, b), np.float32)
+
+    def to_float(self, m: Any) -> Any:
+        return np.asarray(m, np.float32)
+
+    def logical_not(self, m: Any) -> Any:
+        return np.logical_not(m)
+
+
+_NUMPY_LOGIC: dict[str, Callable[[Any, Any], Any]] = {
+    "Greater": np.greater,
+    "Less": np.less,
+    "GreaterOrEqual": np.greater_equal,
+    "LessOrEqual": np.less_equal,
+    "Equal": np.equal,
+    "And": np.logical_and,
+    "Or": np.logical_or,
+}
+
+_DRJIT_COMPARE: dict[str, Callable[[Any, Any], Any]] = {
+    "Greater": lambda a, b: a > b,
+    "Less": lambda a, b: a < b,
+    "GreaterOrEqual": lambda a, b: a >= b,
+    "LessOrEqual": lambda a, b: a <= b,
+    "Equal": lambda a, b: a == b,
+}
 
 _NUMPY_UNARY: dict[str, Callable[[np.ndarray, float], np.ndarray]] = {
     "Relu": lambda x, _: np.maximum(x, np.float32(0)),
@@ -237,7 +284,24 @@ class _DrJit:
             if isinstance(b, float) and b == 0.5:
                 return dr.sqrt(a)
             return dr.power(a, b)
+        if op == "And":
+            return a & b
+        if op == "Or":
+            return a | b
+        if op in _DRJIT_COMPARE:  # Dr.Jit's operators give masks
+            return _DRJIT_COMPARE[op](a, b)
         return _NUMPY_BINARY[op](a, b)
+
+    def where(self, c: Any, a: Any, b: Any) -> Any:
+        if isinstance(c, bool):
+            return a if c else b
+        return self.dr.select(c, a, b)
+
+    def to_float(self, m: Any) -> Any:
+        return self.dr.select(m, 1.0, 0.0)
+
+    def logical_not(self, m: Any) -> Any:
+        return ~m
 
 
 # -- the program --------------------------------------------------------------------------
@@ -323,11 +387,14 @@ def _interpret(
             raise NotFusable(f"{where}: input '{name}' is not computed before it is used")
         return env[name]
 
-    def row(name: str, where: str) -> _Row:
+    def row(name: str, where: str, mask: bool = False) -> _Row:
         v = _materialise(backend, get(name, where), dense)
         env[name] = v
         if not isinstance(v, _Row):
             raise NotFusable(f"{where}: expects a per-row tensor for '{name}'")
+        if v.mask != mask:
+            kind = "a boolean" if mask else "a float"
+            raise NotFusable(f"{where}: expects {kind} tensor for '{name}'")
         return v
 
     for node in prog.nodes:
@@ -347,8 +414,15 @@ def _interpret(
         out: _Value | list[_Value]
         if op in ("MatMul", "Gemm"):
             out = _linear(node, backend, vals, dense, where)
-        elif op in _BINARY:
+        elif op in _BINARY or op in _NUMPY_LOGIC:
             out = _binary(node, backend, ins, vals, prog, dense, where)
+        elif op == "Where":
+            out = _where(
+                backend, [v if v is None else _materialise(backend, v, dense) for v in vals], where
+            )
+        elif op == "Not":
+            x = row(ins[0], where, mask=True)
+            out = _Row([backend.logical_not(c) for c in x.cols], x.rank, True)
         elif op in _UNARY:
             x = row(ins[0], where)
             arg = float(node.attrs.get("alpha", 0.01)) if op == "LeakyRelu" else 0.0
@@ -356,7 +430,10 @@ def _interpret(
         elif op in ("Identity", "Cast"):
             if op == "Cast" and int(node.attrs.get("to", 0)) != _FLOAT:
                 raise NotFusable(f"{where}: Cast of a row tensor to a type other than float32")
-            out = vals[0]  # type: ignore[assignment]
+            v = vals[0]
+            if op == "Cast" and isinstance(v, _Row) and v.mask:  # a comparison as 0 or 1
+                v = _Row([backend.to_float(c) for c in v.cols], v.rank)
+            out = v  # type: ignore[assignment]
         elif op == "Clip":
             x = row(ins[0], where)
             lo, hi = (vals[i] if len(vals) > i else None for i in (1, 2))
@@ -528,27 +605,74 @@ def _binary(
             return _Linear(b.xs, b.weight, b.bias + c)
     ra = _materialise(backend, a, dense)
     rb = _materialise(backend, b, dense)
-    ra, rb = _widen(ra, rb), _widen(rb, ra)
-    if isinstance(ra, np.ndarray):
-        assert isinstance(rb, _Row)
-        ca = _as_columns(ra, len(rb.cols), where) if rb.rank == 2 else _scalar(ra, where)
-        return _Row([backend.binary(op, x, y) for x, y in zip(ca, rb.cols, strict=True)], rb.rank)
-    assert isinstance(ra, _Row)
-    if isinstance(rb, np.ndarray):
-        if op == "Pow" and np.asarray(rb).size != 1:
-            raise NotFusable(f"{where}: Pow with a per-column exponent")
-        cb = _as_columns(rb, len(ra.cols), where) if ra.rank == 2 else _scalar(rb, where)
-        return _Row([backend.binary(op, x, y) for x, y in zip(ra.cols, cb, strict=True)], ra.rank)
-    assert isinstance(rb, _Row)
-    if ra.rank != rb.rank:
+    logic = op in _NUMPY_LOGIC
+    for v in (ra, rb):
+        if not isinstance(v, _Row | np.ndarray):
+            raise NotFusable(f"{where}: {op} of a tensor that is not per row or constant")
+        masked = isinstance(v, _Row) and v.mask
+        if masked != (op in ("And", "Or")) or (op in ("And", "Or") and not isinstance(v, _Row)):
+            raise NotFusable(f"{where}: {op} of {'a boolean' if masked else 'this'} tensor")
+    if op == "Pow" and isinstance(rb, np.ndarray) and np.asarray(rb).size != 1:
+        raise NotFusable(f"{where}: Pow with a per-column exponent")
+    xs, ys, rank = _pair(ra, rb, op, where)
+    return _Row([backend.binary(op, x, y) for x, y in zip(xs, ys, strict=True)], rank, logic)
+
+
+def _pair(a: _Value, b: _Value, op: str, where: str) -> tuple[list[Any], list[Any], int]:
+    """The columns of ``a`` and ``b`` (per-row tensors or constants, one of them per row)
+    broadcast against each other, and the result's rank."""
+    a, b = _widen(a, b), _widen(b, a)
+    if isinstance(a, np.ndarray):
+        assert isinstance(b, _Row)
+        ca = _as_columns(a, len(b.cols), where) if b.rank == 2 else _scalar(a, where)
+        return ca, b.cols, b.rank
+    assert isinstance(a, _Row)
+    if isinstance(b, np.ndarray):
+        cb = _as_columns(b, len(a.cols), where) if a.rank == 2 else _scalar(b, where)
+        return a.cols, cb, a.rank
+    assert isinstance(b, _Row)
+    if a.rank != b.rank:
         raise NotFusable(f"{where}: {op} of an (N,) and an (N, C) tensor")
-    wa, wb = len(ra.cols), len(rb.cols)
+    wa, wb = len(a.cols), len(b.cols)
     if wa != wb and 1 not in (wa, wb):
         raise NotFusable(f"{where}: {op} of {wa} and {wb} columns")
     n = max(wa, wb)
-    xs = ra.cols * n if wa == 1 else ra.cols
-    ys = rb.cols * n if wb == 1 else rb.cols
-    return _Row([backend.binary(op, x, y) for x, y in zip(xs, ys, strict=True)], ra.rank)
+    return (a.cols * n if wa == 1 else a.cols), (b.cols * n if wb == 1 else b.cols), a.rank
+
+
+def _where(backend: Any, vals: list[Any], where: str) -> _Row:
+    """``Where(cond, a, b)``: a boolean per-row condition (or a constant one) choosing
+    between per-row tensors or constants, broadcast as the other binary operations."""
+    if len(vals) != 3:
+        raise NotFusable(f"{where}: Where of {len(vals)} inputs")
+    c, a, b = vals
+    for v in (c, a, b):
+        if not isinstance(v, _Row | np.ndarray):
+            raise NotFusable(f"{where}: Where of a tensor that is not per row or constant")
+    if not ((isinstance(c, _Row) and c.mask) or isinstance(c, np.ndarray)):
+        raise NotFusable(f"{where}: Where's condition is not a comparison's result")
+    if isinstance(a, _Row) and a.mask or isinstance(b, _Row) and b.mask:
+        raise NotFusable(f"{where}: Where between boolean tensors")
+    rows = [v for v in (c, a, b) if isinstance(v, _Row)]
+    rank = rows[0].rank
+    if any(r.rank != rank for r in rows):
+        raise NotFusable(f"{where}: Where of (N,) and (N, C) tensors")
+    n = max(len(r.cols) for r in rows)
+    if rank == 2:
+        n = max([n] + [int(np.asarray(v).size) for v in (c, a, b) if isinstance(v, np.ndarray)])
+
+    def columns(v: Any) -> list[Any]:
+        if isinstance(v, _Row):
+            if len(v.cols) not in (1, n):
+                raise NotFusable(f"{where}: Where of {len(v.cols)} columns against {n}")
+            return v.cols * n if len(v.cols) == 1 else v.cols
+        cols = _as_columns(v, n, where) if rank == 2 else _scalar(v, where) * n
+        return cols
+
+    cs, xs, ys = columns(c), columns(a), columns(b)
+    if isinstance(c, np.ndarray):
+        cs = [bool(v) for v in cs]
+    return _Row([backend.where(ci, x, y) for ci, x, y in zip(cs, xs, ys, strict=True)], rank)
 
 
 def _widen(x: _Value, other: _Value) -> _Value:

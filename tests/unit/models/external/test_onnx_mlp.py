@@ -370,3 +370,34 @@ def test10_a_torch_ggx_with_normalize_is_compiled(mi: Any, tmp_path: Path) -> No
     wi, wo = cosine_pairs(4096, 9)
     ref = load_onnx(path, "brdf").eval(wi, wo)
     np.testing.assert_allclose(fused.eval(wi, wo), ref, rtol=RTOL, atol=ATOL)
+
+
+def test11_comparisons_and_where_a_horizon_mask(mi: Any, tmp_path: Path) -> None:
+    """``torch.where`` of comparisons (``Greater``, ``And``, ``Not``, ``LessOrEqual``) and a
+    comparison cast to float, around an MLP: compiled, and equal to onnxruntime on a batch
+    with pairs below the horizon (where the mask decides)."""
+    import torch
+
+    layers = random_layers(np.random.default_rng(2), 6, 16, 2, 3, last="softplus")
+
+    class Masked(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.mlp = torch_mlp(layers)
+
+        def forward(self, wi: Any, wo: Any) -> Any:
+            y = self.mlp(torch.cat([wi, wo], dim=1))
+            up = (wi[:, 2:3] > 0) & ~(wo[:, 2:3] <= 0)
+            grazing = (wo[:, 2:3] < 0.2).float()
+            return torch.where(up, y * (1.0 - 0.5 * grazing), 0.0)
+
+    path = _export(Masked(), tmp_path / "masked.onnx", "brdf")
+    ops = {n.op_type for n in onnx.load(str(path)).graph.node}
+    assert {"Greater", "And", "Not", "LessOrEqual", "Where", "Cast"} <= ops
+    fused = open_onnx(path, "brdf")
+    assert isinstance(fused, OnnxMlpMaterial)
+    wi, wo, _ = _batch()
+    ref = load_onnx(path, "brdf").eval(wi, wo)
+    assert (ref == 0).any() and (ref > 0).any()
+    np.testing.assert_allclose(fused.eval(wi, wo), ref, rtol=RTOL, atol=ATOL)
+    np.testing.assert_allclose(fused.eval_numpy(wi, wo), ref, rtol=RTOL, atol=ATOL)
