@@ -466,6 +466,8 @@ def _interpret(
             if not isinstance(idx, np.ndarray) or idx.ndim > 1:
                 raise NotFusable(f"{where}: Gather needs constant scalar or 1-D indices")
             w = len(x.cols)
+            if any(not -w <= int(i) < w for i in idx.reshape(-1)):
+                raise NotFusable(f"{where}: Gather index out of range of {w} columns")
             picked = [x.cols[int(i) % w] for i in idx.reshape(-1)]
             out = _Row(picked, 1) if idx.ndim == 0 else _Row(picked)
         elif op in ("Unsqueeze", "Squeeze"):
@@ -773,7 +775,15 @@ def compile_onnx(model: Any, kind: str, name: str = "model.onnx") -> OnnxProgram
     uses[output] = uses.get(output, 0) + 1
     prog = OnnxProgram(kind, inputs, output, tuple(nodes), constants, uses)
     feeds = {n: [None] * SIGNATURE_WIDTHS[n] for n in inputs}
-    _, dense, env = _interpret(prog, _Shapes(name), feeds)
+    try:
+        _, dense, env = _interpret(prog, _Shapes(name), feeds)
+    except NotFusable:
+        raise
+    except (IndexError, KeyError, TypeError, ValueError, AssertionError, AttributeError) as exc:
+        # A node of another arity or form than the compiler reads (a graph onnx.checker
+        # would refuse, or a form not handled): not compiled, named.
+        problem = f"{type(exc).__name__}: {exc}"
+        raise NotFusable(f"{name}: the graph does not compile ({problem})") from None
     # Constant-only nodes are folded once, here: the program keeps their values, not them.
     folded = {k: v for k, v in env.items() if isinstance(v, np.ndarray)}
     live = tuple(n for n in nodes if not all(o in folded for o in n.outputs))
@@ -977,6 +987,9 @@ def open_onnx(
             program = compile_onnx(proto, kind, path.name)
         except NotFusable as exc:
             log.info("%s runs in onnxruntime: %s", path.name, exc)
+        except Exception:  # a graph the compiler mishandles still runs, in onnxruntime
+            log.warning("%s: compiling the graph failed; it runs in onnxruntime", path.name,
+                        exc_info=True)  # fmt: skip
         else:
             return OnnxMlpMaterial(
                 kind=kind,

@@ -401,3 +401,20 @@ def test11_comparisons_and_where_a_horizon_mask(mi: Any, tmp_path: Path) -> None
     assert (ref == 0).any() and (ref > 0).any()
     np.testing.assert_allclose(fused.eval(wi, wo), ref, rtol=RTOL, atol=ATOL)
     np.testing.assert_allclose(fused.eval_numpy(wi, wo), ref, rtol=RTOL, atol=ATOL)
+
+
+@pytest.mark.parametrize("arity", [1, 2, 3])
+def test12_every_allowed_operator_compiles_or_is_refused(arity: int) -> None:
+    """Each operator of the upload allowlist, on the graph inputs (and a constant): the
+    compiler either compiles it or refuses it with :class:`NotFusable`, never fails
+    otherwise (the graphs need not be valid: the compiler must not rely on it)."""
+    from storage.formats.onnx import ALLOWED_OPS
+
+    const = numpy_helper.from_array(np.ones((1, 3), np.float32), "k")
+    args = ["wi", "wo", "k"][:arity]
+    for op in sorted(ALLOWED_OPS):
+        model = _graph([helper.make_node(op, args, ["rgb"])], [const])
+        try:
+            compile_onnx(model, "brdf", f"{op}.onnx")
+        except NotFusable:
+            pass
