@@ -153,3 +153,38 @@ def test05_rows_carry_the_counts() -> None:
                                                    {"cost": cost}))}  # fmt: skip
     assert (scored["mine"].macs_per_eval, scored["mine"].bytes_per_eval) == (2336, 9740)
     assert (scored["table"].macs_per_eval, scored["table"].bytes_per_eval) == (0, 96)
+
+
+def test06_charts_and_choices_take_either_axis() -> None:
+    """``report.pareto`` accepts ``costs: [macs_per_eval, bytes_per_eval]`` and draws panels
+    on them (labelled as counts of any machine); ``select`` chooses by them; time stays the
+    default (not asked for, the counts are not charted)."""
+    from evaluators.report.fronts import cost_columns, panels
+    from evaluators.report.kind import ReportParetoParams
+    from evaluators.report.select_params import SelectParams
+    from jobapi.rows import ResultRow
+
+    rows = [
+        ResultRow(
+            job=j * 32,
+            kind="train.brdf",
+            metric="smape",
+            value=v,
+            candidate=c,
+            ns_per_eval=ns,
+            macs_per_eval=m,
+            bytes_per_eval=4.0 * m,
+        )  # fmt: skip
+        for j, c, v, ns, m in (
+            ("a", "hybrid 16x3", 0.11, 10.0, 704.0),
+            ("b", "hybrid 32x3", 0.07, 30.0, 2432.0),
+        )  # fmt: skip
+    ]
+    counts = ["macs_per_eval", "bytes_per_eval"]
+    ReportParetoParams.model_validate({"runs": ["job:" + "a" * 32], "costs": counts})
+    SelectParams.model_validate({"runs": ["job:" + "a" * 32], "metric": "smape", "target": 0.1,
+                                 "cost": "macs_per_eval"})  # fmt: skip
+    (panel,) = panels(rows, ["smape"], ["macs_per_eval"])
+    assert [p["cost"] for p in panel["points"]] == [704.0, 2432.0]
+    assert panel["cost_label"].startswith("macs_per_eval: multiply-adds per evaluation")
+    assert "macs_per_eval" not in cost_columns(rows, None)
