@@ -159,7 +159,10 @@ def main() -> None:
             render_passes(mi, fused_scene, passes, seeds)
 
     t_wave = _median_time(fused_wavefront, args.repeats)
-    onnx_scene = scene_of(external_onnx_plugin(path, {"kind": "brdf"}, None, mi))
+    # onnxruntime forced: a recognised MLP graph would otherwise run in the fused kernel
+    # (benchmarks/bench_onnx_fused.py measures that path).
+    forced = {"kind": "brdf", "runtime": "onnxruntime"}
+    onnx_scene = scene_of(external_onnx_plugin(path, forced, None, mi))
     onnx_bsdf = onnx_scene.shapes()[0].bsdf()
     stats = onnx_bsdf.model.stats
     render_passes(mi, onnx_scene, passes, seeds)  # warm-up

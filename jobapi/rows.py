@@ -32,6 +32,12 @@ column                      meaning
 ``spp``                     samples per pixel of the render that was scored
 ``render_seconds``          seconds of that render's passes, without JIT compilation (its own
                             measurement; older renders: the job's wall time)
+``macs_per_eval``           multiply-adds of the model's dense layers per evaluation, as its
+                            kernel runs them (:mod:`models.counts`): the same on every
+                            machine; 0 for a model without a network (analytic, a table)
+``bytes_per_eval``          bytes one evaluation reads (:mod:`models.counts`): every weight
+                            and bias, analytic parameters, and of a latent texture or a
+                            table what one lookup reads
 ==========================  ==================================================================
 """
 
@@ -69,6 +75,8 @@ COST_COLUMNS = (
     "train_seconds",
     "spp",
     "render_seconds",
+    "macs_per_eval",
+    "bytes_per_eval",
 )
 #: The ``runtime`` names (see the module docstring).
 RUNTIMES = ("drjit-fused", "onnxruntime", "mitsuba")
@@ -150,6 +158,8 @@ class ResultRow:
     train_seconds: float | None = None
     spp: int | None = None
     render_seconds: float | None = None
+    macs_per_eval: float | None = None
+    bytes_per_eval: float | None = None
 
     def document(self) -> dict[str, Any]:
         """The JSON form: every column of :data:`COLUMNS`, in order."""

@@ -19,6 +19,7 @@ LOWER = frozenset(
     {
         "flip", "mae", "mse", "rmse", "smape", "loss", "rel", "err", "error", "l1", "l2",
         "lpips", "seconds", "time", "ms", "ns", "us", "memory", "bytes", "mib", "cost",
+        "macs",
     }
 )  # fmt: skip
 

@@ -48,6 +48,8 @@ COST_LABELS = {
     "render_seconds": "render_seconds: seconds of the render's passes, without JIT compilation",
     "spp": "spp: samples per pixel",
     "train_seconds": "train_seconds: wall seconds of the training job",
+    "macs_per_eval": "macs_per_eval: multiply-adds per evaluation (any machine)",
+    "bytes_per_eval": "bytes_per_eval: bytes read per evaluation (any machine)",
 }
 RELATIONS = ("<", "<=")
 

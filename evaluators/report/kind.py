@@ -49,6 +49,8 @@ CostName = Literal[
     "render_seconds",
     "spp",
     "train_seconds",
+    "macs_per_eval",
+    "bytes_per_eval",
 ]
 
 
@@ -92,7 +94,7 @@ class ReportParetoParams(StrictModel):
         default=None, max_length=16, description="Error metrics to chart (default: found)."
     )
     costs: list[CostName] | None = Field(
-        default=None, max_length=7, description="Cost columns to chart (default: found)."
+        default=None, max_length=9, description="Cost columns to chart (default: found)."
     )
     claims: list[ClaimSpec] = Field(
         default_factory=list,

@@ -33,6 +33,8 @@ SCENE_COSTS = (
     "ns_per_eval",
     "bytes_per_material",
     "bytes_per_network",
+    "macs_per_eval",
+    "bytes_per_eval",
 )
 #: The costs measured in the shard, not read from a model job.
 MEASURED_COSTS = SCENE_COSTS[:3]
@@ -128,7 +130,9 @@ class SelectParams(StrictModel):
                                                              spp, or a ``{"model":
                                                              "job:..."}`` rung's
                                                              ns_per_eval, bytes_per_material,
-                                                             bytes_per_network)
+                                                             bytes_per_network,
+                                                             macs_per_eval,
+                                                             bytes_per_eval)
     =============  ====================  ==================  ================================
 
     Example: ``{"kind": "select", "params": {"runs": ["step:seen_scores"], "metric":

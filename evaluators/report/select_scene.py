@@ -257,7 +257,10 @@ def rung_runtime(rung: Rung, ctx: JobContext) -> str:
         from models.external import load_external
 
         try:
-            return str(load_external(ctx.resolve(value["model"]), value["kind"]).runtime)
+            model = load_external(
+                ctx.resolve(value["model"]), value["kind"], runtime=value.get("runtime")
+            )
+            return str(model.runtime)
         except (ValueError, FormatError):
             return "external"
     return "drjit-fused" if "model" in rung.material else "mitsuba"
@@ -272,7 +275,12 @@ def external_cost(rung: Rung, cost: str, index: int, ctx: JobContext) -> float:
     value = rung.material["external"]
     where = f"ladder.{index}.material.external"
     try:
-        model = load_external(ctx.resolve(value["model"]), value["kind"], label=value["model"])
+        model = load_external(
+            ctx.resolve(value["model"]),
+            value["kind"],
+            label=value["model"],
+            runtime=value.get("runtime"),
+        )
         measured = measure_cost(model)
     except (ValueError, FormatError) as exc:
         raise JobFailed(f"{where}: {value['model']}: {exc}") from None

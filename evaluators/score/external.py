@@ -53,13 +53,13 @@ BTF_METRICS: tuple[str, ...] = ("l1", "relative_l1")
 EXTERNAL_BRDF = "external-brdf"
 
 
-def open_external(path: Path, name: str, kind: str) -> ExternalModel:
+def open_external(path: Path, name: str, kind: str, runtime: str | None = None) -> ExternalModel:
     """The model in ``path`` (:func:`models.external.load_external`: an MLP weight file or
     an ONNX file, by content); ``FormatError`` naming ``name`` and what is wrong."""
     from models.external import load_external
 
     try:
-        model = load_external(path, kind, label=name)
+        model = load_external(path, kind, label=name, runtime=runtime)
     except FormatError as exc:  # named after the store's object file: name the ref
         raise FormatError(name, exc.problem) from None
     except ValueError as exc:
@@ -72,7 +72,7 @@ def open_external(path: Path, name: str, kind: str) -> ExternalModel:
 def load_candidate(label: str, value: ExternalSpec, ctx: JobContext) -> ExternalModel:
     """Open candidate ``label``'s model; ``JobFailed`` naming the candidate."""
     try:
-        return open_external(ctx.resolve(value.model), value.model, value.kind)
+        return open_external(ctx.resolve(value.model), value.model, value.kind, value.runtime)
     except FormatError as exc:
         raise JobFailed(f"candidate {label!r}: {exc}") from None
 
@@ -113,7 +113,8 @@ def external_costs(
     """The ``cost`` document of the external candidates ``{label: model}`` and of the
     built-in ``train.btf`` ones (``builtins``, each a
     :class:`models.btf.portable.PortableBtf`, timed the same way; see the module)."""
-    from models.external.cost import COST_FORMAT, measure_builtin_btf, measure_cost
+    from jobapi.documents import check_typed
+    from models.external.cost import COST_FORMAT, CostDocument, measure_builtin_btf, measure_cost
 
     timers: list[tuple[str, Callable[[Any], dict[str, Any]], Any]] = [
         *((label, measure_cost, m) for label, m in sorted(models.items())),
@@ -126,7 +127,9 @@ def external_costs(
             out[label] = measure(model)
         except ValueError as exc:
             raise JobFailed(f"candidate {label!r}: cost: {exc}") from None
-    return {"format": COST_FORMAT, "candidates": out}
+    doc = {"format": COST_FORMAT, "candidates": out}
+    check_typed("cost", doc, CostDocument)  # a malformed record is a bug: it fails the job
+    return doc
 
 
 def external_settings(params: ScoreParams) -> dict[str, Any]:

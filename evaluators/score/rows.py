@@ -14,7 +14,9 @@ external candidate's (``{"external": {...}}``) from the job's measurement ``cost
 (:mod:`models.external.cost`: ``ns_per_eval`` on the fixed batch, ``bytes_per_network`` its
 parameter bytes); a trained model's (``{"model": "job:<train>/model.json", ...}``) from its
 training job's rows (``speed.json``'s fused kernel time on the same kind of batch, bytes per
-material and network). A BTF score (external BTFs against a BTF job's slices) gives ``l1``
+material and network); a MERL table candidate (``...binary``) has 0 multiply-adds and
+reads eight RGB float32 bins per evaluation (:func:`models.counts.merl_table_counts`). A
+BTF score (external BTFs against a BTF job's slices) gives ``l1``
 and ``relative_l1`` per candidate and per failure case (``material`` and ``family`` the
 case's name), as ``train.btf``'s rows do, so both land in the same ``report.pareto`` and
 ``report.stability`` panels.
@@ -31,7 +33,10 @@ from jobapi.kinds import registered
 from jobapi.rows import ResultRow, RowSource, base_row, number
 
 #: The cost columns a candidate's rows carry.
-CANDIDATE_COSTS = ("ns_per_eval", "runtime", "bytes_per_material", "bytes_per_network")
+CANDIDATE_COSTS = (
+    "ns_per_eval", "runtime", "bytes_per_material", "bytes_per_network", "macs_per_eval",
+    "bytes_per_eval",
+)  # fmt: skip
 
 
 def _model_costs(src: RowSource, ref: Any, material: Any) -> dict[str, Any]:
@@ -58,6 +63,8 @@ def _external_costs(cost: Any, label: str) -> dict[str, Any]:
         "ns_per_eval": number(found.get("ns_per_eval")),
         "bytes_per_material": number(found.get("bytes_per_material")),
         "bytes_per_network": number(found.get("bytes_per_network")),
+        "macs_per_eval": number(found.get("macs_per_eval")),
+        "bytes_per_eval": number(found.get("bytes_per_eval")),
         "runtime": str(runtime) if isinstance(runtime, str) else None,
     }
 
@@ -82,8 +89,12 @@ def _candidate_facts(src: RowSource, spec: Any, label: str, cost: Any) -> dict[s
         return facts
     if isinstance(spec, str):
         made_by = src.source(spec)
-        if made_by is not None:
-            return render_facts(made_by)
+        facts = render_facts(made_by) if made_by is not None else {}
+        if spec.endswith(".binary"):  # a MERL table: what its lookup reads
+            from models.counts import merl_table_counts
+
+            facts = {**merl_table_counts(), **facts}
+        return facts
     return {}
 
 

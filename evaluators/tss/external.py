@@ -1,14 +1,15 @@
 """A user's BTF in ``evaluate.tss``: ``{"model": {"external": {"model": REF, "kind": "btf"}}}``.
 
-An MLP BTF (``matforge.mlp-btf/1``) is traced into the same Dr.Jit passes as a
+An MLP BTF (``matforge.mlp-btf/1``, or an ONNX BTF whose graph is an MLP:
+:mod:`models.external.onnx_mlp`) is traced into the same Dr.Jit passes as a
 ``train.btf`` model: :class:`ExternalPlaneModel` gives :class:`evaluators.tss.passes.Plane`
 what it asks of a model (``eval(uv, wi, wo)``, ``h``, ``w``, ``mi``, ``dr``) through
-:class:`models.external.fused.FusedMlp`, the kernel the renderer uses. It has no amortised
+:func:`models.external.fused.fused_of`, the kernel the renderer uses. It has no amortised
 2 x 2 pass (that is the coarse-to-fine student's), so every radiance texture is shaded per
 texel. Its resolution (for the texel-matched default) is its first latent texture's, or
 :data:`DEFAULT_RESOLUTION` without one.
 
-An ONNX BTF (:class:`OnnxPlaneModel`) runs in the same passes with onnxruntime: texture-space
+Any other ONNX BTF (:class:`OnnxPlaneModel`) runs in the same passes with onnxruntime: texture-space
 shading evaluates the model over a batch of texels (the radiance texture's, or a frame's
 pixels for the screen-space reference), so each pass reads its ``(uv, wi, wo)`` lanes back
 once per light, runs the session on them (:meth:`OnnxMaterial.eval`) and hands the values
@@ -49,12 +50,13 @@ class ExternalPlaneModel:
     def __init__(self, material: Any, mi: types.ModuleType) -> None:
         import drjit as dr
 
-        from models.external.fused import FusedMlp
+        from models.external.fused import fused_of
 
         self.material = material
-        self.fused = FusedMlp(material, mi)
+        self.fused = fused_of(material, mi)
         self.mi, self.dr = mi, dr
-        tex = material.doc.textures
+        doc = getattr(material, "doc", None)  # an ONNX graph has no latent textures
+        tex = doc.textures if doc is not None else ()
         self.h, self.w = (int(tex[0].shape[1]), int(tex[0].shape[2])) if tex else (
             DEFAULT_RESOLUTION, DEFAULT_RESOLUTION)  # fmt: skip
 
@@ -124,7 +126,7 @@ def load_external_btf(value: dict[str, Any], ctx: JobContext, mi: types.ModuleTy
     where = "model.external.model"
     ref = value["model"]
     try:
-        model = load_external(ctx.resolve(ref), "btf", label=ref)
+        model = load_external(ctx.resolve(ref), "btf", label=ref, runtime=value.get("runtime"))
     except (ValueError, FormatError) as exc:
         problem = exc.problem if isinstance(exc, FormatError) else str(exc)
         raise JobFailed(f"{where}: {ref}: {problem}") from None

@@ -220,3 +220,22 @@ def model_brdf(
     f_c = mi.Color3f(*(dr.exp(v) for v in out[:3]))
     f_g = mi.Color3f(*(dr.rcp(1.0 + dr.exp(-v)) for v in out[3:6]))
     return f_c + f_g * f_a
+
+
+def brdf_counts(model: str, width: int, depth: int) -> dict[str, int]:
+    """``{"macs_per_eval", "bytes_per_eval"}`` of one material of a ``train.brdf`` model as
+    its fused kernel runs it (:mod:`models.counts`; :func:`bake_material`): the MLP reads
+    the 6 direction components (the latent ``z`` folded into the first bias, the neural
+    model's frames into its first layer), 6 outputs for the hybrid (``f_c``, ``f_g``), 3 for
+    the neural model; bytes: its weights and biases, and the analytic part's 7 floats
+    (hybrid, analytic). The analytic model has no network: 0 multiply-adds."""
+    from models.counts import ANALYTIC_FLOATS, FLOAT_BYTES, mlp_macs, mlp_params
+
+    if model == "analytic" or depth <= 0:
+        return {"macs_per_eval": 0, "bytes_per_eval": FLOAT_BYTES * ANALYTIC_FLOATS}
+    n_out = 6 if model == "hybrid" else 3
+    analytic = ANALYTIC_FLOATS if model == "hybrid" else 0
+    return {
+        "macs_per_eval": mlp_macs(6, width, depth, n_out),
+        "bytes_per_eval": FLOAT_BYTES * (mlp_params(6, width, depth, n_out) + analytic),
+    }

@@ -233,6 +233,8 @@ def run_report_brdf(params: ReportBrdfParams, ctx: JobContext) -> None:
 PANEL_COSTS = {
     "ns_per_eval": "ns_per_eval: fused Dr.Jit kernel execution, ns per evaluation",
     "bytes_per_material": "bytes_per_material: float32 parameters per material",
+    "macs_per_eval": "macs_per_eval: multiply-adds per evaluation (any machine)",
+    "bytes_per_eval": "bytes_per_eval: bytes read per evaluation (any machine)",
 }
 
 
@@ -282,6 +284,8 @@ PARETO_COLUMNS = (
     "ns_per_eval",
     "torch_ns",
     "bytes_per_material",
+    "macs_per_eval",
+    "bytes_per_eval",
     "pareto",
 )
 

@@ -11,7 +11,8 @@ configuration (``candidate`` ``"hybrid 32x3"`` as :class:`models.brdf.study.Run`
 the dataset (the ``generate.merl`` job) and the costs: ``ns_per_eval`` is the trained
 size's ``fused_kernel_ns``, bytes per material 4 x the per-material floats, bytes per
 network from the speed document, ``train_seconds`` the job's wall time, ``runtime``
-``drjit-fused``.
+``drjit-fused``, and the counts that do not depend on the machine, ``macs_per_eval`` and
+``bytes_per_eval`` (:func:`models.brdf.fused.brdf_counts`, from the architecture).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from models.brdf.document import (
     TrainBrdfMaterials,
     TrainBrdfMetrics,
 )
+from models.brdf.fused import brdf_counts
 
 #: The metrics of a material's row in ``metrics.json``.
 METRICS = (
@@ -90,6 +92,7 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
         "bytes_per_network": number(speed.get("bytes_per_network")) if speed else None,
         "train_seconds": src.job.run_seconds,
         "runtime": RUNTIME,
+        **brdf_counts(model, width, depth),
     }
     rows: list[ResultRow] = []
     for m in metrics["materials"]:

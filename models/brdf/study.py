@@ -29,6 +29,7 @@ from typing import Any
 
 from evaluators.metrics.pareto import front_indices
 from evaluators.metrics.pareto import spread as seed_spread
+from models.brdf.fused import brdf_counts
 
 #: Families the paper singles out (Fig. 12, Sec. 6): thin-film iridescence and multi-lobe.
 HIGHLIGHT_FAMILIES: dict[str, str] = {
@@ -109,6 +110,8 @@ class Config:
             "torch_ns": _median(costs, "torch_ns"),
             "bytes_per_network": costs[0].get("bytes_per_network") if costs else None,
             "bytes_per_material": 4 * first.per_material_params,
+            # The costs that do not depend on the machine (models.counts).
+            **brdf_counts(first.model, first.width, first.depth),
             "ns_source": sorted({r.speed_source for r in self.runs}),
         }
 

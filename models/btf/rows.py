@@ -1,13 +1,16 @@
 """Result rows of ``train.btf`` (:mod:`jobapi.rows`): the model's L1 errors of
 ``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
 storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
-the decoder's. Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest,
-and fine_detail: the paper's Fig. 15 failure, the detail within 2 x 2 blocks)."""
+the decoder's; multiply-adds and bytes read per evaluation from ``model.json``
+(:func:`models.btf.counts.btf_counts`). Then ``l1`` and ``relative_l1`` per failure case
+(shadowing, specular, rest, and fine_detail: the paper's Fig. 15 failure, the detail within
+2 x 2 blocks)."""
 
 from __future__ import annotations
 
 from jobapi.documents import read_typed
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+from models.btf.counts import btf_counts
 from models.btf.document import TrainBtfMetrics
 
 #: The metrics of ``metrics.json``.
@@ -38,6 +41,9 @@ def train_btf_rows(src: RowSource) -> list[ResultRow]:
         "train_seconds": src.job.run_seconds,
         "runtime": RUNTIME,
     }
+    model = src.read("model.json")
+    if isinstance(model, dict):
+        fields.update({k: v for k, v in btf_counts(model).items() if v is not None})
     values = {"l1": doc["l1"], "l1_train": doc["l1_train"], "l1_heldout": doc["l1_heldout"],
               "relative_l1": doc["relative_l1"]}  # fmt: skip
     rows = [base_row(src, k, v, **fields) for k in METRICS if (v := number(values[k])) is not None]

@@ -5,7 +5,9 @@ Two ways in (issue 23):
 - the documented MLP formats ``matforge.mlp-brdf/1`` and ``matforge.mlp-btf/1``
   (:mod:`models.external.mlp`, one JSON file; rendered through the fused Dr.Jit kernel,
   :mod:`models.external.fused`);
-- an ONNX file (:mod:`models.external.onnx_model`, evaluated with onnxruntime).
+- an ONNX file: a graph that is an MLP is compiled into the same fused Dr.Jit kernel
+  (:mod:`models.external.onnx_mlp`, runtime ``drjit-fused``), any other graph is evaluated
+  with onnxruntime (:mod:`models.external.onnx_model`, runtime ``onnxruntime``).
 
 :func:`load_external` dispatches on the file's content, not its name: a JSON object is an
 MLP document; a file whose first byte is ``0x08`` (protobuf field 1, ``ir_version``, a
@@ -27,7 +29,9 @@ KINDS = ("brdf", "btf")
 
 @runtime_checkable
 class ExternalModel(Protocol):
-    """What matforge needs of a user's model, whatever its runtime."""
+    """What matforge needs of a user's model, whatever its runtime. The models matforge
+    opens also state ``macs_per_eval`` and ``bytes_per_eval`` (:mod:`models.counts`); a
+    model without them has its cost document give ``null`` for both."""
 
     @property
     def kind(self) -> str:
@@ -68,27 +72,38 @@ def model_format(path: Path) -> Literal["mlp", "onnx"]:
     )
 
 
-def load_external(path: Path, kind: str, *, label: str | None = None) -> ExternalModel:
+def load_external(
+    path: Path, kind: str, *, label: str | None = None, runtime: str | None = None
+) -> ExternalModel:
     """The user's model in ``path`` as a ``kind`` (``"brdf"`` | ``"btf"``) model.
 
+    An ONNX file whose graph is an MLP comes back as an
+    :class:`~models.external.onnx_mlp.OnnxMlpMaterial` (fused Dr.Jit kernel), any other as an
+    :class:`~models.external.onnx_model.OnnxMaterial` (onnxruntime).
+
+    ``runtime`` (ONNX only): ``"auto"`` (``None``) or ``"onnxruntime"`` (always).
+
     Raises ``ValueError`` naming the file when it is malformed, of the other kind, or ONNX
-    while ONNX support is not installed. ``label`` (the user's ref) names an ONNX model in
-    the messages of its evaluation.
+    while ONNX support is not installed, or a ``runtime`` given for an MLP file. ``label``
+    (the user's ref) names an ONNX model in the messages of its evaluation.
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be 'brdf' or 'btf', got {kind!r}")
     name = Path(path).name
     if model_format(Path(path)) == "mlp":
+        if runtime is not None:
+            raise ValueError(f"{name}: runtime applies to ONNX models, not an MLP file")
         model: Any = read_mlp(path)
         if model.kind != kind:
             raise ValueError(f"{name}: is a {model.kind} model, not a {kind} one")
         return model  # type: ignore[no-any-return,unused-ignore]
     try:
-        onnx_model = importlib.import_module("models.external.onnx_model")
+        importlib.import_module("models.external.onnx_model")
+        onnx_mlp = importlib.import_module("models.external.onnx_mlp")
     except ImportError as exc:
         raise ValueError(f"{name}: ONNX models are not supported by this build ({exc})") from None
-    return onnx_model.load_onnx(  # type: ignore[no-any-return,unused-ignore]
-        Path(path), kind, label=label
+    return onnx_mlp.open_onnx(  # type: ignore[no-any-return,unused-ignore]
+        Path(path), kind, runtime=runtime or "auto", label=label
     )
 
 

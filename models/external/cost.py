@@ -1,15 +1,16 @@
 """The cost of a user's model, measured by matforge the same way as the built-in models'.
 
-An external model (:class:`ExternalModel`: an exported MLP evaluated by a fused Dr.Jit
-kernel, or an ONNX file evaluated by onnxruntime) is timed on the same fixed batch as a
+An external model (:class:`ExternalModel`: an exported MLP or an ONNX graph that is an MLP,
+evaluated by a fused Dr.Jit kernel, or any other ONNX file, evaluated by onnxruntime) is
+timed on the same fixed batch as a
 ``train.brdf`` model's ``speed.json``: :data:`COST_BATCH` cosine-weighted direction pairs
 from :func:`models.speed.cosine_pairs` (seed 0; a BTF also gets uniform ``uv`` in the unit
 square from the same seed), the median of :data:`COST_REPEATS` runs after one warm-up run.
 
-- ``drjit-fused`` models (MLP materials, traced by :class:`models.external.fused.FusedMlp`,
-  the kernel the renderer runs): :func:`models.speed.time_fused`, the kernel's own
-  execution time from Dr.Jit's kernel history -- exactly the ``fused_kernel_ns`` that is
-  a ``train.brdf`` row's ``ns_per_eval``;
+- ``drjit-fused`` models (MLP materials and recognised ONNX graphs, traced by
+  :func:`models.external.fused.fused_of`, the kernel the renderer runs):
+  :func:`models.speed.time_fused`, the kernel's own execution time from Dr.Jit's kernel
+  history -- exactly the ``fused_kernel_ns`` that is a ``train.brdf`` row's ``ns_per_eval``;
 - any other runtime (``onnxruntime``): the wall time of ``eval`` on the numpy batch, which
   is what the renderer pays per bounce for that runtime (:func:`models.speed.time_call`).
 
@@ -22,8 +23,14 @@ networks' weights and biases), as ``train.btf``'s ``storage`` counts them; a BRD
 An ONNX graph does not say which initialisers are textures, so an ONNX model's
 ``bytes_per_network`` is all of its floating-point initialisers (= ``bytes_total``) and its
 ``bytes_per_material`` is not given.
+Beside the time, the counts that do not depend on the machine (:mod:`models.counts`):
+``macs_per_eval`` (multiply-adds of the dense layers per evaluation) and ``bytes_per_eval``
+(bytes one evaluation reads), from the JSON document's layers and textures, or from an ONNX
+graph's nodes and inferred shapes (:func:`models.external.onnx_mlp.graph_counts`); a
+built-in BTF's from its ``model.json`` (:func:`models.btf.counts.btf_counts`).
 The document (the measurement ``cost`` in a ``score`` job's manifest, :data:`COST_FORMAT`:
-not an artifact, since timings vary) names the ``runtime``
+not an artifact, since timings vary; typed, :class:`CostDocument` of :class:`CostRecord`,
+and checked when the score records it) names the ``runtime``
 and the ``method``, so a chart never mixes two runtimes' costs unawares. Timings vary from
 run to run.
 """
@@ -33,6 +40,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from typing_extensions import TypedDict
+
+from jobapi.documents import document
 
 #: Pairs per measurement: ``train.brdf``'s default ``speed_batch`` (2^18).
 COST_BATCH = 1 << 18
@@ -45,6 +55,46 @@ if TYPE_CHECKING:
 
 #: The version tag of a cost document.
 COST_FORMAT = "matforge.cost/1"
+
+
+@document
+class CostRecord(TypedDict):
+    """One model's cost (:func:`measure_cost`, :func:`measure_builtin_btf`)."""
+
+    format: str
+    """``matforge.cost/1``."""
+    ns_per_eval: float
+    """ns per evaluation on the fixed batch, in ``runtime``."""
+    runtime: str
+    """What evaluated it: ``drjit-fused`` or ``onnxruntime``."""
+    bytes_total: int | None
+    """float32 bytes of everything needed to render it."""
+    bytes_per_network: int | None
+    """float32 bytes of the networks' weights and biases."""
+    bytes_per_material: int | None
+    """float32 bytes of the latent textures (``null``: not split)."""
+    macs_per_eval: int | None
+    """Multiply-adds of the dense layers per evaluation (:mod:`models.counts`)."""
+    bytes_per_eval: int | None
+    """Bytes one evaluation reads (:mod:`models.counts`)."""
+    method: str
+    """How the time was measured."""
+    batch: int
+    """Pairs in the batch."""
+    repeats: int
+    """Runs per median."""
+
+
+@document
+class CostDocument(TypedDict):
+    """The ``cost`` measurement of a ``score`` job: every timed candidate's record."""
+
+    format: str
+    """``matforge.cost/1``."""
+    candidates: dict[str, CostRecord]
+    """``{label: record}``."""
+
+
 #: The runtime whose time is the fused kernel's.
 FUSED = "drjit-fused"
 
@@ -65,21 +115,19 @@ def cost_batch(
 def measure_cost(
     model: ExternalModel, *, batch: int = COST_BATCH, repeats: int = COST_REPEATS
 ) -> dict[str, Any]:
-    """``{"ns_per_eval", "runtime", "bytes_per_network", "method", "batch", "repeats"}`` of
-    ``model`` (see the module docstring). ``ValueError`` for a ``drjit-fused`` model that
-    is not an MLP material, or for no Mitsuba LLVM variant to run it in."""
+    """``{"ns_per_eval", "runtime", "bytes_per_network", "macs_per_eval", "bytes_per_eval",
+    "method", "batch", "repeats"}`` of ``model`` (see the module docstring). ``ValueError``
+    for a ``drjit-fused`` model without a fused kernel, or for no Mitsuba LLVM variant to
+    run it in."""
     from models.speed import time_call
 
     wi, wo, uv = cost_batch(model.kind, batch)
     runtime = str(model.runtime)
     if runtime == FUSED:
-        from models.external.fused import FusedMlp
-        from models.external.mlp import MlpMaterial
+        from models.external.fused import fused_of
 
-        if not isinstance(model, MlpMaterial):
-            raise ValueError(f"a {FUSED} model is an MLP material (models.external.mlp)")
         seconds = fused_seconds(
-            lambda mi: FusedMlp(model, mi).eval, model.kind, batch, repeats, uv_first=False
+            lambda mi: fused_of(model, mi).eval, model.kind, batch, repeats, uv_first=False
         )
         method = FUSED_METHOD
     else:
@@ -90,6 +138,8 @@ def measure_cost(
         "ns_per_eval": round(seconds / batch * 1e9, 3),
         "runtime": runtime,
         **model_bytes(model),
+        "macs_per_eval": getattr(model, "macs_per_eval", None),
+        "bytes_per_eval": getattr(model, "bytes_per_eval", None),
         "method": method,
         "batch": batch,
         "repeats": repeats,
@@ -149,6 +199,8 @@ def measure_builtin_btf(
 
     seconds = fused_seconds(lambda mi: FusedBtf(model, mi).eval, "btf", batch, repeats,
                             uv_first=True)  # fmt: skip
+    from models.btf.counts import btf_counts
+
     storage = model.doc.get("storage") or {}
     return {
         "format": COST_FORMAT,
@@ -157,6 +209,7 @@ def measure_builtin_btf(
         "bytes_total": storage.get("total_bytes"),
         "bytes_per_material": storage.get("texture_bytes"),
         "bytes_per_network": storage.get("network_bytes"),
+        **btf_counts(model.doc),
         "method": FUSED_METHOD,
         "batch": batch,
         "repeats": repeats,

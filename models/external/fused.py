@@ -156,3 +156,19 @@ class FusedMlp:
             f = f * wi_[2]
         above = (wi_[2] > 0.0) & (wo_[2] > 0.0)
         return dr.select(above, f, 0.0)
+
+
+def fused_of(model: Any, mi: types.ModuleType) -> Any:
+    """The fused Dr.Jit evaluator of a ``drjit-fused`` user model: a
+    :class:`FusedMlp` for an MLP material, the model's own ``fused(mi)``
+    (:class:`models.external.onnx_mlp.FusedOnnx`) for a recognised ONNX graph. Either has
+    ``eval(wi, wo, uv=None)``. ``ValueError`` for a model of another runtime."""
+    if isinstance(model, MlpMaterial):
+        return FusedMlp(model, mi)
+    make = getattr(model, "fused", None)
+    if make is None:
+        raise ValueError(
+            f"a {getattr(model, 'runtime', '?')} model has no fused Dr.Jit kernel "
+            "(an MLP material or a recognised ONNX graph has)"
+        )
+    return make(mi)

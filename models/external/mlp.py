@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from materials import microfacet as mf
+from models.counts import ANALYTIC_FLOATS, BILINEAR_TAPS, FLOAT_BYTES, dense_counts
 from storage.errors import FormatError
 from storage.formats.mlp_model import FORMATS, MlpDocument, parse_mlp_document
 
@@ -148,6 +149,24 @@ class MlpMaterial:
         """Bytes of everything but the latent textures: the network's weights and biases
         (and the analytic part's parameters)."""
         return self.param_bytes - self.texture_bytes
+
+    @property
+    def macs_per_eval(self) -> int:
+        """Multiply-adds of the dense layers per evaluation (:mod:`models.counts`)."""
+        return dense_counts((ly.weight.shape[1], ly.weight.shape[0]) for ly in self.doc.layers)[0]
+
+    @property
+    def bytes_per_eval(self) -> int:
+        """Bytes one evaluation reads (:mod:`models.counts`): the weights and biases, the
+        analytic part's 7 floats, and 4 texels of every channel of each texture input."""
+        net = dense_counts((ly.weight.shape[1], ly.weight.shape[0]) for ly in self.doc.layers)[1]
+        taps = sum(
+            BILINEAR_TAPS * int(self.doc.textures[e.index].shape[0])
+            for e in self.doc.inputs
+            if e.type == "texture" and e.index is not None
+        )
+        analytic = ANALYTIC_FLOATS if self.doc.analytic is not None else 0
+        return net + FLOAT_BYTES * (taps + analytic)
 
     def features(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None) -> np.ndarray:
         """``(N, n_inputs)`` float64 network inputs (step 1 of the module docstring)."""

@@ -89,6 +89,10 @@ class OnnxMaterial:
     stats: EvalStats = field(default_factory=EvalStats)
     #: Rows per onnxruntime call (:func:`chunk_rows`).
     chunk: int = CHUNK
+    #: Multiply-adds and bytes read per evaluation, counted from the graph
+    #: (:func:`models.external.onnx_mlp.graph_counts`; ``None`` when not counted).
+    macs_per_eval: int | None = None
+    bytes_per_eval: int | None = None
 
     def eval(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
         """The model at ``N`` direction pairs: ``(N, 3)`` float32 RGB.

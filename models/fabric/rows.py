@@ -4,6 +4,8 @@
 Metrics are the flattened keys of a material's row: ``loss`` (Eq. 11), ``rgb.rel``,
 ``rgb.mse``, ``C_warp.rel``, ... The per-material mean predictor's errors (``baseline.*``)
 are rows of their own candidate, ``"baseline"``, beside the network's, ``"network"``.
+The network's rows carry its multiply-adds and bytes read per evaluation
+(:func:`models.fabric.counts.fabric_counts`, from ``model.json``).
 Then ``rgb.rel`` per footprint-size case (``footprints``), with the case's name as its
 ``material`` and ``family`` (the tiny footprints are a failure case of issue 13).
 """
@@ -16,8 +18,11 @@ from typing import Any
 from jobapi.documents import read_typed
 from jobapi.results import flatten
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
+from models.fabric.counts import fabric_counts
 from models.fabric.document import TrainFabricMetrics
 
+#: The machine-independent cost columns, the network's only.
+COUNT_COLUMNS = ("macs_per_eval", "bytes_per_eval")
 #: Keys of a material's row that are counts, not measurements.
 NOT_METRICS = frozenset({"queries", "count"})
 #: Params of the spec that describe the network, in ``config``.
@@ -33,7 +38,12 @@ def _rows_of(src: RowSource, values: Mapping[str, Any], fields: dict[str, Any]) 
         candidate, metric = (
             ("baseline", key[9:]) if key.startswith("baseline.") else ("network", key)
         )
-        rows.append(base_row(src, metric, value, candidate=candidate, **fields))
+        own = (
+            fields
+            if candidate == "network"
+            else {k: v for k, v in fields.items() if k not in COUNT_COLUMNS}
+        )  # the mean predictor has no decoder
+        rows.append(base_row(src, metric, value, candidate=candidate, **own))
     return rows
 
 
@@ -49,6 +59,9 @@ def train_fabric_rows(src: RowSource) -> list[ResultRow]:
         "config": {k: params[k] for k in CONFIG_KEYS if params.get(k) is not None},
         "train_seconds": src.job.run_seconds,
     }
+    model = src.read("model.json")
+    if isinstance(model, dict):  # the network's counts (models.fabric.counts)
+        common.update({k: v for k, v in fabric_counts(model).items() if v is not None})
     rows: list[ResultRow] = []
     # A material's row and the footprint cases are trees of error measures, typed as objects
     # (models.fabric.document): their names and keys are read as the report writes them.
@@ -62,6 +75,11 @@ def train_fabric_rows(src: RowSource) -> list[ResultRow]:
             continue
         fields = {**common, "material": str(case["case"]), "family": str(case["case"])}
         for cand, key in (("network", "rgb_rel"), ("baseline", "baseline_rgb_rel")):
+            own = (
+                fields
+                if cand == "network"
+                else {k: v for k, v in fields.items() if k not in COUNT_COLUMNS}
+            )
             if (value := number(case.get(key))) is not None:
-                rows.append(base_row(src, "rgb.rel", value, candidate=cand, **fields))
+                rows.append(base_row(src, "rgb.rel", value, candidate=cand, **own))
     return rows

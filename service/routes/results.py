@@ -58,6 +58,16 @@ class ResultRowPublic(BaseModel):
     train_seconds: float | None = Field(None, description="wall seconds of the training job")
     spp: int | None = None
     render_seconds: float | None = Field(None, description="wall seconds of the render job")
+    macs_per_eval: float | None = Field(
+        None,
+        description="multiply-adds of the model's dense layers per evaluation (the same on "
+        "every machine)",
+    )
+    bytes_per_eval: float | None = Field(
+        None,
+        description="bytes one evaluation reads: weights, analytic parameters, and what one "
+        "lookup reads of a latent texture or a table",
+    )
 
 
 class BatchStep(BaseModel):

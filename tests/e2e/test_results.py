@@ -41,6 +41,8 @@ COLUMNS = [
     "train_seconds",
     "spp",
     "render_seconds",
+    "macs_per_eval",
+    "bytes_per_eval",
 ]
 
 

@@ -21,10 +21,18 @@ def _io(kind: str, batch: str | int = "N") -> tuple[list[onnx.ValueInfoProto], o
 
 
 def lambert_model(
-    kind: str = "btf", albedo: tuple[float, float, float] = ALBEDO, opset: int = 17
+    kind: str = "btf",
+    albedo: tuple[float, float, float] = ALBEDO,
+    opset: int = 17,
+    *,
+    opaque: bool = True,
 ) -> onnx.ModelProto:
     """A Lambertian ``kind`` model: BTF ``rgb = albedo / pi * wi.z`` (UBO2014's convention,
-    foreshortening of the light ``wi`` included), BRDF ``rgb = albedo / pi`` (no cosine)."""
+    foreshortening of the light ``wi`` included), BRDF ``rgb = albedo / pi`` (no cosine).
+
+    ``opaque`` (the default) ends the graph in a ``Reshape`` to ``[-1, 3]``, an operator the
+    fused compiler (:mod:`models.external.onnx_mlp`) does not recognise, so the model runs
+    in onnxruntime; ``opaque=False`` leaves the plain graph, which it compiles."""
     inputs, out = _io(kind)
     k = numpy_helper.from_array((np.asarray(albedo, np.float32) / np.float32(np.pi))[None], "k")
     if kind == "btf":
@@ -46,6 +54,10 @@ def lambert_model(
             helper.make_node("MatMul", ["wi", "zero"], ["zeros"]),
             helper.make_node("Add", ["zeros", "k"], ["rgb"]),
         ]
+    if opaque:
+        nodes[-1].output[0] = "rgb_flat"
+        inits.append(numpy_helper.from_array(np.array([-1, 3], np.int64), "rgb_shape"))
+        nodes.append(helper.make_node("Reshape", ["rgb_flat", "rgb_shape"], ["rgb"]))
     graph = helper.make_graph(nodes, f"lambert_{kind}", inputs, [out], inits)
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
 

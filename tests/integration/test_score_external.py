@@ -81,7 +81,9 @@ MODELS: dict[str, Any] = {
 REAL_LOAD = models.external.load_external
 
 
-def fake_load_external(path: Path, kind: str, *, label: str | None = None) -> Any:
+def fake_load_external(
+    path: Path, kind: str, *, label: str | None = None, runtime: str | None = None
+) -> Any:
     """The test's loader: a JSON file ``{"test_model": NAME}`` is one of :data:`MODELS`;
     anything else goes to the real loader."""
     try:
@@ -90,7 +92,7 @@ def fake_load_external(path: Path, kind: str, *, label: str | None = None) -> An
         doc = None
     if isinstance(doc, dict) and "test_model" in doc:
         return MODELS[doc["test_model"]]
-    return REAL_LOAD(path, kind, label=label)
+    return REAL_LOAD(path, kind, label=label, runtime=runtime)
 
 
 @pytest.fixture

@@ -1,9 +1,13 @@
 """Mitsuba BSDF ``external_onnx``: a user's ONNX BRDF or BTF evaluated inside the render.
 
-The model (:class:`models.external.onnx_model.OnnxMaterial`, signature in
-``docs/onnx-models.md``) runs in onnxruntime, outside Dr.Jit, so it cannot be traced into a
-kernel: Dr.Jit's symbolic loops and calls cannot call out to Python. Renders with such a
-BSDF therefore run in Dr.Jit's **evaluated (wavefront) mode** (:func:`wavefront_scope`:
+A graph that is an MLP (:func:`models.external.onnx_mlp.compile_onnx` recognises it) is
+traced into the render kernel like ``external_mlp``: the same fused Dr.Jit dense layers as
+the built-in models, inside Mitsuba's symbolic path loop (:class:`OnnxFusedBrdf`,
+:class:`OnnxFusedBtf`; runtime ``drjit-fused``). Any other graph
+(:class:`models.external.onnx_model.OnnxMaterial`, signature in ``docs/onnx-models.md``)
+runs in onnxruntime, outside Dr.Jit, so it cannot be traced into a kernel: Dr.Jit's
+symbolic loops and calls cannot call out to Python. Renders with such a BSDF therefore run
+in Dr.Jit's **evaluated (wavefront) mode** (:func:`wavefront_scope`:
 ``JitFlag.SymbolicLoops``, ``SymbolicCalls`` and ``SymbolicConditionals`` off for the
 render, restored afterwards). Mitsuba's path loop then runs one iteration (one bounce) at a
 time over all live paths, and each BSDF call receives concrete arrays of the lanes that hit
@@ -37,6 +41,7 @@ parameter             type    default  meaning
 ``kind``              string  --       ``brdf`` or ``btf`` (the signature it must follow)
 ``label``             string  file     the model's name in messages (the user's ref)
 ``threads``           int     2        onnxruntime intra-op threads
+``runtime``           string  auto     ``auto`` (fused when recognised), ``onnxruntime``
 ``alpha``             float   1        (BRDF) GGX roughness of the sampled lobe
 ``specular_weight``   float   0        (BRDF) probability of sampling the GGX lobe
 ``uv_scale_u``        float   1        (BTF) patch repeats per unit of u
@@ -60,7 +65,8 @@ from evaluators.render.bsdfs.btf_common import BtfReflector, uv_scale_of
 from evaluators.render.bsdfs.common import GlossyDiffuseReflector, MixtureReflector, MixtureSampling
 from evaluators.render.plugins import VariantPlugin, class_for_variant, register_vectorised_bsdf
 from jobapi.errors import JobFailed
-from models.external.onnx_model import DEFAULT_THREADS, OnnxEvalError, OnnxMaterial, load_onnx
+from models.external.onnx_mlp import OnnxMlpMaterial, open_onnx
+from models.external.onnx_model import DEFAULT_THREADS, OnnxEvalError, OnnxMaterial
 from storage.errors import FormatError, TooLargeError
 from storage.formats.onnx import check_onnx_file
 
@@ -107,6 +113,8 @@ def external_onnx_plugin(
     }
     if "threads" in value:
         out["threads"] = int(value["threads"])
+    if value.get("runtime") is not None:  # "auto" (default) or "onnxruntime"
+        out["runtime"] = str(value["runtime"])
     sampling = value.get("sampling")
     if sampling is not None:
         if kind != "brdf":
@@ -196,17 +204,33 @@ def _call_model(
     return mi.Color3f(mi.Float(out[:, 0]), mi.Float(out[:, 1]), mi.Float(out[:, 2]))
 
 
-def _load(props: Any) -> OnnxMaterial:
+def _load(props: Any) -> OnnxMaterial | OnnxMlpMaterial:
     if "filename" not in props or "kind" not in props:
         raise ValueError("external_onnx: 'filename' and 'kind' are required")
     threads = int(props.get("threads", DEFAULT_THREADS))
     label = str(props["label"]) if "label" in props else None
+    runtime = str(props.get("runtime", "auto"))
     try:
-        return load_onnx(
-            Path(str(props["filename"])), str(props["kind"]), threads=threads, label=label
+        return open_onnx(
+            Path(str(props["filename"])),
+            str(props["kind"]),
+            threads=threads,
+            runtime=runtime,
+            label=label,
         )
     except Exception as exc:  # FormatError, TooLargeError: a one-line message naming the file
         raise ValueError(f"external_onnx: {exc}") from None
+
+
+def _check_sampling(props: Any) -> MixtureSampling:
+    alpha = float(props.get("alpha", 1.0))
+    weight = float(props.get("specular_weight", 0.0))
+    if not (0.0 < alpha <= 1.0 and 0.0 <= weight < 1.0):
+        raise ValueError(
+            f"external_onnx: alpha must lie in (0, 1] and specular_weight in [0, 1), "
+            f"got {alpha} and {weight}"
+        )
+    return MixtureSampling(alpha, weight)  # weight 0: cosine only
 
 
 class OnnxBrdf(GlossyDiffuseReflector):
@@ -220,14 +244,7 @@ class OnnxBrdf(GlossyDiffuseReflector):
         )
         self.model = model
         self.symbolic_calls = 0
-        alpha = float(props.get("alpha", 1.0))
-        weight = float(props.get("specular_weight", 0.0))
-        if not (0.0 < alpha <= 1.0 and 0.0 <= weight < 1.0):
-            raise ValueError(
-                f"external_onnx: alpha must lie in (0, 1] and specular_weight in [0, 1), "
-                f"got {alpha} and {weight}"
-            )
-        self.sampling = MixtureSampling(alpha, weight)  # weight 0: cosine only
+        self.sampling = _check_sampling(props)
         self.m_flags = flags
         self.m_components = [flags]
         _LIVE.add(self)
@@ -258,6 +275,45 @@ class OnnxBtf(BtfReflector):
         return f"OnnxBtf[{self.model.name}, uv_scale={self.uv_scale}]"
 
 
+class OnnxFusedBrdf(GlossyDiffuseReflector):
+    """A recognised ONNX BRDF traced into the render kernel (sampling as :class:`OnnxBrdf`)."""
+
+    def __init__(self, props: Any, model: OnnxMlpMaterial) -> None:
+        MixtureReflector.__init__(self, props)
+        mi = self.mi
+        flags = (
+            mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        )
+        self.model = model
+        self.fused = model.fused(mi)
+        self.sampling = _check_sampling(props)
+        self.m_flags = flags
+        self.m_components = [flags]
+
+    def brdf(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+        active = active & (wi.z > 0.0) & (wo.z > 0.0)
+        return self.dr.select(active, self.fused.eval(wi, wo), 0.0)
+
+    def to_string(self) -> str:
+        return f"OnnxFusedBrdf[{self.model.name}, {self.model.param_bytes} parameter bytes]"
+
+
+class OnnxFusedBtf(BtfReflector):
+    """A recognised ONNX BTF traced into the render kernel (cosine-sampled)."""
+
+    def __init__(self, props: Any, model: OnnxMlpMaterial) -> None:
+        BtfReflector.__init__(self, props)
+        self.model = model
+        self.fused = model.fused(self.mi)
+        self.uv_scale = uv_scale_of(props)
+
+    def btf(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
+        return self.fused.eval(light, view, uv)
+
+    def to_string(self) -> str:
+        return f"OnnxFusedBtf[{self.model.name}, uv_scale={self.uv_scale}]"
+
+
 class _VariantClasses:
     """A class attribute: the classes of the owner's variant (:func:`class_for_variant`)
     for the given bodies."""
@@ -270,13 +326,19 @@ class _VariantClasses:
 
 
 class ExternalOnnx(VariantPlugin):
-    """Factory: an :class:`OnnxBrdf` or an :class:`OnnxBtf` (of the variant's classes) by
-    the ``kind`` property. Its own per-variant class is never instantiated."""
+    """Factory: by the ``kind`` property, an :class:`OnnxFusedBrdf` or :class:`OnnxFusedBtf`
+    for a recognised MLP graph (unless ``runtime`` is ``onnxruntime``), else an
+    :class:`OnnxBrdf` or :class:`OnnxBtf` (of the variant's classes). Its own per-variant
+    class is never instantiated."""
 
-    #: The BSDF classes it makes, the variant's (both ``mi.BSDF`` subclasses).
-    variants = _VariantClasses(OnnxBrdf, OnnxBtf)
+    #: The BSDF classes it makes, the variant's (all ``mi.BSDF`` subclasses).
+    variants = _VariantClasses(OnnxBrdf, OnnxBtf, OnnxFusedBrdf, OnnxFusedBtf)
 
     def __new__(cls, props: Any) -> Any:
         model = _load(props)
-        body = OnnxBtf if model.kind == "btf" else OnnxBrdf
+        body: type[VariantPlugin]
+        if isinstance(model, OnnxMlpMaterial):
+            body = OnnxFusedBtf if model.kind == "btf" else OnnxFusedBrdf
+        else:
+            body = OnnxBtf if model.kind == "btf" else OnnxBrdf
         return class_for_variant(cls.mi, body)(props, model)

@@ -12,7 +12,9 @@
   renders through the fused Dr.Jit kernel: the ``external_mlp`` BSDF
   (:mod:`evaluators.render.bsdfs.external_mlp`, GGX/cosine MIS when the model has an
   analytic part) or ``external_mlp_btf`` (:mod:`evaluators.render.bsdfs.external_mlp_btf`);
-- an ONNX file renders through onnxruntime (:mod:`evaluators.render.bsdfs.external_onnx`).
+- an ONNX file renders through :mod:`evaluators.render.bsdfs.external_onnx`: in the fused
+  Dr.Jit kernel when its graph is an MLP (:mod:`models.external.onnx_mlp`), else through
+  onnxruntime; ``runtime: "onnxruntime"`` asks for onnxruntime whatever the graph.
 
 ``kind`` must match the file (a BRDF file refuses ``"btf"``); ``uv_scale`` (BTF only) is
 the patch repetition of the other BTF materials (:mod:`evaluators.render.sources.btf`).
@@ -63,6 +65,11 @@ class ExternalSpec(StrictModel):
         "probability beside the cosine lobe (MIS); default cosine only. An MLP file samples "
         "its own analytic part's lobe.",
     )
+    runtime: Literal["auto", "onnxruntime"] | None = Field(
+        default=None,
+        description="ONNX only: 'auto' (default: the fused Dr.Jit kernel when the graph is an "
+        "MLP, else onnxruntime) or 'onnxruntime' (always; to compare the two runtimes).",
+    )
 
     @model_validator(mode="after")
     def _btf_only(self) -> ExternalSpec:
@@ -111,6 +118,11 @@ def resolve_external(raw: dict[str, Any], ctx: JobContext, mi: types.ModuleType)
             f"{FIELD}.sampling: {value.model} is an MLP file, which samples its own analytic "
             "part's lobe; sampling applies to ONNX BRDFs"
         )
+    if value.runtime is not None:
+        raise JobFailed(
+            f"{FIELD}.runtime: {value.model} is an MLP file, which runs in the fused Dr.Jit "
+            "kernel; runtime applies to ONNX models"
+        )
     try:
         material = read_mlp(path)
     except ValueError as exc:
@@ -150,6 +162,7 @@ register_material_source(
     resolve_external,
     value_type=ExternalValue,
     summary="A user's own model from a file: {'model': REF, 'kind': 'brdf' | 'btf', optional "
-    "'uv_scale' (btf)}; a matforge.mlp-brdf/1 or matforge.mlp-btf/1 document renders through "
-    "the fused Dr.Jit kernel, an ONNX model through onnxruntime.",
+    "'uv_scale' (btf)}; a matforge.mlp-brdf/1 or matforge.mlp-btf/1 document, or an ONNX "
+    "graph that is an MLP, renders through the fused Dr.Jit kernel, any other ONNX model "
+    "through onnxruntime.",
 )
