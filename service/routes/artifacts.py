@@ -208,8 +208,11 @@ def _check_name(name: str) -> str:
         **_BUSY,
         413: {
             "model": ErrorPublic,
-            "description": "over the upload size limit, or over its checking budget "
-            "(time, or bytes its archive members inflate to); `error` names what was over",
+            "description": "over the upload size limit (a JSON model file over 64 MiB "
+            "included), over its checking budget (time, or bytes its archive members "
+            "inflate to), an archive whose images' headers sum to over "
+            "MATFORGE_ARCHIVE_MPIX megapixels, or an ONNX graph with a tensor computed "
+            "from constants only over the initialiser limit; `error` names what was over",
         },
         422: {
             "model": ErrorPublic,
