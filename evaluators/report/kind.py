@@ -23,11 +23,12 @@ run to run, so a report that draws them does too.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import Field
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer
 
 from evaluators.report.fronts import COST_LABELS
+from evaluators.report.timing import TimingParams
 from jobapi.documents import ParetoDocument, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register, registered
@@ -100,6 +101,49 @@ class ReportParetoParams(StrictModel):
         description="Claims to check besides the families' own.",
     )
     family_claims: bool = Field(default=True, description="Check the families' own claims.")
+    timing: TimingParams = Field(
+        default_factory=TimingParams,
+        description="The timing pass that re-times every model charted by ns_per_eval, "
+        "beside the reference kernel: repeats (>= 5), warmup, batch, threads.",
+    )
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # The default timing is left out, so a spec keeps the canonical form (and hash)
+        # it had before the setting existed.
+        return drop_default_timing(handler(self))
+
+
+def drop_default_timing(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` without its ``timing`` when that is the default :class:`TimingParams`."""
+    if data.get("timing") == TimingParams().model_dump():
+        del data["timing"]
+    return data
+
+
+def timed_pass(
+    rows: list[ResultRow],
+    metrics: list[str],
+    costs: list[str],
+    timing: TimingParams,
+    ctx: JobContext,
+) -> dict[str, Any] | None:
+    """The comparison's timing pass (:mod:`evaluators.report.timing`) when ``costs`` has a
+    cost it re-measures and some charted row has one; else ``None``."""
+    from evaluators.report.fronts import whole_set
+    from evaluators.report.timing import PASS_COSTS, comparison_pass, pass_targets
+
+    cost = next((c for c in costs if c in PASS_COSTS), None)
+    if cost is None:
+        return None
+    charted = [r for r in rows if r.metric in metrics and whole_set(r)]
+    targets = pass_targets(charted, ctx, cost)
+    if not targets:
+        return None
+    ctx.progress(0.65, f"timing {len(targets)} models and the reference kernel in one pass")
+    record = comparison_pass(targets, timing, ctx)
+    ctx.measure("timing", record)
+    return record
 
 
 def gather_rows(params: ReportParetoParams, ctx: JobContext) -> list[ResultRow]:
@@ -123,11 +167,13 @@ def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
     """Gather the rows, compute the panels, families and claims, and write the artifacts."""
     from evaluators.report import claims, fronts
     from evaluators.report.plots import pareto_png
+    from evaluators.report.timing import timing_summary
 
     rows = gather_rows(params, ctx)
     metrics = fronts.error_metrics(rows, params.metrics)
     costs = fronts.cost_columns(rows, params.costs)
-    panels = fronts.panels(rows, metrics, costs)
+    timing = timed_pass(rows, metrics, costs, params.timing, ctx)
+    panels = fronts.panels(rows, metrics, costs, timing)
     if not panels:
         found = sorted({r.metric for r in rows})
         raise JobFailed(
@@ -146,11 +192,16 @@ def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
             "panels": panels,
             "families": fronts.families(rows, metrics),
             "claims": checked,
+            **({"timing": timing_summary(timing)} if timing is not None else {}),
             "settings": {
                 "point": "a candidate's whole-set rows (material empty or 'mean') in the panel; "
                 "error: mean over jobs (seeds) of each job's value, std ddof 1, min, max; "
-                "cost: median over the rows",
-                "front": "not beaten on both cost and mean error by another point",
+                "cost: median over the rows; ns_per_eval: the median of this job's timing "
+                "pass (every model and the reference kernel interleaved), with min, max, "
+                "IQR and the ratio to the reference",
+                "front": "not beaten on both cost and mean error by another point; "
+                "resolved when that holds anywhere inside the spreads (seed min..max, "
+                "timing min..max), else the ties are named",
                 "costs": {c: COST_LABELS.get(c, c) for c in costs},
             },
         },
@@ -191,6 +242,16 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     )
 
 
+def timed_artifacts(params: ReportParetoParams) -> tuple[str, ...]:
+    """The artifacts that hold the job's own timing pass: ``pareto.json`` and ``pareto.png``
+    when ``ns_per_eval`` may be charted (asked, or ``costs`` left to what is found)."""
+    from evaluators.report.timing import PASS_COSTS
+
+    if params.costs is not None and not set(params.costs) & set(PASS_COSTS):
+        return ()
+    return ("pareto.json", "pareto.png")
+
+
 register(
     Kind(
         name="report.pareto",
@@ -200,6 +261,7 @@ register(
         "score, evaluate.tss): Pareto fronts per dataset and scene with dominated points, "
         "seed spread, per-family errors and the families' claims checked.",
         artifacts=("pareto.json", "pareto.png", "rows.json"),
+        timing_artifacts=timed_artifacts,
         smoke={"runs": ["step:train.brdf"]},
         figures=(
             Figure(
