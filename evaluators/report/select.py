@@ -51,7 +51,7 @@ from typing_extensions import TypedDict
 from evaluators.report.kind import gather_rows
 from evaluators.report.select_params import SelectParams
 from evaluators.report.timing import PASS_COSTS
-from jobapi.documents import document, read_typed
+from jobapi.documents import TimingDocument, document, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -176,7 +176,7 @@ class SelectDocument(TypedDict):
     """Scene mode: the reference, as given (a ref or a material with its spp)."""
     ladder: NotRequired[list[dict[str, Any]]]
     """Scene mode: the ladder, as given."""
-    timing: NotRequired[dict[str, Any]]
+    timing: NotRequired[TimingDocument]
     """The job's timing pass (``matforge.timing/1``: machine, settings, per-candidate
     distributions), when the ladder is ranked by ``ns_per_eval``."""
 

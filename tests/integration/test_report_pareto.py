@@ -334,3 +334,42 @@ def test05_select_the_cheapest_render_that_meets_a_target(
     spec["params"]["target"] = min(f["flip"] for f in flips.values()) / 2
     (none,) = read(settings, run_in_process(spec, settings), "select.json")["ladders"]
     assert none["chosen"] is None and "no rung" in none["why"]
+
+
+def test05_select_times_its_rungs_in_one_pass(study: tuple[Settings, dict[str, Job]]) -> None:
+    settings, jobs = study
+    runs = [f"job:{jobs[k].id}" for k in ("a0", "a1", "h0")]
+    spec = {
+        "kind": "select",
+        "params": {
+            "runs": runs,
+            "metric": "smape",
+            "target": 10.0,
+            "cost": "ns_per_eval",
+            "timing": {"repeats": 6, "batch": 2048},
+        },  # fmt: skip
+    }
+    job = run_in_process(spec, settings)
+    assert job.state == "succeeded", job.error
+    doc = read(settings, job, "select.json")
+    timing = doc["timing"]
+    assert timing["repeats"] == 6 and timing["settings"]["batch"] == 2048
+    assert set(timing["costs"]) == {"reference", "analytic", "hybrid 16x2"}
+    (lad,) = doc["ladders"]
+    for r in lad["rungs"]:  # each rung's cost is the pass's median, with its spread
+        dist = timing["costs"][r["candidate"]]["distribution"]
+        assert r["cost"] == dist["median"] and r["cost_n"] == 6
+        assert (r["cost_min"], r["cost_max"]) == (dist["min"], dist["max"])
+        assert r["relative"]["median"] > 0
+    # every rung meets a target of 10: the cheapest is chosen, resolved only when no
+    # other rung's timing range reaches its own
+    first, second = lad["rungs"][0], lad["rungs"][1]
+    assert lad["chosen"] == first["candidate"]
+    assert lad["resolved"] == (second["cost_min"] > first["cost_max"])
+    assert (lad["tie"] == []) == lad["resolved"]
+    # the default timing is left out of the canonical spec: the hash is the one before
+    from service.specs import validate_spec
+
+    plain = {**spec, "params": {k: v for k, v in spec["params"].items() if k != "timing"}}
+    assert "timing" not in validate_spec(plain).canonical
+    assert '"timing"' in validate_spec(spec).canonical

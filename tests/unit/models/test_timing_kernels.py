@@ -1,0 +1,88 @@
+"""The kernels of a timing pass (:mod:`models.timing_kernels`) on a real Mitsuba variant:
+each evaluates what it names on the pass's batch (checked against something we did not
+write: Mitsuba's own BSDF probed independently, an ONNX Lambertian's albedo / pi), and a
+short pass over them gives finite costs relative to the reference kernel."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models import timing_kernels as tk
+from models.timing import timing_pass
+from tests.helpers.brdf_models import make_model
+from tests.helpers.mitsuba_probes import mitsuba_brdf
+
+BATCH = 4096
+
+
+@pytest.fixture(scope="module")
+def mi():  # type: ignore[no-untyped-def]
+    from materials.backend import load_mitsuba
+
+    return load_mitsuba()
+
+
+def test01_reference_is_mitsubas_roughconductor(mi) -> None:  # type: ignore[no-untyped-def]
+    q = tk.query_batch(mi, BATCH)
+    got = np.array(tk.reference_kernel(q).run(), np.float64).T
+    want = mitsuba_brdf(mi, tk.REFERENCE_BSDF, q.wi, q.wo) * q.wo[:, 2:3]
+    # the same float32 evaluation twice: agreement to float32 rounding of the cosine
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
+    assert np.all(np.isfinite(got)) and got.max() > 0
+
+
+def test02_batch_is_the_cost_batch(mi) -> None:  # type: ignore[no-untyped-def]
+    from models.external.cost import cost_batch
+
+    q = tk.query_batch(mi, BATCH)
+    wi, wo, _ = cost_batch("brdf", BATCH)
+    assert np.array_equal(q.wi, wi) and np.array_equal(q.wo, wo)
+    assert q.uv.shape == (BATCH, 2) and q.size == BATCH
+
+
+def test03_onnx_kernel_evaluates_the_model(mi, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    pytest.importorskip("onnxruntime")
+    from models.external import load_external
+    from tests.helpers.onnx_models import ALBEDO, lambert_model, save
+
+    model = load_external(save(lambert_model("brdf"), tmp_path / "l.onnx"), "brdf")
+    q = tk.query_batch(mi, BATCH)
+    k = tk.external_kernel("mine", q, model)
+    assert k.runtime == "onnxruntime" and k.evals == BATCH
+    out = np.asarray(k.run())
+    np.testing.assert_allclose(out, np.broadcast_to(np.array(ALBEDO) / np.pi, out.shape),
+                               rtol=1e-6)  # fmt: skip
+
+
+def test04_a_pass_over_real_kernels(mi) -> None:  # type: ignore[no-untyped-def]
+    q = tk.query_batch(mi, BATCH)
+    doc = make_model("hybrid", 16, 2, 4)
+    kernels = [
+        tk.reference_kernel(q),
+        tk.builtin_brdf_kernel("hybrid 16x2", q, doc, doc["materials"][0]["name"]),
+    ]
+    out = np.array(kernels[1].run(), np.float64)
+    assert out.shape == (3, BATCH) and np.all(np.isfinite(out))
+    rec = timing_pass(kernels, reference=tk.REFERENCE, repeats=5, threads=2,
+                      runtimes=tk.runtime_versions(mi))  # fmt: skip
+    for name in ("reference", "hybrid 16x2"):
+        c = rec["costs"][name]
+        d = c["distribution"]
+        assert d["n"] == 5 and 0 < d["min"] <= d["median"] <= d["max"]
+        assert c["relative"]["median"] > 0
+    assert rec["costs"]["hybrid 16x2"]["runtime"] == "drjit-fused"
+    assert rec["costs"]["reference"]["runtime"] == "mitsuba"
+    assert rec["machine"]["runtimes"]["mitsuba_variant"] == mi.variant()
+
+
+def test05_scalar_variant_refused() -> None:
+    class Scalar:
+        @staticmethod
+        def variant() -> str:
+            return "scalar_rgb"
+
+    with pytest.raises(ValueError, match="vectorised Mitsuba variant"):
+        tk.query_batch(Scalar, BATCH)  # type: ignore[arg-type]
