@@ -137,7 +137,7 @@ def timed_pass(
     if cost is None:
         return None
     charted = [r for r in rows if r.metric in metrics and whole_set(r)]
-    targets = pass_targets(charted, ctx, cost)
+    targets = pass_targets(charted, cost)
     if not targets:
         return None
     ctx.progress(0.65, f"timing {len(targets)} models and the reference kernel in one pass")

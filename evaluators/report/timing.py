@@ -7,11 +7,11 @@ job's ``cost``) stays a diagnostic of that job: taken at another moment, under a
 load, it is not comparable with the next job's. Here every candidate's model is found from
 its result rows (:func:`target_of`), loaded once, and timed with the others:
 
-- a ``train.brdf`` row: its job's ``model.json`` (first material; the cost of a material
-  does not depend on its weights' values);
-- a ``train.btf`` row: its job's ``model.json`` and ``textures.npz``;
-- a ``score`` row of a model candidate (``config.model``, ``config.material``): that model;
-  of a user's model (``config.external``): the uploaded file, in its own runtime;
+- a training row's ``config.model_file`` (``train.brdf``: its job's ``model.json``; first
+  material, since the cost of a material does not depend on its weights' values);
+- a score row of a model candidate (``config.model``, ``config.material``): that model
+  (a BRDF model, or a BTF model with its ``textures.npz``, by the document's format); of a
+  user's model (``config.external``): the uploaded file, in its own runtime;
 - a ``select`` scene-mode row: its rung's material, when it is one of these.
 
 A candidate with an ``ns_per_eval`` of its own that cannot be re-timed here (a model kind
@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import Field
 
 from jobapi.errors import JobFailed
-from jobapi.params import JOB_REF, StrictModel
+from jobapi.params import StrictModel
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -38,6 +38,8 @@ if TYPE_CHECKING:
 
 #: The costs a pass re-measures.
 PASS_COSTS = ("ns_per_eval",)
+#: The trained models' document formats a pass times.
+BRDF_MODEL, BTF_MODEL = "matforge.brdf-model/1", "matforge.btf-model/1"
 #: Timed costs taken by the jobs themselves (not re-measured): ranked only within one job.
 JOB_TIMED_COSTS = ("render_seconds", "train_seconds", "ms_per_frame")
 
@@ -65,10 +67,10 @@ class TimingParams(StrictModel):
 
 @dataclass(frozen=True)
 class Target:
-    """A model to time: ``what`` is ``brdf-model`` (``ref`` a ``matforge.brdf-model/1``,
-    ``material`` one of its materials or ``None`` for the first), ``btf-model`` (a
-    ``train.btf`` job's ``model.json``) or ``external`` (``ref`` a user's file, ``kind``
-    ``brdf`` or ``btf``)."""
+    """A model to time: ``what`` is ``model`` (``ref`` a trained model's ``model.json``,
+    ``matforge.brdf-model/1`` or ``matforge.btf-model/1`` by its ``format``; ``material``
+    one of a BRDF model's materials, ``None`` for the first) or ``external`` (``ref`` a
+    user's file, ``kind`` ``brdf`` or ``btf``)."""
 
     what: str
     ref: str
@@ -76,38 +78,30 @@ class Target:
     kind: str = "brdf"
 
 
-def _from_material(value: Any, ctx: JobContext) -> Target | None:
+def _from_material(value: Any) -> Target | None:
     """The target of a material value (``{"model", "material"}`` or ``{"external"}``)."""
     if not isinstance(value, Mapping):
         return None
     ext = value.get("external")
     if isinstance(ext, Mapping) and isinstance(ext.get("model"), str):
         return Target("external", str(ext["model"]), kind=str(ext.get("kind") or "brdf"))
-    ref = value.get("model")
-    if not isinstance(ref, str):
-        return None
-    m = JOB_REF.match(ref)
-    made_by = ctx.jobs.get(m["job"]).kind if m else None
-    if made_by == "train.btf":
-        return Target("btf-model", ref, kind="btf")
+    ref = value.get("model_file", value.get("model"))
+    if not isinstance(ref, str) or not ref.startswith(("job:", "sha256:")):
+        return None  # e.g. a training row's model type ("hybrid"), not a file
     material = value.get("material")
-    return Target("brdf-model", ref, material if isinstance(material, str) else None)
+    return Target("model", ref, material if isinstance(material, str) else None)
 
 
-def target_of(row: ResultRow, ctx: JobContext) -> Target | None:
-    """The model behind ``row``'s candidate (see the module docstring), or ``None``."""
-    if row.kind == "train.brdf":
-        return Target("brdf-model", f"job:{row.job}/model.json")
-    if row.kind == "train.btf":
-        return Target("btf-model", f"job:{row.job}/model.json", kind="btf")
+def target_of(row: ResultRow) -> Target | None:
+    """The model behind ``row``'s candidate (see the module docstring), or ``None``: its
+    ``config``'s ``model_file`` (a training job's own model), ``external`` (a user's
+    file), ``model`` and ``material`` (a score's model candidate), or a select rung's
+    ``material`` holding one of these."""
     cfg = row.config or {}
-    found = _from_material(cfg, ctx)
-    if found is None:
-        found = _from_material(cfg.get("material"), ctx)
-    return found
+    return _from_material(cfg) or _from_material(cfg.get("material"))
 
 
-def pass_targets(rows: Sequence[ResultRow], ctx: JobContext, cost: str) -> dict[str, Target]:
+def pass_targets(rows: Sequence[ResultRow], cost: str) -> dict[str, Target]:
     """Per candidate with a ``cost`` in ``rows``, the model to time (its first row's);
     :class:`JobFailed` naming the candidates that have one but no model to re-time."""
     targets: dict[str, Target] = {}
@@ -117,7 +111,7 @@ def pass_targets(rows: Sequence[ResultRow], ctx: JobContext, cost: str) -> dict[
             continue
         if r.candidate in untimed:
             continue
-        t = target_of(r, ctx)
+        t = target_of(r)
         if t is None:
             untimed.append(r.candidate)
         else:
@@ -135,19 +129,19 @@ def _kernel(name: str, target: Target, q: Any, ctx: JobContext) -> Any:
     from models import timing_kernels as tk
 
     try:
-        if target.what == "brdf-model":
+        if target.what == "model":
             doc = json.loads(ctx.read_ref(target.ref))
-            if doc.get("format") != "matforge.brdf-model/1":
-                raise ValueError(f"not a matforge.brdf-model/1 document: {doc.get('format')}")
-            material = target.material or str(doc["materials"][0]["name"])
-            return tk.builtin_brdf_kernel(name, q, doc, material)
-        if target.what == "btf-model":
-            from models.btf.portable import read_model, read_textures
+            fmt = doc.get("format") if isinstance(doc, dict) else None
+            if fmt == BRDF_MODEL:
+                material = target.material or str(doc["materials"][0]["name"])
+                return tk.builtin_brdf_kernel(name, q, doc, material)
+            if fmt == BTF_MODEL:
+                from models.btf.portable import read_model, read_textures
 
-            doc = json.loads(ctx.read_ref(target.ref))
-            textures_ref = target.ref.rsplit("/", 1)[0] + "/textures.npz"
-            model = read_model(doc, read_textures(ctx.read_ref(textures_ref)))
-            return tk.builtin_btf_kernel(name, q, model)
+                textures_ref = target.ref.rsplit("/", 1)[0] + "/textures.npz"
+                model = read_model(doc, read_textures(ctx.read_ref(textures_ref)))
+                return tk.builtin_btf_kernel(name, q, model)
+            raise ValueError(f"not a {BRDF_MODEL} or {BTF_MODEL} document: {fmt!r}")
         from models.external import load_external
 
         return tk.external_kernel(name, q, load_external(ctx.resolve(target.ref), target.kind))

@@ -11,7 +11,9 @@ configuration (``candidate`` ``"hybrid 32x3"`` as :class:`models.brdf.study.Run`
 the dataset (the ``generate.merl`` job) and the costs: ``ns_per_eval`` is the trained
 size's ``fused_kernel_ns``, bytes per material 4 x the per-material floats, bytes per
 network from the speed document, ``train_seconds`` the job's wall time, ``runtime``
-``drjit-fused``.
+``drjit-fused``. ``config.model_file`` is the job's ``model.json`` ref: ``report.pareto`` and
+``select`` re-time the model from it in their own timing pass (the ``ns_per_eval`` here is
+the training job's own diagnostic).
 """
 
 from __future__ import annotations
@@ -79,6 +81,8 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
         "per_material_params": floats,
         "preset": params.get("preset"),
         "steps": params.get("steps"),
+        # the trained model itself, so that a comparison can time it in its own pass
+        "model_file": f"job:{src.job.id}/model.json",
     }
     speed = _trained_speed(src.job.measured.get("speed") or src.read("speed.json"))
     common: dict[str, Any] = {

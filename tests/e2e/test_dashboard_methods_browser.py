@@ -1,7 +1,8 @@
 """A report's method x metric table on its job page, in headless Chromium (nerfbaselines
 style, as ``matforge results --pivot`` prints it): a ``report.pareto`` over two ``train.brdf``
 runs of different widths (16 and 32) shows a row per method, each metric's mean and each
-cost, and the best of each column marked.
+cost, and the best of each column marked, except the timings taken by each job on its own
+(``ns_per_eval``), which are shown and named as not ranked.
 
 The reference is the report's own ``rows.json``, averaged here with plain Python (not with
 :mod:`service.results_pivot`). Screenshot: ``/tmp/matforge-dashboard-methods.png``.
@@ -77,5 +78,10 @@ def test_methods_table_of_a_report(page: Any, server: str, prepared: dict[str, A
         assert best[col] == (means[method] == min(means.values())), (method, cells, best)
         ns = cells[heads.index("ns_per_eval")]  # a cost in SI units: "13.13 ns", never 1.3e+01
         assert ns == "" or (ns.endswith("s") and "e+" not in ns and "e-" not in ns), ns
+        # each training job's own timing: shown, never ranked against the other job's
+        assert not best[heads.index("ns_per_eval")], (method, cells, best)
+    note = pg.locator("#methods-unranked")
+    assert "ns_per_eval" in note.locator("[data-column]").all_text_contents()
+    assert "one pass" in note.inner_text()
     pg.screenshot(path=str(SHOTS / "matforge-dashboard-methods.png"), full_page=True)
     assert pg.problems == [], pg.problems
