@@ -17,8 +17,13 @@ Artifacts:
   hollow, error bars min to max over seeds;
 - ``rows.json``: every row the report read.
 
-Costs that are timings (``render_seconds``, ``train_seconds``, ``ns_per_eval``) vary from
-run to run, so a report that draws them does too.
+``ns_per_eval`` is re-measured here: every model charted by it is timed in this job's one
+timing pass (:mod:`evaluators.report.timing`), interleaved with the reference kernel
+(Mitsuba's ``roughconductor`` on the same batch); the points carry the cost's spread and
+its ratio to the reference, ``pareto.json`` the pass (``timing``), and ``pareto.json`` and
+``pareto.png`` are then timing artifacts. Costs each job timed itself
+(``render_seconds``, ``train_seconds``, ``ms_per_frame``) are charted, not ranked. A point's
+place on the front is ``resolved`` only when it holds inside the seed and timing spreads.
 """
 
 from __future__ import annotations
@@ -77,6 +82,11 @@ class ReportParetoParams(StrictModel):
     ``costs``          list of cost names    (found)   cost columns to chart against
     ``claims``         list of claims        ``[]``    extra claims to check
     ``family_claims``  bool                  true      check the families' own claims
+    ``timing``         timing settings       (below)   the pass that re-times every model
+                                                       charted by ns_per_eval beside the
+                                                       reference kernel: ``repeats`` (5,
+                                                       at least 5), ``warmup`` (1),
+                                                       ``batch`` (65536), ``threads`` (2)
     =================  ====================  ========  =====================================
 
     Example (in a batch file)::

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from pydantic import Field
 
@@ -34,6 +34,7 @@ from jobapi.params import StrictModel
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
+    from jobapi.documents import TimingDocument
     from jobapi.rows import ResultRow
 
 #: The costs a pass re-measures.
@@ -213,11 +214,11 @@ def pass_cost(record: Mapping[str, Any], candidate: str) -> dict[str, Any] | Non
     }
 
 
-def timing_summary(record: Mapping[str, Any]) -> dict[str, Any]:
+def timing_summary(record: Mapping[str, Any]) -> TimingDocument:
     """The pass as a document records it: everything but the per-round order and the
     targets' details (kept: machine, settings, repeats, costs with their distributions)."""
     keep = ("format", "reference", "repeats", "warmup", "machine", "settings", "method")
     out = {k: record[k] for k in keep if k in record}
     out["costs"] = dict(record.get("costs") or {})
     out["order"] = list(record.get("order") or [])
-    return out
+    return cast("TimingDocument", out)
