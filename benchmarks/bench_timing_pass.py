@@ -85,7 +85,8 @@ def main() -> None:
     runs = [one_run(0), one_run(args.busy)]
     names = [n for n in runs[0]["costs"] if n != runs[0]["reference"]]
     print("| model | run 1 ns/eval (min..max) | run 1 x ref (IQR) | "
-          f"run 2 (+{args.busy} busy) ns/eval (min..max) | run 2 x ref (IQR) | ratio moved |")  # fmt: skip
+          f"run 2 (+{args.busy} busy) ns/eval (min..max) | run 2 x ref (IQR) "
+          "| ratio moved |")  # fmt: skip
     print("| --- | --- | --- | --- | --- | --- |")
     for name in [runs[0]["reference"], *names]:
         cells, rels = [], []
