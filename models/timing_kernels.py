@@ -10,6 +10,13 @@ and every kernel evaluates all of it per call. Dr.Jit kernels are traced, launch
 waited for in the timed call (:func:`drjit_sync`), what a renderer pays per evaluation of
 the batch; an onnxruntime model's call returns finished results. The same code runs under a
 CUDA variant (``dr.sync_thread`` waits for the device there).
+
+Every Dr.Jit kernel is frozen (``dr.freeze``): the first call (a warm-up round) traces and
+compiles it, later calls replay the recorded kernel on the batch without tracing the Python
+code again. So a timed call is the kernel's launch and execution, what a renderer pays per
+evaluation once the frame's kernel is traced: tracing a network with its weights as
+literals costs milliseconds of single-threaded Python that a frame pays once, and under
+load it would dominate a call and swing with the load.
 """
 
 from __future__ import annotations
@@ -78,6 +85,15 @@ def drjit_sync(out: Any) -> None:
     dr.sync_thread()
 
 
+def frozen(fn: Any, *args: Any) -> Any:
+    """``fn(*args)`` as a call of no arguments that replays a frozen Dr.Jit kernel
+    (``dr.freeze``, see the module docstring); ``args`` are the batch's arrays."""
+    import drjit as dr
+
+    replay = dr.freeze(fn)
+    return lambda: replay(*args)
+
+
 def reference_kernel(q: QueryBatch, bsdf: dict[str, Any] | None = None) -> Kernel:
     """Mitsuba's native ``roughconductor`` (``bsdf``: default :data:`REFERENCE_BSDF`)
     evaluated (``BSDF.eval``, value times cosine) at every pair of the batch."""
@@ -87,14 +103,14 @@ def reference_kernel(q: QueryBatch, bsdf: dict[str, Any] | None = None) -> Kerne
     plugin = mi.load_dict(dict(bsdf or REFERENCE_BSDF))
     ctx = mi.BSDFContext()
 
-    def run() -> Any:
-        si = dr.zeros(mi.SurfaceInteraction3f, q.size)
+    def run(wi: Any, wo: Any) -> Any:
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(wi))
         si.n = mi.Normal3f(0, 0, 1)
         si.sh_frame = mi.Frame3f(si.n)
-        si.wi = q.wi_d
-        return plugin.eval(ctx, si, q.wo_d)
+        si.wi = wi
+        return plugin.eval(ctx, si, wo)
 
-    return Kernel(REFERENCE, run, q.size, "mitsuba", drjit_sync)
+    return Kernel(REFERENCE, frozen(run, q.wi_d, q.wo_d), q.size, "mitsuba", drjit_sync)
 
 
 def builtin_brdf_kernel(name: str, q: QueryBatch, doc: dict[str, Any], material: str) -> Kernel:
@@ -103,9 +119,8 @@ def builtin_brdf_kernel(name: str, q: QueryBatch, doc: dict[str, Any], material:
     from models.brdf.fused import bake_material, model_brdf
 
     baked = bake_material(doc, material)
-    return Kernel(
-        name, lambda: model_brdf(q.mi, baked, q.wi_d, q.wo_d), q.size, "drjit-fused", drjit_sync
-    )
+    run = frozen(lambda wi, wo: model_brdf(q.mi, baked, wi, wo), q.wi_d, q.wo_d)
+    return Kernel(name, run, q.size, "drjit-fused", drjit_sync)
 
 
 def builtin_btf_kernel(name: str, q: QueryBatch, model: Any) -> Kernel:
@@ -114,9 +129,8 @@ def builtin_btf_kernel(name: str, q: QueryBatch, model: Any) -> Kernel:
     from models.btf.fused import FusedBtf
 
     fused = FusedBtf(model, q.mi)
-    return Kernel(
-        name, lambda: fused.eval(q.uv_d, q.wi_d, q.wo_d), q.size, "drjit-fused", drjit_sync
-    )
+    run = frozen(lambda uv, wi, wo: fused.eval(uv, wi, wo), q.uv_d, q.wi_d, q.wo_d)
+    return Kernel(name, run, q.size, "drjit-fused", drjit_sync)
 
 
 def external_kernel(name: str, q: QueryBatch, model: Any) -> Kernel:
@@ -129,8 +143,11 @@ def external_kernel(name: str, q: QueryBatch, model: Any) -> Kernel:
         from models.external.fused import FusedMlp
 
         fused = FusedMlp(model, q.mi)
-        uv_d = q.uv_d if model.kind == "btf" else None
-        return Kernel(name, lambda: fused.eval(q.wi_d, q.wo_d, uv_d), q.size, runtime, drjit_sync)
+        if model.kind == "btf":
+            run = frozen(lambda wi, wo, uv: fused.eval(wi, wo, uv), q.wi_d, q.wo_d, q.uv_d)
+        else:
+            run = frozen(lambda wi, wo: fused.eval(wi, wo), q.wi_d, q.wo_d)
+        return Kernel(name, run, q.size, runtime, drjit_sync)
     return Kernel(name, lambda: model.eval(q.wi, q.wo, uv), q.size, runtime)
 
 

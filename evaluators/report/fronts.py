@@ -92,6 +92,8 @@ def _point(
 ) -> dict[str, Any] | None:
     by_job: dict[str, list[float]] = defaultdict(list)
     costs = [float(getattr(r, cost)) for r in rows if getattr(r, cost) is not None]
+    if timed is not None:
+        costs = [float(timed["cost"])]  # the pass's, whether or not the job timed itself
     if not costs:
         return None
     seeds = {}

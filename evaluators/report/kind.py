@@ -85,7 +85,7 @@ class ReportParetoParams(StrictModel):
     ``timing``         timing settings       (below)   the pass that re-times every model
                                                        charted by ns_per_eval beside the
                                                        reference kernel: ``repeats`` (5,
-                                                       at least 5), ``warmup`` (1),
+                                                       at least 5), ``warmup`` (2),
                                                        ``batch`` (65536), ``threads`` (2)
     =================  ====================  ========  =====================================
 

@@ -52,14 +52,14 @@ class TimingParams(StrictModel):
     name        type  default   meaning
     ==========  ====  ========  ==================================================
     ``repeats`` int   5         recorded rounds per kernel, 5..200
-    ``warmup``  int   1         unrecorded rounds first, 0..10
+    ``warmup``  int   2         unrecorded rounds first, 0..10
     ``batch``   int   65536     direction pairs per evaluation call, 1024..4194304
     ``threads`` int   2         CPU threads of Dr.Jit and torch during the pass, 1..256
     ==========  ====  ========  ==================================================
     """
 
     repeats: int = Field(default=5, ge=5, le=200, description="Recorded rounds per kernel.")
-    warmup: int = Field(default=1, ge=0, le=10, description="Unrecorded rounds before them.")
+    warmup: int = Field(default=2, ge=0, le=10, description="Unrecorded rounds before them.")
     batch: int = Field(
         default=1 << 16, ge=1 << 10, le=1 << 22, description="Direction pairs per call."
     )
@@ -103,20 +103,20 @@ def target_of(row: ResultRow) -> Target | None:
 
 
 def pass_targets(rows: Sequence[ResultRow], cost: str) -> dict[str, Target]:
-    """Per candidate with a ``cost`` in ``rows``, the model to time (its first row's);
-    :class:`JobFailed` naming the candidates that have one but no model to re-time."""
+    """Per candidate of ``rows`` with a model to time (:func:`target_of`, its first row's),
+    that model, whether or not its own job timed it; :class:`JobFailed` naming the
+    candidates that carry a ``cost`` but have no model to re-time."""
     targets: dict[str, Target] = {}
     untimed: list[str] = []
     for r in rows:
-        if r.candidate is None or getattr(r, cost) is None or r.candidate in targets:
-            continue
-        if r.candidate in untimed:
+        if r.candidate is None or r.candidate in targets:
             continue
         t = target_of(r)
-        if t is None:
-            untimed.append(r.candidate)
-        else:
+        if t is not None:
             targets[r.candidate] = t
+        elif getattr(r, cost) is not None and r.candidate not in untimed:
+            untimed.append(r.candidate)
+    untimed = [c for c in untimed if c not in targets]
     if untimed:
         raise JobFailed(
             f"costs: {cost} of {', '.join(sorted(untimed))} cannot be re-timed in this job's "

@@ -320,3 +320,10 @@ def test_job_timed_costs_are_charted_not_ranked() -> None:
     (spp,) = panels([r.__class__(**{**r.__dict__, "render_seconds": None, "spp": 1 + i})
                      for i, r in enumerate(rows)], ["flip"], ["spp"])  # fmt: skip
     assert spp["resolved"] is True and spp["not_resolved"] is None
+
+
+def test_pass_times_a_candidate_its_job_did_not() -> None:
+    rows = [r.__class__(**{**r.__dict__, "ns_per_eval": None}) for r in two([0.2], [0.1])]
+    (p,) = panels(rows, ["smape"], ["ns_per_eval"],
+                  pass_record({"a": (9.0, 10.0, 11.0), "b": (19.0, 20.0, 22.0)}))  # fmt: skip
+    assert {q["candidate"]: q["cost"] for q in p["points"]} == {"a": 10.0, "b": 20.0}

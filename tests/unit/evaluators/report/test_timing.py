@@ -35,9 +35,13 @@ def test02_first_row_per_candidate_and_refusal() -> None:
     rows = [
         row("h", {"model_file": f"job:{JOB}/model.json"}),
         row("h", {"model_file": f"job:{'b' * 32}/model.json"}),  # another seed: same config
-        row("table", {}, ns=None),  # no cost: not timed, not refused
+        row("table", {}, ns=None),  # no cost, no model: not timed, not refused
+        row("untimed", {"model_file": f"job:{JOB}/model.json"}, ns=None),  # timed here
     ]
-    assert pass_targets(rows, "ns_per_eval") == {"h": Target("model", f"job:{JOB}/model.json")}
+    assert pass_targets(rows, "ns_per_eval") == {
+        "h": Target("model", f"job:{JOB}/model.json"),
+        "untimed": Target("model", f"job:{JOB}/model.json"),
+    }
     with pytest.raises(JobFailed, match="ns_per_eval of glint cannot be re-timed"):
         pass_targets([*rows, row("glint", {})], "ns_per_eval")
 
