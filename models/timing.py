@@ -74,7 +74,7 @@ class Kernel:
     """What evaluates it: ``drjit-fused``, ``onnxruntime``, ``mitsuba``, ``torch`` ..."""
     sync: Callable[[Any], None] = no_sync
     """Waits for ``run()``'s outputs (see the class docstring)."""
-    counts: dict[str, int] = field(default_factory=dict)
+    counts: dict[str, float] = field(default_factory=dict)
     """Optional machine-independent counts: ``macs_per_eval``, ``bytes_per_eval``."""
 
 

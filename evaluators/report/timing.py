@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, cast
 
 from pydantic import Field
@@ -39,6 +39,8 @@ if TYPE_CHECKING:
 
 #: The costs a pass re-measures.
 PASS_COSTS = ("ns_per_eval",)
+#: The machine-independent counts a row may carry beside its time.
+COUNTS = ("macs_per_eval", "bytes_per_eval")
 #: The trained models' document formats a pass times.
 BRDF_MODEL, BTF_MODEL = "matforge.brdf-model/1", "matforge.btf-model/1"
 #: Timed costs taken by the jobs themselves (not re-measured): ranked only within one job.
@@ -77,6 +79,9 @@ class Target:
     ref: str
     material: str | None = None
     kind: str = "brdf"
+    counts: tuple[tuple[str, float], ...] = ()
+    """The rows' machine-independent counts (``macs_per_eval``, ``bytes_per_eval``), carried
+    into the pass's cost record beside the time."""
 
 
 def _from_material(value: Any) -> Target | None:
@@ -113,7 +118,8 @@ def pass_targets(rows: Sequence[ResultRow], cost: str) -> dict[str, Target]:
             continue
         t = target_of(r)
         if t is not None:
-            targets[r.candidate] = t
+            counts = tuple((k, float(v)) for k in COUNTS if (v := getattr(r, k, None)) is not None)
+            targets[r.candidate] = replace(t, counts=counts)
         elif getattr(r, cost) is not None and r.candidate not in untimed:
             untimed.append(r.candidate)
     untimed = [c for c in untimed if c not in targets]
@@ -166,7 +172,9 @@ def comparison_pass(
         with fixed_threads(timing.threads):
             q = tk.query_batch(mi, timing.batch)
             kernels = [tk.reference_kernel(q)]
-            kernels += [_kernel(n, t, q, ctx) for n, t in targets.items()]
+            kernels += [
+                replace(_kernel(n, t, q, ctx), counts=dict(t.counts)) for n, t in targets.items()
+            ]
             ctx.check_cancelled()
             record = timing_pass(
                 kernels,

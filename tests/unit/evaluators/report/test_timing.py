@@ -58,3 +58,14 @@ def test03_timing_settings() -> None:
         ]
         == 9
     )
+
+
+def test04_counts_ride_along() -> None:
+    # rows that carry machine-independent counts (where the row type has them) hand them
+    # to the pass's cost record
+    class Counted:
+        candidate, config, ns_per_eval = "h", {"model_file": f"job:{JOB}/model.json"}, 1.0
+        macs_per_eval, bytes_per_eval = 512, 2048
+
+    (t,) = pass_targets([Counted()], "ns_per_eval").values()  # type: ignore[list-item]
+    assert dict(t.counts) == {"macs_per_eval": 512.0, "bytes_per_eval": 2048.0}
