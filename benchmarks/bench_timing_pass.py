@@ -5,7 +5,7 @@ Runs the recipe (two MERL tables; analytic, hybrid 16x2, hybrid 32x3, neural 32x
 briefly), then its ``pareto`` step twice more with ``force`` (a new job each time, the same
 spec): once as the machine is, once with ``--busy`` extra processes spinning on the CPU
 beside it (at the same priority). Each run's ``pareto.json`` holds its timing pass: every
-model's fused kernel and Mitsuba's ``roughconductor`` on the same 2^18 direction pairs,
+model's fused kernel and Mitsuba's ``roughconductor`` on the same 2^20 direction pairs,
 interleaved, ``--repeats`` rounds. Prints one row per model: per run its median ns per
 evaluation (min..max), its median ratio to the reference kernel (IQR), and how much the
 ratio moved between the runs; then the load average before and after each run.

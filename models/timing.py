@@ -16,6 +16,14 @@ in one pass (:func:`timing_pass`), the way asv interleaves its runs and
   ``torch.cuda.synchronize()``), so the time between two reads is the kernel's whole work;
 - threads fixed for the pass (:func:`fixed_threads`: Dr.Jit's pool and torch's) and recorded.
 
+The clock: on a CPU, the process CPU time of all threads divided by the thread count (the
+time on that many dedicated cores), as :func:`models.speed.time_cpu` measures it; on a
+shared machine a call's wall time grows with the other processes' load, and grows more the
+longer the call (a short kernel often finishes inside one scheduler slice, a long one waits
+through many), so wall ratios between a short and a long kernel drift with the load where
+CPU-time ratios do not. On a GPU the clock is the wall time. Every call's wall time is
+recorded beside it (``wall``).
+
 Each kernel's cost is a distribution over its repeats (:func:`distribution`: median, min,
 max, quartiles, IQR, n), in ns per evaluation. One kernel is the *reference* (for a BRDF,
 Mitsuba's native ``roughconductor`` evaluated on the same batch,
@@ -46,6 +54,11 @@ from typing import Any
 
 #: The version tag of a timing record.
 TIMING_FORMAT = "matforge.timing/1"
+#: The clocks a pass may time with, and what they measure.
+CLOCKS = {
+    "wall": "wall time",
+    "cpu": "process CPU time over all threads / threads (the time on that many dedicated cores)",
+}
 #: Recorded rounds per kernel, at least (the spec setting's default and minimum).
 MIN_REPEATS = 5
 #: Unrecorded rounds before them (a frozen Dr.Jit kernel records on its first call and
@@ -172,6 +185,8 @@ def timing_pass(
     warmup: int = WARMUP,
     threads: int | None = None,
     clock: Callable[[], float] = time.perf_counter,
+    clock_name: str = "wall",
+    per: int = 1,
     runtimes: dict[str, str] | None = None,
     settings: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
@@ -180,7 +195,10 @@ def timing_pass(
 
     ``reference`` names the reference kernel (one of ``kernels``); ``threads`` is recorded
     (set it with :func:`fixed_threads` around the call); ``clock`` returns seconds
-    (injectable for tests); ``settings`` (batch, seed, ...) is recorded as given.
+    (injectable for tests), named ``clock_name`` in the record (:data:`CLOCKS`), and each
+    reading is divided by ``per`` (the thread count, for the process CPU clock: then a cost
+    is the time on that many dedicated cores). The wall time of every call is recorded
+    beside it (``wall``). ``settings`` (batch, seed, ...) is recorded as given.
     Raises ``ValueError`` for fewer than :data:`MIN_REPEATS` repeats, duplicate names, or
     a ``reference`` that is not among the kernels.
     """
@@ -194,7 +212,10 @@ def timing_pass(
     if reference is not None and reference not in names:
         raise ValueError(f"reference {reference!r} is not one of the kernels {names}")
     env = machine(threads if threads is not None else 0, runtimes)
+    if per < 1:
+        raise ValueError(f"per: at least 1, got {per}")
     seconds: dict[str, list[float]] = {k.name: [] for k in kernels}
+    walls: dict[str, list[float]] = {k.name: [] for k in kernels}
     order: list[list[str]] = []
     for rnd in range(warmup + repeats):
         this = [kernels[i] for i in round_order(len(kernels), rnd)]
@@ -202,13 +223,16 @@ def timing_pass(
             order.append([k.name for k in this])
         for k in this:
             k.sync(None)
+            wall = time.perf_counter()
             start = clock()
             out = k.run()
             k.sync(out)
             stop = clock()
+            wall = time.perf_counter() - wall
             del out
             if rnd >= warmup:
-                seconds[k.name].append(stop - start)
+                seconds[k.name].append((stop - start) / per)
+                walls[k.name].append(wall)
     env["load_after"] = _load()
     costs: dict[str, dict[str, Any]] = {}
     ref = seconds.get(reference) if reference is not None else None
@@ -219,6 +243,7 @@ def timing_pass(
         entry: dict[str, Any] = {
             "ns_per_eval": dist["median"],
             "distribution": dist,
+            "wall": distribution([s / k.evals * 1e9 for s in walls[k.name]]),
             "runtime": k.runtime,
             "evals": k.evals,
             "macs_per_eval": k.counts.get("macs_per_eval"),
@@ -237,11 +262,13 @@ def timing_pass(
         "reference": reference,
         "repeats": repeats,
         "warmup": warmup,
+        "clock": clock_name,
         "order": order,
         "machine": env,
         "settings": dict(settings or {}),
         "costs": costs,
-        "method": "wall time per kernel call (run, then its runtime synchronised) in "
-        "interleaved rounds, the first kernel rotating each round; ns_per_eval = time / "
-        "evaluations; relative = per round, the kernel's ns_per_eval over the reference's",
+        "method": f"{CLOCKS.get(clock_name, clock_name)} per kernel call (run, then its "
+        "runtime synchronised) in interleaved rounds, the first kernel rotating each round; "
+        "ns_per_eval = time / evaluations; relative = per round, the kernel's ns_per_eval "
+        "over the reference's; wall: the calls' wall time",
     }

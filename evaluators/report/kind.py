@@ -86,7 +86,7 @@ class ReportParetoParams(StrictModel):
                                                        charted by ns_per_eval beside the
                                                        reference kernel: ``repeats`` (5,
                                                        at least 5), ``warmup`` (2),
-                                                       ``batch`` (65536), ``threads`` (2)
+                                                       ``batch`` (2^20), ``threads`` (2)
     =================  ====================  ========  =====================================
 
     Example (in a batch file)::

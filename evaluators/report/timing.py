@@ -23,6 +23,7 @@ are timed by their first run's model.
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, cast
@@ -55,7 +56,7 @@ class TimingParams(StrictModel):
     ==========  ====  ========  ==================================================
     ``repeats`` int   5         recorded rounds per kernel, 5..200
     ``warmup``  int   2         unrecorded rounds first, 0..10
-    ``batch``   int   65536     direction pairs per evaluation call, 1024..4194304
+    ``batch``   int   1048576   direction pairs per evaluation call, 1024..4194304
     ``threads`` int   2         CPU threads of Dr.Jit and torch during the pass, 1..256
     ==========  ====  ========  ==================================================
     """
@@ -63,7 +64,7 @@ class TimingParams(StrictModel):
     repeats: int = Field(default=5, ge=5, le=200, description="Recorded rounds per kernel.")
     warmup: int = Field(default=2, ge=0, le=10, description="Unrecorded rounds before them.")
     batch: int = Field(
-        default=1 << 16, ge=1 << 10, le=1 << 22, description="Direction pairs per call."
+        default=1 << 20, ge=1 << 10, le=1 << 22, description="Direction pairs per call."
     )
     threads: int = Field(default=2, ge=1, le=256, description="Dr.Jit and torch threads.")
 
@@ -176,12 +177,16 @@ def comparison_pass(
                 replace(_kernel(n, t, q, ctx), counts=dict(t.counts)) for n, t in targets.items()
             ]
             ctx.check_cancelled()
+            on_cpu = mi.variant().startswith("llvm_")
             record = timing_pass(
                 kernels,
                 reference=tk.REFERENCE,
                 repeats=timing.repeats,
                 warmup=timing.warmup,
                 threads=timing.threads,
+                clock=time.process_time if on_cpu else time.perf_counter,
+                clock_name="cpu" if on_cpu else "wall",
+                per=timing.threads if on_cpu else 1,
                 runtimes=tk.runtime_versions(mi),
                 settings={
                     "batch": timing.batch,
@@ -225,7 +230,7 @@ def pass_cost(record: Mapping[str, Any], candidate: str) -> dict[str, Any] | Non
 def timing_summary(record: Mapping[str, Any]) -> TimingDocument:
     """The pass as a document records it: everything but the per-round order and the
     targets' details (kept: machine, settings, repeats, costs with their distributions)."""
-    keep = ("format", "reference", "repeats", "warmup", "machine", "settings", "method")
+    keep = ("format", "reference", "repeats", "warmup", "clock", "machine", "settings", "method")
     out = {k: record[k] for k in keep if k in record}
     out["costs"] = dict(record.get("costs") or {})
     out["order"] = list(record.get("order") or [])
