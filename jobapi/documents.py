@@ -326,6 +326,8 @@ class TimingCost(TypedDict):
     """What evaluated it (``drjit-fused``, ``onnxruntime``, ``mitsuba``)."""
     relative: NotRequired[CostDistribution | None]
     """Per round, its ns per evaluation over the reference kernel's."""
+    wall: NotRequired[CostDistribution]
+    """Its calls' wall time, ns per evaluation (beside a CPU-time ``distribution``)."""
     macs_per_eval: NotRequired[int | float | None]
     """Multiply-adds per evaluation (machine-independent; ``null``: not counted)."""
     bytes_per_eval: NotRequired[int | float | None]
@@ -345,6 +347,8 @@ class TimingDocument(TypedDict):
     """Recorded rounds per kernel (at least 5)."""
     warmup: int
     """Unrecorded rounds before them."""
+    clock: NotRequired[str]
+    """``cpu`` (process CPU time over the threads / threads) or ``wall``."""
     machine: TimingMachine
     """Where it ran."""
     settings: dict[str, Any]
