@@ -328,6 +328,8 @@ class TimingCost(TypedDict):
     """Per round, its ns per evaluation over the reference kernel's."""
     wall: NotRequired[CostDistribution]
     """Its calls' wall time, ns per evaluation (beside a CPU-time ``distribution``)."""
+    calls: NotRequired[int]
+    """Calls per sample (each synchronised), sized after the warm-up."""
     macs_per_eval: NotRequired[int | float | None]
     """Multiply-adds per evaluation (machine-independent; ``null``: not counted)."""
     bytes_per_eval: NotRequired[int | float | None]

@@ -61,6 +61,8 @@ CLOCKS = {
 }
 #: Recorded rounds per kernel, at least (the spec setting's default and minimum).
 MIN_REPEATS = 5
+#: Calls per sample at most (see ``min_sample_s``).
+MAX_CALLS = 1000
 #: Unrecorded rounds before them (a frozen Dr.Jit kernel records on its first call and
 #: replays from its second).
 WARMUP = 2
@@ -187,6 +189,7 @@ def timing_pass(
     clock: Callable[[], float] = time.perf_counter,
     clock_name: str = "wall",
     per: int = 1,
+    min_sample_s: float = 0.0,
     runtimes: dict[str, str] | None = None,
     settings: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
@@ -198,7 +201,12 @@ def timing_pass(
     (injectable for tests), named ``clock_name`` in the record (:data:`CLOCKS`), and each
     reading is divided by ``per`` (the thread count, for the process CPU clock: then a cost
     is the time on that many dedicated cores). The wall time of every call is recorded
-    beside it (``wall``). ``settings`` (batch, seed, ...) is recorded as given.
+    beside it (``wall``). ``min_sample_s``: after the warm-up, each kernel's sample is
+    that many back-to-back calls (each synchronised) that take at least this long by the
+    last warm-up round's time (``calls``, as ``torch.utils.benchmark``'s
+    ``blocked_autorange`` sizes its blocks), so that a short kernel is not measured at the
+    clock's and the thread pool's granularity; 0: one call. ``settings`` (batch, seed, ...)
+    is recorded as given.
     Raises ``ValueError`` for fewer than :data:`MIN_REPEATS` repeats, duplicate names, or
     a ``reference`` that is not among the kernels.
     """
@@ -216,6 +224,7 @@ def timing_pass(
         raise ValueError(f"per: at least 1, got {per}")
     seconds: dict[str, list[float]] = {k.name: [] for k in kernels}
     walls: dict[str, list[float]] = {k.name: [] for k in kernels}
+    calls = {k.name: 1 for k in kernels}
     order: list[list[str]] = []
     for rnd in range(warmup + repeats):
         this = [kernels[i] for i in round_order(len(kernels), rnd)]
@@ -225,14 +234,18 @@ def timing_pass(
             k.sync(None)
             wall = time.perf_counter()
             start = clock()
-            out = k.run()
-            k.sync(out)
+            for _ in range(calls[k.name]):
+                out = k.run()
+                k.sync(out)
+                del out
             stop = clock()
             wall = time.perf_counter() - wall
-            del out
             if rnd >= warmup:
-                seconds[k.name].append((stop - start) / per)
-                walls[k.name].append(wall)
+                seconds[k.name].append((stop - start) / per / calls[k.name])
+                walls[k.name].append(wall / calls[k.name])
+            elif rnd == warmup - 1 and min_sample_s > 0:  # size the samples
+                took = (stop - start) / per
+                calls[k.name] = max(1, min(MAX_CALLS, math.ceil(min_sample_s / max(took, 1e-9))))
     env["load_after"] = _load()
     costs: dict[str, dict[str, Any]] = {}
     ref = seconds.get(reference) if reference is not None else None
@@ -246,6 +259,7 @@ def timing_pass(
             "wall": distribution([s / k.evals * 1e9 for s in walls[k.name]]),
             "runtime": k.runtime,
             "evals": k.evals,
+            "calls": calls[k.name],
             "macs_per_eval": k.counts.get("macs_per_eval"),
             "bytes_per_eval": k.counts.get("bytes_per_eval"),
         }

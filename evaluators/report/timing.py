@@ -51,14 +51,17 @@ JOB_TIMED_COSTS = ("render_seconds", "train_seconds", "ms_per_frame")
 class TimingParams(StrictModel):
     """How a comparison's timing pass runs (``timing`` of ``report.pareto`` and ``select``).
 
-    ==========  ====  ========  ==================================================
-    name        type  default   meaning
-    ==========  ====  ========  ==================================================
-    ``repeats`` int   5         recorded rounds per kernel, 5..200
-    ``warmup``  int   2         unrecorded rounds first, 0..10
-    ``batch``   int   1048576   direction pairs per evaluation call, 1024..4194304
-    ``threads`` int   2         CPU threads of Dr.Jit and torch during the pass, 1..256
-    ==========  ====  ========  ==================================================
+    =================  =====  =======  ================================================
+    name               type   default  meaning
+    =================  =====  =======  ================================================
+    ``repeats``        int    5        recorded rounds per kernel, 5..200
+    ``warmup``         int    2        unrecorded rounds first, 0..10
+    ``batch``          int    2^20     direction pairs per evaluation call, 2^10..2^22
+    ``threads``        int    2        CPU threads of Dr.Jit and torch, 1..256
+    ``min_sample_ms``  float  50       a sample repeats the kernel's call (each
+                                       synchronised) until it takes this long by the
+                                       warm-up's time, 0..5000
+    =================  =====  =======  ================================================
     """
 
     repeats: int = Field(default=5, ge=5, le=200, description="Recorded rounds per kernel.")
@@ -67,6 +70,14 @@ class TimingParams(StrictModel):
         default=1 << 20, ge=1 << 10, le=1 << 22, description="Direction pairs per call."
     )
     threads: int = Field(default=2, ge=1, le=256, description="Dr.Jit and torch threads.")
+    min_sample_ms: float = Field(
+        default=50.0,
+        ge=0.0,
+        le=5000.0,
+        allow_inf_nan=False,
+        description="Each sample repeats a kernel's call until it takes this long (by the "
+        "warm-up's time); 0: one call.",
+    )
 
 
 @dataclass(frozen=True)
@@ -187,6 +198,7 @@ def comparison_pass(
                 clock=time.process_time if on_cpu else time.perf_counter,
                 clock_name="cpu" if on_cpu else "wall",
                 per=timing.threads if on_cpu else 1,
+                min_sample_s=timing.min_sample_ms / 1000.0,
                 runtimes=tk.runtime_versions(mi),
                 settings={
                     "batch": timing.batch,

@@ -137,3 +137,18 @@ def test07_threads_fixed_and_restored() -> None:
     with fixed_threads(1):
         assert (dr.thread_count(), torch.get_num_threads()) == (1, 1)
     assert (dr.thread_count(), torch.get_num_threads()) == before
+
+
+def test08_samples_sized_to_a_minimum_time() -> None:
+    # 1 ms calls and a 10 ms minimum: after the warm-up each sample is 10 calls, each
+    # synchronised, and the cost is still per evaluation
+    rt = FakeRuntime()
+    kernels = [rt.kernel("reference", 1e-3, evals=10), rt.kernel("long", 30e-3, evals=10)]
+    rec = timing_pass(kernels, reference="reference", repeats=5, warmup=1, min_sample_s=10e-3,
+                      clock=rt.clock)  # fmt: skip
+    assert rec["costs"]["reference"]["calls"] == 10 and rec["costs"]["long"]["calls"] == 1
+    runs = [n for what, n in rt.log if what == "run"]
+    assert runs.count("reference") == 1 + 5 * 10 and runs.count("long") == 1 + 5
+    assert rec["costs"]["reference"]["ns_per_eval"] == pytest.approx(1e-3 / 10 * 1e9)
+    assert rec["costs"]["long"]["relative"]["median"] == pytest.approx(30.0)
+    assert rt.unsynced_reads == 0
