@@ -7,8 +7,10 @@ spec): once as the machine is, once with ``--busy`` extra processes spinning on 
 beside it (at the same priority). Each run's ``pareto.json`` holds its timing pass: every
 model's fused kernel and Mitsuba's ``roughconductor`` on the same 2^20 direction pairs,
 interleaved, ``--repeats`` rounds. Prints one row per model: per run its median ns per
-evaluation (min..max), its median ratio to the reference kernel (IQR), and how much the
-ratio moved between the runs; then the load average before and after each run.
+evaluation by the pass's clock (process CPU time over the threads; min..max), its median
+ratio to the reference kernel (IQR), how much the ratio moved between the runs, and the
+same for the wall clock recorded beside it (ratio of medians); then the load average before
+and after each run.
 
 Run: ``nice -n 10 .venv/bin/python benchmarks/bench_timing_pass.py [--busy 2] [--repeats 15]``
 """
@@ -86,18 +88,23 @@ def main() -> None:
     names = [n for n in runs[0]["costs"] if n != runs[0]["reference"]]
     print("| model | run 1 ns/eval (min..max) | run 1 x ref (IQR) | "
           f"run 2 (+{args.busy} busy) ns/eval (min..max) | run 2 x ref (IQR) "
-          "| ratio moved |")  # fmt: skip
-    print("| --- | --- | --- | --- | --- | --- |")
-    for name in [runs[0]["reference"], *names]:
-        cells, rels = [], []
+          "| ratio moved | wall ns/eval run 1, run 2 | wall ratio moved |")  # fmt: skip
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    ref = runs[0]["reference"]
+    for name in [ref, *names]:
+        cells, rels, walls, wall_rel = [], [], [], []
         for rec in runs:
             c = rec["costs"][name]
             d, r = c["distribution"], c["relative"]
             cells += [f"{d['median']:.2f} ({d['min']:.2f}..{d['max']:.2f})",
                       f"{r['median']:.2f} ({r['iqr']:.2f})"]  # fmt: skip
             rels.append(r["median"])
+            walls.append(c["wall"]["median"])
+            wall_rel.append(c["wall"]["median"] / rec["costs"][ref]["wall"]["median"])
         moved = abs(rels[1] - rels[0]) / rels[0] * 100
-        print(f"| {name} | {' | '.join(cells)} | {moved:.1f} % |")
+        wall_moved = abs(wall_rel[1] - wall_rel[0]) / wall_rel[0] * 100
+        print(f"| {name} | {' | '.join(cells)} | {moved:.1f} % | {walls[0]:.2f}, {walls[1]:.2f} "
+              f"| {wall_moved:.1f} % |")  # fmt: skip
     for i, rec in enumerate(runs, 1):
         m = rec["machine"]
         print(f"run {i}: load {m['load_before']} -> {m['load_after']}, {m['processor']}, "

@@ -425,7 +425,9 @@ def _timed(params: SelectParams) -> tuple[str, ...]:
     bytes."""
     if not params.scene_mode:
         return ("select.json", "select.png") if params.cost in PASS_COSTS else ()
-    return ("select.json", "select.png") if params.cost in TIMED_COSTS else ("select.json",)
+    if params.cost in TIMED_COSTS or params.cost in PASS_COSTS:
+        return ("select.json", "select.png")
+    return ("select.json",)
 
 
 register(

@@ -96,7 +96,7 @@ class Target:
     into the pass's cost record beside the time."""
 
 
-def _from_material(value: Any) -> Target | None:
+def material_target(value: Any) -> Target | None:
     """The target of a material value (``{"model", "material"}`` or ``{"external"}``)."""
     if not isinstance(value, Mapping):
         return None
@@ -116,7 +116,7 @@ def target_of(row: ResultRow) -> Target | None:
     file), ``model`` and ``material`` (a score's model candidate), or a select rung's
     ``material`` holding one of these."""
     cfg = row.config or {}
-    return _from_material(cfg) or _from_material(cfg.get("material"))
+    return material_target(cfg) or material_target(cfg.get("material"))
 
 
 def pass_targets(rows: Sequence[ResultRow], cost: str) -> dict[str, Target]:
