@@ -224,8 +224,12 @@ def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
     ctx.progress(1.0, f"{len(panels)} panels; claims not holding: {'; '.join(held) or 'none'}")
 
 
-#: Columns of the result table: one row per panel and point.
-COLUMNS = ("mean", "std", "min", "max", "n", "cost", "front")
+#: Columns of the result table: one row per panel and point (``x_reference``: the cost
+#: over the reference kernel's, from the timing pass).
+COLUMNS = (
+    "mean", "std", "min", "max", "n", "cost", "cost_min", "cost_max", "x_reference", "front",
+    "resolved",
+)  # fmt: skip
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
@@ -242,7 +246,9 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         where = f" [{p.get('dataset')}{' ' + scene if scene else ''}]" if several else ""
         for pt in p["points"]:
             label = f"{p['metric']} vs {p['cost']}{where} / {pt['candidate']}"
-            rows[label] = {c: pt.get(c) for c in COLUMNS}
+            rel = pt.get("relative")
+            x_ref = rel.get("median") if isinstance(rel, dict) else None
+            rows[label] = {c: pt.get(c) for c in COLUMNS} | {"x_reference": x_ref}
     return ResultTable.from_report(
         dict(doc),
         rows,
