@@ -8,6 +8,16 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
   the min and max over seeds (the error bars), and its cost the median of the rows' costs.
 - The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
   error); every point records which points dominate it.
+- With a timing pass (:mod:`evaluators.report.timing`), an ``ns_per_eval`` panel's costs
+  are the pass's, not the rows': each point's median with ``cost_min``, ``cost_max``,
+  ``cost_iqr``, ``cost_n`` and ``relative`` (its ratio to the reference kernel).
+- Resolution: each point is ``resolved`` when its place on or off the front holds
+  anywhere inside its spreads (:func:`box`: seed min..max on the error where there are two
+  or more seeds, timing min..max on the cost), else ``tied_with`` names the points that
+  make it undecided (:func:`evaluators.metrics.pareto.unresolved_with`); a panel lists its
+  ``ties`` and says why it is ``not_resolved``. A panel of a cost each job timed itself
+  (``render_seconds``, ``train_seconds``, ``ms_per_frame``) is charted but never resolved:
+  those costs come from separate passes.
 - Every point names its ``runtime`` (:data:`jobapi.rows.RUNTIMES`: what evaluated it, the
   rows' ``runtime`` joined with ``+`` when they differ, ``null`` when none says), and a panel
   lists its ``runtimes``: a chart of ``ns_per_eval`` whose points come from two runtimes
@@ -197,8 +207,9 @@ def panels(
         job_timed = cost in JOB_TIMED_COSTS and len(points) > 1
         runtimes = sorted({p["runtime"] for p in points if p["runtime"]})
         label = cost_label(cost, runtimes)
-        if timed:
-            label += " (one timing pass, bars min..max)"
+        if timed and timing is not None:
+            clock = "CPU time" if timing.get("clock") == "cpu" else "wall time"
+            label += f" (one timing pass, {clock}, bars min..max)"
         elif job_timed:
             label += " [timed in separate jobs: not ranked]"
         out.append(
