@@ -226,6 +226,7 @@ def panels(
                 "ties": decided["ties"],
                 "not_resolved": _not_resolved(cost, decided["ties"], job_timed),
                 "timing_pass": bool(timed),
+                "job_timed": job_timed,
             }
         )
     return out

@@ -253,7 +253,14 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[Se
                 f"{best['candidate']} at {best['value']:.4g}"
             )
         tie = choice_ties(rungs, chosen, target, lower)
-        if tie:
+        if panel.get("job_timed"):  # costs each job timed itself: separate passes
+            tie = [r["candidate"] for r in rungs]
+            why += (
+                f"; not resolved: {panel['cost']} is each run's own timing, taken in separate "
+                "passes, so the rungs' order by it is not decided (ns_per_eval is re-timed "
+                "in one pass)"
+            )
+        elif tie:
             why += f"; not resolved: {' and '.join(tie)} cannot be told apart within the " + (
                 "seed and timing spreads" if chosen is not None else "seed spread"
             )

@@ -87,3 +87,12 @@ def test05_choice_inside_the_seed_spread_is_not_resolved() -> None:
     assert none["chosen"] is None and none["tie"] == [] and none["resolved"] is True
     (maybe,) = ladders([cheaper], 0.095, lower=True)
     assert maybe["chosen"] == "h32"
+
+
+def test06_costs_from_separate_jobs_are_not_resolved() -> None:
+    # a runs-mode ladder by render_seconds: each render timed itself, in its own job
+    p = panel(LADDER)
+    p["job_timed"] = True
+    (lad,) = ladders([p], 0.05, lower=True)
+    assert lad["chosen"] == "net16" and lad["resolved"] is False
+    assert set(lad["tie"]) == {r[0] for r in LADDER} and "separate passes" in lad["why"]
