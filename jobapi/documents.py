@@ -430,6 +430,8 @@ class ParetoPanel(TypedDict):
     """Why the front is not resolved, in words (``null``: it is)."""
     timing_pass: NotRequired[bool]
     """Whether the costs are this job's own timing pass (``timing`` of the document)."""
+    job_timed: NotRequired[bool]
+    """Whether the costs are timings each job took itself (separate passes: not ranked)."""
 
 
 @with_config(_OPEN)
