@@ -16,7 +16,9 @@ compiles it, later calls replay the recorded kernel on the batch without tracing
 code again. So a timed call is the kernel's launch and execution, what a renderer pays per
 evaluation once the frame's kernel is traced: tracing a network with its weights as
 literals costs milliseconds of single-threaded Python that a frame pays once, and under
-load it would dominate a call and swing with the load.
+load it would dominate a call and swing with the load. A frozen function sees only its
+inputs, so the Dr.Jit arrays a model object holds (latent textures) are passed in as one
+more input (:func:`frozen`'s ``state``).
 """
 
 from __future__ import annotations
@@ -85,13 +87,43 @@ def drjit_sync(out: Any) -> None:
     dr.sync_thread()
 
 
-def frozen(fn: Any, *args: Any) -> Any:
-    """``fn(*args)`` as a call of no arguments that replays a frozen Dr.Jit kernel
-    (``dr.freeze``, see the module docstring); ``args`` are the batch's arrays."""
+def _holds_arrays(value: Any) -> bool:
+    """Whether ``value`` is or holds (in lists, tuples, dicts, dataclasses: what
+    ``dr.freeze`` traverses) a Dr.Jit array."""
+    import dataclasses
+
     import drjit as dr
 
-    replay = dr.freeze(fn)
-    return lambda: replay(*args)
+    if isinstance(value, (list, tuple)):
+        return any(_holds_arrays(v) for v in value)
+    if isinstance(value, dict):
+        return any(_holds_arrays(v) for v in value.values())
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return any(_holds_arrays(getattr(value, f.name)) for f in dataclasses.fields(value))
+    return bool(dr.is_array_v(value))
+
+
+def frozen(fn: Any, *args: Any, state: Any = None) -> Any:
+    """``fn(*args)`` as a call of no arguments that replays a frozen Dr.Jit kernel
+    (``dr.freeze``, see the module docstring); ``args`` are the batch's arrays.
+
+    ``state``: an object whose attributes hold Dr.Jit arrays that ``fn`` reads (a model's
+    textures): a frozen function sees only its inputs, so those attributes are passed in
+    as one more input and set back on the object inside the recorded call."""
+    import drjit as dr
+
+    if state is None:
+        replay = dr.freeze(fn)
+        return lambda: replay(*args)
+    held = {k: v for k, v in vars(state).items() if _holds_arrays(v)}
+
+    def with_state(inputs: dict[str, Any], *xs: Any) -> Any:
+        for k, v in inputs.items():
+            setattr(state, k, v)
+        return fn(*xs)
+
+    replay_state = dr.freeze(with_state)
+    return lambda: replay_state(held, *args)
 
 
 def reference_kernel(q: QueryBatch, bsdf: dict[str, Any] | None = None) -> Kernel:
@@ -129,7 +161,7 @@ def builtin_btf_kernel(name: str, q: QueryBatch, model: Any) -> Kernel:
     from models.btf.fused import FusedBtf
 
     fused = FusedBtf(model, q.mi)
-    run = frozen(lambda uv, wi, wo: fused.eval(uv, wi, wo), q.uv_d, q.wi_d, q.wo_d)
+    run = frozen(fused.eval, q.uv_d, q.wi_d, q.wo_d, state=fused)
     return Kernel(name, run, q.size, "drjit-fused", drjit_sync)
 
 
@@ -144,9 +176,9 @@ def external_kernel(name: str, q: QueryBatch, model: Any) -> Kernel:
 
         fused = FusedMlp(model, q.mi)
         if model.kind == "btf":
-            run = frozen(lambda wi, wo, uv: fused.eval(wi, wo, uv), q.wi_d, q.wo_d, q.uv_d)
+            run = frozen(fused.eval, q.wi_d, q.wo_d, q.uv_d, state=fused)
         else:
-            run = frozen(lambda wi, wo: fused.eval(wi, wo), q.wi_d, q.wo_d)
+            run = frozen(fused.eval, q.wi_d, q.wo_d, state=fused)
         return Kernel(name, run, q.size, runtime, drjit_sync)
     return Kernel(name, lambda: model.eval(q.wi, q.wo, uv), q.size, runtime)
 

@@ -5,7 +5,9 @@ short pass over them gives finite costs relative to the reference kernel."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -115,3 +117,39 @@ def test06_frozen_kernels_replay_what_tracing_computes(mi, tmp_path: Path) -> No
     for _ in range(3):
         got = np.array(ext.run(), np.float64).T
         np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6)  # float32 kernel
+
+
+def test07_frozen_with_textures_held_by_the_model(mi) -> None:  # type: ignore[no-untyped-def]
+    """A kernel that reads Dr.Jit arrays its model object holds (a latent texture) replays
+    what tracing computes: the arrays enter the frozen call as an input."""
+    import drjit as dr
+
+    class Textured:
+        def __init__(self) -> None:
+            self.tex = [mi.Float(np.linspace(0.0, 1.0, 64, dtype=np.float32))]
+            self.scale = 2.0
+
+        def eval(self, uv):  # type: ignore[no-untyped-def]
+            i = mi.UInt32(dr.clip(uv[0] * 64.0, 0.0, 63.0))
+            return dr.gather(mi.Float, self.tex[0], i) * self.scale
+
+    @dataclass
+    class Holder:  # as models.btf.fused keeps a texture's channels
+        channels: list[Any]
+        size: int
+
+    class InDataclass(Textured):
+        def __init__(self) -> None:
+            super().__init__()
+            self.held = Holder(list(self.tex), 64)
+
+        def eval(self, uv):  # type: ignore[no-untyped-def]
+            i = mi.UInt32(dr.clip(uv[0] * self.held.size, 0.0, 63.0))
+            return dr.gather(mi.Float, self.held.channels[0], i) * self.scale
+
+    q = tk.query_batch(mi, BATCH)
+    for obj in (Textured(), InDataclass()):
+        want = np.array(obj.eval(q.uv_d))
+        run = tk.frozen(obj.eval, q.uv_d, state=obj)
+        for _ in range(3):
+            np.testing.assert_array_equal(np.array(run()), want)
