@@ -69,3 +69,12 @@ def test04_a_cost_that_is_also_a_metric_keeps_both_columns() -> None:
     assert doc["cells"]["spp1"]["cost.render_seconds"]["median"] == 0.5
     assert doc["best"] == {"flip": "spp2"}  # render times: each render's own, not ranked
     assert set(doc["unranked"]) == {"cost.render_seconds"}
+
+
+def test05_the_cli_table_names_the_unranked_timings() -> None:
+    from service.cli.results_command import pivot_table
+
+    table = pivot_table(pivot(ROWS))
+    assert table.caption is not None and "not ranked: ns_per_eval" in str(table.caption)
+    quiet = pivot_table(pivot([_row("a", "flip", 0.1, True), _row("b", "flip", 0.2, True)]))
+    assert quiet.caption is None
