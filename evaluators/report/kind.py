@@ -278,7 +278,7 @@ register(
         "seed spread, per-family errors and the families' claims checked.",
         artifacts=("pareto.json", "pareto.png", "rows.json"),
         timing_artifacts=timed_artifacts,
-        smoke={"runs": ["step:train.brdf"]},
+        smoke={"runs": ["step:train.brdf"], "timing": {"batch": 4096, "min_sample_ms": 0}},
         figures=(
             Figure(
                 "pareto.png",

@@ -455,6 +455,7 @@ register(
             "metric": "smape",
             "target": 2.0,
             "cost": "ns_per_eval",
+            "timing": {"batch": 4096, "min_sample_ms": 0},
         },
         figures=(
             Figure(
