@@ -53,10 +53,14 @@ __all__ = [
     "CurvesDocument",
     "CurvesPhase",
     "DocumentError",
+    "CostDistribution",
     "ParetoClaim",
     "ParetoDocument",
     "ParetoPanel",
     "ParetoPoint",
+    "TimingCost",
+    "TimingDocument",
+    "TimingMachine",
     "check_document",
     "check_curves",
     "check_pareto",
@@ -272,6 +276,92 @@ class CurvesDocument(TypedDict):
 
 
 @with_config(_OPEN)
+class CostDistribution(TypedDict):
+    """A timed cost over its repeats (or a ratio over rounds): ``torch.utils.benchmark``'s
+    median and IQR, Google Benchmark's aggregates."""
+
+    median: float
+    """The median."""
+    min: float
+    """The least value."""
+    max: float
+    """The largest value."""
+    iqr: float
+    """Interquartile range (``q3 - q1``)."""
+    n: int
+    """Repeats."""
+    q1: NotRequired[float]
+    """First quartile."""
+    q3: NotRequired[float]
+    """Third quartile."""
+
+
+@with_config(_OPEN)
+class TimingMachine(TypedDict):
+    """Where a timing pass ran."""
+
+    processor: str
+    """The CPU model."""
+    cores: int | None
+    """Logical CPUs of the machine."""
+    threads: int
+    """Threads the pass's runtimes used (Dr.Jit and torch)."""
+    load_before: list[float]
+    """Load average (1, 5, 15 min) before the pass."""
+    load_after: list[float]
+    """Load average after it."""
+    runtimes: dict[str, str]
+    """Runtime versions and the Mitsuba variant (``mitsuba_variant``)."""
+
+
+@with_config(_OPEN)
+class TimingCost(TypedDict):
+    """One kernel's cost in a timing pass: the cost record every model's cost takes."""
+
+    ns_per_eval: float
+    """The median ns per evaluation."""
+    distribution: CostDistribution
+    """ns per evaluation over the repeats."""
+    runtime: str
+    """What evaluated it (``drjit-fused``, ``onnxruntime``, ``mitsuba``)."""
+    relative: NotRequired[CostDistribution | None]
+    """Per round, its ns per evaluation over the reference kernel's."""
+    wall: NotRequired[CostDistribution]
+    """Its calls' wall time, ns per evaluation (beside a CPU-time ``distribution``)."""
+    calls: NotRequired[int]
+    """Calls per sample (each synchronised), sized after the warm-up."""
+    macs_per_eval: NotRequired[int | float | None]
+    """Multiply-adds per evaluation (machine-independent; ``null``: not counted)."""
+    bytes_per_eval: NotRequired[int | float | None]
+    """Bytes read per evaluation (machine-independent; ``null``: not counted)."""
+
+
+@with_config(_OPEN)
+class TimingDocument(TypedDict):
+    """A comparison's timing pass (``matforge.timing/1``): every model and the reference
+    kernel timed in one process, interleaved round-robin, on the same batch."""
+
+    format: str
+    """``matforge.timing/1``."""
+    reference: str | None
+    """The reference kernel's name among ``costs``."""
+    repeats: int
+    """Recorded rounds per kernel (at least 5)."""
+    warmup: int
+    """Unrecorded rounds before them."""
+    clock: NotRequired[str]
+    """``cpu`` (process CPU time over the threads / threads) or ``wall``."""
+    machine: TimingMachine
+    """Where it ran."""
+    settings: dict[str, Any]
+    """Batch, seed, queries, the reference BSDF."""
+    costs: dict[str, TimingCost]
+    """Per kernel (candidate or reference), its cost."""
+    order: NotRequired[list[list[str]]]
+    """The kernels' order in each recorded round."""
+
+
+@with_config(_OPEN)
 class ParetoPoint(TypedDict):
     """One candidate of a panel (a kind may add its own keys, e.g. ``seeds``)."""
 
@@ -296,6 +386,20 @@ class ParetoPoint(TypedDict):
     runtime: NotRequired[str | None]
     """What evaluated the candidate (``drjit-fused``, ``onnxruntime``, ``mitsuba``, several
     joined with ``+``)."""
+    cost_min: NotRequired[float]
+    """Timing pass: the least ns per evaluation over the repeats (the x error bar)."""
+    cost_max: NotRequired[float]
+    """Timing pass: the largest."""
+    cost_iqr: NotRequired[float]
+    """Timing pass: the interquartile range."""
+    cost_n: NotRequired[int]
+    """Timing pass: the repeats."""
+    relative: NotRequired[CostDistribution | None]
+    """Timing pass: the cost over the reference kernel's, per round."""
+    resolved: NotRequired[bool]
+    """Whether its place on or off the front holds anywhere inside the spreads."""
+    tied_with: NotRequired[list[str]]
+    """The candidates that make it undecided (empty: resolved)."""
 
 
 @with_config(_OPEN)
@@ -318,6 +422,16 @@ class ParetoPanel(TypedDict):
     """One per candidate, non-empty."""
     front: list[str]
     """The candidates of the points with ``front: true``."""
+    resolved: NotRequired[bool | None]
+    """Whether the front holds inside the spreads (``false``: see ``not_resolved``)."""
+    ties: NotRequired[list[list[str]]]
+    """Pairs of candidates whose order is inside the spreads."""
+    not_resolved: NotRequired[str | None]
+    """Why the front is not resolved, in words (``null``: it is)."""
+    timing_pass: NotRequired[bool]
+    """Whether the costs are this job's own timing pass (``timing`` of the document)."""
+    job_timed: NotRequired[bool]
+    """Whether the costs are timings each job took itself (separate passes: not ranked)."""
 
 
 @with_config(_OPEN)
@@ -343,6 +457,8 @@ class ParetoDocument(TypedDict):
     """One chart each, non-empty."""
     claims: NotRequired[list[ParetoClaim]]
     """The claims checked."""
+    timing: NotRequired[TimingDocument]
+    """The timing pass that measured the ``ns_per_eval`` panels' costs."""
 
 
 #: The rules of a typed document that its type cannot say (checked before its type, so

@@ -78,6 +78,15 @@ COST_COLUMNS = (
     "macs_per_eval",
     "bytes_per_eval",
 )
+#: The columns that are timings (costs or metrics): each is measured by the job that
+#: reports it, at its own moment and load, so values from different jobs are shown but
+#: never ranked against each other (a comparison's own timing pass ranks ``ns_per_eval``:
+#: ``report.pareto``, ``select``).
+TIMED_COLUMNS = frozenset({
+    "ns_per_eval", "ms_per_frame", "train_seconds", "render_seconds", "fused_kernel_ns",
+    "fused_ns", "torch_ns", "seconds_per_frame", "seconds", "samples_per_second",
+    "precompute_seconds",
+})  # fmt: skip
 #: The ``runtime`` names (see the module docstring).
 RUNTIMES = ("drjit-fused", "onnxruntime", "mitsuba")
 #: Every column of a row, in the order of a CSV file.

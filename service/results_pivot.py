@@ -17,6 +17,11 @@ render's or a training job's own rows get a line too. For each method and metric
 is better, from the rows' ``lower_is_better``; every cost is lower-is-better). A metric
 without a better direction (``lower_is_better`` null) has no best. Ties go to the method
 named first. Methods keep the order of their first row.
+
+Timings (:data:`jobapi.rows.TIMED_COLUMNS`: ``ns_per_eval``, ``render_seconds``,
+``fused_kernel_ns``, ...) are each job's own, taken at its own moment and load: the table
+shows them but ranks none, and ``unranked[column]`` says why (``report.pareto`` and
+``select`` time every model in one pass of their own, beside a reference kernel).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import statistics
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from jobapi.rows import COST_COLUMNS
+from jobapi.rows import COST_COLUMNS, TIMED_COLUMNS
 
 #: The schema name of the pivot document (``matforge results --pivot --json``).
 FORMAT = "matforge.pivot/1"
@@ -50,9 +55,10 @@ def _finite(value: Any) -> float | None:
 
 def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str, Any]:
     """The pivot document of ``rows``: ``{"format", "by", "methods", "columns", "cells",
-    "best"}``; ``columns`` are ``{"name", "role": "metric" | "cost", "lower_is_better"}``,
-    ``cells[method][column]`` is ``{"mean", "std", "n"}`` for a metric and ``{"median",
-    "n"}`` for a cost (absent where the method has none)."""
+    "best", "unranked"}``; ``columns`` are ``{"name", "role": "metric" | "cost",
+    "lower_is_better"}``, ``cells[method][column]`` is ``{"mean", "std", "n"}`` for a
+    metric and ``{"median", "n"}`` for a cost (absent where the method has none);
+    ``unranked[column]`` why a timing column has no best."""
     methods: list[str] = []
     values: dict[str, dict[str, list[float]]] = {}
     costs: dict[str, dict[str, list[float]]] = {}
@@ -89,9 +95,17 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
             cell[cost_key[cost]] = {"median": statistics.median(vs), "n": len(vs)}
         cells[meth] = cell
     best: dict[str, str] = {}
+    unranked: dict[str, str] = {}
     for col in columns:
         name, lib = col["name"], col["lower_is_better"]
         if lib is None:
+            continue
+        if name.removeprefix("cost.") in TIMED_COLUMNS:
+            if sum(name in cells[m] for m in methods) > 1:
+                unranked[name] = (
+                    "timed by each job at its own moment and load: not ranked; "
+                    "report.pareto and select time the models in one pass"
+                )
             continue
         key = "mean" if col["role"] == "metric" else "median"
         scored = [(cells[m][name][key], m) for m in methods if name in cells[m]]
@@ -107,6 +121,7 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
         "columns": columns,
         "cells": cells,
         "best": best,
+        "unranked": unranked,
     }
 
 

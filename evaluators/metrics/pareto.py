@@ -70,3 +70,35 @@ def spread(values: Sequence[float]) -> dict[str, float | int]:
         "min": min(values),
         "max": max(values),
     }
+
+
+#: A point with its spread: ``(cost_lo, cost_hi, error_lo, error_hi)``.
+Box = tuple[float, float, float, float]
+
+
+def surely_dominates(a: Box, b: Box) -> bool:
+    """Whether ``a`` dominates ``b`` wherever in their spreads the two points lie: ``a``'s
+    worst is no worse than ``b``'s best on both axes, and better on one."""
+    return a[1] <= b[0] and a[3] <= b[2] and (a[1] < b[0] or a[3] < b[2])
+
+
+def possibly_dominates(a: Box, b: Box) -> bool:
+    """Whether some values inside the spreads let ``a`` beat or equal ``b`` on both axes:
+    ``a``'s best is no worse than ``b``'s worst on each (equal points count: a tie)."""
+    return a[0] <= b[1] and a[2] <= b[3]
+
+
+def unresolved_with(boxes: Sequence[Box], front: Sequence[int]) -> list[list[int]]:
+    """Per point, the points that make its place undecided within the spreads (empty:
+    decided). A point on the ``front`` (by its central values) is undecided when another
+    point :func:`possibly_dominates` it; a point off the front when no other point
+    :func:`surely_dominates` it, and then its ties are the points that possibly dominate it.
+    With no spread (degenerate boxes) only equal points tie."""
+    on = set(front)
+    out: list[list[int]] = []
+    for i, b in enumerate(boxes):
+        maybe = [j for j in range(len(boxes)) if j != i and possibly_dominates(boxes[j], b)]
+        if i not in on and any(surely_dominates(boxes[j], b) for j in maybe):
+            maybe = []
+        out.append(maybe)
+    return out

@@ -8,6 +8,16 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
   the min and max over seeds (the error bars), and its cost the median of the rows' costs.
 - The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
   error); every point records which points dominate it.
+- With a timing pass (:mod:`evaluators.report.timing`), an ``ns_per_eval`` panel's costs
+  are the pass's, not the rows': each point's median with ``cost_min``, ``cost_max``,
+  ``cost_iqr``, ``cost_n`` and ``relative`` (its ratio to the reference kernel).
+- Resolution: each point is ``resolved`` when its place on or off the front holds
+  anywhere inside its spreads (:func:`box`: seed min..max on the error where there are two
+  or more seeds, timing min..max on the cost), else ``tied_with`` names the points that
+  make it undecided (:func:`evaluators.metrics.pareto.unresolved_with`); a panel lists its
+  ``ties`` and says why it is ``not_resolved``. A panel of a cost each job timed itself
+  (``render_seconds``, ``train_seconds``, ``ms_per_frame``) is charted but never resolved:
+  those costs come from separate passes.
 - Every point names its ``runtime`` (:data:`jobapi.rows.RUNTIMES`: what evaluated it, the
   rows' ``runtime`` joined with ``+`` when they differ, ``null`` when none says), and a panel
   lists its ``runtimes``: a chart of ``ns_per_eval`` whose points come from two runtimes
@@ -32,7 +42,7 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from evaluators.metrics.pareto import dominated_by, front_indices, spread
+from evaluators.metrics.pareto import dominated_by, front_indices, spread, unresolved_with
 from jobapi.rows import ResultRow
 
 #: Error metrics charted when none are asked for, in this order (those present).
@@ -89,9 +99,13 @@ def cost_label(cost: str, runtimes: Sequence[str]) -> str:
     return label
 
 
-def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] | None:
+def _point(
+    candidate: str, rows: list[ResultRow], cost: str, timed: Mapping[str, Any] | None
+) -> dict[str, Any] | None:
     by_job: dict[str, list[float]] = defaultdict(list)
     costs = [float(getattr(r, cost)) for r in rows if getattr(r, cost) is not None]
+    if timed is not None:
+        costs = [float(timed["cost"])]  # the pass's, whether or not the job timed itself
     if not costs:
         return None
     seeds = {}
@@ -100,7 +114,7 @@ def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] |
         seeds[r.job] = r.seed
     per_job = [statistics.fmean(v) for v in by_job.values()]
     s = spread(per_job)
-    return {
+    point: dict[str, Any] = {
         "candidate": candidate,
         **s,
         "cost": statistics.median(costs),
@@ -110,13 +124,63 @@ def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] |
         "kind": rows[0].kind,
         "runtime": runtime_of(rows),
     }
+    if timed is not None:  # the comparison's own timing pass replaces the rows' costs
+        point.update({k: v for k, v in timed.items() if k not in ("macs_per_eval",
+                      "bytes_per_eval") or v is not None})  # fmt: skip
+    return point
+
+
+def box(point: Mapping[str, Any]) -> tuple[float, float, float, float]:
+    """A point's spread ``(cost_lo, cost_hi, error_lo, error_hi)``: its timing pass's min and
+    max cost (else its cost), its min and max error over two or more seeds (else its mean)."""
+    c_lo = float(point.get("cost_min", point["cost"]))
+    c_hi = float(point.get("cost_max", point["cost"]))
+    seeded = int(point.get("n") or 1) >= 2 and point.get("min") is not None
+    e_lo = float(point["min"]) if seeded else float(point["mean"])
+    e_hi = float(point["max"]) if seeded else float(point["mean"])
+    return (c_lo, c_hi, e_lo, e_hi)
+
+
+def resolve_front(points: list[dict[str, Any]], front: Sequence[int]) -> dict[str, Any]:
+    """Mark each point ``resolved`` (its place on or off the front holds anywhere in the
+    spreads) and name its ``tied_with``; return the panel's ``resolved`` and ``ties``
+    (:func:`evaluators.metrics.pareto.unresolved_with`)."""
+    ties = unresolved_with([box(p) for p in points], front)
+    pairs: list[list[str]] = []
+    for p, tie in zip(points, ties, strict=True):
+        p["resolved"] = not tie
+        p["tied_with"] = [points[j]["candidate"] for j in tie]
+        for q in p["tied_with"]:
+            pair = sorted((p["candidate"], q))
+            if pair not in pairs:
+                pairs.append(pair)
+    return {"resolved": not pairs, "ties": pairs}
+
+
+def _not_resolved(cost: str, ties: list[list[str]], job_timed: bool) -> str | None:
+    parts = []
+    if job_timed:
+        parts.append(
+            f"{cost} is each job's own timing, taken in separate passes: the cost axis "
+            "is not ranked (ns_per_eval is re-timed in one pass)"
+        )
+    if ties:
+        parts.append("inside the spread: " + "; ".join(" and ".join(t) for t in ties))
+    return "not resolved: " + "; ".join(parts) if parts else None
 
 
 def panels(
-    rows: Sequence[ResultRow], metrics: Sequence[str], costs: Sequence[str]
+    rows: Sequence[ResultRow],
+    metrics: Sequence[str],
+    costs: Sequence[str],
+    timing: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """One panel per (dataset, scene, metric, cost) with at least one costed point, in the
-    order of first appearance; see the module docstring."""
+    order of first appearance; see the module docstring. ``timing``: the comparison's
+    timing pass (:func:`evaluators.report.timing.comparison_pass`), whose costs replace the
+    rows' ``ns_per_eval``."""
+    from evaluators.report.timing import JOB_TIMED_COSTS, PASS_COSTS, pass_cost
+
     groups: dict[tuple[Any, ...], dict[str, list[ResultRow]]] = {}
     for r in rows:
         if r.metric in metrics and whole_set(r) and r.candidate is not None:
@@ -125,26 +189,46 @@ def panels(
                 groups.setdefault(key, {}).setdefault(r.candidate, []).append(r)
     out = []
     for (dataset, scene, metric, cost), by_cand in groups.items():
-        points = [p for c, rs in by_cand.items() if (p := _point(c, rs, cost)) is not None]
+        timed = timing is not None and cost in PASS_COSTS
+        points = []
+        for c, rs in by_cand.items():
+            got = pass_cost(timing, c) if timed and timing is not None else None
+            if timed and got is None:
+                continue  # not timed in the pass: never charted beside its costs
+            if (p := _point(c, rs, cost, got)) is not None:
+                points.append(p)
         if not points:
             continue
         xs, ys = [p["cost"] for p in points], [p["mean"] for p in points]
-        on = set(front_indices(xs, ys))
+        on = front_indices(xs, ys)
         beaten = dominated_by(xs, ys)
         for i, p in enumerate(points):
             p["front"] = i in on
             p["dominated_by"] = [points[j]["candidate"] for j in beaten[i]]
+        decided = resolve_front(points, on)
+        job_timed = cost in JOB_TIMED_COSTS and len(points) > 1
         runtimes = sorted({p["runtime"] for p in points if p["runtime"]})
+        label = cost_label(cost, runtimes)
+        if timed and timing is not None:
+            clock = "CPU time" if timing.get("clock") == "cpu" else "wall time"
+            label += f" (one timing pass, {clock}, bars min..max)"
+        elif job_timed:
+            label += " [timed in separate jobs: not ranked]"
         out.append(
             {
                 "dataset": dataset,
                 "scene": scene,
                 "metric": metric,
                 "cost": cost,
-                "cost_label": cost_label(cost, runtimes),
+                "cost_label": label,
                 "runtimes": runtimes,
                 "points": points,
-                "front": [points[i]["candidate"] for i in front_indices(xs, ys)],
+                "front": [points[i]["candidate"] for i in on],
+                "resolved": decided["resolved"] and not job_timed,
+                "ties": decided["ties"],
+                "not_resolved": _not_resolved(cost, decided["ties"], job_timed),
+                "timing_pass": bool(timed),
+                "job_timed": job_timed,
             }
         )
     return out

@@ -17,17 +17,23 @@ Artifacts:
   hollow, error bars min to max over seeds;
 - ``rows.json``: every row the report read.
 
-Costs that are timings (``render_seconds``, ``train_seconds``, ``ns_per_eval``) vary from
-run to run, so a report that draws them does too.
+``ns_per_eval`` is re-measured here: every model charted by it is timed in this job's one
+timing pass (:mod:`evaluators.report.timing`), interleaved with the reference kernel
+(Mitsuba's ``roughconductor`` on the same batch); the points carry the cost's spread and
+its ratio to the reference, ``pareto.json`` the pass (``timing``), and ``pareto.json`` and
+``pareto.png`` are then timing artifacts. Costs each job timed itself
+(``render_seconds``, ``train_seconds``, ``ms_per_frame``) are charted, not ranked. A point's
+place on the front is ``resolved`` only when it holds inside the seed and timing spreads.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import Field
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer
 
 from evaluators.report.fronts import COST_LABELS
+from evaluators.report.timing import TimingParams
 from jobapi.documents import ParetoDocument, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register, registered
@@ -78,6 +84,11 @@ class ReportParetoParams(StrictModel):
     ``costs``          list of cost names    (found)   cost columns to chart against
     ``claims``         list of claims        ``[]``    extra claims to check
     ``family_claims``  bool                  true      check the families' own claims
+    ``timing``         timing settings       (below)   the pass that re-times every model
+                                                       charted by ns_per_eval beside the
+                                                       reference kernel: ``repeats`` (5,
+                                                       at least 5), ``warmup`` (2),
+                                                       ``batch`` (2^20), ``threads`` (2)
     =================  ====================  ========  =====================================
 
     Example (in a batch file)::
@@ -102,6 +113,49 @@ class ReportParetoParams(StrictModel):
         description="Claims to check besides the families' own.",
     )
     family_claims: bool = Field(default=True, description="Check the families' own claims.")
+    timing: TimingParams = Field(
+        default_factory=TimingParams,
+        description="The timing pass that re-times every model charted by ns_per_eval, "
+        "beside the reference kernel: repeats (>= 5), warmup, batch, threads.",
+    )
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # The default timing is left out, so a spec keeps the canonical form (and hash)
+        # it had before the setting existed.
+        return drop_default_timing(handler(self))
+
+
+def drop_default_timing(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` without its ``timing`` when that is the default :class:`TimingParams`."""
+    if data.get("timing") == TimingParams().model_dump():
+        del data["timing"]
+    return data
+
+
+def timed_pass(
+    rows: list[ResultRow],
+    metrics: list[str],
+    costs: list[str],
+    timing: TimingParams,
+    ctx: JobContext,
+) -> dict[str, Any] | None:
+    """The comparison's timing pass (:mod:`evaluators.report.timing`) when ``costs`` has a
+    cost it re-measures and some charted row has one; else ``None``."""
+    from evaluators.report.fronts import whole_set
+    from evaluators.report.timing import PASS_COSTS, comparison_pass, pass_targets
+
+    cost = next((c for c in costs if c in PASS_COSTS), None)
+    if cost is None:
+        return None
+    charted = [r for r in rows if r.metric in metrics and whole_set(r)]
+    targets = pass_targets(charted, cost)
+    if not targets:
+        return None
+    ctx.progress(0.65, f"timing {len(targets)} models and the reference kernel in one pass")
+    record = comparison_pass(targets, timing, ctx)
+    ctx.measure("timing", record)
+    return record
 
 
 def gather_rows(params: ReportParetoParams, ctx: JobContext) -> list[ResultRow]:
@@ -125,11 +179,13 @@ def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
     """Gather the rows, compute the panels, families and claims, and write the artifacts."""
     from evaluators.report import claims, fronts
     from evaluators.report.plots import pareto_png
+    from evaluators.report.timing import timing_summary
 
     rows = gather_rows(params, ctx)
     metrics = fronts.error_metrics(rows, params.metrics)
     costs = fronts.cost_columns(rows, params.costs)
-    panels = fronts.panels(rows, metrics, costs)
+    timing = timed_pass(rows, metrics, costs, params.timing, ctx)
+    panels = fronts.panels(rows, metrics, costs, timing)
     if not panels:
         found = sorted({r.metric for r in rows})
         raise JobFailed(
@@ -148,11 +204,16 @@ def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
             "panels": panels,
             "families": fronts.families(rows, metrics),
             "claims": checked,
+            **({"timing": timing_summary(timing)} if timing is not None else {}),
             "settings": {
                 "point": "a candidate's whole-set rows (material empty or 'mean') in the panel; "
                 "error: mean over jobs (seeds) of each job's value, std ddof 1, min, max; "
-                "cost: median over the rows",
-                "front": "not beaten on both cost and mean error by another point",
+                "cost: median over the rows; ns_per_eval: the median of this job's timing "
+                "pass (every model and the reference kernel interleaved), with min, max, "
+                "IQR and the ratio to the reference",
+                "front": "not beaten on both cost and mean error by another point; "
+                "resolved when that holds anywhere inside the spreads (seed min..max, "
+                "timing min..max), else the ties are named",
                 "costs": {c: COST_LABELS.get(c, c) for c in costs},
             },
         },
@@ -165,8 +226,12 @@ def run_report_pareto(params: ReportParetoParams, ctx: JobContext) -> None:
     ctx.progress(1.0, f"{len(panels)} panels; claims not holding: {'; '.join(held) or 'none'}")
 
 
-#: Columns of the result table: one row per panel and point.
-COLUMNS = ("mean", "std", "min", "max", "n", "cost", "front")
+#: Columns of the result table: one row per panel and point (``x_reference``: the cost
+#: over the reference kernel's, from the timing pass).
+COLUMNS = (
+    "mean", "std", "min", "max", "n", "cost", "cost_min", "cost_max", "x_reference", "front",
+    "resolved",
+)  # fmt: skip
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
@@ -183,7 +248,9 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         where = f" [{p.get('dataset')}{' ' + scene if scene else ''}]" if several else ""
         for pt in p["points"]:
             label = f"{p['metric']} vs {p['cost']}{where} / {pt['candidate']}"
-            rows[label] = {c: pt.get(c) for c in COLUMNS}
+            rel = pt.get("relative")
+            x_ref = rel.get("median") if isinstance(rel, dict) else None
+            rows[label] = {c: pt.get(c) for c in COLUMNS} | {"x_reference": x_ref}
     return ResultTable.from_report(
         dict(doc),
         rows,
@@ -191,6 +258,16 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         label_header="Panel / candidate",
         columns=COLUMNS,
     )
+
+
+def timed_artifacts(params: ReportParetoParams) -> tuple[str, ...]:
+    """The artifacts that hold the job's own timing pass: ``pareto.json`` and ``pareto.png``
+    when ``ns_per_eval`` may be charted (asked, or ``costs`` left to what is found)."""
+    from evaluators.report.timing import PASS_COSTS
+
+    if params.costs is not None and not set(params.costs) & set(PASS_COSTS):
+        return ()
+    return ("pareto.json", "pareto.png")
 
 
 register(
@@ -202,7 +279,8 @@ register(
         "score, evaluate.tss): Pareto fronts per dataset and scene with dominated points, "
         "seed spread, per-family errors and the families' claims checked.",
         artifacts=("pareto.json", "pareto.png", "rows.json"),
-        smoke={"runs": ["step:train.brdf"]},
+        timing_artifacts=timed_artifacts,
+        smoke={"runs": ["step:train.brdf"], "timing": {"batch": 4096, "min_sample_ms": 0}},
         figures=(
             Figure(
                 "pareto.png",

@@ -4,10 +4,13 @@
 ``pareto.png``: one panel per dataset, scene, metric and cost.
 
 Each panel: every candidate at its median cost and mean error over seeds, labelled with its
-runtime (``drjit-fused``, ``onnxruntime``, ``mitsuba``) where its rows name one, error bars from
-the minimum to the maximum over seeds; points on the front filled and joined by a dashed
-line, dominated points hollow and grey. The x axis is logarithmic and labelled with the
-cost column's name and meaning (:data:`evaluators.report.fronts.COST_LABELS`).
+runtime (``drjit-fused``, ``onnxruntime``, ``mitsuba``) where its rows name one and its cost
+relative to the reference kernel where a timing pass measured it, error bars from the minimum
+to the maximum over seeds (y) and over the timing pass's repeats (x), ``~`` after a point
+whose place on or off the front is not resolved within those spreads; points on the front
+filled and joined by a dashed line, dominated points hollow and grey. The x axis is
+logarithmic and labelled with the cost column's name and meaning
+(:data:`evaluators.report.fronts.COST_LABELS`).
 Deterministic bytes for the same numbers (:func:`evaluators.metrics.figures.figure_png`).
 """
 
@@ -37,13 +40,17 @@ def _panel(ax: Any, panel: dict[str, Any]) -> None:
     for p in panel["points"]:
         x, y = p["cost"], p["mean"]
         err = [[y - p["min"]], [p["max"] - y]]
+        xerr = [[x - p.get("cost_min", x)], [p.get("cost_max", x) - x]]
         on = p["front"]
-        ax.errorbar([x], [y], yerr=err, fmt="o", ms=6, capsize=3,
+        ax.errorbar([x], [y], yerr=err, xerr=xerr, fmt="o", ms=6, capsize=3,
                     color=FRONT if on else DOMINATED,
                     markerfacecolor=FRONT if on else "white")  # fmt: skip
         runtime = f", {p['runtime']}" if p.get("runtime") else ""
-        ax.annotate(f"{p['candidate']} (n={p['n']}{runtime})", (x, y), textcoords="offset points",
-                    xytext=(5, 5), fontsize=7)  # fmt: skip
+        rel = p.get("relative")
+        ratio = f", {rel['median']:.3g}x ref" if isinstance(rel, Mapping) else ""
+        tie = " ~" if p.get("resolved") is False else ""
+        ax.annotate(f"{p['candidate']} (n={p['n']}{runtime}{ratio}){tie}", (x, y),
+                    textcoords="offset points", xytext=(5, 5), fontsize=7)  # fmt: skip
     front = sorted((p for p in panel["points"] if p["front"]), key=lambda p: p["cost"])
     if len(front) > 1:
         ax.plot([p["cost"] for p in front], [p["mean"] for p in front], "--", color=LINE)
@@ -53,7 +60,8 @@ def _panel(ax: Any, panel: dict[str, Any]) -> None:
     ax.set_ylabel(f"{panel['metric']} (mean over seeds)", fontsize=8)
     where = _short(panel["dataset"]) if panel.get("dataset") else "-"
     scene = f", {panel['scene']}" if panel.get("scene") else ""
-    ax.set_title(f"{panel['metric']} vs {panel['cost']}: {where}{scene}", fontsize=8)
+    undecided = "; front not resolved (~)" if panel.get("resolved") is False else ""
+    ax.set_title(f"{panel['metric']} vs {panel['cost']}: {where}{scene}{undecided}", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.grid(True, which="both", alpha=0.3)
 
@@ -85,17 +93,27 @@ def select_png(ladders: Sequence[Mapping[str, Any]], target: float) -> bytes:
             rungs = lad["rungs"]
             xs = range(len(rungs))
             colours = [FRONT if r["candidate"] == lad["chosen"] else DOMINATED for r in rungs]
-            a.bar(xs, [r["value"] for r in rungs], color=colours)
+            vals = [r["value"] for r in rungs]
+            spread = [[v - r.get("min", v) for v, r in zip(vals, rungs, strict=True)],
+                      [r.get("max", v) - v for v, r in zip(vals, rungs, strict=True)]]  # fmt: skip
+            a.bar(xs, vals, color=colours, yerr=spread, capsize=3)
             a.axhline(target, ls="--", color=LINE, label=f"target {target:g}")
             names = [
                 f"{r['candidate']}\n{r['cost']:.3g}"
+                + (
+                    f" ({r['cost_min']:.3g}..{r['cost_max']:.3g})"
+                    if r.get("cost_min") is not None and r.get("cost_max") is not None
+                    else ""
+                )
                 + (f"\n{r['runtime']}" if r.get("runtime") else "")
                 for r in rungs
             ]
             a.set_xticks(list(xs), names, fontsize=7)
             a.set_xlabel(f"rungs by {lad['cost_label']}", fontsize=8)
             a.set_ylabel(lad["metric"], fontsize=8)
-            a.set_title(f"{_short(lad['dataset'])}: {lad['chosen'] or 'none'} chosen", fontsize=8)
+            undecided = "; not resolved" if lad.get("resolved") is False else ""
+            a.set_title(f"{_short(lad['dataset'])}: {lad['chosen'] or 'none'} chosen{undecided}",
+                        fontsize=8)  # fmt: skip
             a.legend(fontsize=7)
 
     return figure_png(draw, (6.0 * cols, 3.6 * rows + 0.3))

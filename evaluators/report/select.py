@@ -50,7 +50,8 @@ from typing_extensions import TypedDict
 
 from evaluators.report.kind import gather_rows
 from evaluators.report.select_params import SelectParams
-from jobapi.documents import document, read_typed
+from evaluators.report.timing import PASS_COSTS
+from jobapi.documents import TimingDocument, document, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
 from jobapi.results import ArtifactReader, ResultTable
@@ -60,6 +61,23 @@ if TYPE_CHECKING:
     from jobapi.context import JobContext
 
 FORMAT = "matforge.select/1"
+
+
+@document
+class SelectRelative(TypedDict):
+    """A cost relative to the reference kernel timed in the same pass: the distribution
+    of per-round ratios."""
+
+    median: float
+    """The median ratio."""
+    min: float
+    """The least ratio."""
+    max: float
+    """The largest ratio."""
+    iqr: float
+    """Interquartile range of the ratios."""
+    n: int
+    """Rounds."""
 
 
 @document
@@ -82,6 +100,14 @@ class SelectRung(TypedDict):
     """What evaluated it (``drjit-fused``, ``onnxruntime``, ``mitsuba``; ``null``: unknown)."""
     meets: bool
     """Whether the value meets the target."""
+    cost_min: NotRequired[float]
+    """Timing pass: the least of its repeats (the cost's spread, low end)."""
+    cost_max: NotRequired[float]
+    """Timing pass: the largest of its repeats."""
+    cost_n: NotRequired[int]
+    """Timing pass: its repeats."""
+    relative: NotRequired[SelectRelative | None]
+    """Timing pass: its cost over the reference kernel's, per round."""
     spp: NotRequired[int]
     """Scene mode: samples per pixel of its render."""
     render_seconds: NotRequired[float]
@@ -117,6 +143,11 @@ class SelectLadder(TypedDict):
     """The cheapest rung that meets the target (``null``: none does)."""
     why: str
     """The reason, in words."""
+    resolved: NotRequired[bool]
+    """Whether the choice holds anywhere inside the spreads (seed min..max against the
+    target, timing min..max between rungs); ``false``: not resolved, see ``tie``."""
+    tie: NotRequired[list[str]]
+    """The rungs the choice cannot be told from within the spreads (empty: resolved)."""
 
 
 @document
@@ -145,26 +176,68 @@ class SelectDocument(TypedDict):
     """Scene mode: the reference, as given (a ref or a material with its spp)."""
     ladder: NotRequired[list[dict[str, Any]]]
     """Scene mode: the ladder, as given."""
+    timing: NotRequired[TimingDocument]
+    """The job's timing pass (``matforge.timing/1``: machine, settings, per-candidate
+    distributions), when the ladder is ranked by ``ns_per_eval``."""
+
+
+def _rung(p: dict[str, Any], target: float, lower: bool) -> SelectRung:
+    rung: SelectRung = {
+        "candidate": p["candidate"],
+        "value": p["mean"],
+        "n": p["n"],
+        "min": p["min"],
+        "max": p["max"],
+        "cost": p["cost"],
+        "runtime": p.get("runtime"),
+        "meets": p["mean"] <= target if lower else p["mean"] >= target,
+    }
+    if p.get("cost_min") is not None and p.get("cost_max") is not None:
+        rung["cost_min"], rung["cost_max"] = p["cost_min"], p["cost_max"]
+        rung["cost_n"] = p["cost_n"]
+        rung["relative"] = p.get("relative")
+    return rung
+
+
+def choice_ties(rungs: list[SelectRung], chosen: SelectRung | None, target: float,
+                lower: bool) -> list[str]:  # fmt: skip
+    """The rungs the choice cannot be told from within the spreads: with a chosen rung,
+    the others that may meet the target (their seed range reaches it) and may cost no more
+    (their timing range reaches the chosen's), and the chosen itself when its own seed
+    range straddles the target; with none chosen, the rungs that may meet it. With one
+    seed a value has no range; without a timing pass a cost has none."""
+
+    def range_of(r: SelectRung) -> tuple[float, float]:
+        return (r["min"], r["max"]) if r["n"] >= 2 else (r["value"], r["value"])
+
+    def may_meet(r: SelectRung) -> bool:
+        lo, hi = range_of(r)
+        return lo <= target if lower else hi >= target
+
+    def surely_meets(r: SelectRung) -> bool:
+        lo, hi = range_of(r)
+        return hi <= target if lower else lo >= target
+
+    if chosen is None:
+        return [r["candidate"] for r in rungs if may_meet(r)]
+    top = chosen.get("cost_max", chosen["cost"])
+    ties = [
+        r["candidate"]
+        for r in rungs
+        if r is not chosen and may_meet(r) and r.get("cost_min", r["cost"]) <= top
+    ]
+    if ties or not surely_meets(chosen):
+        ties.insert(0, chosen["candidate"])
+    return ties
 
 
 def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[SelectLadder]:
-    """Per panel, the rungs by increasing cost with ``meets``, and the chosen rung."""
+    """Per panel, the rungs by increasing cost with ``meets``, the chosen rung, and whether
+    the choice is resolved within the spreads (:func:`choice_ties`)."""
     out: list[SelectLadder] = []
     for panel in panels:
         points = sorted(panel["points"], key=lambda p: (p["cost"], p["candidate"]))
-        rungs: list[SelectRung] = [
-            {
-                "candidate": p["candidate"],
-                "value": p["mean"],
-                "n": p["n"],
-                "min": p["min"],
-                "max": p["max"],
-                "cost": p["cost"],
-                "runtime": p.get("runtime"),
-                "meets": p["mean"] <= target if lower else p["mean"] >= target,
-            }
-            for p in points
-        ]
+        rungs = [_rung(p, target, lower) for p in points]
         chosen = next((r for r in rungs if r["meets"]), None)
         rel = "<=" if lower else ">="
         if chosen is not None:
@@ -179,6 +252,18 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[Se
                 f"no rung has {panel['metric']} {rel} {target:g}; the best is "
                 f"{best['candidate']} at {best['value']:.4g}"
             )
+        tie = choice_ties(rungs, chosen, target, lower)
+        if panel.get("job_timed"):  # costs each job timed itself: separate passes
+            tie = [r["candidate"] for r in rungs]
+            why += (
+                f"; not resolved: {panel['cost']} is each run's own timing, taken in separate "
+                "passes, so the rungs' order by it is not decided (ns_per_eval is re-timed "
+                "in one pass)"
+            )
+        elif tie:
+            why += f"; not resolved: {' and '.join(tie)} cannot be told apart within the " + (
+                "seed and timing spreads" if chosen is not None else "seed spread"
+            )
         out.append(
             {
                 "dataset": panel["dataset"],
@@ -189,6 +274,8 @@ def ladders(panels: list[dict[str, Any]], target: float, lower: bool) -> list[Se
                 "rungs": rungs,
                 "chosen": chosen["candidate"] if chosen else None,
                 "why": why,
+                "resolved": not tie,
+                "tie": tie,
             }
         )
     return out
@@ -215,12 +302,14 @@ def run_select(params: SelectParams, ctx: JobContext) -> None:
 def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
     """The first mode: the ladders of rungs other jobs scored."""
     from evaluators.report.fronts import panels
-    from evaluators.report.kind import ReportParetoParams
+    from evaluators.report.kind import ReportParetoParams, timed_pass
     from evaluators.report.plots import select_png
+    from evaluators.report.timing import timing_summary
 
     assert params.runs is not None
     rows = gather_rows(ReportParetoParams(runs=params.runs), ctx)
-    found = panels(rows, [params.metric], [params.cost])
+    timing = timed_pass(rows, [params.metric], [params.cost], params.timing, ctx)
+    found = panels(rows, [params.metric], [params.cost], timing)
     if not found:
         metrics = sorted({r.metric for r in rows})
         raise JobFailed(
@@ -238,6 +327,8 @@ def run_runs_select(params: SelectParams, ctx: JobContext) -> None:
         "cost": params.cost,
         "ladders": result,
     }
+    if timing is not None:
+        doc["timing"] = timing_summary(timing)
     ctx.put_json("select.json", doc)
     ctx.put_bytes("select.png", select_png(result, params.target), "image/png")
     picks = "; ".join(f"{lad['chosen'] or 'none'}" for lad in result)
@@ -267,7 +358,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     claims: list[dict[str, Any]] = [
         {
             "claim": f"cheapest rung meeting {doc['metric']} target {doc['target']}",
-            "holds": lad["chosen"] is not None,
+            "holds": None if lad.get("resolved") is False else lad["chosen"] is not None,
             "why": lad["why"],
         }
         for lad in doc["ladders"]
@@ -340,8 +431,10 @@ def _timed(params: SelectParams) -> tuple[str, ...]:
     bytes). A ``runs`` choice reads its input jobs' rows: the same input jobs give the same
     bytes."""
     if not params.scene_mode:
-        return ()
-    return ("select.json", "select.png") if params.cost in TIMED_COSTS else ("select.json",)
+        return ("select.json", "select.png") if params.cost in PASS_COSTS else ()
+    if params.cost in TIMED_COSTS or params.cost in PASS_COSTS:
+        return ("select.json", "select.png")
+    return ("select.json",)
 
 
 register(
@@ -362,6 +455,7 @@ register(
             "metric": "smape",
             "target": 2.0,
             "cost": "ns_per_eval",
+            "timing": {"batch": 4096, "min_sample_ms": 0},
         },
         figures=(
             Figure(

@@ -18,7 +18,8 @@ from pydantic import (
 
 from evaluators.render.kind import RenderParams
 from evaluators.render.sources import MaterialParam
-from evaluators.report.kind import CostName
+from evaluators.report.kind import CostName, drop_default_timing
+from evaluators.report.timing import TimingParams
 from evaluators.score.params import IMAGE_METRICS
 from jobapi.params import JobRef, Ref, StrictModel
 
@@ -133,6 +134,9 @@ class SelectParams(StrictModel):
                                                              bytes_per_network,
                                                              macs_per_eval,
                                                              bytes_per_eval)
+    ``timing``     timing settings       repeats 5 ...       the runs mode's timing pass
+                                                             by ns_per_eval (repeats >= 5,
+                                                             warmup, batch, threads)
     =============  ====================  ==================  ================================
 
     Example: ``{"kind": "select", "params": {"runs": ["step:seen_scores"], "metric":
@@ -186,12 +190,18 @@ class SelectParams(StrictModel):
         "frame_seconds (the rung's frame time with its kernels compiled).",
     )
 
+    timing: TimingParams = Field(
+        default_factory=TimingParams,
+        description="The runs mode's timing pass when cost is ns_per_eval (every rung's "
+        "model and the reference kernel, interleaved): repeats (>= 5), warmup, batch, threads.",
+    )
+
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         # The other mode's fields are left out (a runs spec keeps the canonical form, and
         # so the hash, it had before the scene mode), and so is the scene's default
         # material (each rung has its own).
-        data: dict[str, Any] = handler(self)
+        data: dict[str, Any] = drop_default_timing(handler(self))
         for key in ("runs", "scene", "reference", "ladder"):
             if key in data and data[key] is None:
                 del data[key]

@@ -19,11 +19,12 @@ compilation, passes; measured in the shard, so it varies with the machine's load
 ``frame_seconds`` the rung's frame time once its kernels are compiled, what a renderer pays
 per frame: the passes after the first, per sample, times the rung's samples (the first pass
 compiles; a rung of one pass, below 2^22 paths, has only that pass, compile included);
-``spp`` the rung's samples; ``ns_per_eval``, ``bytes_per_material`` and ``bytes_per_network`` come
-from the result rows of the ``train.*`` job a ``{"model": "job:<id>/..."}`` rung names, and
-for an ``{"external": ...}`` rung (a user's model) ``ns_per_eval`` and ``bytes_per_network``
-are measured here as ``score`` measures them (:mod:`models.external.cost`). Each rung names
-its ``runtime``.
+``spp`` the rung's samples; ``ns_per_eval`` is timed here, every rung's model and the
+reference kernel in one pass (:mod:`evaluators.report.timing`), with its spread and its
+ratio to the reference; ``bytes_per_material`` and ``bytes_per_network`` come from the
+result rows of the ``train.*`` job a ``{"model": "job:<id>/..."}`` rung names, and for an
+``{"external": ...}`` rung (a user's model) ``bytes_per_network`` is measured here as
+``score`` measures it (:mod:`models.external.cost`). Each rung names its ``runtime``.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from evaluators.metrics.images import flip, hdr_exposure_range, mae, mse, psnr, 
 from evaluators.metrics.tonemap import magma, tonemap
 from evaluators.render.kind import PATHS_PER_PASS, RenderParams, load_scene, plan_passes
 from evaluators.render.sources import resolve_material
+from evaluators.report.timing import pass_cost
 from jobapi.errors import JobFailed
 from jobapi.params import JOB_REF
 from storage.errors import FormatError
@@ -323,6 +325,7 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
     """Render, score and choose; writes the rung images and returns ``select.json``'s
     document less the chart (the caller, :func:`evaluators.report.select.run_select`,
     writes it and the chart)."""
+    from evaluators.report.timing import timing_summary
     from jobapi.rows import lower_is_better
 
     assert params.scene is not None and params.reference is not None and params.ladder
@@ -337,9 +340,12 @@ def run_scene_select(params: SelectParams, ctx: JobContext) -> dict[str, Any]:
     )
     by_name = dict(zip([t.name for t in tasks], results, strict=True))
     reference, dataset = reference_image(params, by_name, ctx)
-    points = score_rungs(params, reference, by_name, ctx)
+    timing = rung_timing(params, ctx)
+    points = score_rungs(params, reference, by_name, ctx, timing)
     lower = lower_is_better(params.metric) is not False
+    timed: dict[str, Any] = {} if timing is None else {"timing": timing_summary(timing)}
     return {
+        **timed,
         "mode": "scene",
         "scene": scene,
         "reference": params.reference
@@ -432,11 +438,33 @@ def rung_cost(
     return model_cost(rung, params.cost, index, ctx)
 
 
+def rung_timing(params: SelectParams, ctx: JobContext) -> dict[str, Any] | None:
+    """By ``ns_per_eval``: every rung's model (each is one, as the params require) and the
+    reference kernel timed in one pass (:func:`evaluators.report.timing.comparison_pass`);
+    else ``None``."""
+    from evaluators.report.timing import PASS_COSTS, comparison_pass, material_target
+
+    if params.cost not in PASS_COSTS:
+        return None
+    assert params.ladder
+    targets = {}
+    for i, rung in enumerate(params.ladder):
+        target = material_target(rung.material)
+        if target is None:
+            raise JobFailed(f"ladder.{i}.material: no model to time for cost {params.cost}")
+        targets[rung.name] = target
+    ctx.progress(0.9, f"timing {len(targets)} rungs and the reference kernel in one pass")
+    record = comparison_pass(targets, params.timing, ctx)
+    ctx.measure("timing", record)
+    return record
+
+
 def score_rungs(
     params: SelectParams,
     reference: np.ndarray,
     by_name: dict[str, dict[str, Any]],
     ctx: JobContext,
+    timing: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Each rung scored against ``reference``, its images written (``rung_<name>.exr`` and
     ``.png``, and ``flip_<name>.png`` for a metric with an error map); one point each."""
@@ -451,6 +479,7 @@ def score_rungs(
             ctx.put_bytes(f"flip_{rung.name}.png", write_png(None, magma(error_map)), "image/png")
         spp = rung.spp if rung.spp is not None else params.scene.spp
         frame = shard_frame_seconds(got)
+        timed = pass_cost(timing, rung.name) if timing is not None else None
         points.append(
             {
                 "candidate": rung.name,
@@ -458,13 +487,18 @@ def score_rungs(
                 "n": 1,
                 "min": value,
                 "max": value,
-                "cost": rung_cost(params, rung, i, got, ctx),
+                "cost": timed["cost"] if timed else rung_cost(params, rung, i, got, ctx),
                 "spp": spp,
                 "render_seconds": float(got["seconds"]),
                 "frame_seconds": frame,
                 "integrator": got["integrator"],
                 "material": rung.material,
                 "runtime": rung_runtime(rung, ctx),
+                **(
+                    {k: timed[k] for k in ("cost_min", "cost_max", "cost_n", "relative")}
+                    if timed
+                    else {}
+                ),  # fmt: skip
             }
         )
         ctx.progress(0.9 + 0.08 * (i + 1) / len(params.ladder), f"scored {rung.name}")

@@ -13,6 +13,9 @@ size's ``fused_kernel_ns``, bytes per material 4 x the per-material floats, byte
 network from the speed document, ``train_seconds`` the job's wall time, ``runtime``
 ``drjit-fused``, and the counts that do not depend on the machine, ``macs_per_eval`` and
 ``bytes_per_eval`` (:func:`models.brdf.fused.brdf_counts`, from the architecture).
+``config.model_file`` is the job's ``model.json`` ref: ``report.pareto`` and ``select``
+re-time the model from it in their own timing pass (the ``ns_per_eval`` here is the
+training job's own diagnostic).
 """
 
 from __future__ import annotations
@@ -81,6 +84,8 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
         "per_material_params": floats,
         "preset": params.get("preset"),
         "steps": params.get("steps"),
+        # the trained model itself, so that a comparison can time it in its own pass
+        "model_file": f"job:{src.job.id}/model.json",
     }
     speed = _trained_speed(src.job.measured.get("speed") or src.read("speed.json"))
     common: dict[str, Any] = {

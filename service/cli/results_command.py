@@ -324,4 +324,7 @@ def pivot_table(doc: dict[str, Any]) -> Table:
             best = doc["best"].get(col["name"]) == meth
             cells.append(Text(text + (" *" if best else ""), style="bold" if best else ""))
         table.add_row(*cells)
+    unranked = doc.get("unranked") or {}
+    if unranked:
+        table.caption = f"not ranked: {', '.join(unranked)}: {next(iter(unranked.values()))}"
     return table

@@ -308,6 +308,7 @@ def methods_view(rows: list[Any], by: str = "candidate") -> dict[str, Any] | Non
             }
             for m in doc["methods"]
         ],
+        "unranked": [{"column": c, "why": why} for c, why in doc.get("unranked", {}).items()],
     }
 
 

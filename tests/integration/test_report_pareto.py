@@ -24,7 +24,7 @@ from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
 from storage.jobs import Job, JobStore
-from tests.helpers.manifests import speed_of
+from tests.helpers.manifests import measured
 from tests.helpers.renders import own_render_seconds
 
 TINY = {"steps": 12, "batch_pairs": 64, "eval_pairs": 2048, "speed_batch": 4096}
@@ -113,12 +113,27 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
     assert analytic["n"] == 2 and analytic["per_seed"] == means and analytic["seeds"] == [0, 1]
     assert analytic["mean"] == pytest.approx(np.mean(means))
     assert (analytic["min"], analytic["max"]) == (min(means), max(means))
-    kernel = [
-        next(r for r in speed_of(settings, jobs[k])["rows"] if r["trained"])["fused_kernel_ns"]
-        for k in ("a0", "a1")
-    ]
-    assert analytic["cost"] == pytest.approx(np.median(kernel))
+    # its cost is this job's own timing pass (the training jobs' timings are their own
+    # diagnostics): every candidate and the reference kernel, interleaved, 5 repeats
+    timing = doc["timing"]
+    assert timing["costs"] == measured(settings, job)["timing"]["costs"]
+    assert set(timing["costs"]) == {"reference", "analytic", "hybrid 16x2"}
+    assert timing["repeats"] == 5 and len(timing["order"]) == 5
+    assert all(sorted(r) == sorted(timing["costs"]) for r in timing["order"])
+    assert timing["machine"]["threads"] == 2 and timing["machine"]["processor"]
+    assert timing["machine"]["runtimes"]["mitsuba_variant"].startswith("llvm_")
+    dist = timing["costs"]["analytic"]["distribution"]
+    assert analytic["cost"] == dist["median"] and analytic["cost_n"] == 5
+    assert analytic["cost_min"] <= analytic["cost"] <= analytic["cost_max"]
+    rel = analytic["relative"]
+    assert rel["n"] == 5 and rel["min"] <= rel["median"] <= rel["max"] and rel["median"] > 0
+    assert isinstance(analytic["resolved"], bool) and isinstance(analytic["tied_with"], list)
     assert panels[("smape", "ns_per_eval")]["cost_label"].startswith("ns_per_eval:")
+    assert "one timing pass" in panels[("smape", "ns_per_eval")]["cost_label"]
+    # render seconds are each render job's own timing: charted, not ranked
+    secs_panel = panels[("flip", "render_seconds")]
+    assert secs_panel["resolved"] is False
+    assert "separate passes" in secs_panel["not_resolved"]
     # renders: FLIP against the candidate render's spp and time
     flip = {p["candidate"]: p for p in panels[("flip", "spp")]["points"]}
     scored = read(settings, jobs["score"], "metrics.json")["metrics"]
@@ -319,3 +334,42 @@ def test05_select_the_cheapest_render_that_meets_a_target(
     spec["params"]["target"] = min(f["flip"] for f in flips.values()) / 2
     (none,) = read(settings, run_in_process(spec, settings), "select.json")["ladders"]
     assert none["chosen"] is None and "no rung" in none["why"]
+
+
+def test05_select_times_its_rungs_in_one_pass(study: tuple[Settings, dict[str, Job]]) -> None:
+    settings, jobs = study
+    runs = [f"job:{jobs[k].id}" for k in ("a0", "a1", "h0")]
+    spec = {
+        "kind": "select",
+        "params": {
+            "runs": runs,
+            "metric": "smape",
+            "target": 10.0,
+            "cost": "ns_per_eval",
+            "timing": {"repeats": 6, "batch": 2048},
+        },  # fmt: skip
+    }
+    job = run_in_process(spec, settings)
+    assert job.state == "succeeded", job.error
+    doc = read(settings, job, "select.json")
+    timing = doc["timing"]
+    assert timing["repeats"] == 6 and timing["settings"]["batch"] == 2048
+    assert set(timing["costs"]) == {"reference", "analytic", "hybrid 16x2"}
+    (lad,) = doc["ladders"]
+    for r in lad["rungs"]:  # each rung's cost is the pass's median, with its spread
+        dist = timing["costs"][r["candidate"]]["distribution"]
+        assert r["cost"] == dist["median"] and r["cost_n"] == 6
+        assert (r["cost_min"], r["cost_max"]) == (dist["min"], dist["max"])
+        assert r["relative"]["median"] > 0
+    # every rung meets a target of 10: the cheapest is chosen, resolved only when no
+    # other rung's timing range reaches its own
+    first, second = lad["rungs"][0], lad["rungs"][1]
+    assert lad["chosen"] == first["candidate"]
+    assert lad["resolved"] == (second["cost_min"] > first["cost_max"])
+    assert (lad["tie"] == []) == lad["resolved"]
+    # the default timing is left out of the canonical spec: the hash is the one before
+    from service.specs import validate_spec
+
+    plain = {**spec, "params": {k: v for k, v in spec["params"].items() if k != "timing"}}
+    assert "timing" not in validate_spec(plain).canonical
+    assert '"timing"' in validate_spec(spec).canonical

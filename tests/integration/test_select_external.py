@@ -78,6 +78,16 @@ def test01_external_rungs_are_rendered_scored_and_costed(tmp_path: Path) -> None
     assert all(r["cost"] > 0 and r["meets"] for r in rungs.values())
     assert np.isfinite([r["value"] for r in rungs.values()]).all()
     assert ladder["chosen"] == min(rungs.values(), key=lambda r: r["cost"])["candidate"]
+    # both rungs and the reference kernel timed in this job's one pass
+    timing = doc["timing"]
+    assert set(timing["costs"]) == {"onnx", "mlp", "reference"}
+    assert timing["costs"]["onnx"]["runtime"] == "onnxruntime"
+    for name, r in rungs.items():
+        dist = timing["costs"][name]["distribution"]
+        assert r["cost"] == dist["median"] and (r["cost_min"], r["cost_max"]) == (
+            dist["min"], dist["max"])  # fmt: skip
+        assert r["relative"]["median"] > 0
+    assert isinstance(ladder["resolved"], bool)
 
 
 def test02_bytes_per_material_refused_for_external_rungs() -> None:

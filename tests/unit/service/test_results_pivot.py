@@ -16,11 +16,11 @@ def _row(candidate: str | None, metric: str, value: float, lib: bool | None, **k
 
 
 ROWS = [
-    _row("hybrid", "smape", 0.10, True, seed=0, ns_per_eval=30.0),
-    _row("hybrid", "smape", 0.14, True, seed=1, ns_per_eval=34.0),
-    _row("hybrid", "psnr", 31.0, False, seed=0, ns_per_eval=30.0),
-    _row("neural", "smape", 0.20, True, seed=0, ns_per_eval=12.0),
-    _row("neural", "psnr", 33.0, False, seed=0, ns_per_eval=12.0),
+    _row("hybrid", "smape", 0.10, True, seed=0, ns_per_eval=30.0, bytes_per_network=800.0),
+    _row("hybrid", "smape", 0.14, True, seed=1, ns_per_eval=34.0, bytes_per_network=800.0),
+    _row("hybrid", "psnr", 31.0, False, seed=0, ns_per_eval=30.0, bytes_per_network=800.0),
+    _row("neural", "smape", 0.20, True, seed=0, ns_per_eval=12.0, bytes_per_network=600.0),
+    _row("neural", "psnr", 33.0, False, seed=0, ns_per_eval=12.0, bytes_per_network=600.0),
     _row("neural", "mean", 0.5, None),
     _row("lambert", "mean", 0.7, None),
 ]
@@ -34,8 +34,10 @@ def test01_means_spread_and_best_match_numpy() -> None:
     assert smape["std"] == pytest.approx(np.std([0.10, 0.14], ddof=1))
     assert smape["n"] == 2 and doc["cells"]["neural"]["smape"]["std"] is None
     assert doc["cells"]["hybrid"]["ns_per_eval"]["median"] == pytest.approx(np.median([30, 34, 30]))
-    # lower smape wins, higher psnr wins, every cost is lower-is-better, no best for "mean"
-    assert doc["best"] == {"smape": "hybrid", "psnr": "neural", "ns_per_eval": "neural"}
+    # lower smape wins, higher psnr wins, every cost is lower-is-better, no best for "mean";
+    # ns_per_eval is each job's own timing: shown, not ranked, and the table says why
+    assert doc["best"] == {"smape": "hybrid", "psnr": "neural", "bytes_per_network": "neural"}
+    assert list(doc["unranked"]) == ["ns_per_eval"] and "one pass" in doc["unranked"]["ns_per_eval"]
     roles = {c["name"]: (c["role"], c["lower_is_better"]) for c in doc["columns"]}
     assert roles["psnr"] == ("metric", False) and roles["ns_per_eval"] == ("cost", True)
 
@@ -43,7 +45,7 @@ def test01_means_spread_and_best_match_numpy() -> None:
 def test02_csv_rows_and_fallback_names() -> None:
     header, flat = pivot_csv_rows(pivot(ROWS))
     assert header[:4] == ["method", "smape", "smape.std", "smape.n"] and header[-1] == "best"
-    assert flat[0]["best"] == "smape" and flat[1]["best"] == "psnr ns_per_eval"
+    assert flat[0]["best"] == "smape" and flat[1]["best"] == "psnr bytes_per_network"
     assert method_of({"kind": "render", "job": "b" * 32, "candidate": None}) == "render bbbbbbbb"
     assert method_of({"step": "gt", "candidate": ""}) == "gt"
     assert method_of({"material": "gold", "candidate": "x"}, by="material") == "gold"
@@ -65,4 +67,14 @@ def test04_a_cost_that_is_also_a_metric_keeps_both_columns() -> None:
     names = [c["name"] for c in doc["columns"]]
     assert names == ["render_seconds", "flip", "cost.render_seconds"]
     assert doc["cells"]["spp1"]["cost.render_seconds"]["median"] == 0.5
-    assert doc["best"]["cost.render_seconds"] == "spp1" and doc["best"]["flip"] == "spp2"
+    assert doc["best"] == {"flip": "spp2"}  # render times: each render's own, not ranked
+    assert set(doc["unranked"]) == {"cost.render_seconds"}
+
+
+def test05_the_cli_table_names_the_unranked_timings() -> None:
+    from service.cli.results_command import pivot_table
+
+    table = pivot_table(pivot(ROWS))
+    assert table.caption is not None and "not ranked: ns_per_eval" in str(table.caption)
+    quiet = pivot_table(pivot([_row("a", "flip", 0.1, True), _row("b", "flip", 0.2, True)]))
+    assert quiet.caption is None

@@ -108,17 +108,26 @@
         const meta = chart.getDatasetMeta(i);
         if (meta.hidden || set.type === "line") return;
         set.data.forEach((p, j) => {
-          if (!number(p.yMin) || !number(p.yMax)) return;
           const x = meta.data[j].x;
-          const top = chart.scales.y.getPixelForValue(p.yMax);
-          const bottom = chart.scales.y.getPixelForValue(p.yMin);
+          const y = meta.data[j].y;
           ctx.save();
           ctx.strokeStyle = set.borderColor;
           ctx.lineWidth = 1.2;
           ctx.beginPath();
-          ctx.moveTo(x, top); ctx.lineTo(x, bottom);
-          ctx.moveTo(x - 4, top); ctx.lineTo(x + 4, top);
-          ctx.moveTo(x - 4, bottom); ctx.lineTo(x + 4, bottom);
+          if (number(p.yMin) && number(p.yMax)) {  // the seed spread
+            const top = chart.scales.y.getPixelForValue(p.yMax);
+            const bottom = chart.scales.y.getPixelForValue(p.yMin);
+            ctx.moveTo(x, top); ctx.lineTo(x, bottom);
+            ctx.moveTo(x - 4, top); ctx.lineTo(x + 4, top);
+            ctx.moveTo(x - 4, bottom); ctx.lineTo(x + 4, bottom);
+          }
+          if (number(p.xMin) && number(p.xMax)) {  // the timing pass's spread
+            const left = chart.scales.x.getPixelForValue(p.xMin);
+            const right = chart.scales.x.getPixelForValue(p.xMax);
+            ctx.moveTo(left, y); ctx.lineTo(right, y);
+            ctx.moveTo(left, y - 4); ctx.lineTo(left, y + 4);
+            ctx.moveTo(right, y - 4); ctx.lineTo(right, y + 4);
+          }
           ctx.stroke();
           ctx.restore();
         });
@@ -146,6 +155,9 @@
       // error bars: min to max over seeds, as pareto.png draws them (else mean ± std)
       yMin: number(p.min) ? p.min : number(p.std) ? p.mean - p.std : null,
       yMax: number(p.max) ? p.max : number(p.std) ? p.mean + p.std : null,
+      // the cost's spread over a timing pass's repeats (pareto.json's cost_min..cost_max)
+      xMin: number(p.cost_min) ? p.cost_min : null,
+      xMax: number(p.cost_max) ? p.cost_max : null,
       point: p,
     });
     const front = points.filter((p) => p.front).sort((a, b) => a.cost - b.cost);
@@ -161,7 +173,8 @@
     const xs = points.map((p) => p.cost);
     const ys = points.map((p) => p.mean);
     const where = several ? ` [${[panel.dataset, panel.scene].filter(Boolean).join(" ")}]` : "";
-    const title = `${panel.metric} against ${panel.cost}${where}`;
+    const undecided = panel.resolved === false ? " — front not resolved within the spread" : "";
+    const title = `${panel.metric} against ${panel.cost}${where}${undecided}`;
     const id = k === 0 ? "pareto-chart" : `pareto-chart-${k}`;
     const canvas = card(title, id);
     canvas.dataset.panel = `${panel.metric} ${panel.cost}`;
@@ -184,7 +197,13 @@
                 const p = item.raw.point;
                 const spreadText = number(p.std) ? ` ± ${MF.si(p.std, yUnit)}` : "";
                 const seeds = number(p.n) ? `, ${p.n} seed(s)` : "";
-                return `${panel.metric} ${MF.si(p.mean, yUnit)}${spreadText}, ${panel.cost} ${MF.si(p.cost, xUnit)}${seeds}`;
+                const costSpread = number(p.cost_min) && number(p.cost_max)
+                  ? ` (${MF.si(p.cost_min, xUnit)}..${MF.si(p.cost_max, xUnit)})` : "";
+                const rel = p.relative && number(p.relative.median)
+                  ? `, ${+p.relative.median.toPrecision(3)}x the reference` : "";
+                const tie = p.resolved === false && (p.tied_with || []).length
+                  ? `; not resolved against ${p.tied_with.join(", ")}` : "";
+                return `${panel.metric} ${MF.si(p.mean, yUnit)}${spreadText}, ${panel.cost} ${MF.si(p.cost, xUnit)}${costSpread}${rel}${seeds}${tie}`;
               },
             },
           },
@@ -192,6 +211,8 @@
         scales: {
           x: { type: spansDecades(xs, 30) ? "logarithmic" : "linear",
                ticks: { callback: (v) => MF.si(v, xUnit) },
+               suggestedMin: Math.min(...points.map(point).map((p) => (number(p.xMin) ? p.xMin : p.x))),
+               suggestedMax: Math.max(...points.map(point).map((p) => (number(p.xMax) ? p.xMax : p.x))),
                title: { display: true, text: `${withUnit(panel.cost_label || panel.cost, xUnit)} (lower is better ←)` } },
           y: { type: spansDecades(ys, 30) ? "logarithmic" : "linear",
                ticks: { callback: (v) => MF.si(v, yUnit) },

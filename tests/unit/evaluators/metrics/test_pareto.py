@@ -66,3 +66,43 @@ def test04_spread() -> None:
     assert s["std"] == pytest.approx(np.std(vals, ddof=1))
     assert spread([0.5]) == {"n": 1, "mean": 0.5, "std": 0.0, "min": 0.5, "max": 0.5}
     assert statistics.fmean(vals) == s["mean"]
+
+
+# -- decisions inside the spread ----------------------------------------------------------
+
+
+def test_sure_and_possible_dominance_on_boxes() -> None:
+    from evaluators.metrics.pareto import possibly_dominates, surely_dominates
+
+    a, b = (1.0, 2.0, 0.1, 0.2), (3.0, 4.0, 0.3, 0.4)  # a below and left of b, apart
+    assert surely_dominates(a, b) and possibly_dominates(a, b)
+    assert not surely_dominates(b, a) and not possibly_dominates(b, a)
+    c = (1.5, 3.5, 0.15, 0.35)  # overlaps both
+    assert not surely_dominates(a, c) and possibly_dominates(a, c) and possibly_dominates(c, a)
+    point = (2.0, 2.0, 0.2, 0.2)  # no spread: dominance as for points
+    assert surely_dominates(point, (2.0, 2.0, 0.3, 0.3))
+    assert not surely_dominates(point, point) and possibly_dominates(point, point)
+
+
+def test_unresolved_with_names_the_ties() -> None:
+    from evaluators.metrics.pareto import unresolved_with
+
+    # 0 and 1: both on the front by their centres, boxes overlap on both axes -> tied;
+    # 2: dominated by 0 surely -> resolved; 3: dominated by 0 and 1 by centres only -> tied
+    # with both (and its best corner, 12.5 ns at 0.12, could beat 1's worst: 1 ties with it)
+    boxes = [
+        (10.0, 12.0, 0.10, 0.14),
+        (11.0, 13.0, 0.09, 0.13),
+        (20.0, 21.0, 0.30, 0.31),
+        (12.5, 14.0, 0.12, 0.15),
+    ]
+    ties = unresolved_with(boxes, front=[0, 1])
+    assert ties[0] == [1] and ties[1] == [0, 3]
+    assert ties[2] == []
+    assert ties[3] == [0, 1]
+    # the same points without spread: the front is decided, nothing ties
+    flat = [(b[0], b[0], b[2], b[2]) for b in boxes]
+    assert unresolved_with(flat, front=front_indices([b[0] for b in flat],
+                                                     [b[2] for b in flat])) == [[]] * 4  # fmt: skip
+    # two identical points are a tie even without spread
+    assert unresolved_with([(1.0, 1.0, 0.1, 0.1)] * 2, front=[0, 1]) == [[1], [0]]

@@ -215,3 +215,115 @@ def test06_claims_inside_the_seed_spread_are_not_resolved() -> None:
     one_job = [brdf_row("f" * 32, "a", v, 1.0) for v in (0.1, 0.3)]
     many = one_job + rows_of({"b": [0.25, 0.26]})
     assert check_claim(many, {"a": "a", "b": "b", "metric": "smape"})["a_seeds"] == 1
+
+
+# -- one timing pass, and decisions inside the spread ---------------------------------------
+
+
+def pass_record(costs: dict[str, tuple[float, float, float]]) -> dict[str, object]:
+    """A ``matforge.timing/1`` record with ``{candidate: (min, median, max)}`` ns/eval."""
+    out: dict[str, object] = {}
+    for cand, (lo, mid, hi) in costs.items():
+        out[cand] = {
+            "ns_per_eval": mid,
+            "distribution": {
+                "median": mid,
+                "min": lo,
+                "max": hi,
+                "q1": lo,
+                "q3": hi,
+                "iqr": hi - lo,
+                "n": 5,
+            },  # fmt: skip
+            "relative": {
+                "median": mid / 2.0,
+                "min": lo / 2.0,
+                "max": hi / 2.0,
+                "iqr": (hi - lo) / 2.0,
+                "n": 5,
+            },  # fmt: skip
+            "runtime": "drjit-fused",
+        }
+    return {"format": "matforge.timing/1", "reference": "reference", "costs": out}
+
+
+def two(values_a: list[float], values_b: list[float]) -> list[ResultRow]:
+    rows, n = [], itertools.count()
+    for cand, vals in (("a", values_a), ("b", values_b)):
+        for v in vals:
+            rows.append(brdf_row(f"{next(n):032x}", cand, v, 999.0))  # training costs: ignored
+    return rows
+
+
+def test_pass_costs_replace_the_rows_costs() -> None:
+    timing = pass_record({"a": (9.0, 10.0, 11.0), "b": (19.0, 20.0, 22.0)})
+    (p,) = panels(two([0.2, 0.21], [0.1, 0.11]), ["smape"], ["ns_per_eval"], timing)
+    pts = {q["candidate"]: q for q in p["points"]}
+    assert pts["a"]["cost"] == 10.0 and (pts["a"]["cost_min"], pts["a"]["cost_max"]) == (9, 11)
+    assert pts["b"]["relative"]["median"] == 10.0 and pts["b"]["cost_n"] == 5
+    assert p["timing_pass"] is True and "one timing pass" in p["cost_label"]
+    # apart on both axes: a cheaper, b more accurate -> both on the front, decided
+    assert p["front"] == ["a", "b"] and p["resolved"] is True and p["ties"] == []
+    assert p["not_resolved"] is None
+
+
+def test_front_inside_the_spread_is_not_resolved() -> None:
+    # a and b overlap in cost (9..12 against 10..13) and in error over seeds: a tie
+    timing = pass_record({"a": (9.0, 10.0, 12.0), "b": (10.0, 11.0, 13.0)})
+    (p,) = panels(two([0.10, 0.14], [0.09, 0.13]), ["smape"], ["ns_per_eval"], timing)
+    pts = {q["candidate"]: q for q in p["points"]}
+    assert p["resolved"] is False and p["ties"] == [["a", "b"]]
+    assert pts["a"]["tied_with"] == ["b"] and pts["a"]["resolved"] is False
+    assert "not resolved" in p["not_resolved"] and "a and b" in p["not_resolved"]
+    # the same medians with one seed each and no timing spread: decided
+    (flat,) = panels(two([0.12], [0.11]), ["smape"], ["ns_per_eval"],
+                     pass_record({"a": (10.0, 10.0, 10.0), "b": (11.0, 11.0, 11.0)}))  # fmt: skip
+    assert flat["resolved"] is True and flat["front"] == ["a", "b"]
+
+
+def test_dominated_inside_the_spread_is_not_resolved() -> None:
+    # b costs more and errs more by its centre, but the cost ranges overlap
+    timing = pass_record({"a": (9.0, 10.0, 12.0), "b": (11.0, 12.0, 14.0)})
+    (p,) = panels(two([0.10, 0.11], [0.20, 0.21]), ["smape"], ["ns_per_eval"], timing)
+    pts = {q["candidate"]: q for q in p["points"]}
+    assert p["front"] == ["a"] and pts["b"]["dominated_by"] == ["a"]
+    # b's errors are surely worse, but not its cost: a does not surely dominate it
+    assert pts["b"]["resolved"] is False and pts["b"]["tied_with"] == ["a"]
+    apart = pass_record({"a": (9.0, 10.0, 10.5), "b": (11.0, 12.0, 14.0)})
+    (q,) = panels(two([0.10, 0.11], [0.20, 0.21]), ["smape"], ["ns_per_eval"], apart)
+    assert q["resolved"] is True
+
+
+def test_candidate_missing_from_the_pass_is_not_charted() -> None:
+    timing = pass_record({"a": (9.0, 10.0, 11.0)})
+    (p,) = panels(two([0.2], [0.1]), ["smape"], ["ns_per_eval"], timing)
+    assert [q["candidate"] for q in p["points"]] == ["a"]
+
+
+def test_job_timed_costs_are_charted_not_ranked() -> None:
+    rows = [
+        ResultRow(
+            job=f"{i:032x}",
+            kind="score",
+            metric="flip",
+            value=v,
+            lower_is_better=True,
+            dataset=D,
+            candidate=c,
+            render_seconds=s,
+        )  # fmt: skip
+        for i, (c, v, s) in enumerate((("mc1", 0.2, 1.0), ("net", 0.05, 3.0)))
+    ]
+    (p,) = panels(rows, ["flip"], ["render_seconds"])
+    assert p["resolved"] is False and "separate passes" in p["not_resolved"]
+    assert "not ranked" in p["cost_label"]
+    (spp,) = panels([r.__class__(**{**r.__dict__, "render_seconds": None, "spp": 1 + i})
+                     for i, r in enumerate(rows)], ["flip"], ["spp"])  # fmt: skip
+    assert spp["resolved"] is True and spp["not_resolved"] is None
+
+
+def test_pass_times_a_candidate_its_job_did_not() -> None:
+    rows = [r.__class__(**{**r.__dict__, "ns_per_eval": None}) for r in two([0.2], [0.1])]
+    (p,) = panels(rows, ["smape"], ["ns_per_eval"],
+                  pass_record({"a": (9.0, 10.0, 11.0), "b": (19.0, 20.0, 22.0)}))  # fmt: skip
+    assert {q["candidate"]: q["cost"] for q in p["points"]} == {"a": 10.0, "b": 20.0}
