@@ -101,6 +101,8 @@ def test01_no_type_adapter_built_during_a_request(
         r = client.get(url)
         assert r.status_code == 200, (url, r.text)
     assert client.get(f"/api/jobs/{job_id}/summary").json()["rows"]["gold"]["smape"] == 0.11
+    r = client.post("/api/jobs", json={"kind": "test_validators", "params": {"whta": "x"}})
+    assert r.status_code == 422 and "did you mean 'what'?" in r.json()["error"], r.text
     assert built == [], [str(b) for b in built]
 
 
