@@ -68,10 +68,11 @@ def test05_rest_reports_every_typo_with_its_hint(
 ) -> None:
     r = client.post("/api/jobs", json=spec)
     assert r.status_code == 422, r.text
-    detail = {".".join(str(p) for p in d["loc"] if p != "body"): d["msg"] for d in r.json()["detail"]}
+    body = r.json()
+    detail = {".".join(str(p) for p in d["loc"] if p != "body"): d["msg"] for d in body["detail"]}
     assert list(detail) == list(errors), detail
     for field, hint in errors.items():
-        assert hint in detail[field] and hint in r.json()["error"], detail
+        assert hint in detail[field] and hint in body["error"], detail
 
 
 def spec_file(path: Path, spec: dict[str, Any]) -> Path:
