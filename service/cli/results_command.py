@@ -296,32 +296,61 @@ def show_pivot(rows: list[dict[str, Any]], by: str, out: Path | None, as_json: b
     if as_json:
         print_json(doc)
     else:
-        table_console(to_stderr=out is not None).print(pivot_table(doc))
+        console = table_console(to_stderr=out is not None)
+        for table in pivot_tables(doc, console.width):
+            console.print(table)
 
 
-def pivot_table(doc: dict[str, Any]) -> Table:
-    """The pivot document as a Rich table: ``mean ± std`` per metric, the median per cost,
-    the best of each column in bold with a ``*``; lower/higher-is-better arrows in the
-    header."""
-    table = Table(title=f"{len(doc['methods'])} methods by {doc['by']}")
-    table.add_column(doc["by"], overflow="fold")
-    for col in doc["columns"]:
-        arrow = {True: " \u2193", False: " \u2191"}.get(col["lower_is_better"], "")
-        table.add_column(col["name"] + arrow, justify="right", overflow="fold")
+def pivot_tables(doc: dict[str, Any], width: int) -> list[Table]:
+    """The pivot document as Rich tables that fit in ``width`` characters: ``mean ± std``
+    per metric, the median per cost, the best of each column in bold with a ``*``,
+    lower/higher-is-better arrows in the header.
+
+    Methods that share no column (a render's image statistics, a MERL collection's table
+    quality, a trained model's scores) get a table each (:func:`service.cli.tables.blocks`).
+    A table too wide for ``width`` is split by columns, each part repeating the method
+    column (:func:`service.cli.tables.fitted_tables`), or transposed, a row per column and
+    a column per method, when that makes fewer parts (one method of many columns). No
+    header or number is cut."""
+    from service.cli.tables import blocks, chunk_count, fitted_tables
+
+    header = {
+        col["name"]: col["name"]
+        + {True: " \u2193", False: " \u2191"}.get(col["lower_is_better"], "")
+        for col in doc["columns"]
+    }
+    roles = {col["name"]: col["role"] for col in doc["columns"]}
+    order = [col["name"] for col in doc["columns"]]
+    cells: dict[str, dict[str, Text]] = {}
     for meth in doc["methods"]:
-        cells = [Text(meth)]
-        for col in doc["columns"]:
-            got = doc["cells"][meth].get(col["name"])
-            if got is None:
-                cells.append(Text(""))
+        cells[meth] = {}
+        for name, got in doc["cells"][meth].items():
+            if got is None or name not in roles:
                 continue
-            if col["role"] == "metric":
+            if roles[name] == "metric":
                 text = f"{got['mean']:.4g}"
                 if got["std"] is not None:
                     text += f" \u00b1 {got['std']:.2g}"
             else:
                 text = f"{got['median']:.4g}"
-            best = doc["best"].get(col["name"]) == meth
-            cells.append(Text(text + (" *" if best else ""), style="bold" if best else ""))
-        table.add_row(*cells)
-    return table
+            best = doc["best"].get(name) == meth
+            cells[meth][name] = Text(text + (" *" if best else ""), style="bold" if best else "")
+    groups = blocks([(m, [c for c in order if c in cells[m]]) for m in doc["methods"]])
+    if not groups:
+        groups = [(list(doc["methods"]), [])]
+    tables: list[Table] = []
+    for n, (methods, columns) in enumerate(groups, start=1):
+        title = f"{len(doc['methods'])} methods by {doc['by']}"
+        if len(groups) > 1:
+            names = ", ".join(methods[:3]) + (f" and {len(methods) - 3} more" * (len(methods) > 3))
+            title = f"{title}, group {n}/{len(groups)}: {names}"
+        heads = [header[c] for c in columns]
+        rows = [(m, [cells[m].get(c, Text("")) for c in columns]) for m in methods]
+        flipped = [(header[c], [cells[m].get(c, Text("")) for m in methods]) for c in columns]
+        wide = chunk_count(heads, rows, doc["by"], width)
+        tall = chunk_count(methods, flipped, "column", width)
+        if len(methods) > 1 and tall >= wide or wide == 1:
+            tables += fitted_tables(title, doc["by"], heads, rows, width)
+        else:
+            tables += fitted_tables(title, "column", methods, flipped, width)
+    return tables
