@@ -93,6 +93,26 @@ def nested_models(kind: Kind) -> list[tuple[str, str, list[tuple[str, str, str, 
     ]
 
 
+def param_forms(kind: Kind) -> list[tuple[str, list[tuple[str, str]]]]:
+    """``(param, [(form, description)])`` of each param that takes one of several object
+    forms (a ``material``: one per registered material source, ``mitsuba``, ``merl``,
+    ``external``, ...), in schema order: what ``matforge kinds KIND`` lists under the
+    params, since the params table can call such a param only an ``object``."""
+    schema = params_schema(kind)
+    defs = schema.get("$defs", {})
+    out = []
+    for name, prop in schema.get("properties", {}).items():
+        forms = []
+        for alt in prop.get("oneOf", ()):
+            while "$ref" in alt:
+                alt = defs.get(str(alt["$ref"]).rsplit("/", 1)[-1], {})
+            if alt.get("title"):
+                forms.append((str(alt["title"]), " ".join(str(alt.get("description", "")).split())))
+        if forms:
+            out.append((name, forms))
+    return out
+
+
 def _rows(schema: dict[str, Any], *, markdown: bool = False) -> list[tuple[str, str, str, str]]:
     required = set(schema.get("required", []))
     rows = []

@@ -182,7 +182,7 @@ def kinds(
     """The job kinds (from the registry): what each makes; with KIND, its params."""
     from service import kinds as registry
     from service.cli.client import BadInput
-    from service.kind_docs import kind_document, nested_models, param_rows
+    from service.kind_docs import kind_document, nested_models, param_forms, param_rows
 
     known = registry.all_kinds()
     for p in registry.plugins():  # on stderr: --json's document stays one list
@@ -231,6 +231,13 @@ def kinds(
     for name, type_, default, desc in param_rows(k):
         table.add_row(Text(name), Text(type_), Text(default), Text(desc))
     console.print(table)
+    for param, forms in param_forms(k):  # a material's sources: the keys it may have
+        sub = Table(title=f"{param}: an object of one of these forms (its one key)")
+        sub.add_column("form", overflow="fold")
+        sub.add_column("description", overflow="fold", ratio=1)
+        for form, desc in forms:
+            sub.add_row(Text(form), Text(desc))
+        console.print(sub)
     for model, about, rows in nested_models(k):  # what a param's type names by model name
         sub = Table(title=f"{model}: {about}" if about else model)
         for col in ("field", "type", "default"):
