@@ -113,3 +113,22 @@ def test_every_error_is_reported_envelope_kind_and_params() -> None:
     assert [f for f, _ in errors] == ["seed", "nmae", "params.spp", "params.sppp"], errors
     errors = errors_of({"kind": "rendr", "seed": -1, "params": {}})
     assert [f for f, _ in errors] == ["seed", "kind"], errors
+
+
+def test_kinds_render_lists_every_material_source(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``matforge kinds render`` names each form a ``material`` takes, ``external`` (a
+    user's own model) included; the params table alone calls it an ``object``."""
+    from typer.testing import CliRunner
+
+    from evaluators.render.sources.common import material_sources
+    from service.cli.main import app
+
+    monkeypatch.setenv("COLUMNS", "200")
+    res = CliRunner().invoke(app, ["kinds", "render"])
+    assert res.exit_code == 0, res.output
+    assert "material: an object of one of these forms" in res.stdout
+    keys = sorted(material_sources())
+    assert "external" in keys and "mitsuba" in keys
+    for key in keys:
+        assert f"│ {key} " in res.stdout, key
+    assert "ONNX model through onnxruntime" in res.stdout
