@@ -46,11 +46,16 @@ const MF = (() => {
 
   function seconds(s) {
     if (s === null || s === undefined || !isFinite(s)) return "–";
-    if (s < 1) return `${Math.round(s * 1000)} ms`;
-    if (s < 60) return `${s.toFixed(1)} s`;
-    const m = Math.floor(s / 60);
-    const r = Math.round(s - 60 * m);
-    return m < 60 ? `${m} min ${String(r).padStart(2, "0")} s` : `${Math.floor(m / 60)} h ${m % 60} min`;
+    // rounded once, then split: 119.6 s is "2 min 00 s" (it was "1 min 60 s"), as the
+    // job page (service/routes/dashboard.py fmt_seconds) says
+    if (s < 0.9995) return `${Math.round(s * 1000)} ms`;
+    if (s < 59.95) return `${s.toFixed(1)} s`;
+    const whole = Math.round(s);
+    if (whole < 3600) {
+      return `${Math.floor(whole / 60)} min ${String(whole % 60).padStart(2, "0")} s`;
+    }
+    const minutes = Math.round(s / 60);
+    return `${Math.floor(minutes / 60)} h ${String(minutes % 60).padStart(2, "0")} min`;
   }
 
   /** An ISO time as "12 s ago" (recent) or a local date-time. */
