@@ -181,7 +181,8 @@ def _with_directions(table: dict[str, Any] | None) -> dict[str, Any] | None:
     return {
         **table,
         "better": {n: direction(n) for n in names},
-        "best": best_labels(table.get("rows") or {}, names),
+        # a dataset's items are measured, not ranked: no "best: <material>"
+        "best": best_labels(table.get("rows") or {}, names) if table.get("ranked", True) else {},
     }
 
 
