@@ -22,6 +22,7 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import Field
 
+from evaluators.report.select import summarize as select_summary
 from evaluators.score.kind import summarize as score_summary
 from generators.merl.kind import summarize as merl_summary
 from jobapi import kinds as jobapi_kinds
@@ -91,6 +92,23 @@ MERL_MATERIALS = merl_materials(
       "tabulation": {"max_rel_error": 0.001 * (i + 1), "bins": 90}} for i in range(3)]
 )  # fmt: skip
 
+
+def _rung(candidate: str, value: float, cost: float, meets: bool) -> dict[str, Any]:
+    return {"candidate": candidate, "value": value, "n": 1, "min": value, "max": value,
+            "cost": cost, "runtime": "drjit-fused", "meets": meets}  # fmt: skip
+
+
+#: ``select``'s ladder: the cheapest rung fails the target, the next one is chosen.
+SELECT = {
+    "format": "matforge.select/1", "metric": "smape", "target": 0.1, "cost": "ns_per_eval",
+    "lower_is_better": True,
+    "ladders": [{"dataset": None, "scene": None, "metric": "smape", "cost": "ns_per_eval",
+                 "cost_label": None, "chosen": "hybrid 16x3", "why": "cheapest meeting it",
+                 "rungs": [_rung("analytic", 0.4, 2.0, False),
+                           _rung("hybrid 16x3", 0.08, 30.0, True),
+                           _rung("hybrid 32x3", 0.05, 60.0, True)]}],
+}  # fmt: skip
+
 #: ``score`` of whole models against a set of tables (means, then rows per material).
 SET_SCORE = {
     "reference": "job:" + "0" * 32,
@@ -104,14 +122,16 @@ SET_SCORE = {
 class TablesParams(StrictModel):
     """Params of the test-only kind."""
 
-    what: Literal["train", "report", "set", "fabric", "merl"] = Field(
+    what: Literal["train", "report", "set", "fabric", "merl", "select"] = Field(
         description="which job's artifacts to write"
     )
 
 
 def run_tables(params: TablesParams, ctx: JobContext) -> None:
     png = write_png(None, np.zeros((4, 4, 3), dtype=np.uint8))
-    if params.what == "merl":
+    if params.what == "select":
+        ctx.put_json("select.json", SELECT)
+    elif params.what == "merl":
         ctx.put_json("materials.json", MERL_MATERIALS)
     elif params.what == "set":
         ctx.put_json("metrics.json", SET_SCORE)
@@ -131,6 +151,8 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         return report_summary(read)
     if read("materials.json") is not None:
         return merl_summary(read)
+    if read("select.json") is not None:
+        return select_summary(read)
     doc = read("metrics.json")
     if isinstance(doc, dict) and "metrics" in doc:
         return score_summary(read)
@@ -235,3 +257,11 @@ def test06_a_datasets_items_have_no_best(client: TestClient, settings: Settings)
     assert 'class="num mono best"' not in text
     _, train = page(client, settings, "train")
     assert train["best"]["smape"] == "gold" and train["ranked"] is True
+
+
+def test07_select_marks_no_cheapest_rung_that_fails(client: TestClient, settings: Settings) -> None:
+    """The select table highlighted its cheapest rung (the cost column's lowest) in green
+    though that rung fails the target; the chosen rung is the one its table says."""
+    text, data = page(client, settings, "select")
+    assert data["rows"]["analytic"]["meets"] is False and data["rows"]["hybrid 16x3"]["chosen"]
+    assert data["best"] == {} and 'class="num mono best"' not in text
