@@ -418,6 +418,18 @@ def test06_durations_round_once_and_times_stay_on_one_line(
     assert lines == 1, (width, lines)
     page.goto(f"{server}/jobs/{done.id}?token={TOKEN}")
     assert "2 min 00 s" in page.locator("body").inner_text()
+    # the page's times wrap between date and clock time only ("3:36:38 P" / "M" before)
+    split = page.evaluate(
+        """() => [...document.querySelectorAll("time[datetime]")]
+          .filter((t) => t.textContent.includes(":")).map((t) => {
+          const node = t.firstChild, text = node.textContent, at = text.indexOf(" ") + 1;
+          const range = document.createRange();
+          range.setStart(node, at);
+          range.setEnd(node, text.length);
+          return [text, new Set([...range.getClientRects()].map((r) => Math.round(r.top))).size];
+        })"""
+    )
+    assert split and all(lines == 1 for _, lines in split), (width, split)
     assert page.problems == [], page.problems
 
 

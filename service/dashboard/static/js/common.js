@@ -65,7 +65,15 @@ const MF = (() => {
     const ago = (Date.now() - t.getTime()) / 1000;
     if (ago < 60) return `${Math.max(0, Math.round(ago))} s ago`;
     if (ago < 3600) return `${Math.round(ago / 60)} min ago`;
-    return t.toLocaleString();
+    return localTime(iso);
+  }
+
+  /** A local date-time that wraps only between its date and its time: the clock time
+      and its AM/PM are joined by no-break spaces (a narrow column showed "3:36:38 P" and
+      "M" on two lines). */
+  function localTime(iso) {
+    const t = new Date(iso);
+    return `${t.toLocaleDateString()} ${t.toLocaleTimeString().replace(/\s+/g, "\u00a0")}`;
   }
 
   function badge(state) {
@@ -87,7 +95,7 @@ const MF = (() => {
   function localTimes(root = document) {
     for (const node of root.querySelectorAll("time[datetime]")) {
       const iso = node.getAttribute("datetime");
-      if (iso) node.textContent = new Date(iso).toLocaleString();
+      if (iso) node.textContent = localTime(iso);
     }
   }
 
