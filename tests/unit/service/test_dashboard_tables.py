@@ -86,10 +86,12 @@ FABRIC_METRICS = fabric_metrics(
      "baseline": {"loss": 0.4, "rgb": {"mse": 0.1, "rel": 1.1}}},
 )  # fmt: skip
 
+SAMPLING = "bin centre in (sqrt theta_h, theta_d, phi_d), phi_h = 0"
 #: ``generate.merl``'s materials: a collection's table quality (measured, not scored).
 MERL_MATERIALS = merl_materials(
     [{"name": f"iridescent-00{i}-Au", "family": "iridescent", "source": {"mitsuba": {}},
-      "tabulation": {"max_rel_error": 0.001 * (i + 1), "bins": 90}} for i in range(3)]
+      "tabulation": {"max_rel_error": 0.001 * (i + 1), "bins": 90, "sampling": SAMPLING}}
+     for i in range(3)]
 )  # fmt: skip
 
 
@@ -257,6 +259,10 @@ def test06_a_datasets_items_have_no_best(client: TestClient, settings: Settings)
     assert 'class="num mono best"' not in text
     _, train = page(client, settings, "train")
     assert train["best"]["smape"] == "gold" and train["ranked"] is True
+    # the long text cell wraps at its words (on one line it pushed the table past the
+    # card's right edge): app.css's td.words
+    cells = re.findall(r'<td class="([^"]*)">' + re.escape(html.escape(SAMPLING)), text)
+    assert cells == ["num mono words"] * 3, cells
 
 
 def test07_select_marks_no_cheapest_rung_that_fails(client: TestClient, settings: Settings) -> None:
