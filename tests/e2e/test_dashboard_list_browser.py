@@ -458,3 +458,42 @@ def test07_a_refused_filter_has_no_pager_and_is_asked_once(
     assert len(refused) == 1, refused
     page.problems[:] = [p for p in page.problems if "422" not in p]
     assert page.problems == [], page.problems
+
+
+#: Per chart of the page and numeric axis: the tick labels Chart.js draws, their centres
+#: and widths in the axis's font (a vertical axis: their heights, the font's size).
+TICK_BOXES = """() => [...document.querySelectorAll("canvas")].flatMap((canvas) => {
+  const chart = window.Chart && window.Chart.getChart(canvas);
+  if (!chart) return [];
+  return Object.values(chart.scales).filter((s) => s.type !== "category" && s.options.display)
+    .map((s) => {
+      const font = window.Chart.helpers.toFont(s.options.ticks.font);
+      chart.ctx.save();
+      chart.ctx.font = font.string;
+      const shown = s.ticks.map((t, i) => [t, i]).filter(([t]) => t.label && t.label !== "");
+      const boxes = shown.map(([t, i]) => [s.getPixelForTick(i),
+        s.isHorizontal() ? chart.ctx.measureText(String(t.label)).width : font.lineHeight]);
+      chart.ctx.restore();
+      return {chart: canvas.getAttribute("aria-label") || canvas.id, axis: s.id, boxes};
+    });
+})"""
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test08_chart_tick_labels_do_not_overlap(
+    page: Any, server: str, prepared: dict[str, Any], width: int
+) -> None:
+    """The job page's charts (its Pareto panels and metric bars): on every numeric axis
+    each tick label Chart.js draws clears its neighbours (the brdf, pareto and compare
+    pages drew them into each other)."""
+    page.set_viewport_size({"width": width, "height": 900})
+    page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
+    page.wait_for_function("() => document.querySelectorAll('canvas').length > 0")
+    page.wait_for_timeout(500)
+    axes = page.evaluate(TICK_BOXES)
+    assert axes, "no chart axes on the page"
+    for axis in axes:
+        boxes = sorted(axis["boxes"])
+        for (a, wa), (b, wb) in zip(boxes, boxes[1:], strict=False):
+            assert b - a >= (wa + wb) / 2 + 2, (width, axis["chart"], axis["axis"], boxes)
+    assert page.problems == [], page.problems
