@@ -40,14 +40,17 @@ def make_progress(console: Console) -> Progress:
     the job's state and its one-line message. The label, percentage, times and state are
     never cut (a batch's step names up to 32 characters); the bar narrows to 10 characters
     and the message takes what is left, cut at its end."""
-    keep = {"no_wrap": True, "overflow": "ignore"}
+
+    def kept(min_width: int | None = None, max_width: int | None = None) -> Column:
+        return Column(no_wrap=True, overflow="ignore", min_width=min_width, max_width=max_width)
+
     return Progress(
-        TextColumn("[bold]{task.description}", table_column=Column(max_width=32, **keep)),
+        TextColumn("[bold]{task.description}", table_column=kept(max_width=32)),
         BarColumn(bar_width=None, table_column=Column(min_width=10, max_width=30, ratio=1)),
-        TaskProgressColumn(table_column=Column(min_width=4, **keep)),
-        TimeElapsedColumn(table_column=Column(min_width=7, **keep)),
-        TextColumn("[cyan]{task.fields[eta]}", table_column=Column(**keep)),
-        TextColumn("{task.fields[state]}", table_column=Column(min_width=9, **keep)),
+        TaskProgressColumn(table_column=kept(min_width=4)),
+        TimeElapsedColumn(table_column=kept(min_width=7)),
+        TextColumn("[cyan]{task.fields[eta]}", table_column=kept()),
+        TextColumn("{task.fields[state]}", table_column=kept(min_width=9)),
         TextColumn(
             "[dim]{task.fields[message]}",
             table_column=Column(ratio=2, no_wrap=True, overflow="ellipsis"),
