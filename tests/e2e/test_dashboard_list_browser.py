@@ -31,7 +31,7 @@ from storage.formats.png import write_png
 from storage.jobs import JobStore
 from tests.helpers.job_documents import fabric_metrics
 
-from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
+from .browser import BROWSER, SHOTS, TICK_BOXES, TOKEN, browser_server, data_settings
 
 pytestmark = BROWSER
 
@@ -458,25 +458,6 @@ def test07_a_refused_filter_has_no_pager_and_is_asked_once(
     assert len(refused) == 1, refused
     page.problems[:] = [p for p in page.problems if "422" not in p]
     assert page.problems == [], page.problems
-
-
-#: Per chart of the page and numeric axis: the tick labels Chart.js draws, their centres
-#: and widths in the axis's font (a vertical axis: their heights, the font's size).
-TICK_BOXES = """() => [...document.querySelectorAll("canvas")].flatMap((canvas) => {
-  const chart = window.Chart && window.Chart.getChart(canvas);
-  if (!chart) return [];
-  return Object.values(chart.scales).filter((s) => s.type !== "category" && s.options.display)
-    .map((s) => {
-      const font = window.Chart.helpers.toFont(s.options.ticks.font);
-      chart.ctx.save();
-      chart.ctx.font = font.string;
-      const shown = s.ticks.map((t, i) => [t, i]).filter(([t]) => t.label && t.label !== "");
-      const boxes = shown.map(([t, i]) => [s.getPixelForTick(i),
-        s.isHorizontal() ? chart.ctx.measureText(String(t.label)).width : font.lineHeight]);
-      chart.ctx.restore();
-      return {chart: canvas.getAttribute("aria-label") || canvas.id, axis: s.id, boxes};
-    });
-})"""
 
 
 @pytest.mark.parametrize("width", WIDTHS)
