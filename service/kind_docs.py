@@ -30,9 +30,13 @@ def params_schema(kind: Kind) -> dict[str, Any]:
 
 
 def prepare(kinds: list[Kind]) -> None:
-    """Make the params schemas of these kinds now (:func:`params_schema`)."""
+    """Make the params schemas of these kinds now (:func:`params_schema`); a kind whose
+    params have none is left to fail where its schema is asked for."""
     for kind in kinds:
-        params_schema(kind)
+        try:
+            params_schema(kind)
+        except Exception:  # the plugin loader refuses such kinds; a test's may slip in
+            continue
 
 
 def type_text(prop: dict[str, Any], *, markdown: bool = False) -> str:
