@@ -43,6 +43,7 @@ the writer's, as before.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from typing import Any, NotRequired, TypeVar
 
@@ -66,6 +67,7 @@ __all__ = [
     "check_pareto",
     "check_typed",
     "document",
+    "prepare",
     "read_typed",
 ]
 
@@ -481,13 +483,30 @@ def check_document(name: str, doc: Any) -> None:
 
 
 _ADAPTERS: dict[Any, TypeAdapter[Any]] = {}
+_ADAPTERS_LOCK = threading.Lock()
+
+
+def prepare(*types: Any) -> None:
+    """Build the validators of these document types now (once each), not when a document
+    is first read. Building one reads the type's source for its field docstrings
+    (``inspect`` and ``ast``), which CPython 3.11's ``ast`` cannot do in two threads at
+    once (``SystemError: AST constructor recursion depth mismatch``): a request must find
+    them built. :class:`jobapi.kinds.Kind` prepares its :attr:`~jobapi.kinds.Kind.documents`
+    when it is defined, this module its chart documents."""
+    for typed in types:
+        _adapter(typed)
 
 
 def _adapter(typed: Any) -> TypeAdapter[Any]:
-    # Built once per type: validating must not rebuild pydantic's schema every time.
-    if typed not in _ADAPTERS:
-        _ADAPTERS[typed] = TypeAdapter(typed)
-    return _ADAPTERS[typed]
+    # Built once per type (validating must not rebuild pydantic's schema every time), and
+    # under a lock: a type no kind declares is still built by one thread at a time.
+    adapter = _ADAPTERS.get(typed)
+    if adapter is None:
+        with _ADAPTERS_LOCK:
+            adapter = _ADAPTERS.get(typed)
+            if adapter is None:
+                adapter = _ADAPTERS[typed] = TypeAdapter(typed)
+    return adapter
 
 
 def check_typed(name: str, doc: Any, typed: type) -> None:
@@ -562,3 +581,6 @@ def document_fields(typed: type) -> list[tuple[str, str, bool, str]]:
 
     walk(schema, "")
     return out
+
+
+prepare(*CHARTS.values())

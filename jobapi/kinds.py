@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 
+from jobapi.documents import prepare
 from jobapi.reports import ReportFacts
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.rows import RowsHook
@@ -129,6 +130,11 @@ class Kind:
     variant_bytes: bool | Callable[[Any], bool] = False
     documents: Mapping[str, type] = field(default_factory=dict)
     timing_artifacts: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        # Its documents' validators are built with the kind (at import), not by the first
+        # request that reads one: :func:`jobapi.documents.prepare`.
+        prepare(*self.documents.values())
 
     def bytes_depend_on_variant(self, params: BaseModel) -> bool:
         """:attr:`variant_bytes` for these (validated) params."""

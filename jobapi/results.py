@@ -31,6 +31,10 @@ class ResultTable:
         reference: what the rows were compared against, when there is one.
         settings: the settings the values were computed with (shown as JSON).
         claims: ``[{"claim": str, "holds": bool, ...}]`` checked by the job.
+        ranked: whether its rows compete (candidates, configurations, a model's
+            materials): the dashboard marks each column's best row. ``False`` for rows that
+            are a dataset's items, measured rather than scored (a MERL collection's table
+            quality, a fabric dataset's materials): none is "the best".
     """
 
     title: str
@@ -40,6 +44,7 @@ class ResultTable:
     reference: str | None = None
     settings: Any = None
     claims: list[dict[str, Any]] = field(default_factory=list)
+    ranked: bool = True
 
     def document(self) -> dict[str, Any]:
         """The JSON form (``GET /api/jobs/{id}/summary``, the dashboard's template)."""
@@ -52,6 +57,7 @@ class ResultTable:
             "reference": self.reference,
             "settings": self.settings,
             "claims": self.claims,
+            "ranked": self.ranked,
         }
 
     @classmethod
@@ -68,6 +74,7 @@ class ResultTable:
                 reference=doc.get("reference"),
                 settings=doc.get("settings"),
                 claims=list(doc.get("claims") or []),
+                ranked=bool(doc.get("ranked", True)),
             )
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"not a result table document ({exc})") from None

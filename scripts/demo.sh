@@ -34,32 +34,6 @@ fi
 "$MF" batch scripts/demo_batch.yaml --out "$DATA/demo-results.csv"
 echo
 echo "Results: $DATA/demo-results.csv"
-# The fabric step's Fig. 2-style preview: its job page and the picture itself.
-FABRIC_JOB=$(.venv/bin/python -c 'import csv, sys
-rows = [r for r in csv.DictReader(open(sys.argv[1])) if r["step"] == "fabric"]
-print(rows[0]["job_id"] if rows and rows[0]["state"] == "succeeded" else "")' \
-  "$DATA/demo-results.csv" 2>/dev/null || true)
-if [ -n "$FABRIC_JOB" ]; then
-  FABRIC_PNG=$("$MF" artifacts "$FABRIC_JOB" --json 2>/dev/null | .venv/bin/python -c 'import json, sys
-print(next((a["digest"] for a in json.load(sys.stdin) if a["name"] == "preview.png"), ""))' \
-    2>/dev/null || true)
-  echo "Fabric dataset: $URL/jobs/$FABRIC_JOB"
-  if [ -n "$FABRIC_PNG" ]; then
-    echo "Fabric preview: $URL/api/artifacts/$FABRIC_PNG   (preview.png)"
-  fi
-fi
-GLINT_JOB=$(.venv/bin/python -c 'import csv, sys
-rows = [r for r in csv.DictReader(open(sys.argv[1])) if r["step"] == "glint"]
-print(rows[0]["job_id"] if rows and rows[0]["state"] == "succeeded" else "")' \
-  "$DATA/demo-results.csv" 2>/dev/null || true)
-if [ -n "$GLINT_JOB" ]; then
-  echo "Glint example and NDF maps: $URL/jobs/$GLINT_JOB   (example.exr, ndf.npz, preview.png)"
-fi
-BTF_JOB=$(.venv/bin/python -c 'import csv, sys
-rows = [r for r in csv.DictReader(open(sys.argv[1])) if r["step"] == "btf"]
-print(rows[0]["job_id"] if rows and rows[0]["state"] == "succeeded" else "")' \
-  "$DATA/demo-results.csv" 2>/dev/null || true)
-if [ -n "$BTF_JOB" ]; then
-  echo "BTF slices: $URL/jobs/$BTF_JOB   (slices-XXXX.npz, btf.json, preview.png)"
-fi
+# The fabric step's Fig. 2-style preview, the glint and BTF steps: their job pages.
+MF="$MF" bash scripts/demo_links.sh "$DATA/demo-results.csv" "$URL"
 echo "Dashboard: $URL/   (the service keeps running; stop it with: kill \$(cat $DATA/serve.pid))"

@@ -41,7 +41,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from jobapi.errors import SpecError
 from jobapi.version import __version__
-from service import kinds
+from service import kind_docs, kinds
 from service.deps import AuthDep, PageAuth, set_token_cookie
 from service.http_methods import MethodsMiddleware
 from service.previews import PreviewMaker
@@ -338,6 +338,26 @@ def _docs_router(app: FastAPI) -> APIRouter:
 
 
 # -- the app -----------------------------------------------------------------------------
+def _prepare_routes(app: FastAPI) -> None:
+    """Have every route build its validators now. FastAPI builds a route's parameter and
+    response validators (pydantic ``TypeAdapter``s) when a request first reaches it; built
+    on the event loop while other requests run in the thread pool, that is where pydantic
+    could read a type's source with ``ast`` in two threads at once, which CPython 3.11 does
+    not survive (``SystemError: AST constructor recursion depth mismatch``). Matching a
+    path no route has walks every route of every router (``tests/unit/service/
+    test_request_validators.py`` counts what a request builds: nothing)."""
+    scope: dict[str, Any] = {
+        "type": "http",
+        "method": "GET",
+        "path": "/\x00",
+        "root_path": "",
+        "headers": [],
+        "query_string": b"",
+    }
+    for route in app.router.routes:
+        route.matches(dict(scope))
+
+
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # Import the kind modules (about 1.5 s) before the server accepts connections: done
@@ -347,6 +367,8 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # The ONNX checker's library, imported on a submission's first ONNX ref, held the
     # process for about 2 s (bench_attack.py's health latency); import it here instead.
     onnx_format.preload()
+    _prepare_routes(app)
+    kind_docs.prepare(list(kinds.all_kinds().values()))
     # What is alive now (the modules, numpy, the kinds) lives as long as the server: out of
     # the collector's sight, a full collection no longer walks it, which stalled every
     # request in flight for ~100 ms once in a few hundred submissions.

@@ -3,10 +3,40 @@
 
 from __future__ import annotations
 
+import copy
+import threading
 from typing import Any
+
+from pydantic import BaseModel
 
 from jobapi.kinds import Kind
 from service.kinds import plugin_of
+
+_SCHEMAS: dict[type[BaseModel], dict[str, Any]] = {}
+_SCHEMAS_LOCK = threading.Lock()
+
+
+def params_schema(kind: Kind) -> dict[str, Any]:
+    """The JSON schema of a kind's params (a copy: the caller may change it), made once per
+    params model: making one builds a pydantic validator per default value, which a
+    request must not do (the server makes them all at start, :func:`prepare`)."""
+    schema = _SCHEMAS.get(kind.params)
+    if schema is None:
+        with _SCHEMAS_LOCK:
+            schema = _SCHEMAS.get(kind.params)
+            if schema is None:
+                schema = _SCHEMAS[kind.params] = kind.params.model_json_schema()
+    return copy.deepcopy(schema)
+
+
+def prepare(kinds: list[Kind]) -> None:
+    """Make the params schemas of these kinds now (:func:`params_schema`); a kind whose
+    params have none is left to fail where its schema is asked for."""
+    for kind in kinds:
+        try:
+            params_schema(kind)
+        except Exception:  # the plugin loader refuses such kinds; a test's may slip in
+            continue
 
 
 def type_text(prop: dict[str, Any], *, markdown: bool = False) -> str:
@@ -28,7 +58,7 @@ def type_text(prop: dict[str, Any], *, markdown: bool = False) -> str:
 def param_rows(kind: Kind, *, markdown: bool = False) -> list[tuple[str, str, str, str]]:
     """``(name, type, default, description)`` of each of a kind's params, in schema order;
     the default is ``required`` for a required param."""
-    return _rows(kind.params.model_json_schema(), markdown=markdown)
+    return _rows(params_schema(kind), markdown=markdown)
 
 
 def _refs(node: Any) -> list[str]:
@@ -46,7 +76,7 @@ def nested_models(kind: Kind) -> list[tuple[str, str, list[tuple[str, str, str, 
     ``ProceduralExample`` of ``generate.glint``'s ``example``, and the models inside it), in
     the order they are first named, with rows as :func:`param_rows` gives them: the fields
     and allowed values that a param's type names only by its model's name."""
-    schema = kind.params.model_json_schema()
+    schema = params_schema(kind)
     defs = schema.get("$defs", {})
     order: list[str] = []
     todo = _refs(schema.get("properties", {}))
@@ -65,6 +95,26 @@ def nested_models(kind: Kind) -> list[tuple[str, str, list[tuple[str, str, str, 
         for name in order
         if defs[name].get("properties")
     ]
+
+
+def param_forms(kind: Kind) -> list[tuple[str, list[tuple[str, str]]]]:
+    """``(param, [(form, description)])`` of each param that takes one of several object
+    forms (a ``material``: one per registered material source, ``mitsuba``, ``merl``,
+    ``external``, ...), in schema order: what ``matforge kinds KIND`` lists under the
+    params, since the params table can call such a param only an ``object``."""
+    schema = params_schema(kind)
+    defs = schema.get("$defs", {})
+    out = []
+    for name, prop in schema.get("properties", {}).items():
+        forms = []
+        for alt in prop.get("oneOf", ()):
+            while "$ref" in alt:
+                alt = defs.get(str(alt["$ref"]).rsplit("/", 1)[-1], {})
+            if alt.get("title"):
+                forms.append((str(alt["title"]), " ".join(str(alt.get("description", "")).split())))
+        if forms:
+            out.append((name, forms))
+    return out
 
 
 def _rows(schema: dict[str, Any], *, markdown: bool = False) -> list[tuple[str, str, str, str]]:
@@ -87,6 +137,6 @@ def kind_document(kind: Kind) -> dict[str, Any]:
         "name": kind.name,
         "summary": kind.description,
         "artifacts": list(kind.artifacts),
-        "params_schema": kind.params.model_json_schema(),
+        "params_schema": params_schema(kind),
         "plugin": plugin_of(kind.name),
     }

@@ -32,6 +32,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from jobapi.errors import SpecError
+from jobapi.kinds import Kind
 from service import kinds
 from service.spec_text import parse_spec_text
 
@@ -148,6 +149,66 @@ def _did_you_mean(err: Any) -> str:
     return f"; did you mean {guess!r}?" if guess is not None and guess != value else ""
 
 
+_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _field_names(schema: dict[str, Any], loc: tuple[Any, ...]) -> list[str]:
+    """The field names of the object at ``loc`` (an error's path, pydantic's union member
+    tags included) in a JSON schema: every alternative's, for a union."""
+    defs: dict[str, Any] = schema.get("$defs", {})
+
+    def alternatives(node: Any) -> list[dict[str, Any]]:
+        seen = 0
+        while isinstance(node, dict) and "$ref" in node and seen < 64:
+            node, seen = defs.get(str(node["$ref"]).rsplit("/", 1)[-1], {}), seen + 1
+        if not isinstance(node, dict):
+            return []
+        out = [node]
+        for key in ("anyOf", "oneOf", "allOf"):
+            for alt in node.get(key, ()):
+                out.extend(alternatives(alt))
+        return out
+
+    nodes = [schema]
+    for part in loc:
+        here = [alt for node in nodes for alt in alternatives(node)]
+        found: list[Any] = []
+        for node in here:
+            if isinstance(part, int):
+                prefix = node.get("prefixItems") or []
+                found.extend([prefix[part]] if part < len(prefix) else [])
+                if isinstance(node.get("items"), dict):
+                    found.append(node["items"])
+            elif part in node.get("properties", {}):
+                found.append(node["properties"][part])
+            elif isinstance(node.get("additionalProperties"), dict):
+                found.append(node["additionalProperties"])
+        if not found and isinstance(part, str):
+            # a union member's tag (``ProceduralExample``, ``function-after[..., Model]``)
+            found = [defs[w] for w in _WORD.findall(part) if w in defs][-1:]
+        nodes = found or nodes  # a tag of a plain type: the same object
+    names: list[str] = []
+    for node in nodes:
+        for alt in alternatives(node):
+            names.extend(n for n in alt.get("properties", {}) if n not in names)
+    return names
+
+
+def _unknown_field_hint(err: Any, schema: dict[str, Any] | None) -> str:
+    """``"; did you mean 'spp'?"`` for an unknown field that misses one the object takes
+    by a typo."""
+    loc = tuple(err.get("loc", ()))
+    if err.get("type") != "extra_forbidden" or schema is None or not loc:
+        return ""
+    if not isinstance(loc[-1], str):
+        return ""
+    names = _field_names(schema, loc[:-1])
+    by_case = {n.lower(): n for n in names}
+    close = [by_case[loc[-1].lower()]] if loc[-1].lower() in by_case else []
+    close = close or difflib.get_close_matches(loc[-1], names, n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def _misfit(err_type: str, inner: tuple[Any, ...]) -> bool:
     """Whether an error of a union member says the member does not fit the input's shape."""
     if err_type in _SHAPE_ERRORS:
@@ -155,7 +216,9 @@ def _misfit(err_type: str, inner: tuple[Any, ...]) -> bool:
     return not inner and err_type.endswith(("_type", "_parsing"))
 
 
-def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, str]]:
+def _pydantic_errors(
+    exc: ValidationError, prefix: str = "", schema: dict[str, Any] | None = None
+) -> list[tuple[str, str]]:
     """One ``(field path, message)`` per field. A union's members each fail with their own
     error, under a loc part naming the member (pydantic internals, e.g.
     ``function-after[_check_ref(), str]``). When exactly one member fits the input's shape
@@ -163,7 +226,8 @@ def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, 
     map without its ``normal_map``), that member's errors are given at their own fields;
     otherwise they are merged into one message at the union's field, each member's reason
     after the other. A string that misses an enum or ``Literal`` value, at any depth, gets
-    "did you mean"."""
+    "did you mean", and so does an unknown field that misses one of ``schema`` (the
+    model's JSON schema) by a typo."""
     models = _model_names()
 
     def is_member(part: Any) -> bool:
@@ -176,7 +240,8 @@ def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, 
     fields: dict[str, dict[str | None, list[tuple[str, str, bool]]]] = {}
     for err in exc.errors():
         loc = tuple(err.get("loc", ()))
-        msg = str(err["msg"]).removeprefix("Value error, ") + _did_you_mean(err)
+        hint = _unknown_field_hint(err, schema)
+        msg = str(err["msg"]).removeprefix("Value error, ") + _did_you_mean(err) + hint
         cut = next((i for i, part in enumerate(loc) if is_member(part)), None)
         member: str | None = None
         inner: tuple[Any, ...] = ()
@@ -186,7 +251,8 @@ def _pydantic_errors(exc: ValidationError, prefix: str = "") -> list[tuple[str, 
             loc = loc[:cut]
         path = _loc(loc)
         key = f"{prefix}{path}" if path else prefix.rstrip(".")
-        entry = (_loc(inner), msg, _misfit(str(err.get("type", "")), inner))
+        # a field that misses one of the member's by a typo: the member still fits
+        entry = (_loc(inner), msg, _misfit(str(err.get("type", "")), inner) and not hint)
         fields.setdefault(key, {}).setdefault(member, []).append(entry)
     out: list[tuple[str, str]] = []
     for key, members in fields.items():
@@ -220,31 +286,65 @@ def canonical_json(obj: Any) -> str:
     )
 
 
+#: The envelope's JSON schema, for the field names of "did you mean" (made once: making it
+#: builds pydantic validators, which a request must not do).
+_ENVELOPE_SCHEMA = JobSpec.model_json_schema()
+
+
+def _params_schema(kind: Kind) -> dict[str, Any] | None:
+    from service.kind_docs import params_schema
+
+    try:
+        return params_schema(kind)
+    except Exception:  # a plugin's params without a schema: no hint, the error stays
+        return None
+
+
+def _unknown_kind(name: str) -> str:
+    """The message for a kind no one registered: the closest registered kind first."""
+    known = sorted(kinds.all_kinds())
+    by_case = {k.lower(): k for k in known}
+    close = [by_case[name.lower()]] if name.lower() in by_case else []
+    close = close or difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"unknown job kind {name!r}{hint} (known kinds: {', '.join(known)})"
+
+
 def validate_spec(raw: Any, *, variant: str | None = None) -> ValidSpec:
     """Validate a spec document (a dict, as parsed from JSON or YAML). ``variant``: the
     Mitsuba variant the job will run under (``None``: identity without it, as under
     :data:`REFERENCE_VARIANT`); see the module docstring for when it joins the hash."""
     if not isinstance(raw, dict):
         raise SpecError([("", f"a job spec must be an object, got {type(raw).__name__}")])
+    # Every error at once: the envelope's, the kind's and the params' (the params of a
+    # known kind are checked even when the envelope has errors of its own).
+    errors: list[tuple[str, str]] = []
+    env: JobSpec | None = None
     try:
         env = JobSpec.model_validate(raw)
     except ValidationError as exc:
-        raise SpecError(_pydantic_errors(exc)) from None
-    try:
-        kind = kinds.get_kind(env.kind)
-    except KeyError:
-        known = ", ".join(sorted(kinds.all_kinds()))
-        raise SpecError(
-            [("kind", f"unknown job kind {env.kind!r}; known kinds: {known}")]
-        ) from None
-    try:
-        # JSON mode: strict about types, but arrays may fill tuple fields, as in any spec
-        # that arrives as JSON or YAML.
-        params = kind.params.model_validate_json(canonical_json(env.params))
-    except ValidationError as exc:
-        raise SpecError(_pydantic_errors(exc, "params.")) from None
-    except ValueError as exc:  # NaN or infinity in params
-        raise SpecError([("params", f"not valid JSON: {exc}")]) from None
+        errors.extend(_pydantic_errors(exc, schema=_ENVELOPE_SCHEMA))
+    name = env.kind if env is not None else raw.get("kind")
+    given = env.params if env is not None else raw.get("params", {})
+    kind = None
+    if isinstance(name, str) and name:
+        try:
+            kind = kinds.get_kind(name)
+        except KeyError:
+            errors.append(("kind", _unknown_kind(name)))
+    params: BaseModel | None = None
+    if kind is not None and isinstance(given, dict):
+        try:
+            # JSON mode: strict about types, but arrays may fill tuple fields, as in any
+            # spec that arrives as JSON or YAML.
+            params = kind.params.model_validate_json(canonical_json(given))
+        except ValidationError as exc:
+            errors.extend(_pydantic_errors(exc, "params.", _params_schema(kind)))
+        except ValueError as exc:  # NaN or infinity in params
+            errors.append(("params", f"not valid JSON: {exc}"))
+    if errors:
+        raise SpecError(errors)
+    assert env is not None and kind is not None and params is not None
     body = {"kind": env.kind, "seed": env.seed, "params": params.model_dump(mode="json")}
     canonical = canonical_json(body)
     identity = canonical

@@ -119,11 +119,33 @@ def select_png(ladders: Sequence[Mapping[str, Any]], target: float) -> bytes:
     return figure_png(draw, (6.0 * cols, 3.6 * rows + 0.3))
 
 
+def heat_cells(cells: list[dict[str, Any]]) -> list[tuple[float | None, str]]:
+    """Per heat-table cell of one panel: the ratio its colour shows (``None``: none) and
+    its text. A model with a single family in the panel has that family as its whole set:
+    its ratio is 1 by construction, so it is neither coloured nor printed (a panel of such
+    models read "1.00x" in every cell), only its error, marked as its whole set."""
+    count: dict[str, int] = {}
+    for f in cells:
+        count[str(f["candidate"])] = count.get(str(f["candidate"]), 0) + 1
+    out: list[tuple[float | None, str]] = []
+    for f in cells:
+        alone = count[str(f["candidate"])] == 1
+        ratio = None if alone else f["ratio"]
+        text = f"{f['mean']:.3g}"
+        if ratio:
+            text += f"\n{ratio:.2f}x"
+        elif alone:
+            text += "\n(its whole set)"
+        out.append((ratio, text))
+    return out
+
+
 def stability_png(families: list[dict[str, Any]], configs: list[dict[str, Any]]) -> bytes:
     """The heat table of ``report.stability``: per kind one panel, models (rows) x families
     (columns); a cell's colour is the family's error over the model's whole-set error on a
     log scale centred on 1 (red: worse than its average, green: better), its text the error
-    and that ratio. Row labels carry the seed count and how many runs had not converged."""
+    and that ratio (:func:`heat_cells`). Row labels carry the seed count and how many runs
+    had not converged."""
     import numpy as np
 
     from evaluators.report.stability import SCORE_KIND
@@ -151,15 +173,15 @@ def stability_png(families: list[dict[str, Any]], configs: list[dict[str, Any]])
         for i, (kind, mine, cands, fams) in enumerate(shapes):
             a = fig.add_subplot(grid[i])
             ratio = np.full((len(cands), len(fams)), np.nan)
-            for f in mine:
-                if f["ratio"] is not None:
-                    ratio[cands.index(str(f["candidate"])), fams.index(f["family"])] = f["ratio"]
+            cells = heat_cells(mine)
+            for f, (shown, _) in zip(mine, cells, strict=True):
+                if shown is not None:
+                    ratio[cands.index(str(f["candidate"])), fams.index(f["family"])] = shown
             logr = np.clip(np.log2(np.where(np.isfinite(ratio), ratio, 1.0)), -2.0, 2.0)
             a.imshow(np.ma.masked_where(~np.isfinite(ratio), logr), cmap="RdYlGn_r",
                      vmin=-2.0, vmax=2.0, aspect="auto")  # fmt: skip
-            for f in mine:
+            for f, (_, text) in zip(mine, cells, strict=True):
                 r, c = cands.index(str(f["candidate"])), fams.index(f["family"])
-                text = f"{f['mean']:.3g}" + (f"\n{f['ratio']:.2f}x" if f["ratio"] else "")
                 a.text(c, r, text, ha="center", va="center", fontsize=7)
             labels = []
             for cand in cands:

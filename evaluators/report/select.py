@@ -370,6 +370,9 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         rows=rows,
         claims=claims,
         settings={"metric": doc["metric"], "target": doc["target"], "cost": doc["cost"]},
+        # the rungs are ranked by the target rule (the chosen column), not per column:
+        # the cheapest rung is no "best" when it fails the target
+        ranked=False,
     )
 
 

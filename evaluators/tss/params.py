@@ -158,7 +158,7 @@ class TssParams(StrictModel):
     name              type               default      meaning
     ================  =================  ===========  ===========================================
     ``model``         job ref or         required     a succeeded train.btf job, or
-                      ``{external}``                  a user's MLP BTF
+                      ``{external}``                  a user's MLP or ONNX BTF
     ``frames``        int                preset       frames of the camera path
     ``resolutions``   list of int        preset       radiance-texture sides over the plane
     ``intervals``     list of int        0 1 2 4 6    N: reuse the texture N frames more
@@ -179,8 +179,9 @@ class TssParams(StrictModel):
 
     model: JobRef | ExternalBtfRef = Field(
         description="'job:<id>' of a succeeded train.btf job (its model.json and "
-        "textures.npz; in a batch file 'step:<name>'), or a user's MLP BTF "
-        "{'external': {'model': REF, 'kind': 'btf'}} (the 'external' material's value)."
+        "textures.npz; in a batch file 'step:<name>'), or a user's own BTF, an MLP "
+        "(matforge.mlp-btf/1) or an ONNX model: {'external': {'model': REF, 'kind': 'btf'}} "
+        "(the 'external' material's value)."
     )
     preset: Literal["small", "paper"] = Field(
         default="small", description="Defaults of the unset fields: 'small' or 'paper'."

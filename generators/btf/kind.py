@@ -218,7 +218,11 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     surface = doc.get("surface") or {}
     name = surface.get("procedural") or (surface.get("bsdf") or {}).get("type", "surface")
     return ResultTable(
-        title="BTF slices", label_header="Surface", columns=list(row), rows={str(name): row}
+        title="BTF slices",
+        label_header="Surface",
+        columns=list(row),
+        rows={str(name): row},
+        ranked=False,
     )
 
 

@@ -54,6 +54,21 @@ def unfold(wi: np.ndarray, wo: np.ndarray, values: np.ndarray) -> np.ndarray:
     return img
 
 
+#: At most this many labelled ticks on each axis of the unfolded BRDF.
+MAX_TICKS = 12
+
+
+def direction_ticks(w: np.ndarray, limit: int = MAX_TICKS) -> tuple[list[int], list[str]]:
+    """Ticks of an axis of :func:`unfold`: positions (the distinct directions of ``w`` in
+    order of first appearance, at most ``limit`` of them evenly spaced) and their labels,
+    polar and azimuth angles in degrees (``"30°/90°"``; the axis showed indices 0-5)."""
+    _, first = np.unique(np.round(np.asarray(w), 5), axis=0, return_index=True)
+    rows = np.asarray(w)[np.sort(first)]
+    theta, phi = to_angles(rows)
+    shown = grid_indices(len(rows), limit)
+    return shown, [f"{theta[i]:.0f}°/{phi[i]:.0f}°" for i in shown]
+
+
 def _display(rgb: np.ndarray) -> np.ndarray:
     # BTF values are radiance / irradiance: times pi, an albedo of 1 under normal light is 1.
     return tonemap(np.nan_to_num(rgb, nan=0.0), exposure=math.log2(math.pi), curve="aces")
@@ -82,7 +97,9 @@ def preview_png(
         for k, (i, img) in enumerate(slices):
             a = fig.add_subplot(grid[k // cols, k % cols])
             a.imshow(_display(img), origin="lower", interpolation="nearest")
-            a.set_title(f"i {ti[i]:.0f},{pi_[i]:.0f} o {to[i]:.0f},{po[i]:.0f}", fontsize=5, pad=1)
+            # light and view directions (polar/azimuth, degrees), legible at 1:1
+            a.set_title(f"in {ti[i]:.0f}°/{pi_[i]:.0f}°\nout {to[i]:.0f}°/{po[i]:.0f}°",
+                        fontsize=7, pad=2)  # fmt: skip
             a.set_xticks([])
             a.set_yticks([])
         b = fig.add_subplot(grid[:, cols:])
@@ -90,13 +107,17 @@ def preview_png(
         shown[np.isnan(brdf).any(axis=2)] = 90
         b.imshow(shown, interpolation="nearest", aspect="auto")
         b.set_title(f"texel {texel}: apparent BRDF", fontsize=8)
-        b.set_xlabel("view direction", fontsize=7)
-        b.set_ylabel("light direction", fontsize=7)
+        b.set_xlabel("view direction (polar/azimuth)", fontsize=7)
+        b.set_ylabel("light direction (polar/azimuth)", fontsize=7)
+        xs, xl = direction_ticks(wo)
+        ys, yl = direction_ticks(wi)
+        b.set_xticks(xs, xl, rotation=90)
+        b.set_yticks(ys, yl)
         b.tick_params(labelsize=6)
         fig.suptitle(title, fontsize=9)
 
-    width = 1.2 * cols + 1.2 * max(2, cols // 2 + 1)
-    return figure_png(draw, size=(max(6.0, width), max(3.5, 1.25 * rows + 0.6)))
+    width = 1.5 * cols + 1.5 * max(2, cols // 2 + 1)
+    return figure_png(draw, size=(max(6.0, width), max(3.5, 1.7 * rows + 1.2)))
 
 
 class PreviewCollector:

@@ -370,6 +370,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         label_header="Material",
         columns=columns,
         rows=rows,
+        ranked=False,  # a dataset's materials: measured, none is "the best"
         settings={"config": doc["config"], "stats": read("stats.json")},
     )
 

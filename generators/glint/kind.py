@@ -179,7 +179,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         row["precompute_seconds"] = doc["precompute_seconds"]
     return ResultTable(
         title="Tiny example", label_header="Example", columns=list(row),
-        rows={doc["example"]["type"]: row},
+        rows={doc["example"]["type"]: row}, ranked=False,
     )  # fmt: skip
 
 

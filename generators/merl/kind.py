@@ -475,7 +475,11 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     for row in rows.values():
         columns.extend(k for k in row if k not in columns)
     return ResultTable(
-        title="Materials", label_header="Material", columns=used_columns(columns, rows), rows=rows
+        title="Materials",
+        label_header="Material",
+        columns=used_columns(columns, rows),
+        rows=rows,
+        ranked=False,  # a collection's table quality: measured, no material is "the best"
     )
 
 

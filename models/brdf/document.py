@@ -28,9 +28,11 @@ class BrdfMaterialScores(TypedDict):
     pairs: int
     """Scoring pairs where the table has data."""
     smape: float
-    """Eq. 6, eps 0, mean over R, G, B."""
+    """SMAPE (Eq. 6 of the hybrid-BRDF paper): ``2/N sum_k |f_k - g_k| / (|f_k| + |g_k|)``
+    over the N pairs, f the table, g the model, mean over R, G, B; 0 (equal) to 2."""
     smape_floor: float
-    """Eq. 6 with each channel's denominator floored (stable where the table is 0)."""
+    """SMAPE with each channel's denominator floored at 1 % of the table's mean
+    (stable where the table is 0); 0 to 2."""
     mae: float
     """Mean absolute BRDF error, 1/sr."""
     smape_analytic: float | None

@@ -23,6 +23,7 @@ from rich.progress import (
     TextColumn,
     TimeElapsedColumn,
 )
+from rich.table import Column
 from rich.text import Text
 
 from service.cli.client import Client, ServerRefused, ServerUnreachable
@@ -36,17 +37,27 @@ ETA_MIN_PROGRESS = 0.01
 
 def make_progress(console: Console) -> Progress:
     """A progress display with a label, a bar, the percentage, the elapsed time, the ETA,
-    the job's state and its one-line message."""
+    the job's state and its one-line message. The label, percentage, times and state are
+    never cut (a batch's step names up to 32 characters); the bar narrows to 10 characters
+    and the message takes what is left, cut at its end."""
+
+    def kept(min_width: int | None = None, max_width: int | None = None) -> Column:
+        return Column(no_wrap=True, overflow="ignore", min_width=min_width, max_width=max_width)
+
     return Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TaskProgressColumn(),
-        TimeElapsedColumn(),
-        TextColumn("[cyan]{task.fields[eta]}"),
-        TextColumn("{task.fields[state]}"),
-        TextColumn("[dim]{task.fields[message]}"),
+        TextColumn("[bold]{task.description}", table_column=kept(max_width=32)),
+        BarColumn(bar_width=None, table_column=Column(min_width=10, max_width=30, ratio=1)),
+        TaskProgressColumn(table_column=kept(min_width=4)),
+        TimeElapsedColumn(table_column=kept(min_width=7)),
+        TextColumn("[cyan]{task.fields[eta]}", table_column=kept()),
+        TextColumn("{task.fields[state]}", table_column=kept(min_width=9)),
+        TextColumn(
+            "[dim]{task.fields[message]}",
+            table_column=Column(ratio=2, no_wrap=True, overflow="ellipsis"),
+        ),
         console=console,
         transient=False,
+        expand=True,
     )
 
 

@@ -17,8 +17,7 @@ JsonOpt = typer.Option(False, "--json", help="Print one JSON document on stdout.
 #: Characters a column of a Rich table takes beyond its cells: one space of padding each
 #: side and its border; a table has one more border.
 _OVERHEAD = 3
-#: Below this many characters for the message, the name gives up its width first; below
-#: this, the creation time is left out.
+#: The fewest characters of a message column (narrower, the message is left out).
 _MIN_MESSAGE = 10
 
 
@@ -33,8 +32,9 @@ def jobs_table(
 ) -> Table:
     """Jobs as a table of at most ``width`` characters: short ids (any unique prefix works
     as an id; the 12 characters are never cut), kind, state and progress at their full
-    width; then the name, the creation time and the message. When the table does not fit,
-    the message is cut first, then the name, then the creation time is left out.
+    width; then the name, the creation time and the message. The name and the message
+    wrap, never cut: when the message has no room for 40 characters on a line, the
+    creation time is left out, then the name narrows, down to 10 characters.
 
     ``columns``: extra ``(header, cell)`` columns after ``done``, each cell taken from the
     job's params or metrics (:func:`service.job_columns.cell_text`), e.g.
@@ -68,6 +68,7 @@ def jobs_table(
     widths = {c: natural(c) for c in fixed}
     name_w = min(natural("name"), 32)
     created_w = natural("created (UTC)")
+    message_need = min(natural("message"), 40)
     shown_created = True
 
     def room() -> int:  # what is left for the message
@@ -75,22 +76,27 @@ def jobs_table(
         used = sum(widths.values()) + name_w + (created_w if shown_created else 0)
         return width - 1 - _OVERHEAD * (cols + 1) - used + _OVERHEAD
 
-    if room() < _MIN_MESSAGE:
-        name_w = max(min(natural("name"), 8), name_w - (_MIN_MESSAGE - room()))
-    if room() < _MIN_MESSAGE:
+    # The message and the name wrap rather than being cut to a few characters: the
+    # creation time is left out first, then the name narrows (to 10 characters).
+    if room() < message_need:
         shown_created = False
+    if room() < message_need:
+        name_w = max(min(natural("name"), 10), name_w - (message_need - room()))
+    if room() > message_need:  # room to spare: the whole name on one line
+        name_w += max(0, min(natural("name") - name_w, room() - message_need))
     message_w = max(room(), 0)
     layout = [(c, widths[c]) for c in fixed] + [("name", name_w)]
     if shown_created:
         layout.append(("created (UTC)", created_w))
-    if message_w >= len("message"):
+    if message_w >= _MIN_MESSAGE:
         layout.append(("message", message_w))
+    wraps = {"name", "message"}
     table = Table(title=None, expand=False)
     for col, w in layout:
         table.add_column(
             col,
-            no_wrap=True,
-            overflow="ellipsis",
+            no_wrap=col not in wraps,
+            overflow="fold" if col in wraps else "ellipsis",
             min_width=w,
             max_width=w,
             justify="right" if col == "done" else "left",
@@ -99,7 +105,7 @@ def jobs_table(
         cells = []
         for col, w in layout:
             style = STATE_STYLE.get(r[col], "") if col == "state" else ""
-            cells.append(Text(_clip(r[col], w), style=style))
+            cells.append(Text(r[col] if col in wraps else _clip(r[col], w), style=style))
         table.add_row(*cells)
     return table
 
@@ -176,7 +182,7 @@ def kinds(
     """The job kinds (from the registry): what each makes; with KIND, its params."""
     from service import kinds as registry
     from service.cli.client import BadInput
-    from service.kind_docs import kind_document, nested_models, param_rows
+    from service.kind_docs import kind_document, nested_models, param_forms, param_rows
 
     known = registry.all_kinds()
     for p in registry.plugins():  # on stderr: --json's document stays one list
@@ -225,6 +231,13 @@ def kinds(
     for name, type_, default, desc in param_rows(k):
         table.add_row(Text(name), Text(type_), Text(default), Text(desc))
     console.print(table)
+    for param, forms in param_forms(k):  # a material's sources: the keys it may have
+        sub = Table(title=f"{param}: an object of one of these forms (its one key)")
+        sub.add_column("form", overflow="fold")
+        sub.add_column("description", overflow="fold", ratio=1)
+        for form, desc in forms:
+            sub.add_row(Text(form), Text(desc))
+        console.print(sub)
     for model, about, rows in nested_models(k):  # what a param's type names by model name
         sub = Table(title=f"{model}: {about}" if about else model)
         for col in ("field", "type", "default"):

@@ -404,8 +404,10 @@ def batch(
             steps = [{"name": s.name, "spec": s.spec} for s in plan.steps]
             write_rows(out, list(client.batch_results(steps, {}).get("rows") or []))
     columns, rows = result_rows(outcome.results)
-    table = results_table(columns, rows, title=f"batch {file}", results=outcome.results)
     console = table_console(to_stderr=as_json)
+    table = results_table(
+        columns, rows, title=f"batch {file}", results=outcome.results, width=console.width
+    )
     console.print(table)
     if tables:
         for metrics_table in metrics_tables(outcome.results, console.width):

@@ -85,34 +85,28 @@ def result_table_views(doc: ResultTable, title: str, width: int) -> list[Table]:
     return fitted_tables(title, doc.label_header.lower(), list(doc.columns), rows, width)
 
 
-def headline(doc: ResultTable | None, width: int = 60) -> str:
-    """One line of a step's result table: its first column's value for each label, e.g.
-    ``flip: rough 0.1234, same 0`` (cut at ``width`` characters, with an ellipsis)."""
-    if doc is None or not doc.rows or not doc.columns:
-        return ""
-    col = doc.columns[0]
-    parts = [f"{label} {_cell(values.get(col))}" for label, values in doc.rows.items()]
-    text = f"{col}: " + ", ".join(parts)
-    return text if len(text) <= width else text[: width - 1] + "\u2026"
-
-
 def results_table(
     columns: list[str],
     rows: list[dict[str, Any]],
     title: str,
     results: list[StepResult] | None = None,
+    width: int | None = None,
 ) -> Table:
     """A Rich table of the steps (job ids shortened to 12 characters; the ``error`` column
     only when a step has an error; with ``results``, a ``result`` column: each step's
-    :func:`headline`; whole result tables are :func:`metrics_tables`)."""
+    :func:`headline`; whole result tables are :func:`metrics_tables`). With ``width``, the
+    table fits in it: the result line is cut to the room the other columns leave, and
+    given below the table, a line per step, when that is under 12 characters."""
     shown = [c for c in BASE_COLUMNS if c != "error" or any(r.get("error") for r in rows)]
-    lines = [headline(r.table) for r in results] if results is not None else []
     table = Table(title=title)
+    used = 1
     for col in shown:
         # the step, kind, id, state and time keep their width (a step name up to 24
         # characters): the result line gives way first, as in `matforge ls`
         texts = [col, *(_cell(r.get(col))[: 12 if col == "job_id" else None] for r in rows)]
-        keep = min(max(len(t) for t in texts), KEPT_WIDTH.get(col, 0))
+        natural = max(len(t) for t in texts)
+        keep = min(natural, KEPT_WIDTH.get(col, 0))
+        used += min(natural, 48 if col == "error" else natural) + 3
         table.add_column(
             col,
             overflow="fold",
@@ -120,8 +114,19 @@ def results_table(
             max_width=48 if col == "error" else None,
             justify="right" if col == "seconds" or "." in col else "left",
         )
-    if any(lines):
-        table.add_column("result", overflow="ellipsis", no_wrap=True, min_width=12)
+    room = 60 if width is None else min(60, width - used - 3)
+    lines = [headline(r.table, max(room, 12)) for r in results] if results is not None else []
+    beside = any(lines) and room >= 12
+    if beside:
+        table.add_column("result", overflow="ellipsis", no_wrap=True, max_width=room)
+    elif any(lines):  # under the table, each as wide as the table
+        below = [
+            f"{r.step}: {headline(r.table, max(20, used - len(r.step) - 2))}"
+            for r in results or []
+            if r.table is not None and r.table.rows
+        ]
+        table.caption = "\n".join(below)
+        table.caption_justify = "left"
     for i, row in enumerate(rows):
         cells = []
         for col in shown:
@@ -129,7 +134,47 @@ def results_table(
             text = _cell(value[:12] if col == "job_id" and value else value)
             style = STATE_STYLE.get(text, "") if col == "state" else ""
             cells.append(Text(text, style=style))
-        if any(lines):
+        if beside:
             cells.append(Text(lines[i]))
         table.add_row(*cells)
     return table
+
+
+def headline(doc: ResultTable | None, width: int = 60) -> str:
+    """One line of a step's result table (cut at ``width`` characters, with an ellipsis):
+    its first column that is an error or a score (a metric with a better direction,
+    :func:`jobapi.rows.lower_is_better`), for its ``mean`` row when it has one, else for
+    each label (``flip: rough 0.1234, same 0``; ``smape: mean 0.11 (3 materials)``); a
+    table of no such column (a render's image, a dataset's materials) is counted and
+    named (``1 scene: sphere_env``, ``12 materials: iridescent-000-Au, ...``)."""
+    from jobapi.rows import lower_is_better
+
+    if doc is None or not doc.rows:
+        return ""
+    numeric = [
+        c
+        for c in doc.columns
+        if lower_is_better(c) is not None
+        and any(
+            isinstance(v.get(c), int | float) and not isinstance(v.get(c), bool)
+            for v in doc.rows.values()
+        )  # fmt: skip
+    ]
+    what = doc.label_header.lower() or "row"
+    if numeric:
+        col = numeric[0]
+        mean = doc.rows.get("mean")
+        if mean is not None and mean.get(col) is not None:
+            n = len(doc.rows) - 1
+            text = f"{col}: mean {_cell(mean.get(col))} ({n} {_plural(what, n)})"
+        else:
+            parts = [f"{label} {_cell(values.get(col))}" for label, values in doc.rows.items()]
+            text = f"{col}: " + ", ".join(parts)
+    else:
+        n = len(doc.rows)
+        text = f"{n} {_plural(what, n)}: " + ", ".join(doc.rows)
+    return text if len(text) <= width else text[: width - 1] + "\u2026"
+
+
+def _plural(word: str, n: int) -> str:
+    return word if n == 1 or word.endswith("s") else word + "s"

@@ -95,6 +95,65 @@ def _batch_steps(path: Path, variables: dict[str, str] | None = None) -> list[di
     return [{"name": s.name, "spec": s.spec} for s in plan.steps]
 
 
+def _var_values(template: Any, spec: Any, found: dict[str, Any]) -> None:
+    """Into ``found``: the value at each place where ``template`` (a step's spec as the
+    batch file writes it) holds a whole ``var:<name>`` string, read from ``spec`` (the
+    job's stored spec, same shape)."""
+    if isinstance(template, str) and template.startswith("var:"):
+        found.setdefault(template[4:], spec)
+    elif isinstance(template, dict) and isinstance(spec, dict):
+        for key, sub in template.items():
+            if key in spec:
+                _var_values(sub, spec[key], found)
+    elif isinstance(template, list) and isinstance(spec, list):
+        for sub, got in zip(template, spec, strict=False):
+            _var_values(sub, got, found)
+
+
+def last_run_vars(
+    path: Path, given: dict[str, str], client: Any
+) -> tuple[dict[str, str], str | None]:
+    """The batch's variables for reading its results: ``given``, and each variable that
+    has neither a value there nor a default taken from the jobs of the file's latest run
+    on the server (``matforge batch`` labels them ``<file name> <UTC time>``), where a
+    step's spec holds it; and that run's label (``None``: none was needed or found)."""
+    from service.spec_text import parse_spec_text
+
+    try:
+        doc = parse_spec_text(path.read_text(encoding="utf-8"), str(path))
+    except (OSError, ValueError):
+        return given, None
+    declared = doc.get("vars") if isinstance(doc, dict) else None
+    if not isinstance(declared, dict):
+        return given, None
+    missing = {k for k, v in declared.items() if v is None and k not in given}
+    steps = doc.get("steps") if isinstance(doc, dict) else doc
+    if not missing or not isinstance(steps, list):
+        return given, None
+    prefix = f"{path.name} "
+    found: dict[str, Any] = {}
+    label: str | None = None
+    for step in steps:
+        spec = step.get("spec") if isinstance(step, dict) else None
+        if not isinstance(spec, dict) or not isinstance(spec.get("kind"), str):
+            continue
+        wanted: dict[str, Any] = {}
+        _var_values(spec, spec, wanted)
+        if not set(wanted) & (missing - set(found)):
+            continue
+        jobs, _ = client.list_page(kind=spec["kind"], limit=200)
+        runs = [j for j in jobs if str(j.get("batch") or "").startswith(prefix)
+                and (label is None or j.get("batch") == label)
+                and ("name" not in spec or j.get("name") == spec["name"])]  # fmt: skip
+        if not runs:
+            continue
+        job = runs[0]  # newest first
+        label = str(job.get("batch"))
+        _var_values(spec, client.get(str(job["id"])).get("spec"), found)
+    recovered = {k: str(v) for k, v in found.items() if k in missing and isinstance(v, str | int)}
+    return {**given, **recovered}, label if recovered else None
+
+
 def _warn_missing(source: str, steps: list[dict[str, Any]]) -> None:
     missing = [str(s.get("step")) for s in steps if s.get("state") != "succeeded"]
     if missing:
@@ -158,7 +217,14 @@ def collect_remote(
             return client.results(filters)
         for arg in args:
             if is_batch_file(arg):
-                doc = client.batch_results(_batch_steps(Path(arg), variables), filters)
+                # a recipe's variables need not be repeated: its last run's are read
+                values, label = last_run_vars(Path(arg), dict(variables or {}), client)
+                if label is not None:
+                    given = " ".join(f"--var {k}={v}" for k, v in values.items()
+                                     if k not in (variables or {}))  # fmt: skip
+                    err_console.print(f"{arg}: {given} (its run {label!r})", markup=False,
+                                      highlight=False, soft_wrap=True)  # fmt: skip
+                doc = client.batch_results(_batch_steps(Path(arg), values), filters)
                 _warn_missing(arg, list(doc.get("steps") or []))
                 rows += list(doc.get("rows") or [])
             else:
@@ -296,35 +362,64 @@ def show_pivot(rows: list[dict[str, Any]], by: str, out: Path | None, as_json: b
     if as_json:
         print_json(doc)
     else:
-        table_console(to_stderr=out is not None).print(pivot_table(doc))
+        console = table_console(to_stderr=out is not None)
+        for table in pivot_tables(doc, console.width):
+            console.print(table)
 
 
-def pivot_table(doc: dict[str, Any]) -> Table:
-    """The pivot document as a Rich table: ``mean ± std`` per metric, the median per cost,
-    the best of each column in bold with a ``*``; lower/higher-is-better arrows in the
-    header."""
-    table = Table(title=f"{len(doc['methods'])} methods by {doc['by']}")
-    table.add_column(doc["by"], overflow="fold")
-    for col in doc["columns"]:
-        arrow = {True: " \u2193", False: " \u2191"}.get(col["lower_is_better"], "")
-        table.add_column(col["name"] + arrow, justify="right", overflow="fold")
+def pivot_tables(doc: dict[str, Any], width: int) -> list[Table]:
+    """The pivot document as Rich tables that fit in ``width`` characters: ``mean ± std``
+    per metric, the median per cost, the best of each column in bold with a ``*``,
+    lower/higher-is-better arrows in the header.
+
+    Methods that share no column (a render's image statistics, a MERL collection's table
+    quality, a trained model's scores) get a table each (:func:`service.cli.tables.blocks`).
+    A table too wide for ``width`` is split by columns, each part repeating the method
+    column (:func:`service.cli.tables.fitted_tables`), or transposed, a row per column and
+    a column per method, when that makes fewer parts (one method of many columns). No
+    header or number is cut."""
+    from service.cli.tables import blocks, chunk_count, fitted_tables
+
+    header = {
+        col["name"]: col["name"]
+        + {True: " \u2193", False: " \u2191"}.get(col["lower_is_better"], "")
+        for col in doc["columns"]
+    }
+    roles = {col["name"]: col["role"] for col in doc["columns"]}
+    order = [col["name"] for col in doc["columns"]]
+    cells: dict[str, dict[str, Text]] = {}
     for meth in doc["methods"]:
-        cells = [Text(meth)]
-        for col in doc["columns"]:
-            got = doc["cells"][meth].get(col["name"])
-            if got is None:
-                cells.append(Text(""))
+        cells[meth] = {}
+        for name, got in doc["cells"][meth].items():
+            if got is None or name not in roles:
                 continue
-            if col["role"] == "metric":
+            if roles[name] == "metric":
                 text = f"{got['mean']:.4g}"
                 if got["std"] is not None:
                     text += f" \u00b1 {got['std']:.2g}"
             else:
                 text = f"{got['median']:.4g}"
-            best = doc["best"].get(col["name"]) == meth
-            cells.append(Text(text + (" *" if best else ""), style="bold" if best else ""))
-        table.add_row(*cells)
+            best = doc["best"].get(name) == meth
+            cells[meth][name] = Text(text + (" *" if best else ""), style="bold" if best else "")
+    groups = blocks([(m, [c for c in order if c in cells[m]]) for m in doc["methods"]])
+    if not groups:
+        groups = [(list(doc["methods"]), [])]
+    tables: list[Table] = []
+    for n, (methods, columns) in enumerate(groups, start=1):
+        title = f"{len(doc['methods'])} methods by {doc['by']}"
+        if len(groups) > 1:
+            names = ", ".join(methods[:3]) + (f" and {len(methods) - 3} more" * (len(methods) > 3))
+            title = f"{title}, group {n}/{len(groups)}: {names}"
+        heads = [header[c] for c in columns]
+        rows = [(m, [cells[m].get(c, Text("")) for c in columns]) for m in methods]
+        flipped = [(header[c], [cells[m].get(c, Text("")) for m in methods]) for c in columns]
+        wide = chunk_count(heads, rows, doc["by"], width)
+        tall = chunk_count(methods, flipped, "column", width)
+        if len(methods) > 1 and tall >= wide or wide == 1:
+            tables += fitted_tables(title, doc["by"], heads, rows, width)
+        else:
+            tables += fitted_tables(title, "column", methods, flipped, width)
     unranked = doc.get("unranked") or {}
-    if unranked:
-        table.caption = f"not ranked: {', '.join(unranked)}: {next(iter(unranked.values()))}"
-    return table
+    if unranked and tables:
+        tables[-1].caption = f"not ranked: {', '.join(unranked)}: {next(iter(unranked.values()))}"
+    return tables

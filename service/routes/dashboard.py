@@ -70,15 +70,20 @@ def fmt_filesize(n: Any) -> str:
 
 
 def fmt_seconds(s: Any) -> str:
-    """A duration in seconds as ``"850 ms"``, ``"12.3 s"`` or ``"4 min 05 s"``."""
+    """A duration in seconds as ``"850 ms"``, ``"12.3 s"``, ``"4 min 05 s"`` or ``"2 h 05
+    min"``: rounded once, then split (``MF.seconds`` in ``common.js`` says the same)."""
     if not isinstance(s, int | float):
         return "–"
-    if s < 1:
+    if s < 0.9995:  # (rounded, 0.9996 s would read "1000 ms")
         return f"{s * 1000:.0f} ms"
-    if s < 60:
+    if s < 59.95:  # (rounded, 59.96 s would read "60.0 s")
         return f"{s:.1f} s"
-    minutes, sec = divmod(int(round(s)), 60)
-    return f"{minutes} min {sec:02d} s"
+    whole = int(round(s))
+    if whole < 3600:
+        minutes, sec = divmod(whole, 60)
+        return f"{minutes} min {sec:02d} s"
+    hours, minutes = divmod(int(round(s / 60)), 60)
+    return f"{hours} h {minutes:02d} min"
 
 
 def fmt_epoch(t: Any) -> str:
@@ -176,7 +181,8 @@ def _with_directions(table: dict[str, Any] | None) -> dict[str, Any] | None:
     return {
         **table,
         "better": {n: direction(n) for n in names},
-        "best": best_labels(table.get("rows") or {}, names),
+        # a dataset's items are measured, not ranked: no "best: <material>"
+        "best": best_labels(table.get("rows") or {}, names) if table.get("ranked", True) else {},
     }
 
 

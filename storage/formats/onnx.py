@@ -64,9 +64,10 @@ OPSET_RANGE = (13, 23)
 #: Operators a small MLP or texture graph needs: arithmetic, activations, shape plumbing
 #: with constant shapes, indexing and reductions. No control flow (``If``, ``Loop``,
 #: ``Scan``), no random operators, nothing that makes a tensor of a data-dependent size
-#: (``Tile``, ``ConstantOfShape``, ``Range``, ``Resize``, ``NonZero``). ``Expand`` (torch's
-#: ``normalize`` exports one) only to the shape of another tensor: its shape input must be
-#: the output of a ``Shape`` node (:data:`SHAPED_OPS`).
+#: (``Tile``, ``Range``, ``Resize``, ``NonZero``). ``Expand`` (torch's ``normalize`` exports
+#: one) and ``ConstantOfShape`` (torch's ``ones_like``, ``zeros_like``, ``full_like``) only
+#: to the shape of another tensor: their shape input must be the output of a ``Shape``
+#: node (:data:`SHAPED_OPS`).
 ALLOWED_OPS = frozenset(
     {
         # linear algebra and arithmetic
@@ -82,6 +83,7 @@ ALLOWED_OPS = frozenset(
         # shape plumbing
         "Concat", "Split", "Slice", "Reshape", "Flatten", "Squeeze", "Unsqueeze",
         "Transpose", "Identity", "Cast", "CastLike", "Shape", "Constant", "Expand",
+        "ConstantOfShape",
         # indexing and textures
         "Gather", "GatherElements", "GatherND", "GridSample",
         # reductions and normalisation
@@ -89,9 +91,10 @@ ALLOWED_OPS = frozenset(
         "ReduceSumSquare", "LayerNormalization", "BatchNormalization",
     }
 )  # fmt: skip
-#: Operators whose output size is their input ``shape`` (index 1): allowed only where that
-#: input is a ``Shape`` node's output, so no graph can ask for more memory than its inputs'.
-SHAPED_OPS = frozenset({"Expand"})
+#: Operators whose output size is their ``shape`` input (by its index): allowed only where
+#: that input is a ``Shape`` node's output, so no graph can ask for more memory than a
+#: tensor it already has.
+SHAPED_OPS = {"Expand": 1, "ConstantOfShape": 0}
 #: The two signatures: kind -> (input name -> last dimension), in order.
 SIGNATURES: dict[str, dict[str, int]] = {
     "brdf": {"wi": 3, "wo": 3},
@@ -300,9 +303,8 @@ def _check_structure(model: Any, name: str) -> None:
                 f"{label}: operator {node.op_type} is not allowed "
                 "(see the allowlist in docs/onnx-models.md)",
             )
-        if node.op_type in SHAPED_OPS and (
-            len(node.input) < 2 or shape_outputs.isdisjoint({node.input[1]})
-        ):
+        at = SHAPED_OPS.get(node.op_type)
+        if at is not None and (len(node.input) <= at or node.input[at] not in shape_outputs):
             raise FormatError(
                 name,
                 f"{label}: {node.op_type}'s shape must come straight from a Shape node "

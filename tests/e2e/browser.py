@@ -33,6 +33,24 @@ CHROMIUM_ARGS = [
 TOKEN = "browser-s3cret"
 SHOTS = Path("/tmp")
 
+#: Per chart of a page and numeric axis: the tick labels Chart.js draws, their centres
+#: and widths in the axis's font (a vertical axis: their heights, the font's size).
+TICK_BOXES = """() => [...document.querySelectorAll("canvas")].flatMap((canvas) => {
+  const chart = window.Chart && window.Chart.getChart(canvas);
+  if (!chart) return [];
+  return Object.values(chart.scales).filter((s) => s.type !== "category" && s.options.display)
+    .map((s) => {
+      const font = window.Chart.helpers.toFont(s.options.ticks.font);
+      chart.ctx.save();
+      chart.ctx.font = font.string;
+      const shown = s.ticks.map((t, i) => [t, i]).filter(([t]) => t.label && t.label !== "");
+      const boxes = shown.map(([t, i]) => [s.getPixelForTick(i),
+        s.isHorizontal() ? chart.ctx.measureText(String(t.label)).width : font.lineHeight]);
+      chart.ctx.restore();
+      return {chart: canvas.getAttribute("aria-label") || canvas.id, axis: s.id, boxes};
+    });
+})"""
+
 #: The marks of a browser test module: slow, and skipped without Chromium.
 BROWSER = [
     pytest.mark.slow,

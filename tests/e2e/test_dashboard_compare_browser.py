@@ -23,7 +23,7 @@ from storage.artifacts import ArtifactStore
 from storage.formats.exr import read_exr
 from storage.jobs import JobStore
 
-from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
+from .browser import BROWSER, SHOTS, TICK_BOXES, TOKEN, browser_server, data_settings
 from .test_dashboard_list_browser import url_has, wide_kind
 
 pytestmark = BROWSER
@@ -390,3 +390,25 @@ def test10_the_view_is_in_the_address(page: Any, server: str, prepared: dict[str
     assert pg.locator("#c-picture").input_value() == "errors"
     url_has(pg, "picture=errors")
     assert pg.problems == [], pg.problems
+
+
+@pytest.mark.parametrize("width", [1280, 800])
+def test11_compare_charts_tick_labels_do_not_overlap(
+    page: Any, server: str, prepared: dict[str, Any], width: int
+) -> None:
+    """The compare view's overlaid curves (a log axis): each tick label Chart.js draws
+    clears its neighbours (they were drawn into each other)."""
+    page.set_viewport_size({"width": width, "height": 900})
+    ids = prepared["ids"]
+    page.goto(f"{server}/compare?jobs={','.join(i[:10] for i in ids)}&token={TOKEN}")
+    page.wait_for_function(
+        "() => { const c = Chart.getChart(document.getElementById('c-curves-chart'));"
+        " return c && c.data.datasets.length === 3; }"
+    )
+    axes = page.evaluate(TICK_BOXES)
+    assert axes, "no chart axes on the page"
+    for axis in axes:
+        boxes = sorted(axis["boxes"])
+        for (a, wa), (b, wb) in zip(boxes, boxes[1:], strict=False):
+            assert b - a >= (wa + wb) / 2 + 2, (width, axis["chart"], axis["axis"], boxes)
+    assert page.problems == [], page.problems

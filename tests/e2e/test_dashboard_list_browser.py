@@ -31,7 +31,7 @@ from storage.formats.png import write_png
 from storage.jobs import JobStore
 from tests.helpers.job_documents import fabric_metrics
 
-from .browser import BROWSER, SHOTS, TOKEN, browser_server, data_settings
+from .browser import BROWSER, SHOTS, TICK_BOXES, TOKEN, browser_server, data_settings
 
 pytestmark = BROWSER
 
@@ -139,6 +139,11 @@ def prepared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
                 spec={"kind": "render", "seed": i, "params": {}}
                 | ({"batch": "nightly 2026-12-01"} if i >= N_QUEUED - 5 else {}),
             )
+        # the finished job ran 119.6 s: the list and its page say "2 min 00 s"
+        jobs._conn().execute(
+            "UPDATE jobs SET started_at = finished_at - 119.6 WHERE id = ?", (done.id,)
+        )
+        jobs._conn().commit()
         yield {"data": settings.data_dir, "done": jobs.get(done.id), "jobs": jobs}
     finally:
         jobs.close()
@@ -383,4 +388,93 @@ def test08_live_curves_of_a_running_job(page: Any, server: str, prepared: dict[s
     )
     assert title == "Training curves, live: step 7"
     jobs.cancel(job.id)
+    assert page.problems == [], page.problems
+
+
+WIDTHS = [1280, 800]
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test06_durations_round_once_and_times_stay_on_one_line(
+    page: Any, server: str, prepared: dict[str, Any], width: int
+) -> None:
+    """A run of 119.6 s reads "2 min 00 s" in the list, as on its page (the list said
+    "1 min 60 s"); the creation time is one line (it wrapped as "P" / "M")."""
+    page.set_viewport_size({"width": width, "height": 900})
+    done = prepared["done"]
+    page.goto(f"{server}/?name=wide&token={TOKEN}")
+    row = page.locator(f"#jobs-body tr[data-id='{done.id}']")
+    row.wait_for()
+    assert row.locator("td").last.inner_text().strip() == "2 min 00 s"
+    lines = page.evaluate(
+        """id => {
+          const td = document.querySelector(`#jobs-body tr[data-id='${id}'] td.when`);
+          const range = document.createRange();
+          range.selectNodeContents(td);
+          return new Set([...range.getClientRects()].map((r) => Math.round(r.top))).size;
+        }""",
+        done.id,
+    )
+    assert lines == 1, (width, lines)
+    page.goto(f"{server}/jobs/{done.id}?token={TOKEN}")
+    assert "2 min 00 s" in page.locator("body").inner_text()
+    # the page's times wrap between date and clock time only ("3:36:38 P" / "M" before)
+    split = page.evaluate(
+        """() => [...document.querySelectorAll("time[datetime]")]
+          .filter((t) => t.textContent.includes(":")).map((t) => {
+          const node = t.firstChild, text = node.textContent, at = text.indexOf(" ") + 1;
+          const range = document.createRange();
+          range.setStart(node, at);
+          range.setEnd(node, text.length);
+          return [text, new Set([...range.getClientRects()].map((r) => Math.round(r.top))).size];
+        })"""
+    )
+    assert split and all(lines == 1 for _, lines in split), (width, split)
+    assert page.problems == [], page.problems
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test07_a_refused_filter_has_no_pager_and_is_asked_once(
+    page: Any, server: str, width: int
+) -> None:
+    """The job list under a refused filter: the error, no pager ("1–21 of 21" stayed under
+    it), and no more requests until the filters change (it asked again every second, each
+    a 422 in the server's log); a plain visit after it asks nothing refused."""
+    page.set_viewport_size({"width": width, "height": 900})
+    refused: list[str] = []
+    page.on("response", lambda r: refused.append(r.url) if r.status == 422 else None)
+    page.goto(f"{server}/?filter=nonsense&token={TOKEN}")
+    page.wait_for_function(
+        "() => document.querySelector('#status-line').textContent.startsWith('refused')"
+    )
+    assert page.locator("#pager").is_hidden()
+    assert page.locator("#jobs-body td.error").count() == 1
+    page.wait_for_timeout(3500)  # three polls' time
+    assert len(refused) == 1, refused
+    page.goto(f"{server}/?token={TOKEN}")
+    page.wait_for_function("() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0")
+    page.wait_for_timeout(2500)
+    assert page.locator("#pager").is_visible()
+    assert len(refused) == 1, refused
+    page.problems[:] = [p for p in page.problems if "422" not in p]
+    assert page.problems == [], page.problems
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test08_chart_tick_labels_do_not_overlap(
+    page: Any, server: str, prepared: dict[str, Any], width: int
+) -> None:
+    """The job page's charts (its Pareto panels and metric bars): on every numeric axis
+    each tick label Chart.js draws clears its neighbours (the brdf, pareto and compare
+    pages drew them into each other)."""
+    page.set_viewport_size({"width": width, "height": 900})
+    page.goto(f"{server}/jobs/{prepared['done'].id}?token={TOKEN}")
+    page.wait_for_function("() => document.querySelectorAll('canvas').length > 0")
+    page.wait_for_timeout(500)
+    axes = page.evaluate(TICK_BOXES)
+    assert axes, "no chart axes on the page"
+    for axis in axes:
+        boxes = sorted(axis["boxes"])
+        for (a, wa), (b, wb) in zip(boxes, boxes[1:], strict=False):
+            assert b - a >= (wa + wb) / 2 + 2, (width, axis["chart"], axis["axis"], boxes)
     assert page.problems == [], page.problems

@@ -208,3 +208,28 @@ def test05_cli_pivot(server: Server, batch: tuple[Path, list[str]], tmp_path: Pa
         assert {r["method"] for r in csv.DictReader(fh)} >= {"spp1", "spp2", "gt"}
     bad = run_cli("results", ids[3], "--pivot", "--by", "colour", env=server.env())
     assert bad.returncode == 2 and "--by colour" in bad.stderr
+
+
+def test07_a_recipes_results_without_repeating_its_vars(server: Server, tmp_path: Path) -> None:
+    """A batch file with a variable (``vars: {scene: null}``), run with ``--var``: its
+    results are read without the ``--var``, from its last run's jobs (they failed with
+    "vars.scene: no value"), and are the results read with it."""
+    recipe = {
+        "vars": {"scene": None},
+        "steps": [{"name": "img", "spec": {**render(7, 2), "name": "recipe render"}}],
+    }
+    recipe["steps"][0]["spec"]["params"]["scene"] = "var:scene"
+    f = tmp_path / "recipe.yaml"
+    f.write_text(json.dumps(recipe))
+    ran = run_cli("batch", str(f), "--var", "scene=sphere_env", env=server.env())
+    assert ran.returncode == 0, f"{ran}\n{server.log_tail()}"
+    given = run_cli("results", str(f), "--json", "--var", "scene=sphere_env", env=server.env())
+    assert given.returncode == 0, given
+    read = run_cli("results", str(f), "--json", env=server.env())
+    assert read.returncode == 0, read
+    assert read.json() == given.json() and [r["step"] for r in read.json()] == ["img"] * len(
+        read.json()
+    )
+    assert "--var scene=sphere_env (its run 'recipe.yaml " in read.stderr
+    pivot = run_cli("results", str(f), "--pivot", env={**server.env(), "COLUMNS": "100"})
+    assert pivot.returncode == 0 and "img" in pivot.stdout, pivot

@@ -50,6 +50,31 @@ def test01_rest_refuses_with_the_field_and_a_hint(
     assert client.get("/api/jobs").json() == []  # nothing was queued
 
 
+#: Two typos at once: an unknown field and an unknown kind in one batch of errors.
+SPPP = {"kind": "render", "seed": -1, "params": {"material": {"mitsuba": {"type": "diffuse"}},
+                                                 "sppp": 4}}  # fmt: skip
+RENDR = {"kind": "rendr", "nmae": "x", "params": {"spp": 4}}
+
+
+@pytest.mark.parametrize(
+    ("spec", "errors"),
+    [
+        (SPPP, {"seed": "greater than or equal to 0", "params.sppp": "did you mean 'spp'?"}),
+        (RENDR, {"nmae": "did you mean 'name'?", "kind": "did you mean 'render'?"}),
+    ],
+)
+def test05_rest_reports_every_typo_with_its_hint(
+    client: TestClient, spec: dict[str, Any], errors: dict[str, str]
+) -> None:
+    r = client.post("/api/jobs", json=spec)
+    assert r.status_code == 422, r.text
+    body = r.json()
+    detail = {".".join(str(p) for p in d["loc"] if p != "body"): d["msg"] for d in body["detail"]}
+    assert list(detail) == list(errors), detail
+    for field, hint in errors.items():
+        assert hint in detail[field] and hint in body["error"], detail
+
+
 def spec_file(path: Path, spec: dict[str, Any]) -> Path:
     path.write_text(json.dumps(spec), encoding="utf-8")
     return path
@@ -60,6 +85,18 @@ def test02_cli_exits_2_with_the_hint(tmp_path: Path) -> None:
     for spec, words in (
         (ALPAH, ["params.material", "alpah", "did you mean 'alpha'?"]),
         (SCRATCH, ["params.example.procedural", "did you mean 'scratches'?"]),
+    ):
+        res = run_cli("run", str(spec_file(tmp_path / "s.json", spec)), *data, env=base_env())
+        assert res.returncode == 2, res
+        for word in words:
+            assert word in res.stderr, res
+
+
+def test06_cli_exits_2_with_every_typo(tmp_path: Path) -> None:
+    data = ["--data-dir", str(tmp_path / "d")]
+    for spec, words in (
+        (SPPP, ["seed", "params.sppp", "did you mean 'spp'?"]),
+        (RENDR, ["nmae", "did you mean 'name'?", "did you mean 'render'?"]),
     ):
         res = run_cli("run", str(spec_file(tmp_path / "s.json", spec)), *data, env=base_env())
         assert res.returncode == 2, res

@@ -22,7 +22,9 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import Field
 
+from evaluators.report.select import summarize as select_summary
 from evaluators.score.kind import summarize as score_summary
+from generators.merl.kind import summarize as merl_summary
 from jobapi import kinds as jobapi_kinds
 from jobapi.context import JobContext
 from jobapi.kinds import Kind
@@ -39,7 +41,7 @@ from service.workers.worker import run_worker
 from storage.artifacts import ArtifactStore
 from storage.formats.png import write_png
 from storage.jobs import JobStore
-from tests.helpers.job_documents import brdf_metrics, brdf_scores, fabric_metrics
+from tests.helpers.job_documents import brdf_metrics, brdf_scores, fabric_metrics, merl_materials
 
 TRAIN_METRICS = brdf_metrics(
     [brdf_scores("gold", "metal", "train", smape=0.11, smape_floor=0.1, mae=0.02,
@@ -84,6 +86,31 @@ FABRIC_METRICS = fabric_metrics(
      "baseline": {"loss": 0.4, "rgb": {"mse": 0.1, "rel": 1.1}}},
 )  # fmt: skip
 
+SAMPLING = "bin centre in (sqrt theta_h, theta_d, phi_d), phi_h = 0"
+#: ``generate.merl``'s materials: a collection's table quality (measured, not scored).
+MERL_MATERIALS = merl_materials(
+    [{"name": f"iridescent-00{i}-Au", "family": "iridescent", "source": {"mitsuba": {}},
+      "tabulation": {"max_rel_error": 0.001 * (i + 1), "bins": 90, "sampling": SAMPLING}}
+     for i in range(3)]
+)  # fmt: skip
+
+
+def _rung(candidate: str, value: float, cost: float, meets: bool) -> dict[str, Any]:
+    return {"candidate": candidate, "value": value, "n": 1, "min": value, "max": value,
+            "cost": cost, "runtime": "drjit-fused", "meets": meets}  # fmt: skip
+
+
+#: ``select``'s ladder: the cheapest rung fails the target, the next one is chosen.
+SELECT = {
+    "format": "matforge.select/1", "metric": "smape", "target": 0.1, "cost": "ns_per_eval",
+    "lower_is_better": True,
+    "ladders": [{"dataset": None, "scene": None, "metric": "smape", "cost": "ns_per_eval",
+                 "cost_label": None, "chosen": "hybrid 16x3", "why": "cheapest meeting it",
+                 "rungs": [_rung("analytic", 0.4, 2.0, False),
+                           _rung("hybrid 16x3", 0.08, 30.0, True),
+                           _rung("hybrid 32x3", 0.05, 60.0, True)]}],
+}  # fmt: skip
+
 #: ``score`` of whole models against a set of tables (means, then rows per material).
 SET_SCORE = {
     "reference": "job:" + "0" * 32,
@@ -97,14 +124,18 @@ SET_SCORE = {
 class TablesParams(StrictModel):
     """Params of the test-only kind."""
 
-    what: Literal["train", "report", "set", "fabric"] = Field(
+    what: Literal["train", "report", "set", "fabric", "merl", "select"] = Field(
         description="which job's artifacts to write"
     )
 
 
 def run_tables(params: TablesParams, ctx: JobContext) -> None:
     png = write_png(None, np.zeros((4, 4, 3), dtype=np.uint8))
-    if params.what == "set":
+    if params.what == "select":
+        ctx.put_json("select.json", SELECT)
+    elif params.what == "merl":
+        ctx.put_json("materials.json", MERL_MATERIALS)
+    elif params.what == "set":
         ctx.put_json("metrics.json", SET_SCORE)
     elif params.what == "fabric":
         ctx.put_json("metrics.json", FABRIC_METRICS)
@@ -120,6 +151,10 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     """The summary hook of the kind whose artifacts the job wrote."""
     if read("pareto.json") is not None:
         return report_summary(read)
+    if read("materials.json") is not None:
+        return merl_summary(read)
+    if read("select.json") is not None:
+        return select_summary(read)
     doc = read("metrics.json")
     if isinstance(doc, dict) and "metrics" in doc:
         return score_summary(read)
@@ -211,3 +246,28 @@ def test05_method_table_cells_in_si_units() -> None:
     assert cell("smape", "metric", mean=0.7238, std=0.01)["text"] == "0.7238 \u00b1 0.01"
     assert cell("psnr", "metric", mean=31.2, std=0.5)["text"] == "31.2 dB \u00b1 0.5 dB"
     assert _pivot_cell({"name": "smape", "role": "metric"}, None) == {"text": "", "value": None}
+
+
+def test06_a_datasets_items_have_no_best(client: TestClient, settings: Settings) -> None:
+    """A MERL collection's table quality is measured, not ranked: no column names a best
+    material (the charts said "best: iridescent-000-Au"), and no cell is marked; a
+    model's per-material scores still have their best."""
+    text, data = page(client, settings, "merl")
+    assert data["labels"] == ["iridescent-000-Au", "iridescent-001-Au", "iridescent-002-Au"]
+    assert data["better"]["tabulation.max_rel_error"] == "lower"  # an error, by its name
+    assert data["best"] == {} and data["ranked"] is False
+    assert 'class="num mono best"' not in text
+    _, train = page(client, settings, "train")
+    assert train["best"]["smape"] == "gold" and train["ranked"] is True
+    # the long text cell wraps at its words (on one line it pushed the table past the
+    # card's right edge): app.css's td.words
+    cells = re.findall(r'<td class="([^"]*)">' + re.escape(html.escape(SAMPLING)), text)
+    assert cells == ["num mono words"] * 3, cells
+
+
+def test07_select_marks_no_cheapest_rung_that_fails(client: TestClient, settings: Settings) -> None:
+    """The select table highlighted its cheapest rung (the cost column's lowest) in green
+    though that rung fails the target; the chosen rung is the one its table says."""
+    text, data = page(client, settings, "select")
+    assert data["rows"]["analytic"]["meets"] is False and data["rows"]["hybrid 16x3"]["chosen"]
+    assert data["best"] == {} and 'class="num mono best"' not in text

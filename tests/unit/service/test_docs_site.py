@@ -4,6 +4,7 @@ current."""
 
 from __future__ import annotations
 
+import html
 import importlib.util
 import os
 import subprocess
@@ -49,3 +50,11 @@ def test02_site_builds_strict_and_offline(tmp_path: Path) -> None:
     assert "ns/eval" in bench  # the summary was included from BENCHMARKS.md
     # offline: the theme's Google Fonts are off
     assert "fonts.googleapis.com" not in (site / "index.html").read_text(encoding="utf-8")
+    # a code block scrolls sideways in a narrow column (it was clipped): every page links
+    # the stylesheet that says so
+    css = (site / "stylesheets/extra.css").read_text(encoding="utf-8")
+    assert ".md-typeset pre > code {\n  overflow-x: auto;" in css
+    for page in ("index.html", "usage/index.html", "guides/score/index.html"):
+        assert "stylesheets/extra.css" in (site / page).read_text(encoding="utf-8"), page
+    score = (site / "guides/score/index.html").read_text(encoding="utf-8")
+    assert "SMAPE(f, g) = 2/N * sum_k |f_k - g_k| / (|f_k| + |g_k|)" in html.unescape(score)

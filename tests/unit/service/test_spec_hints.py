@@ -69,3 +69,66 @@ def test04_kinds_document_nested_models() -> None:
     assert "scratches" in procedural["procedural"][1], procedural
     assert procedural["procedural"][2] == "required"
     assert "stochastic" in {row[0]: row for row in models["SurfaceSpec"]}["distribution"][1]
+
+
+def render(params: dict[str, Any], **envelope: Any) -> dict[str, Any]:
+    material = {"mitsuba": {"type": "diffuse"}}
+    return {"kind": "render", **envelope, "params": {"material": material, **params}}
+
+
+@pytest.mark.parametrize(
+    ("spec", "field", "hint"),
+    [
+        (render({"sppp": 4}), "params.sppp", "did you mean 'spp'?"),
+        (render({"Spp": 4}), "params.Spp", "did you mean 'spp'?"),  # case alone
+        (render({"resolutoin": [8, 8]}), "params.resolutoin", "did you mean 'resolution'?"),
+        (render({}, nmae="x"), "nmae", "did you mean 'name'?"),  # the envelope's fields
+        ({"kind": "render", "parms": {}}, "parms", "did you mean 'params'?"),
+        (glint({"example": {"procedural": "scratches", "sizee": 16}}), "params.example.sizee",
+         "did you mean 'size'?"),  # a typo inside the one union member that fits
+    ],
+)  # fmt: skip
+def test_unknown_field_gets_did_you_mean(spec: dict[str, Any], field: str, hint: str) -> None:
+    errors = errors_of(spec)
+    assert [f for f, _ in errors] == [field], errors
+    assert errors[0][1] == "Extra inputs are not permitted; " + hint, errors
+
+
+def test_unknown_field_far_from_any_gets_no_guess() -> None:
+    assert errors_of(render({"zzzzzz": 1})) == [("params.zzzzzz", "Extra inputs are not permitted")]
+
+
+def test_unknown_kind_gets_did_you_mean_first() -> None:
+    ((field, msg),) = errors_of({"kind": "rendr", "params": {}})
+    assert field == "kind"
+    assert msg.startswith("unknown job kind 'rendr'; did you mean 'render'? (known kinds: ")
+    assert "train.brdf" in msg  # the list stays, after the guess
+    ((_, msg),) = errors_of({"kind": "no_such_thing"})
+    assert "did you mean" not in msg and msg.startswith("unknown job kind 'no_such_thing' (")
+
+
+def test_every_error_is_reported_envelope_kind_and_params() -> None:
+    """The envelope's errors do not hide the params' (each part is checked)."""
+    errors = errors_of(render({"sppp": 4, "spp": 0}, seed=-1, nmae="x"))
+    assert [f for f, _ in errors] == ["seed", "nmae", "params.spp", "params.sppp"], errors
+    errors = errors_of({"kind": "rendr", "seed": -1, "params": {}})
+    assert [f for f, _ in errors] == ["seed", "kind"], errors
+
+
+def test_kinds_render_lists_every_material_source(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``matforge kinds render`` names each form a ``material`` takes, ``external`` (a
+    user's own model) included; the params table alone calls it an ``object``."""
+    from typer.testing import CliRunner
+
+    from evaluators.render.sources.common import material_sources
+    from service.cli.main import app
+
+    monkeypatch.setenv("COLUMNS", "200")
+    res = CliRunner().invoke(app, ["kinds", "render"])
+    assert res.exit_code == 0, res.output
+    assert "material: an object of one of these forms" in res.stdout
+    keys = sorted(material_sources())
+    assert "external" in keys and "mitsuba" in keys
+    for key in keys:
+        assert f"│ {key} " in res.stdout, key
+    assert "ONNX model through onnxruntime" in res.stdout

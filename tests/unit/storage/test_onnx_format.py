@@ -221,3 +221,34 @@ def test12_batch_cost_of_good_models(tmp_path: Path) -> None:
     assert validate_file(path, "mlp.onnx") == "application/x-onnx"
     cost = batch_cost(onnx.load(str(path)), "mlp.onnx")
     assert cost.unknown == () and cost.row_bytes >= 4 * (6 + 32 + 32 + 3 + 3), cost
+
+
+def test13_torch_like_constants_pass_and_run(tmp_path: Path) -> None:
+    """``torch.ones_like``, ``zeros_like`` and ``full_like`` export as ``Shape`` then
+    ``ConstantOfShape``: a constant as big as a tensor the graph has, so allowed (it was
+    refused), and onnxruntime runs the model to what torch computes."""
+    import onnxruntime as ort
+    import torch
+
+    class Like(torch.nn.Module):
+        def forward(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+            return wi * torch.ones_like(wi) + torch.zeros_like(wo) + torch.full_like(wi, 0.5)
+
+    path = tmp_path / "like.onnx"
+    n = torch.zeros(5, 3)
+    torch.onnx.export(Like(), (n, n), str(path), input_names=["wi", "wo"], output_names=["rgb"],
+                      dynamic_axes={k: {0: "n"} for k in ("wi", "wo", "rgb")}, opset_version=17,
+                      dynamo=False)  # fmt: skip
+    ops = {node.op_type for node in onnx.load(str(path)).graph.node}
+    assert "ConstantOfShape" in ops, ops
+    check_onnx_file(path, "like.onnx", "brdf")
+    wi = np.random.default_rng(0).random((7, 3), dtype=np.float32)
+    (rgb,) = ort.InferenceSession(str(path)).run(None, {"wi": wi, "wo": wi})
+    np.testing.assert_allclose(rgb, wi + 0.5, rtol=1e-6)  # float32 round-off of one add
+
+
+def test14_constant_of_shape_only_to_another_tensors_shape(tmp_path: Path) -> None:
+    m = lambert_model("btf")
+    m.graph.initializer.append(numpy_helper.from_array(np.array([2**40, 3], np.int64), "shape"))
+    m.graph.node.append(helper.make_node("ConstantOfShape", ["shape"], ["big"]))
+    assert "ConstantOfShape's shape must come straight from a Shape node" in _refusal(tmp_path, m)

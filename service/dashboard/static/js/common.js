@@ -46,11 +46,16 @@ const MF = (() => {
 
   function seconds(s) {
     if (s === null || s === undefined || !isFinite(s)) return "–";
-    if (s < 1) return `${Math.round(s * 1000)} ms`;
-    if (s < 60) return `${s.toFixed(1)} s`;
-    const m = Math.floor(s / 60);
-    const r = Math.round(s - 60 * m);
-    return m < 60 ? `${m} min ${String(r).padStart(2, "0")} s` : `${Math.floor(m / 60)} h ${m % 60} min`;
+    // rounded once, then split: 119.6 s is "2 min 00 s" (it was "1 min 60 s"), as the
+    // job page (service/routes/dashboard.py fmt_seconds) says
+    if (s < 0.9995) return `${Math.round(s * 1000)} ms`;
+    if (s < 59.95) return `${s.toFixed(1)} s`;
+    const whole = Math.round(s);
+    if (whole < 3600) {
+      return `${Math.floor(whole / 60)} min ${String(whole % 60).padStart(2, "0")} s`;
+    }
+    const minutes = Math.round(s / 60);
+    return `${Math.floor(minutes / 60)} h ${String(minutes % 60).padStart(2, "0")} min`;
   }
 
   /** An ISO time as "12 s ago" (recent) or a local date-time. */
@@ -60,7 +65,15 @@ const MF = (() => {
     const ago = (Date.now() - t.getTime()) / 1000;
     if (ago < 60) return `${Math.max(0, Math.round(ago))} s ago`;
     if (ago < 3600) return `${Math.round(ago / 60)} min ago`;
-    return t.toLocaleString();
+    return localTime(iso);
+  }
+
+  /** A local date-time that wraps only between its date and its time: the clock time
+      and its AM/PM are joined by no-break spaces (a narrow column showed "3:36:38 P" and
+      "M" on two lines). */
+  function localTime(iso) {
+    const t = new Date(iso);
+    return `${t.toLocaleDateString()} ${t.toLocaleTimeString().replace(/\s+/g, "\u00a0")}`;
   }
 
   function badge(state) {
@@ -82,7 +95,7 @@ const MF = (() => {
   function localTimes(root = document) {
     for (const node of root.querySelectorAll("time[datetime]")) {
       const iso = node.getAttribute("datetime");
-      if (iso) node.textContent = new Date(iso).toLocaleString();
+      if (iso) node.textContent = localTime(iso);
     }
   }
 
@@ -196,7 +209,23 @@ const MF = (() => {
     return out;
   }
 
+  /** Chart.js axes whose tick labels never overlap: at most 7 ticks on a numeric axis,
+      and a label dropped rather than drawn over its neighbour (14 px apart at least; the
+      brdf, pareto and compare pages drew "15.8 ns16 ns16.2 ns" and log axes' every
+      tick). Called before a page makes its charts; once is enough. */
+  function fitTicks() {
+    const Chart = window.Chart;
+    if (!Chart || Chart.__mfFitted) return;
+    Chart.__mfFitted = true;
+    Chart.defaults.scale.ticks.autoSkip = true;
+    Chart.defaults.scale.ticks.autoSkipPadding = 14;
+    for (const type of ["linear", "logarithmic"]) {
+      const scale = Chart.defaults.scales[type];
+      if (scale) scale.ticks.maxTicksLimit = 7;
+    }
+  }
+
   stripToken();
   return { api, el, seconds, when, badge, progress, localTimes, curveSeries, paretoPanels,
-           unitOf, si, breakable };
+           unitOf, si, breakable, fitTicks };
 })();

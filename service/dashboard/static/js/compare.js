@@ -4,6 +4,7 @@
 
 (() => {
   const panels = JSON.parse(document.getElementById("compare-data").textContent);
+  MF.fitTicks();
   overlayCurves();
   overlayPareto();
 

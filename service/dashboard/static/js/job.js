@@ -88,6 +88,7 @@
     const node = document.getElementById("metrics-data");
     const box = document.getElementById("metrics-charts");
     if (!node || !box || typeof window.Chart === "undefined") return;
+    MF.fitTicks();
     // A report's Pareto panels (plots.js) already chart every row of its table against its
     // own cost axis: per-column bars would put ns and bytes on one axis, one chart per column
     // however few the rows. Other kinds' tables (per-material errors) keep their bars.

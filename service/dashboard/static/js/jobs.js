@@ -19,6 +19,7 @@
   const prev = document.getElementById("page-prev");
   const next = document.getElementById("page-next");
   const pageInfo = document.getElementById("page-info");
+  const pager = document.getElementById("pager");
   const groupBox = document.getElementById("f-group");
   const batchFilter = document.getElementById("batch-filter");
   const batchName = document.getElementById("batch-name");
@@ -215,7 +216,7 @@
       MF.el("td", { class: failed ? "message error" : "message",
                     title: failed ? job.error : job.message,
                     text: failed ? job.error : job.message }),
-      MF.el("td", { class: "muted", title: job.created_at, text: MF.when(job.created_at) }),
+      MF.el("td", { class: "muted when", title: job.created_at, text: MF.when(job.created_at) }),
       MF.el("td", { class: "num", text: MF.seconds(job.timings && job.timings.run_seconds) }),
     );
   }
@@ -266,6 +267,7 @@
     pageInfo.textContent = total ? `${first}–${first + shown - 1} of ${total}` : "";
     prev.disabled = page <= 1;
     next.disabled = page * PAGE_SIZE >= total;
+    pager.hidden = !total;  // no pager under a refusal or an empty list
   }
 
   function renderSort() {
@@ -291,7 +293,11 @@
       credentials: "same-origin", headers: { Accept: "application/json" },
     });
     const body = await response.json().catch(() => null);
-    if (!response.ok) throw new Error((body && body.error) || `HTTP ${response.status}`);
+    if (!response.ok) {
+      const err = new Error((body && body.error) || `HTTP ${response.status}`);
+      err.status = response.status;
+      throw err;
+    }
     total = parseInt(response.headers.get("X-Total-Count") || String(body.length), 10);
     return body;
   }
@@ -314,6 +320,14 @@
       body.replaceChildren(MF.el("tr", { class: "empty" }, MF.el("td", {
         colspan: colspan(), class: "error", text: err.message,
       })));
+      total = 0;  // no pages of a refused query
+      renderPager(0);
+      if (err.status >= 400 && err.status < 500) {
+        // refused as asked (an unknown column or filter): asking again every few seconds
+        // would only log the same 422; the next change of the filters asks again
+        statusLine.textContent = `refused: ${err.message}`;
+        return;
+      }
     }
     timer = window.setTimeout(refresh, POLL_MS);
   }

@@ -11,6 +11,7 @@
 (() => {
   const box = document.getElementById("plots");
   if (!box || typeof window.Chart === "undefined") return;
+  MF.fitTicks();
   const palette = ["#2f5bd3", "#d64545", "#1f9d55", "#c98a0b", "#7a5af8", "#0e9384", "#e04f9b"];
   const number = (v) => typeof v === "number" && isFinite(v);
   const spansDecades = (values, ratio) => {
