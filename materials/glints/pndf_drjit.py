@@ -156,7 +156,8 @@ def lobes_pndf(
     ``5 sigma_h``. At most ``max_items`` texels per lane."""
     import drjit as dr
 
-    count, lobe = _lobe_terms(mi, lobes, c, cov, active, max_items)
+    terms = lobe_terms(mi, lobes, c, cov, active, max_items)
+    count, lobe = terms.count, terms.lobe
     k2 = lobes.rate * lobes.rate
     qx, qy = q
 
@@ -405,13 +406,33 @@ def tiny_pndf(
     return det_a * dr.select(use_maps, acc, from_lobes)
 
 
-def _lobe_terms(
+@dataclass(frozen=True)
+class LobeTerms:
+    """Eq. 1's terms for one footprint: the support box's texels ``x0 .. x0 + nx - 1`` by
+    ``y0 .. y0 + ny - 1`` (global, not wrapped), ``count`` of them visited (at most
+    ``max_items``; 0 where inactive), and ``at(tx, ty, j) -> (g, mean_x, mean_y, ncov)``:
+    texel ``(tx, ty)``'s ``j``-th lobe, its spatial weight and its normal Gaussian given
+    the footprint (the map tiles: any texel is valid)."""
+
+    count: Any
+    x0: Any
+    y0: Any
+    nx: Any
+    ny: Any
+    at: Any
+
+    def lobe(self, i: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
+        """The box's ``i``-th texel's (row-major) ``j``-th lobe."""
+        return self.at(self.x0 + i % self.nx, self.y0 + i // self.nx, j)  # type: ignore[no-any-return]
+
+
+def lobe_terms(
     mi: types.ModuleType, lobes: JitLobes, c: tuple[Any, Any], cov: Sym2, active: Any,
     max_items: int,
-) -> tuple[Any, Any]:  # fmt: skip
-    """What :func:`lobes_pndf` and :func:`lobes_sample` share: the loop count and a function
-    ``lobe(i, j) -> (g, mean_x, mean_y, ncov)`` for texel ``i``'s ``j``-th lobe (its spatial
-    weight and its normal Gaussian given the footprint)."""
+) -> LobeTerms:  # fmt: skip
+    """What :func:`lobes_pndf`, :func:`lobes_sample` and the hierarchical evaluation
+    (:mod:`materials.glints.pndf_yan_hier`) share: the support box at
+    :data:`SUPPORT_SIGMAS` plus ``5 sigma_h`` and each lobe's term (:class:`LobeTerms`)."""
     import drjit as dr
 
     n, k2 = lobes.n, lobes.rate * lobes.rate
@@ -437,9 +458,7 @@ def _lobe_terms(
     r2 = lobes.sigma_r**2
     ux_a, uy_a, sx_a, sy_a, j00_a, j01_a, j10_a, j11_a = lobes.arrays
 
-    def lobe(i: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
-        tx = x0 + i % nx
-        ty = y0 + i // nx
+    def at(tx: Any, ty: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
         wx, wy = _pmod(mi, dr, tx, n), _pmod(mi, dr, ty, n)
         idx = mi.UInt32((wy * n + wx) * k2) + j
         ux = dr.gather(mi.Float, ux_a, idx) + mi.Float(tx - wx)
@@ -462,7 +481,7 @@ def _lobe_terms(
         ncov = Sym2(t00 * j00 + t01 * j01 + r2, t00 * j10 + t01 * j11, t10 * j10 + t11 * j11 + r2)
         return g, mean_x, mean_y, ncov
 
-    return count, lobe
+    return LobeTerms(count, x0, y0, nx, ny, at)
 
 
 def lobes_sample(
@@ -486,7 +505,8 @@ def lobes_sample(
     returned sample is 0)."""
     import drjit as dr
 
-    count, lobe = _lobe_terms(mi, lobes, c, cov, active, max_items)
+    terms = lobe_terms(mi, lobes, c, cov, active, max_items)
+    count, lobe = terms.count, terms.lobe
     k2 = lobes.rate * lobes.rate
 
     def total_body(i: Any, acc: Any) -> tuple[Any, Any]:
