@@ -423,7 +423,7 @@ class LobeTerms:
 
     def lobe(self, i: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
         """The box's ``i``-th texel's (row-major) ``j``-th lobe."""
-        return self.at(self.x0 + i % self.nx, self.y0 + i // self.nx, j)  # type: ignore[no-any-return]
+        return self.at(self.x0 + i % self.nx, self.y0 + i // self.nx, j)
 
 
 def lobe_terms(

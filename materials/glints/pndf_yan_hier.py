@@ -66,6 +66,7 @@ __all__ = [
     "TRUNCATION_SIGMAS",
     "JitBounds",
     "NormalBounds",
+    "bounds_bytes",
     "build_bounds",
     "hier_pndf",
     "hier_pndf_stats",
@@ -92,6 +93,15 @@ class NormalBounds:
     @property
     def nbytes(self) -> int:
         return int(sum(a.size * 4 for a in self.levels))
+
+
+def bounds_bytes(n: int, leaf: int = LEAF) -> int:
+    """Bytes of :func:`build_bounds`'s hierarchy for an ``n``-texel map (float32)."""
+    g = 1 << max(0, math.ceil(math.log2(math.ceil(n / leaf))))
+    nodes = 0
+    while g:
+        nodes, g = nodes + g * g, g // 2
+    return 4 * NODE_FLOATS * nodes
 
 
 def _round_out(x: np.ndarray, up: bool) -> np.ndarray:
@@ -372,8 +382,8 @@ def truncation_bound(lobes: Lobes, centre: np.ndarray, cov: np.ndarray, sigmas: 
     half = _SUPPORT * np.sqrt(np.diag(p)) + reach
     lo = np.floor(c - half).astype(int)
     hi = np.floor(c + half).astype(int)
-    tx, ty = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
-    tx, ty = tx.ravel(), ty.ravel()
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+    tx, ty = gx.ravel(), gy.ravel()
     k2 = lobes.rate * lobes.rate
     base = ((ty % n) * n + (tx % n)) * k2
     idx = (base[:, None] + np.arange(k2)[None]).ravel()

@@ -25,6 +25,7 @@ from materials.glints.footprint import yan_pndf
 from materials.glints.lobes import Lobes, make_lobes
 from materials.glints.pndf_drjit import Sym2, jit_lobes, lobes_pndf
 from materials.glints.pndf_yan_hier import (
+    bounds_bytes,
     build_bounds,
     hier_pndf,
     hier_pndf_stats,
@@ -177,3 +178,12 @@ def test05_bad_input(mi: types.ModuleType, lobes: Lobes) -> None:
     z = mi.Float(0.0)
     with pytest.raises(ValueError, match="8-texel map"):
         hier_pndf(mi, jit_lobes(mi, lobes), jb, (z, z), Sym2(z + 1, z, z + 1), (z, z))
+
+
+@pytest.mark.parametrize("n", [1, 7, 48, 64])
+def test06_bounds_bytes(n: int) -> None:
+    """The memory column's figure is the built hierarchy's size."""
+    normals = np.dstack([np.zeros((n, n, 2)), np.ones((n, n))])
+    for leaf in (1, 2, 4):
+        built = build_bounds(make_lobes(normals, rate=1), leaf=leaf)
+        assert bounds_bytes(n, leaf) == built.nbytes
