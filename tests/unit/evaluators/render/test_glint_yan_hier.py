@@ -31,7 +31,13 @@ def test01_hierarchical_layer_equals_brute_force(mi: types.ModuleType) -> None:
     fresnel = ("conductor", (1.0, 1.0, 1.0), (1.0, 1.0, 1.0))
     brute = make_layer(mi, data, surface, "yan", fresnel, **common)  # type: ignore[arg-type]
     hier = make_layer(
-        mi, data, surface, "yan", fresnel, yan_eval="hierarchical", **common  # type: ignore[arg-type]
+        mi,
+        data,
+        surface,
+        "yan",
+        fresnel,
+        yan_eval="hierarchical",
+        **common,  # type: ignore[arg-type]
     )
     assert brute.bounds is None and hier.bounds is not None
     assert hier.bounds.n == 80  # the export: 40 texels at 2 per texel
