@@ -21,9 +21,10 @@ of the footprint parallelogram's area).
 - ``Yan rate 1`` (the floor): the brute force on the same export at one lobe per texel: how
   far Yan is from itself under its own sampling of the normal map.
 
-No evaluation is capped (``MAX_ITEMS``). **Error**: relative L1 over a seed's queries, ``sum |D - D_ref| / sum |D_ref|``, mean and
-range over the seeds. **Time**: ns per evaluation, the median over the seeds of each seed's
-median of ``--repeats`` runs after a warm-up, host read-back included.
+No evaluation is capped (``MAX_ITEMS``). **Error**: relative L1 over a seed's queries,
+``sum |D - D_ref| / sum |D_ref|``, mean and range over the seeds. **Time**: ns per
+evaluation, the median over the seeds of each seed's median of ``--repeats`` runs after a
+warm-up, host read-back included.
 
 Run: ``.venv/bin/python benchmarks/bench_glint_matched.py [--examples scratches:32 ...]``
 """
@@ -175,7 +176,7 @@ def run_example(mi: Any, kind: str, size: int, args: argparse.Namespace, fp: dic
         q = tuple(mi.Float(v) for v in qs["q"])
         outs = {}
         for name, fn in methods.items():
-            t, out = timed(lambda fn=fn: fn(c, cov, q).numpy(), args.repeats)
+            t, out = timed(lambda fn=fn, c=c, cov=cov, q=q: fn(c, cov, q).numpy(), args.repeats)
             times[name].append(1e9 * t / count)
             outs[name] = out
         ref = outs["Yan brute (rate 2)"]
