@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from jobapi.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
@@ -143,5 +144,5 @@ def test05_hierarchical_yan_renders_the_brute_force_image(
     a, b = image(settings, hier).astype(np.float64), image(settings, brute).astype(np.float64)
     assert b.max() > 0
     assert np.abs(a - b).max() <= 1e-3 * b.max()
-    job = render(settings, {**spec, "yan_eval": "octree"}, spp=4)
-    assert job.state == "failed" and "yan_eval" in str(job.error), job.error
+    with pytest.raises(SpecError, match="yan_eval"):
+        render(settings, {**spec, "yan_eval": "octree"}, spp=4)
