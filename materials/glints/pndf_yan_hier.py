@@ -5,7 +5,7 @@ The brute force (:func:`materials.glints.pndf_drjit.lobes_pndf`) sums Eq. 1 over
 lobe whose texel lies in the footprint's support box (:data:`SUPPORT_SIGMAS` plus
 ``5 sigma_h``). This evaluation sums the same box, but walks a min-max hierarchy over
 blocks of texels and descends only into blocks that meet the box and whose **normal
-bounds** hold the query ``q`` (Yan et al. 2016, Sec. 5: a 4D bounding-box hierarchy over
+bounds** hold the query ``q`` (Yan et al. 2016: a 4D bounding-box hierarchy over
 the lobes' positions and Jacobian-linearised normals).
 
 **What is bounded.** Given a footprint ``N(c, P)``, lobe ``i``'s term of Eq. 1 is

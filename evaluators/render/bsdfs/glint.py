@@ -74,7 +74,8 @@ from materials.glints.pndf_yan_hier import JitBounds, hier_pndf
 GLINT_BSDF_NAME = "glint"
 #: Probability that ``sample`` draws from the GGX lobe.
 GGX_WEIGHT = 0.9
-#: Most texels (``yan``) or tiles (``tiny_example``) one evaluation visits.
+#: Most texels (``yan``, brute force), leaf blocks of 2 x 2 texels (``yan``, hierarchical) or
+#: tiles (``tiny_example``) one evaluation visits.
 MAX_ITEMS = 1 << 16
 #: ``sampling="pndf"``: probability that ``sample`` draws from the P-NDF itself (the rest
 #: goes to the GGX/cosine mixture, which keeps the density positive where the P-NDF is 0).
