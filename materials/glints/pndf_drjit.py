@@ -156,7 +156,8 @@ def lobes_pndf(
     ``5 sigma_h``. At most ``max_items`` texels per lane."""
     import drjit as dr
 
-    count, lobe = _lobe_terms(mi, lobes, c, cov, active, max_items)
+    terms = lobe_terms(mi, lobes, c, cov, active, max_items)
+    count, lobe = terms.count, terms.lobe
     k2 = lobes.rate * lobes.rate
     qx, qy = q
 
@@ -405,13 +406,33 @@ def tiny_pndf(
     return det_a * dr.select(use_maps, acc, from_lobes)
 
 
-def _lobe_terms(
+@dataclass(frozen=True)
+class LobeTerms:
+    """Eq. 1's terms for one footprint: the support box's texels ``x0 .. x0 + nx - 1`` by
+    ``y0 .. y0 + ny - 1`` (global, not wrapped), ``count`` of them visited (at most
+    ``max_items``; 0 where inactive), and ``at(tx, ty, j) -> (g, mean_x, mean_y, ncov)``:
+    texel ``(tx, ty)``'s ``j``-th lobe, its spatial weight and its normal Gaussian given
+    the footprint (the map tiles: any texel is valid)."""
+
+    count: Any
+    x0: Any
+    y0: Any
+    nx: Any
+    ny: Any
+    at: Any
+
+    def lobe(self, i: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
+        """The box's ``i``-th texel's (row-major) ``j``-th lobe."""
+        return self.at(self.x0 + i % self.nx, self.y0 + i // self.nx, j)
+
+
+def lobe_terms(
     mi: types.ModuleType, lobes: JitLobes, c: tuple[Any, Any], cov: Sym2, active: Any,
     max_items: int,
-) -> tuple[Any, Any]:  # fmt: skip
-    """What :func:`lobes_pndf` and :func:`lobes_sample` share: the loop count and a function
-    ``lobe(i, j) -> (g, mean_x, mean_y, ncov)`` for texel ``i``'s ``j``-th lobe (its spatial
-    weight and its normal Gaussian given the footprint)."""
+) -> LobeTerms:  # fmt: skip
+    """What :func:`lobes_pndf`, :func:`lobes_sample` and the hierarchical evaluation
+    (:mod:`materials.glints.pndf_yan_hier`) share: the support box at
+    :data:`SUPPORT_SIGMAS` plus ``5 sigma_h`` and each lobe's term (:class:`LobeTerms`)."""
     import drjit as dr
 
     n, k2 = lobes.n, lobes.rate * lobes.rate
@@ -437,9 +458,7 @@ def _lobe_terms(
     r2 = lobes.sigma_r**2
     ux_a, uy_a, sx_a, sy_a, j00_a, j01_a, j10_a, j11_a = lobes.arrays
 
-    def lobe(i: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
-        tx = x0 + i % nx
-        ty = y0 + i // nx
+    def at(tx: Any, ty: Any, j: int) -> tuple[Any, Any, Any, Sym2]:
         wx, wy = _pmod(mi, dr, tx, n), _pmod(mi, dr, ty, n)
         idx = mi.UInt32((wy * n + wx) * k2) + j
         ux = dr.gather(mi.Float, ux_a, idx) + mi.Float(tx - wx)
@@ -462,7 +481,7 @@ def _lobe_terms(
         ncov = Sym2(t00 * j00 + t01 * j01 + r2, t00 * j10 + t01 * j11, t10 * j10 + t11 * j11 + r2)
         return g, mean_x, mean_y, ncov
 
-    return count, lobe
+    return LobeTerms(count, x0, y0, nx, ny, at)
 
 
 def lobes_sample(
@@ -486,7 +505,8 @@ def lobes_sample(
     returned sample is 0)."""
     import drjit as dr
 
-    count, lobe = _lobe_terms(mi, lobes, c, cov, active, max_items)
+    terms = lobe_terms(mi, lobes, c, cov, active, max_items)
+    count, lobe = terms.count, terms.lobe
     k2 = lobes.rate * lobes.rate
 
     def total_body(i: Any, acc: Any) -> tuple[Any, Any]:
@@ -704,13 +724,22 @@ def tiny_sample(
 class JitPlacement:
     """A stochastic distribution's table (:class:`~materials.glints.surface.Surface`'s
     seeded instances, ``period x period`` cells of side ``spacing``) as Dr.Jit arrays, row
-    ``cy * period + cx``: jitter (cells), ``A^-1`` and ``A`` row-major, ``|det A|``."""
+    ``cy * period + cx``: jitter (cells), ``A^-1`` and ``A`` row-major, ``|det A|``.
+
+    ``candidates``: per sub-cell of the period (the four quadrants of each cell, class
+    ``((cy * period + cx) * 2 + qy) * 2 + qx``), the cells whose instance may cover a point
+    of it, as offsets ``(dx, dy)`` from the point's cell, nearest centre first (to the
+    sub-cell's centre, the distance Fig. 3's rule minimises); ``starts[k]`` where class
+    ``k``'s list begins (``k + 1``'s: where it ends). Fig. 3's owner is the first that
+    covers the point."""
 
     period: int
     spacing: float
     reach: float
     n: int
     arrays: tuple[Any, ...]  # jx, jy, i00, i01, i10, i11, a00, a01, a10, a11, det
+    candidates: tuple[Any, Any]  # dx, dy (mi.Int32)
+    starts: Any  # mi.UInt32
 
 
 def jit_placement(mi: types.ModuleType, surface: Any) -> JitPlacement:
@@ -726,12 +755,49 @@ def jit_placement(mi: types.ModuleType, surface: Any) -> JitPlacement:
             for col, v in zip(cols, vals, strict=True):
                 col.append(float(v))
     reach = 0.75 * surface.n * max(d.scale_range) + d.jitter * surface.spacing
+    dxs, dys, starts = _candidates(surface, reach)
     return JitPlacement(
         period=int(d.period),
         spacing=float(surface.spacing),
         reach=float(reach),
         n=int(surface.n),
         arrays=tuple(mi.Float(np.asarray(c, np.float32)) for c in cols),
+        candidates=(mi.Int32(dxs), mi.Int32(dys)),
+        starts=mi.UInt32(starts),
+    )
+
+
+def _candidates(surface: Any, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:class:`JitPlacement`'s candidate lists: for each sub-cell, the cells whose instance
+    centre lies within ``reach`` plus the sub-cell's half-diagonal of its centre (an
+    instance covers only points within ``reach`` of its centre, the square's
+    half-diagonal being at most ``0.75 n`` times the largest scale), sorted by distance
+    (ties: row-major order of the offsets, stable)."""
+    d = surface.dist
+    per, sp = int(d.period), float(surface.spacing)
+    jit = np.array([[inst.centre for inst in row] for row in surface.table])  # (cy, cx, 2)
+    r = int(math.ceil(reach / sp)) + 2
+    off = np.arange(-r, r + 1)
+    oy, ox = (a.ravel() for a in np.meshgrid(off, off, indexing="ij"))
+    dxs, dys, starts = [], [], [0]
+    limit = reach + 0.25 * math.sqrt(2.0) * sp
+    for cy in range(per):
+        for cx in range(per):
+            for qy in range(2):
+                for qx in range(2):
+                    sub = np.array([cx + (qx + 0.5) / 2.0, cy + (qy + 0.5) / 2.0]) * sp
+                    j = jit[(cy + oy) % per, (cx + ox) % per]
+                    ctr = (np.stack([cx + ox, cy + oy], axis=1) + 0.5 + j) * sp
+                    dist = np.linalg.norm(ctr - sub, axis=1)
+                    keep = np.flatnonzero(dist <= limit)
+                    order = keep[np.argsort(dist[keep], kind="stable")]
+                    dxs.append(ox[order])
+                    dys.append(oy[order])
+                    starts.append(starts[-1] + len(order))
+    return (
+        np.concatenate(dxs).astype(np.int32),
+        np.concatenate(dys).astype(np.int32),
+        np.asarray(starts, np.uint32),
     )
 
 
@@ -774,37 +840,33 @@ def stochastic_pndf(
         oy = (mi.Float(ky) + 0.5 + g[1]) * sp
         return (ox, oy, *g[2:])
 
-    def owns(px: Any, py: Any, kx: Any, ky: Any, on: Any) -> Any:
-        """Fig. 3: does instance ``(kx, ky)`` own global point ``(px, py)``?"""
-        gx, gy = dr.floor(px / sp), dr.floor(py / sp)
-        sub_x = (gx + (dr.floor((px / sp - gx) * 2.0) + 0.5) / 2.0) * sp
-        sub_y = (gy + (dr.floor((py / sp - gy) * 2.0) + 0.5) / 2.0) * sp
-        o0x = mi.Int32(dr.floor((px - place.reach) / sp))
-        o0y = mi.Int32(dr.floor((py - place.reach) / sp))
-        onx = dr.maximum(mi.Int32(dr.floor((px + place.reach) / sp)) - o0x + 1, 1)
-        ony = mi.Int32(dr.floor((py + place.reach) / sp)) - o0y + 1
-        ocount = dr.select(on, onx * dr.maximum(ony, 0), 0)
+    cdx, cdy = place.candidates
 
-        def obody(j: Any, bx: Any, by: Any, bd: Any) -> tuple[Any, ...]:
-            ox_, oy_ = o0x + j % onx, o0y + j // onx
+    def owns(px: Any, py: Any, kx: Any, ky: Any, on: Any) -> Any:
+        """Fig. 3: does instance ``(kx, ky)`` own global point ``(px, py)``? The first
+        candidate of the point's sub-cell (nearest first) that covers it owns it."""
+        gx, gy = dr.floor(px / sp), dr.floor(py / sp)
+        qx_ = mi.Int32(dr.clip(dr.floor((px / sp - gx) * 2.0), 0.0, 1.0))
+        qy_ = mi.Int32(dr.clip(dr.floor((py / sp - gy) * 2.0), 0.0, 1.0))
+        cgx, cgy = mi.Int32(gx), mi.Int32(gy)
+        cls = ((_pmod(mi, dr, cgy, per) * per + _pmod(mi, dr, cgx, per)) * 2 + qy_) * 2 + qx_
+        first = dr.gather(mi.UInt32, place.starts, mi.UInt32(cls), on)
+        last = dr.gather(mi.UInt32, place.starts, mi.UInt32(cls) + 1, on)
+
+        def obody(j: Any, bx: Any, by: Any, found: Any) -> tuple[Any, ...]:
+            ox_ = cgx + dr.gather(mi.Int32, cdx, j)
+            oy_ = cgy + dr.gather(mi.Int32, cdy, j)
             ccx, ccy, i00, i01, i10, i11 = inst(ox_, oy_, on)[:6]
             lx = i00 * (px - ccx) + i01 * (py - ccy) + 0.5 * n
             ly = i10 * (px - ccx) + i11 * (py - ccy) + 0.5 * n
             covers = (lx >= 0.0) & (lx < n) & (ly >= 0.0) & (ly < n)
-            d2 = dr.square(sub_x - ccx) + dr.square(sub_y - ccy)
-            take = covers & (d2 < bd)
-            return (
-                j + 1,
-                dr.select(take, ox_, bx),
-                dr.select(take, oy_, by),
-                dr.select(take, d2, bd),
-            )
+            return j + 1, dr.select(covers, ox_, bx), dr.select(covers, oy_, by), covers
 
-        _, bx, by, bd = dr.while_loop(
-            (mi.Int32(0), mi.Int32(0), mi.Int32(0), dr.full(mi.Float, float("inf"))),
-            lambda j, *rest: j < ocount, obody, label="glint: owner",
+        _, bx, by, found = dr.while_loop(
+            (first, mi.Int32(0), mi.Int32(0), mi.Bool(False)),
+            lambda j, bx, by, found: on & (j < last) & ~found, obody, label="glint: owner",
         )  # fmt: skip
-        return on & dr.isfinite(bd) & (bx == kx) & (by == ky)
+        return on & found & (bx == kx) & (by == ky)
 
     big_r = maps.resolution
     cell = 2.0 * maps.extent / big_r

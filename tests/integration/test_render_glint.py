@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from jobapi.errors import SpecError
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
@@ -126,3 +127,22 @@ def test04_stochastic_tiny_example_against_yan(env: tuple[Settings, Job, Job]) -
     err = np.abs(tiny - yan).mean() / yan.mean()
     control = np.abs(other - yan).mean() / yan.mean()
     assert err < 0.5 * control, (err, control)
+
+
+def test05_hierarchical_yan_renders_the_brute_force_image(
+    env: tuple[Settings, Job, Job],
+) -> None:
+    """``yan_eval: "hierarchical"`` through the render kind: the same image as the brute
+    force (same seed, same sampled directions; the P-NDF agrees to 1e-4 relative plus the
+    truncation bound, ``tests/unit/materials/glints/test_pndf_yan_hier.py``), so every
+    pixel within 1e-3 of the image's peak; and its rows' config names the evaluation."""
+    settings, _, scratches = env
+    spec = {"data": f"job:{scratches.id}", "method": "yan", "texels_per_uv": 96, "yan_rate": 2}
+    brute = render(settings, spec, spp=4)
+    hier = render(settings, {**spec, "yan_eval": "hierarchical"}, spp=4)
+    assert brute.state == "succeeded" and hier.state == "succeeded", hier.error
+    a, b = image(settings, hier).astype(np.float64), image(settings, brute).astype(np.float64)
+    assert b.max() > 0
+    assert np.abs(a - b).max() <= 1e-3 * b.max()
+    with pytest.raises(SpecError, match="yan_eval"):
+        render(settings, {**spec, "yan_eval": "octree"}, spp=4)

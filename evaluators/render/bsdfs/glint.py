@@ -14,7 +14,10 @@ from one of two evaluators of the same microstructure (:mod:`materials.glints.pn
   footprint's level, or its lobes below the
   finest tile (``lookup="flat"``); or the paper's descent over covered and partly covered
   tiles (``lookup="paper"``);
-- ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map;
+- ``yan``: Eq. 1 over the lobes of the microstructure exported as an explicit normal map,
+  by brute force (every lobe of the footprint's support) or, when the layer has
+  ``bounds``, by Yan et al. 2016's hierarchy (:mod:`materials.glints.pndf_yan_hier`: the
+  same sum, skipping blocks of texels that cannot reach the half vector);
 - ``smooth_ggx``: no microstructure: a smooth anisotropic GGX NDF whose roughness
   ``(alpha_u, alpha_v)`` matches the microstructure's slopes (the cheapest rung of the glint
   ladder of ``select``: what a scene gets without glints).
@@ -65,12 +68,14 @@ from materials.glints.pndf_drjit import (
     tiny_pndf,
     tiny_sample,
 )
+from materials.glints.pndf_yan_hier import JitBounds, hier_pndf
 
 #: The plugin name.
 GLINT_BSDF_NAME = "glint"
 #: Probability that ``sample`` draws from the GGX lobe.
 GGX_WEIGHT = 0.9
-#: Most texels (``yan``) or tiles (``tiny_example``) one evaluation visits.
+#: Most texels (``yan``, brute force), leaf blocks of 2 x 2 texels (``yan``, hierarchical) or
+#: tiles (``tiny_example``) one evaluation visits.
 MAX_ITEMS = 1 << 16
 #: ``sampling="pndf"``: probability that ``sample`` draws from the P-NDF itself (the rest
 #: goes to the GGX/cosine mixture, which keeps the density positive where the P-NDF is 0).
@@ -95,7 +100,9 @@ class GlintLayer:
     ``"paper"``, :data:`materials.glints.footprint.LOOKUPS`); ``sampling`` ``"ggx_mix"``
     or ``"pndf"`` (module docstring; read from the base layer), ``sampler`` the maps' patch
     CDFs (``tiny_example`` with ``"pndf"`` only); ``placement`` a stochastic
-    distribution's table (``tiny_example`` on a stochastic surface; ``transform`` unused).
+    distribution's table (``tiny_example`` on a stochastic surface; ``transform`` unused);
+    ``bounds`` (``yan`` only) the hierarchy over the lobes: evaluation walks it (sampling
+    still visits every lobe).
     """
 
     method: str
@@ -111,6 +118,7 @@ class GlintLayer:
     sampling: str = "ggx_mix"
     sampler: JitMapSampler | None = None
     placement: JitPlacement | None = None
+    bounds: JitBounds | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,6 +176,10 @@ def layer_pndf(
     if layer.method == "yan":
         cs = (c[0] * k, c[1] * k)
         covs = Sym2(cov.a * (k * k), cov.b * (k * k), cov.d * (k * k))
+        if layer.bounds is not None:
+            return hier_pndf(
+                mi, layer.lobes, layer.bounds, cs, covs, q, active, max_items=MAX_ITEMS
+            )  # fmt: skip
         return lobes_pndf(mi, layer.lobes, cs, covs, q, active, max_items=MAX_ITEMS)
     assert layer.maps is not None
     if layer.placement is not None:

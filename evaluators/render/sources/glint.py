@@ -17,8 +17,11 @@ and distribution), or the ``surface`` given here. ``method`` picks the evaluator
 - ``yan``: the surface exported over ``[0, texels_per_uv]^2`` global texels at
   ``oversample`` texels per example texel (Fig. 9's protocol), its lobes at ``yan_rate`` x
   ``yan_rate`` seeds per exported texel (default 1; the tiny example has 2 x 2, so a
-  reference that judges it wants ``yan_rate`` >= 2), and Eq. 1 over them by brute force
-  (every lobe in the footprint; no hierarchy over normals);
+  reference that judges it wants ``yan_rate`` >= 2), and Eq. 1 over them, by brute force
+  (``yan_eval: "brute_force"``, the default: every lobe in the footprint) or by Yan et
+  al. 2016's hierarchy (``"hierarchical"``, :mod:`materials.glints.pndf_yan_hier`: the
+  same P-NDF to ``exp(-k^2 / 2)`` of the dropped lobes' peaks, its bounds built with the
+  export as precompute);
 - ``smooth_ggx``: no glints: a smooth anisotropic GGX NDF of the surface's roughness
   (:func:`slope_alphas`), the bottom rung of the glint ladder (``select``).
 
@@ -28,7 +31,9 @@ surface's slopes: ``alpha^2 = mean(tan^2 theta) + 2 sigma_r^2`` over a sample of
 Memory (:func:`material_bytes`, the ``bytes_per_material`` of a glint render's result rows):
 ``tiny_example`` the job's NDF maps plus lobes (``stats.json``), ``yan`` one
 :data:`~materials.glints.lobes.LOBE_BYTES` record per lobe (``yan_rate^2`` per exported
-texel), ``smooth_ggx`` its two float32 roughnesses.
+texel), plus the hierarchy's bounds when ``hierarchical``
+(:func:`~materials.glints.pndf_yan_hier.bounds_bytes`), ``smooth_ggx`` its two float32
+roughnesses.
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ from jobapi.params import JobRef, StrictModel
 from jobapi.rows import number
 from materials.glints.lobes import LOBE_BYTES, Lobes, make_lobes
 from materials.glints.pndf_drjit import jit_lobes, jit_map_sampler, jit_maps, jit_placement
+from materials.glints.pndf_yan_hier import bounds_bytes, build_bounds, jit_bounds
 from materials.glints.surface import Surface, export_normal_map
 from materials.microfacet import NAMED_CONDUCTORS
 from storage.formats.exr import read_exr
@@ -126,6 +132,14 @@ class GlintSpec(StrictModel):
         le=4,
         description="yan: lobes per exported texel along each axis (rate^2 per texel); the "
         "tiny example has 2, so a reference that judges it wants 2 or more.",
+    )
+    yan_eval: Literal["brute_force", "hierarchical"] = Field(
+        default="brute_force",
+        description="yan: how Eq. 1 is summed: 'brute_force' (every lobe of the footprint's "
+        "support) or 'hierarchical' (Yan et al. 2016: a min-max hierarchy over blocks of "
+        "texels skips those whose positions and normals cannot reach the half vector; the "
+        "same P-NDF within exp(-12.5) of the skipped lobes' peaks, its build counted in "
+        "the render's setup).",
     )
     lookup: Literal["flat", "paper"] = Field(
         default="flat",
@@ -254,17 +268,22 @@ def layer_bytes(
     texels_per_uv: float,
     oversample: int,
     yan_rate: int = 1,
+    yan_eval: str = "brute_force",
 ) -> float | None:
     """Bytes a layer's evaluator holds for its microstructure: ``tiny_example`` the
     ``generate.glint`` job's NDF maps plus lobes (``tiny_bytes``, ``stats.json``'s
     ``bytes.total``; ``None`` if unknown), ``yan`` the exported map's lobes (one per export
     texel, ``(ceil(texels_per_uv) * oversample * yan_rate)^2`` records of ``LOBE_BYTES``, as
-    :func:`make_layer` builds them), ``smooth_ggx`` :data:`SMOOTH_GGX_BYTES`."""
+    :func:`make_layer` builds them; plus :func:`~materials.glints.pndf_yan_hier.bounds_bytes`
+    of the export when ``yan_eval`` is ``"hierarchical"``), ``smooth_ggx``
+    :data:`SMOOTH_GGX_BYTES`."""
     if method == "smooth_ggx":
         return float(SMOOTH_GGX_BYTES)
     if method == "yan":
-        side = int(math.ceil(texels_per_uv)) * int(oversample) * int(yan_rate)
-        return float(side * side * LOBE_BYTES)
+        texels = int(math.ceil(texels_per_uv)) * int(oversample)
+        side = texels * int(yan_rate)
+        tree = bounds_bytes(texels) if yan_eval == "hierarchical" else 0
+        return float(side * side * LOBE_BYTES + tree)
     return tiny_bytes
 
 
@@ -281,6 +300,7 @@ def make_layer(
     yan_rate: int = 1,
     lookup: str = "flat",
     sampling: str = "ggx_mix",
+    yan_eval: str = "brute_force",
 ) -> GlintLayer:
     """A :class:`GlintLayer` for ``method`` over ``surface``."""
     lobes: Lobes = data["lobes"]
@@ -341,9 +361,11 @@ def make_layer(
     side = int(math.ceil(texels_per_uv))
     explicit = export_normal_map(surface, side, oversample=oversample)
     ref = make_lobes(explicit, rate=yan_rate, sigma_r=lobes.sigma_r)
+    bounds = jit_bounds(mi, build_bounds(ref)) if yan_eval == "hierarchical" else None
     return GlintLayer(
         method=method,
         lobes=jit_lobes(mi, ref),
+        bounds=bounds,
         maps=None,
         transform=(np.eye(2), np.zeros(2)),
         texel_scale=float(oversample),
@@ -373,6 +395,7 @@ def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
         mi, data, surface, spec.method, ("conductor", eta, k),
         texels_per_uv=spec.texels_per_uv, oversample=spec.oversample, field="material.glint",
         yan_rate=spec.yan_rate, lookup=spec.lookup, sampling=spec.sampling,
+        yan_eval=spec.yan_eval,
     )  # fmt: skip
     coat = None
     if spec.clearcoat is not None:
@@ -382,6 +405,7 @@ def resolve_glint(value: dict[str, Any], ctx: JobContext, mi: types.ModuleType) 
             spec.clearcoat.method or spec.method, ("dielectric", spec.clearcoat.ior),
             texels_per_uv=spec.texels_per_uv, oversample=spec.oversample,
             field="material.glint.clearcoat", yan_rate=spec.yan_rate, lookup=spec.lookup,
+            yan_eval=spec.yan_eval,
         )  # fmt: skip
     key = hashlib.sha256(json.dumps([ctx.job_id, _as_dict(spec)], sort_keys=True).encode())
     name = put_layers(key.hexdigest(), base, coat)
@@ -397,6 +421,7 @@ def _glint_layer(
     texels: float,
     oversample: int,
     yan_rate: int = 1,
+    yan_eval: str = "brute_force",
 ) -> tuple[float | None, int | None]:
     """Bytes and example side of one glint layer (``None`` where its data job is unknown)."""
     data = spec.get("data")
@@ -405,19 +430,21 @@ def _glint_layer(
     size = stats["example"]["size"] if stats is not None else None
     tiny = float(stats["bytes"]["total"]) if stats is not None else None
     nbytes = layer_bytes(
-        method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample, yan_rate=yan_rate
-    )
+        method, tiny_bytes=tiny, texels_per_uv=texels, oversample=oversample, yan_rate=yan_rate,
+        yan_eval=yan_eval,
+    )  # fmt: skip
     return nbytes, int(size) if size is not None else None
 
 
 def glint_row_facts(src: RowSource, material: Mapping[str, Any]) -> MaterialRowFacts:
     """What a render's ``{"glint": {...}}`` material adds to its result rows: its evaluator
     (``config.method``), the example's side (``config.example``), ``texels_per_uv``, a
-    clearcoat's method, ``lookup`` and ``sampling`` where they differ from the defaults, and
-    its memory, ``bytes_per_material`` (:func:`layer_bytes`: the tiny example's NDF maps and
-    lobes from its ``generate.glint`` job's ``stats.json``, the Yan et al. export's lobes, or
-    the smooth GGX's two roughnesses; a clearcoat's are added), so that a glint ladder charts
-    error against memory as well as time. Defaults as :class:`GlintSpec`'s: tiny_example,
+    clearcoat's method, ``lookup``, ``sampling`` and ``yan_eval`` where they differ from the
+    defaults, and its memory, ``bytes_per_material`` (:func:`layer_bytes`: the tiny
+    example's NDF maps and lobes from its ``generate.glint`` job's ``stats.json``, the Yan et
+    al. export's lobes (and its hierarchy's bounds), or the smooth GGX's two roughnesses; a
+    clearcoat's are added), so that a glint ladder charts error against memory as well as
+    time. Defaults as :class:`GlintSpec`'s: tiny_example,
     256 texels per uv, oversample 2, yan_rate 1."""
     glint = material.get("glint")
     if not isinstance(glint, Mapping):
@@ -429,18 +456,19 @@ def glint_row_facts(src: RowSource, material: Mapping[str, Any]) -> MaterialRowF
     over_i = 2 if over is None else int(over)
     rate = number(glint.get("yan_rate"))
     rate_i = 1 if rate is None else int(rate)
-    nbytes, size = _glint_layer(src, glint, method, texels, over_i, rate_i)
+    yan_eval = str(glint.get("yan_eval") or "brute_force")
+    nbytes, size = _glint_layer(src, glint, method, texels, over_i, rate_i, yan_eval)
     config: dict[str, Any] = {"method": method, "example": size, "texels_per_uv": texels}
     # The lookup rule and the sampler, only where they differ from the defaults (so that
     # the rows of older renders keep their config).
-    for key, default in (("lookup", "flat"), ("sampling", "ggx_mix")):
+    for key, default in (("lookup", "flat"), ("sampling", "ggx_mix"), ("yan_eval", "brute_force")):
         value = glint.get(key)
         if value is not None and value != default:
             config[key] = str(value)
     coat = glint.get("clearcoat")
     if isinstance(coat, Mapping):
         coat_method = str(coat.get("method") or method)
-        coat_bytes, _ = _glint_layer(src, coat, coat_method, texels, over_i, rate_i)
+        coat_bytes, _ = _glint_layer(src, coat, coat_method, texels, over_i, rate_i, yan_eval)
         nbytes = None if nbytes is None or coat_bytes is None else nbytes + coat_bytes
         config["clearcoat"] = coat_method
     return MaterialRowFacts(config=config, bytes_per_material=nbytes)
