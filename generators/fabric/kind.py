@@ -58,10 +58,12 @@ from generators.fabric.params import (
     MAX_QUERIES,
     PRESETS,
     REPLICATES,
+    SPLITS,
     FabricGenParams,
     FabricPreset,
     PresetName,
     Resolved,
+    material_split,
     plan_sets,
     scene_record,
     sweep_beta,
@@ -102,6 +104,7 @@ __all__ = [
     "PlannedFabric",
     "PresetName",
     "Resolved",
+    "SPLITS",
     "ShardTask",
     "estimate_shard",
     "params_record",
@@ -127,6 +130,9 @@ class PlannedFabric:
     params: FabricParams
     design_seed: int
     query_set: str
+    split: str | None = None
+    """``train``, ``unseen_material`` or ``unseen_pattern`` with the ``unseen*`` presets
+    (:func:`~generators.fabric.params.material_split`); ``None`` otherwise."""
 
 
 def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
@@ -153,7 +159,8 @@ def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
         label = f"{name}-t{j:02d}-s{k:02d}"
         query_set = f"{name}-t{j:02d}" if cfg.beta_sweep else label
         seed = ctx.sub_seed(f"generate.fabric/queries/{query_set}")
-        out.append(PlannedFabric(label, name, j, k, params, seed, query_set))
+        split = material_split(name, k, cfg.shading_sets[name]) if cfg.splits else None
+        out.append(PlannedFabric(label, name, j, k, params, seed, query_set, split))
     return out
 
 
@@ -188,6 +195,8 @@ def _config_doc(cfg: Resolved) -> dict[str, Any]:
         del doc["sizes"]
     if doc["yarn_profile"] == "smooth":
         del doc["yarn_profile"]
+    if not doc["splits"]:
+        del doc["splits"]
     if cfg.scene is None:
         del doc["scene"]
     else:
@@ -258,18 +267,19 @@ def _write_maps(
         }
         ctx.put_bytes(maps["normal"], normal, "image/x-exr")
         ctx.put_bytes(maps["orientation"], orientation, "image/x-exr")
-        records.append(
-            {
-                "name": m.name,
-                "pattern": m.pattern,
-                "texture_set": m.texture_set,
-                "shading_set": m.shading_set,
-                "params": params_record(m.params),
-                "design_seed": m.design_seed,
-                "maps": maps,
-                "shards": shards,
-            }
-        )
+        record: dict[str, Any] = {
+            "name": m.name,
+            "pattern": m.pattern,
+            "texture_set": m.texture_set,
+            "shading_set": m.shading_set,
+            "params": params_record(m.params),
+            "design_seed": m.design_seed,
+            "maps": maps,
+            "shards": shards,
+        }
+        if m.split is not None:  # only with the unseen* presets: older datasets keep bytes
+            record["split"] = m.split
+        records.append(record)
     return records
 
 
