@@ -366,7 +366,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     if doc is None or not doc["materials"]:
         return None
     columns = ["pattern", "texture_set", "shading_set", "shards"]
-    rows = {
+    rows: dict[str, dict[str, Any]] = {
         m["name"]: {
             "pattern": m["pattern"],
             "texture_set": m["texture_set"],
@@ -375,6 +375,10 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         }
         for m in doc["materials"]
     }
+    if any("split" in m for m in doc["materials"]):  # the unseen* presets' held-out sets
+        columns.append("split")
+        for m in doc["materials"]:
+            rows[m["name"]]["split"] = m.get("split")
     return ResultTable(
         title="Materials",
         label_header="Material",

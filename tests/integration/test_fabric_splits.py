@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from generators.fabric.kind import summarize as fabric_summary
 from service.settings import Settings
 from service.submission import run_in_process
 from storage.artifacts import ArtifactStore
@@ -58,6 +59,9 @@ def test01_splits_recorded_and_reported_apart(settings: Settings, dataset: Job) 
         "twill_4x4-t00-s00": "unseen_pattern",
         "twill_4x4-t00-s01": "unseen_pattern",
     }
+    table = fabric_summary(lambda name: json.loads(read(settings, dataset, name)))
+    assert table is not None and table.columns[-1] == "split"
+    assert {k: r["split"] for k, r in table.rows.items()} == splits
     job = run_in_process(
         {"kind": "train.fabric", "seed": 1,
          "params": {"dataset": f"job:{dataset.id}", **TINY_TRAIN}},
