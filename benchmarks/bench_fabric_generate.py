@@ -67,6 +67,7 @@ def main() -> None:
     ap.add_argument("--sampler", default="sobol", choices=("sobol", "independent"))
     ap.add_argument("--shard-queries", type=int, default=None)
     ap.add_argument("--backend", default="drjit", choices=("drjit", "numpy"))
+    ap.add_argument("--sizes", default="strata", choices=("strata", "log_uniform"))
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     params: dict[str, Any] = {
@@ -75,6 +76,8 @@ def main() -> None:
         "sampler": args.sampler,
         "backend": args.backend,
     }
+    if args.sizes != "strata":
+        params["sizes"] = args.sizes
     if args.patterns:
         params.update(patterns=args.patterns, texture_sets=1, shading_sets=1)
     if args.queries:
@@ -122,6 +125,8 @@ def main() -> None:
         cmd += f" --queries {args.queries}"
     if args.shard_queries:
         cmd += f" --shard-queries {args.shard_queries}"
+    if args.sizes != "strata":
+        cmd += f" --sizes {args.sizes}"
     # the preset's whole dataset at its own queries and samples, at the measured rate
     full = FabricGenParams(preset=args.preset).resolved()
     total = len(plan_sets(full)) * full.queries * full.samples

@@ -24,6 +24,7 @@ UNSEEN: dict[str, Any] = {
     "samples": 16,
     "map_resolution": 16,
     "backend": "numpy",
+    "sizes": "log_uniform",
 }
 TINY_TRAIN: dict[str, Any] = {
     "encoder_width": 16,

@@ -23,8 +23,8 @@ TRAIN = {"preset": "small", "encoder_width": 16, "decoder_width": 16, "map_resol
 
 def shrink(spec: dict[str, Any]) -> dict[str, Any]:
     if spec["kind"] == "generate.fabric":
-        assert spec["params"]["preset"] == "unseen"
-        return {**spec, "params": DATASET}
+        assert spec["params"] == {"preset": "unseen", "sizes": "log_uniform"}
+        return {**spec, "params": {**DATASET, "sizes": "log_uniform"}}
     assert spec["kind"] == "train.fabric"
     return {**spec, "params": {**spec["params"], **TRAIN}}
 

@@ -46,7 +46,7 @@ def test02_machine_size_counts() -> None:
     assert len(sets) == 7 * 4 * 4 + 2 * 2 == 116
     splits = Counter(material_split(p, k, cfg.shading_sets[p]) for p, _, k in sets)
     assert splits == {"train": 84, "unseen_material": 28, "unseen_pattern": 4}
-    assert (cfg.queries, cfg.samples, cfg.sizes) == (20_480, 256, "log_uniform")
+    assert (cfg.queries, cfg.samples, cfg.sizes) == (20_480, 256, "strata")
     assert cfg.queries % 20_480 == 0  # complete rounds of every stratum
 
 
@@ -60,15 +60,15 @@ def test03_paper_size_is_sec_5_1_plus_the_unseen_twill() -> None:
     assert (cfg.queries, cfg.samples, cfg.sizes) == (3_276_800, 2048, "strata")
 
 
-def test04_sizes_resolve() -> None:
-    assert FabricGenParams(preset="small").resolved().sizes == "strata"
-    assert FabricGenParams(preset="unseen_small").resolved().sizes == "log_uniform"
-    assert FabricGenParams(preset="unseen", sizes="strata").resolved().sizes == "strata"
+def test04_sizes_and_splits_resolve() -> None:
+    unseen = FabricGenParams(preset="unseen", sizes="log_uniform").resolved()
+    assert unseen.sizes == "log_uniform" and unseen.splits
     scene = {"name": "cloth_plane", "resolution": [16, 16]}
-    assert FabricGenParams(preset="unseen_small", scene=scene).resolved().sizes == "strata"
+    assert FabricGenParams(preset="unseen_small", scene=scene).resolved().splits
     with pytest.raises(ValidationError, match="sizes: leave it out with scene"):
-        FabricGenParams(preset="small", sizes="log_uniform", scene=scene)
+        FabricGenParams(preset="unseen_small", sizes="log_uniform", scene=scene)
     assert not FabricGenParams(preset="small").resolved().splits
+    assert not FabricGenParams(preset="paper").resolved().splits
 
 
 def test05_every_material_its_own_draw_of_table_1() -> None:
