@@ -6,7 +6,10 @@ draws of the roughness ``alpha``, the height scaling ``beta``, the Lambertian we
 and the albedos; all from :data:`materials.fabric.params.PARAM_RANGES` (documented there:
 psi U(-40, 40) deg, u U(10, 45) deg, alpha U(0.1, 0.8), beta U(0.1, 1.0), w U(0.3, 1.0),
 albedos U(0.05, 0.9), gap fixed at 0.2). The paper's set is 9 x 9 = 81 plain materials and
-4 x 16 = 64 for each of the three twills and three satins: 192 twill, 192 satin.
+4 x 16 = 64 for each of the three twills and three satins: 192 twill, 192 satin. The
+``unseen*`` presets add the unseen twill 4x4 and give each material a ``split``
+(:func:`~generators.fabric.params.material_split`: ``train``, ``unseen_material``,
+``unseen_pattern``) that ``train.fabric`` trains and reports by.
 
 Queries: the stratified design of :mod:`generators.fabric.queries` (8 x 8 centres, 10 + 10
 sizes, 8 x 8 x 8 x 8 direction strata, BRDF and BTDF pairs), or with ``scene`` the queries
@@ -22,7 +25,8 @@ Artifacts:
   ``wo`` (N, 3), ``value`` (N, 4), ``stderr`` (N, 4), all float32 but ``material``;
   components in the order C_warp, C_weft, S_warp, S_weft (Eq. 7, unit albedos, incident
   cosine included); footprints in tile units; directions in the macro frame, z up.
-- ``materials.json``: every material's parameters, seeds, maps and shards.
+- ``materials.json``: every material's parameters, seeds, maps and shards (and ``split``
+  with the ``unseen*`` presets).
 - ``maps/<name>-normal.exr`` and ``maps/<name>-orientation.exr``: ply normal n_p and ply
   orientation t_p over one tile (``map_resolution`` squared, xyz in RGB, row 0 at the top,
   i.e. the highest ``t``), from :func:`materials.fabric.yarn.rasterize`.
