@@ -14,7 +14,9 @@ runs ``--repeats`` times (``force``); the row gives the median and the range.
 
 Run: ``.venv/bin/python benchmarks/bench_fabric_generate.py [--patterns twill_3x3]
 [--queries 40960] [--samples 2048] [--shard-queries 4096]``; ``--preset small`` with no
-``--queries`` measures the small preset as it is.
+``--queries`` measures the small preset as it is. Every run also prints the time of the
+named preset's whole dataset (its materials x queries x samples) at the measured rate, e.g.
+``--preset unseen --patterns plain twill_8x8 satin_5x10 --queries 20480 --samples 256``.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from generators.fabric.params import PRESETS, FabricGenParams, plan_sets  # noqa: E402
 from service.settings import Settings  # noqa: E402
 from service.submission import run_in_process  # noqa: E402
 from storage.artifacts import ArtifactStore  # noqa: E402
@@ -57,13 +60,14 @@ def run_job(settings: Settings, params: dict[str, Any], force: bool) -> dict[str
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="small", choices=("small", "paper"))
+    ap.add_argument("--preset", default="small", choices=tuple(PRESETS))
     ap.add_argument("--patterns", nargs="*", default=None, help="default: the preset's")
     ap.add_argument("--queries", type=int, default=None, help="queries per material")
     ap.add_argument("--samples", type=int, default=PAPER_SAMPLES)
     ap.add_argument("--sampler", default="sobol", choices=("sobol", "independent"))
     ap.add_argument("--shard-queries", type=int, default=None)
     ap.add_argument("--backend", default="drjit", choices=("drjit", "numpy"))
+    ap.add_argument("--sizes", default="strata", choices=("strata", "log_uniform"))
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     params: dict[str, Any] = {
@@ -72,6 +76,8 @@ def main() -> None:
         "sampler": args.sampler,
         "backend": args.backend,
     }
+    if args.sizes != "strata":
+        params["sizes"] = args.sizes
     if args.patterns:
         params.update(patterns=args.patterns, texture_sets=1, shading_sets=1)
     if args.queries:
@@ -119,6 +125,17 @@ def main() -> None:
         cmd += f" --queries {args.queries}"
     if args.shard_queries:
         cmd += f" --shard-queries {args.shard_queries}"
+    if args.sizes != "strata":
+        cmd += f" --sizes {args.sizes}"
+    # the preset's whole dataset at its own queries and samples, at the measured rate
+    full = FabricGenParams(preset=args.preset).resolved()
+    total = len(plan_sets(full)) * full.queries * full.samples
+    print(
+        f"\npreset {args.preset} in full: {len(plan_sets(full))} materials x {full.queries} "
+        f"queries x {full.samples} samples = {total:.3g} samples: "
+        f"{total / rate / 3600:.2f} h at the median rate "
+        f"({total / max(rates) / 3600:.2f}-{total / min(rates) / 3600:.2f} h over the runs)"
+    )
     print(
         f"\nreproduce: .venv/bin/python benchmarks/bench_fabric_generate.py {cmd} "
         f"--backend {args.backend} --repeats {args.repeats}"

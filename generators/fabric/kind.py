@@ -6,7 +6,10 @@ draws of the roughness ``alpha``, the height scaling ``beta``, the Lambertian we
 and the albedos; all from :data:`materials.fabric.params.PARAM_RANGES` (documented there:
 psi U(-40, 40) deg, u U(10, 45) deg, alpha U(0.1, 0.8), beta U(0.1, 1.0), w U(0.3, 1.0),
 albedos U(0.05, 0.9), gap fixed at 0.2). The paper's set is 9 x 9 = 81 plain materials and
-4 x 16 = 64 for each of the three twills and three satins: 192 twill, 192 satin.
+4 x 16 = 64 for each of the three twills and three satins: 192 twill, 192 satin. The
+``unseen*`` presets add the unseen twill 4x4 and give each material a ``split``
+(:func:`~generators.fabric.params.material_split`: ``train``, ``unseen_material``,
+``unseen_pattern``) that ``train.fabric`` trains and reports by.
 
 Queries: the stratified design of :mod:`generators.fabric.queries` (8 x 8 centres, 10 + 10
 sizes, 8 x 8 x 8 x 8 direction strata, BRDF and BTDF pairs), or with ``scene`` the queries
@@ -22,7 +25,8 @@ Artifacts:
   ``wo`` (N, 3), ``value`` (N, 4), ``stderr`` (N, 4), all float32 but ``material``;
   components in the order C_warp, C_weft, S_warp, S_weft (Eq. 7, unit albedos, incident
   cosine included); footprints in tile units; directions in the macro frame, z up.
-- ``materials.json``: every material's parameters, seeds, maps and shards.
+- ``materials.json``: every material's parameters, seeds, maps and shards (and ``split``
+  with the ``unseen*`` presets).
 - ``maps/<name>-normal.exr`` and ``maps/<name>-orientation.exr``: ply normal n_p and ply
   orientation t_p over one tile (``map_resolution`` squared, xyz in RGB, row 0 at the top,
   i.e. the highest ``t``), from :func:`materials.fabric.yarn.rasterize`.
@@ -58,10 +62,12 @@ from generators.fabric.params import (
     MAX_QUERIES,
     PRESETS,
     REPLICATES,
+    SPLITS,
     FabricGenParams,
     FabricPreset,
     PresetName,
     Resolved,
+    material_split,
     plan_sets,
     scene_record,
     sweep_beta,
@@ -102,6 +108,7 @@ __all__ = [
     "PlannedFabric",
     "PresetName",
     "Resolved",
+    "SPLITS",
     "ShardTask",
     "estimate_shard",
     "params_record",
@@ -127,6 +134,9 @@ class PlannedFabric:
     params: FabricParams
     design_seed: int
     query_set: str
+    split: str | None = None
+    """``train``, ``unseen_material`` or ``unseen_pattern`` with the ``unseen*`` presets
+    (:func:`~generators.fabric.params.material_split`); ``None`` otherwise."""
 
 
 def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
@@ -153,7 +163,8 @@ def plan_materials(cfg: Resolved, ctx: JobContext) -> list[PlannedFabric]:
         label = f"{name}-t{j:02d}-s{k:02d}"
         query_set = f"{name}-t{j:02d}" if cfg.beta_sweep else label
         seed = ctx.sub_seed(f"generate.fabric/queries/{query_set}")
-        out.append(PlannedFabric(label, name, j, k, params, seed, query_set))
+        split = material_split(name, k, cfg.shading_sets[name]) if cfg.splits else None
+        out.append(PlannedFabric(label, name, j, k, params, seed, query_set, split))
     return out
 
 
@@ -188,6 +199,8 @@ def _config_doc(cfg: Resolved) -> dict[str, Any]:
         del doc["sizes"]
     if doc["yarn_profile"] == "smooth":
         del doc["yarn_profile"]
+    if not doc["splits"]:
+        del doc["splits"]
     if cfg.scene is None:
         del doc["scene"]
     else:
@@ -258,18 +271,19 @@ def _write_maps(
         }
         ctx.put_bytes(maps["normal"], normal, "image/x-exr")
         ctx.put_bytes(maps["orientation"], orientation, "image/x-exr")
-        records.append(
-            {
-                "name": m.name,
-                "pattern": m.pattern,
-                "texture_set": m.texture_set,
-                "shading_set": m.shading_set,
-                "params": params_record(m.params),
-                "design_seed": m.design_seed,
-                "maps": maps,
-                "shards": shards,
-            }
-        )
+        record: dict[str, Any] = {
+            "name": m.name,
+            "pattern": m.pattern,
+            "texture_set": m.texture_set,
+            "shading_set": m.shading_set,
+            "params": params_record(m.params),
+            "design_seed": m.design_seed,
+            "maps": maps,
+            "shards": shards,
+        }
+        if m.split is not None:  # only with the unseen* presets: older datasets keep bytes
+            record["split"] = m.split
+        records.append(record)
     return records
 
 
@@ -356,7 +370,7 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     if doc is None or not doc["materials"]:
         return None
     columns = ["pattern", "texture_set", "shading_set", "shards"]
-    rows = {
+    rows: dict[str, dict[str, Any]] = {
         m["name"]: {
             "pattern": m["pattern"],
             "texture_set": m["texture_set"],
@@ -365,6 +379,10 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
         }
         for m in doc["materials"]
     }
+    if any("split" in m for m in doc["materials"]):  # the unseen* presets' held-out sets
+        columns.append("split")
+        for m in doc["materials"]:
+            rows[m["name"]]["split"] = m.get("split")
     return ResultTable(
         title="Materials",
         label_header="Material",

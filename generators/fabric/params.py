@@ -20,10 +20,11 @@ from generators.fabric.queries import BTDF_FRACTION, LOG_SIZE_MIN
 from generators.fabric.scene_queries import SceneDesign, pixel_footprints
 from jobapi.params import StrictModel
 from jobapi.presets import resolve_preset
-from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS
+from materials.fabric.patterns import PATTERNS, TRAINING_PATTERNS, UNSEEN_PATTERNS
 from materials.fabric.samplers import check_sampling
+from storage.formats.fabric_documents import FABRIC_SPLITS
 
-PresetName = Literal["small", "paper", "beta"]
+PresetName = Literal["small", "paper", "beta", "unseen_small", "unseen", "unseen_paper"]
 #: The ``beta`` preset's range of the height scaling (Sec. 5.1's beta U(0.1, 1.0)).
 BETA_SWEEP = (0.1, 1.0)
 #: Replicates of the estimator (Sobol's standard error; ``aggregate.py``).
@@ -45,6 +46,29 @@ class FabricPreset:
     shard_queries: int
     map_resolution: int
     beta_sweep: bool = False
+    splits: bool = False
+    """Whether each material gets a ``split`` (:func:`material_split`) in ``materials.json``."""
+
+
+#: Splits of a dataset with held-out sets (``unseen*`` presets), in report order.
+SPLITS = FABRIC_SPLITS
+
+
+def material_split(pattern: str, shading_set: int, shading_sets: int) -> str:
+    """A material's split in the ``unseen*`` presets.
+
+    ``unseen_pattern``: its pattern is not one of the paper's training patterns (the twill
+    4x4 of Fig. 5, :data:`materials.fabric.patterns.UNSEEN_PATTERNS`, or any other pattern
+    outside :data:`~materials.fabric.patterns.TRAINING_PATTERNS`). ``unseen_material``: a
+    training pattern's last shading set of every texture set (when it has two or more): a
+    draw of alpha, beta, w and the albedos that no trained material has (its yarn geometry
+    is that of the texture set's other materials). Everything else is ``train``.
+    """
+    if pattern not in TRAINING_PATTERNS:
+        return "unseen_pattern"
+    if shading_sets >= 2 and shading_set == shading_sets - 1:
+        return "unseen_material"
+    return "train"
 
 
 #: Named presets. ``paper``: Sec. 5.1 (81 + 192 + 192 materials, 160 x 20480 = 3.28 M
@@ -81,6 +105,44 @@ PRESETS: dict[str, FabricPreset] = {
         shard_queries=640,
         map_resolution=64,
         beta_sweep=True,
+    ),
+    # The paper's shape with held-out sets (materials.json's ``split``): the seven training
+    # patterns plus the unseen twill 4x4; every material its own draw of alpha, beta, w and
+    # albedos (beta varies within a pattern), the last shading set of every texture set held
+    # out as an unseen material. ``unseen_small`` runs in seconds (tests); ``unseen`` is
+    # 7 x 4 x 4 + 2 x 2 = 116 materials x 20,480 queries x 256 samples for this machine;
+    # ``unseen_paper`` Sec. 5.1's 465 materials (+ 16 twill 4x4) at 2,048 samples for a
+    # cluster. Sizes: the paper's strata, as every preset (the spec's ``sizes`` default);
+    # scripts/fabric_unseen.yaml asks for log-uniform sizes (renders' footprints).
+    "unseen_small": FabricPreset(
+        patterns=("plain", "twill_3x3", "satin_5x5", *UNSEEN_PATTERNS),
+        texture_sets={"*": 1},
+        shading_sets={"*": 2},
+        queries_per_material=256,
+        samples=64,
+        shard_queries=256,
+        map_resolution=16,
+        splits=True,
+    ),
+    "unseen": FabricPreset(
+        patterns=(*TRAINING_PATTERNS, *UNSEEN_PATTERNS),
+        texture_sets={"twill_4x4": 2, "*": 4},
+        shading_sets={"twill_4x4": 2, "*": 4},
+        queries_per_material=20_480,
+        samples=256,
+        shard_queries=5_120,
+        map_resolution=64,
+        splits=True,
+    ),
+    "unseen_paper": FabricPreset(
+        patterns=(*TRAINING_PATTERNS, *UNSEEN_PATTERNS),
+        texture_sets={"plain": 9, "*": 4},
+        shading_sets={"plain": 9, "twill_4x4": 4, "*": 16},
+        queries_per_material=3_276_800,
+        samples=2048,
+        shard_queries=65_536,
+        map_resolution=256,
+        splits=True,
     ),
 }
 
@@ -177,7 +239,7 @@ class FabricGenParams(StrictModel):
     ========================  ==================  ===========  ===========  ================
     name                      type                small        paper        meaning
     ========================  ==================  ===========  ===========  ================
-    ``preset``                small|paper|beta    (default)                 defaults below
+    ``preset``                see below           (default)                 defaults below
     ``patterns``              list of names       plain,       the seven    weave patterns
                                                   twill_3x3,   of Sec. 5.1
                                                   satin_5x5
@@ -196,6 +258,14 @@ class FabricGenParams(StrictModel):
     ``yarn_profile``          smooth | jin        smooth       smooth       yarn height
                                                                             (yarn.py)
     ========================  ==================  ===========  ===========  ================
+
+    The ``unseen_small``, ``unseen`` and ``unseen_paper`` presets hold sets out for
+    ``train.fabric`` (each material's ``split`` in ``materials.json``, by
+    :func:`material_split`): the seven training patterns and the unseen twill 4x4; 1 x 2
+    sets of plain, twill 3x3, satin 5x5 and twill 4x4 at 256 queries x 64 samples
+    (seconds), 4 x 4 sets per training pattern and 2 x 2 of twill 4x4 at 20,480 queries x
+    256 samples (116 materials), or Sec. 5.1's sets (9 x 9 plain, 4 x 16 others, 4 x 4
+    twill 4x4) at 3.28 M queries x 2,048 samples (481 materials, for a cluster).
 
     ``scene`` (:class:`FabricScene`) draws the sizes and directions from the render the
     data is meant for (issue 13 section 5; :mod:`generators.fabric.scene_queries`): each
@@ -231,7 +301,13 @@ class FabricGenParams(StrictModel):
         "queries each), 'paper' (Sec. 5.1: 465 materials, 3.28 M queries each) or 'beta' "
         "(per weave family, shading_sets materials (16) that differ only in beta, evenly "
         "spaced over 0.1-1; alpha, w, albedos and geometry held, and one query set: the same "
-        "queries and footprint samples for every beta).",
+        "queries and footprint samples for every beta), or with held-out sets for "
+        "train.fabric (each material's split in materials.json: train, unseen_material = "
+        "the last shading set of each texture set, unseen_pattern = twill_4x4): "
+        "'unseen_small' (8 materials, seconds), 'unseen' (the seven training patterns x 4 "
+        "texture x 4 shading sets + 4 twill 4x4 = 116 materials, 20,480 queries x 256 "
+        "samples) or 'unseen_paper' (Sec. 5.1's 465 + 16 twill 4x4, "
+        "3.28 M queries x 2,048 samples; for a cluster).",
     )
     patterns: list[str] | None = Field(
         default=None,
@@ -388,6 +464,7 @@ class FabricGenParams(StrictModel):
             sizes=self.sizes,
             scene=None if self.scene is None else self.scene.design(),
             beta_sweep=eff.beta_sweep,
+            splits=eff.splits,
             yarn_profile=self.yarn_profile,
         )
 
@@ -410,6 +487,7 @@ class Resolved:
     scene: SceneDesign | None = None
     beta_sweep: bool = False
     yarn_profile: str = "smooth"
+    splits: bool = False
 
 
 def scene_record(scene: SceneDesign) -> dict[str, Any]:

@@ -68,6 +68,9 @@ class MaterialData:
     map_source_resolution: int | None = None
     #: ``(N,)`` each kept row's index among the material's shard rows (``None``: unknown).
     rows: np.ndarray | None = None
+    #: ``materials.json``'s ``split`` (``train``, ``unseen_material``, ``unseen_pattern``);
+    #: ``None`` in a dataset without held-out sets.
+    split: str | None = None
 
     def albedos(self) -> np.ndarray:
         """``(4, 3)`` albedos of Eq. 8: rows kd_warp, kd_weft, ks_warp, ks_weft."""
@@ -184,6 +187,7 @@ def load_dataset(
                 stderr=None if se is None else se[keep].astype(np.float32),
                 map_source_resolution=int(normal.shape[0]),
                 rows=keep,
+                split=rec.get("split"),
             )
         )
     return out

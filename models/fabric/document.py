@@ -36,6 +36,11 @@ class TrainFabricMetrics(TypedDict):
     slope of the mean against beta, the network's beside Monte Carlo's, their standard
     errors, their ratio, whether Monte Carlo's sign is resolved and whether the goal is
     met."""
+    sets: NotRequired[list[dict[str, Any]]]
+    """With a dataset that has held-out sets (``generate.fabric``'s ``unseen*`` presets):
+    per split (``train``, ``unseen_material``, ``unseen_pattern``), the spread over its
+    materials of the RGB relative L1 and of the cloth mean error, overall and per light
+    side, and for the splits never trained on the beta response per pattern."""
 
 
 @document

@@ -21,7 +21,9 @@ Artifacts:
 - ``metrics.json``: per material, on its held-out queries: MSE and relative L1 error of each
   component and of the Eq. 8 RGB value, the Eq. 11 loss, and the same figures for a trivial
   baseline (the material's per-component training mean); means over materials
-  (:mod:`models.fabric.report`).
+  (:mod:`models.fabric.report`); for a dataset with held-out sets (``generate.fabric``'s
+  ``unseen*`` presets: only ``train`` materials are trained on) each row's ``split`` and
+  ``sets``, the figures per split with their spread (:func:`models.fabric.report.split_sets`).
 
 Same spec, same bytes: every artifact, on the CPU (``device`` ``cpu``, or ``auto`` on a
 machine without CUDA). No artifact holds a timing (the last progress message and the log

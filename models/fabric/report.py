@@ -286,8 +286,19 @@ def _held_out_rows(materials: Sequence[MaterialData], idx: Sequence[int]) -> lis
     return out
 
 
+def material_beta(m: MaterialData, beta: str = "warp") -> float:
+    """A material's beta for :func:`beta_response`: the warp yarn's (``"warp"``; the ``beta``
+    preset's materials have warp = weft) or the mean of warp and weft (``"mean"``)."""
+    warp, weft = (float(b) for b in m.record["beta"])
+    return warp if beta == "warp" else 0.5 * (warp + weft)
+
+
 def beta_response(
-    net: FabricNetwork, materials: Sequence[MaterialData], latents: np.ndarray, held: Sequence[int]
+    net: FabricNetwork,
+    materials: Sequence[MaterialData],
+    latents: np.ndarray,
+    held: Sequence[int],
+    beta: str = "warp",
 ) -> list[dict[str, Any]]:
     """Per pattern with two or more held-out betas: each component's (and the Eq. 8 RGB
     value's, mean of channels) mean over the held-out materials' queries against beta,
@@ -311,8 +322,8 @@ def beta_response(
             by_pattern.setdefault(materials[i].pattern, []).append(i)
     out = []
     for pattern, idx in sorted(by_pattern.items()):
-        beta = np.array([float(materials[i].record["beta"][0]) for i in idx])
-        if len(idx) < 2 or np.ptp(beta) <= 0.0:
+        betas = np.array([material_beta(materials[i], beta) for i in idx])
+        if len(idx) < 2 or np.ptp(betas) <= 0.0:
             continue
         rows = _held_out_rows(materials, idx)
         gts, preds, noise = [], [], []
@@ -333,16 +344,16 @@ def beta_response(
             len(r) == len(rows[0]) and np.array_equal(materials[i].query[r], first)
             for i, r in zip(idx, rows, strict=True)
         )
-        c = _slope_weights(beta)
+        c = _slope_weights(betas)
         mc = np.array([g.mean(axis=0) for g in gts])
         nn = np.array([p.mean(axis=0) for p in preds])
-        s_mc, se_mc = slope_with_stderr(beta, gts, paired)
-        s_nn, se_nn = slope_with_stderr(beta, preds, paired)
+        s_mc, se_mc = slope_with_stderr(betas, gts, paired)
+        s_nn, se_nn = slope_with_stderr(betas, preds, paired)
         se_noise = np.sqrt(c**2 @ np.array(noise)) if len(noise) == len(idx) else None
         entry: dict[str, Any] = {
             "pattern": pattern,
             "materials": [materials[i].name for i in idx],
-            "beta": beta.tolist(),
+            "beta": betas.tolist(),
             "queries": [len(r) for r in rows],
             "paired": paired,
         }
@@ -360,6 +371,85 @@ def beta_response(
                 "slope_ratio": ratio,
                 "goal": ratio is not None and ratio >= 0.5,
             }
+        out.append(entry)
+    return out
+
+
+def _spread(values: Sequence[float]) -> dict[str, Any]:
+    """Mean, sample standard deviation (``None`` for one value), min and max."""
+    v = np.asarray(values, np.float64)
+    return {
+        "mean": float(v.mean()),
+        "std": float(v.std(ddof=1)) if len(v) >= 2 else None,
+        "min": float(v.min()),
+        "max": float(v.max()),
+    }
+
+
+#: Light sides of a query: BRDF (light above, ``wi_z > 0``) and BTDF (light below).
+SIDES: tuple[str, ...] = ("brdf", "btdf")
+
+
+def _set_row(net: FabricNetwork, m: MaterialData, latent: np.ndarray) -> dict[str, Any]:
+    """One material's figures for :func:`split_sets` on its held-out queries: the Eq. 8 RGB
+    value's relative L1 (``rgb_rel``) and mean ratio (``rgb_ratio``), overall and per light
+    side (``None`` where a side has no query)."""
+    q, gt = m.query[m.test], m.value[m.test].astype(np.float64)
+    pred = components_numpy(decode_raw(net, latent, q), q[:, 5]).astype(np.float64)
+    albedos = m.albedos()
+    below = q[:, 5] < 0
+    row: dict[str, Any] = {
+        "rgb_rel": _rgb_rel(pred, gt, albedos),
+        "rgb_ratio": _ratio(pred @ albedos, gt @ albedos),
+    }
+    for side, k in (("brdf", ~below), ("btdf", below)):
+        n = int(k.sum())
+        row[side] = {
+            "queries": n,
+            "rgb_rel": _rgb_rel(pred[k], gt[k], albedos) if n else None,
+            "rgb_ratio": _ratio(pred[k] @ albedos, gt[k] @ albedos) if n else None,
+        }
+    return row
+
+
+def split_sets(
+    net: FabricNetwork,
+    materials: Sequence[MaterialData],
+    latents: np.ndarray,
+    splits: Sequence[str],
+) -> list[dict[str, Any]]:
+    """Per split of the dataset (``splits`` in order, those with materials scored): its
+    materials and patterns, and the spread over its materials (mean, std, min, max) of the
+    held-out queries' RGB relative L1, the cloth mean error (``sum pred / sum gt - 1`` of
+    the RGB value) and both per light side; then the beta response of the split's materials
+    (:func:`beta_response` per pattern, against the mean of the warp and weft betas) for the
+    splits never trained on."""
+    out = []
+    for split in splits:
+        idx = [i for i, m in enumerate(materials) if m.split == split and len(m.test)]
+        if not idx:
+            continue
+        rows = [_set_row(net, materials[i], latents[i]) for i in idx]
+        entry: dict[str, Any] = {
+            "split": split,
+            "materials": len(idx),
+            "patterns": sorted({materials[i].pattern for i in idx}),
+            "queries": int(sum(len(materials[i].test) for i in idx)),
+            "rgb_rel": _spread([r["rgb_rel"] for r in rows]),
+            "cloth_mean_error": _spread([r["rgb_ratio"] - 1.0 for r in rows]),
+        }
+        for side in SIDES:
+            scored = [r[side] for r in rows if r[side]["queries"]]
+            entry[side] = {
+                "materials": len(scored),
+                "queries": int(sum(r["queries"] for r in scored)),
+                "rgb_rel": _spread([r["rgb_rel"] for r in scored]) if scored else None,
+                "cloth_mean_error": (
+                    _spread([r["rgb_ratio"] - 1.0 for r in scored]) if scored else None
+                ),
+            }
+        if split != "train":
+            entry["beta_response"] = beta_response(net, materials, latents, idx, beta="mean")
         out.append(entry)
     return out
 

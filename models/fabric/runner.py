@@ -27,14 +27,28 @@ from models.fabric.report import (
     encode_all,
     evaluate,
     held_out_materials,
+    split_sets,
 )
 from models.fabric.train import Curves, FitConfig, TrainingSet, fit
+from storage.formats.fabric_documents import FABRIC_SPLITS
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
     from models.fabric.kind import TrainFabricParams
 
 log = logging.getLogger(__name__)
+
+#: ``metrics.json``'s ``settings.beta_response``.
+_BETA_RESPONSE_NOTE = (
+    "per pattern with >= 2 held-out betas: each component's mean (and the RGB "
+    "value's, mean of channels) over all the held-out materials' queries (never "
+    "trained on), Monte Carlo and model on the same queries; least-squares "
+    "slopes against beta, their ratio (model / Monte Carlo), goal = same sign "
+    "and at least half the size; paired = the materials share one query set; "
+    "se_slope_* = standard errors from the spread over queries (of per-query "
+    "slopes when paired), se_slope_noise = Monte Carlo noise alone from the "
+    "stored standard errors; sign_resolved = |MC slope| > 2 se_slope_monte_carlo"
+)
 
 #: Progress fractions: dataset loaded, fitting done, metrics done.
 P_LOADED, P_FITTED, P_SCORED = 0.05, 0.9, 0.97
@@ -88,7 +102,11 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
         params.dataset, ctx, cfg.map_resolution, float(cfg.holdout), cfg.train_queries
     )
     held = held_out_materials(materials, params.held_out_beta or [])
-    trained_on = [m for i, m in enumerate(materials) if i not in set(held)]
+    # a dataset with held-out sets (generate.fabric's unseen* presets): train on 'train' only
+    unseen = {i for i, m in enumerate(materials) if m.split not in (None, "train")}
+    if unseen and len(unseen | set(held)) == len(materials):
+        raise JobFailed("dataset: every material is held out (split or held_out_beta)")
+    trained_on = [m for i, m in enumerate(materials) if i not in set(held) | unseen]
     ctx.progress(P_LOADED, f"{len(trained_on)} materials on {device}")
     steps = cfg.steps
 
@@ -130,16 +148,26 @@ def train_and_report(params: TrainFabricParams, ctx: JobContext) -> None:
                 "the material's beta is in held_out_beta: it was never trained on (its "
                 "baseline is still the mean of its own training-split Monte Carlo values)"
             )
-            metrics["settings"]["beta_response"] = (
-                "per pattern with >= 2 held-out betas: each component's mean (and the RGB "
-                "value's, mean of channels) over all the held-out materials' queries (never "
-                "trained on), Monte Carlo and model on the same queries; least-squares "
-                "slopes against beta, their ratio (model / Monte Carlo), goal = same sign "
-                "and at least half the size; paired = the materials share one query set; "
-                "se_slope_* = standard errors from the spread over queries (of per-query "
-                "slopes when paired), se_slope_noise = Monte Carlo noise alone from the "
-                "stored standard errors; sign_resolved = |MC slope| > 2 se_slope_monte_carlo"
+            metrics["settings"]["beta_response"] = _BETA_RESPONSE_NOTE
+        if any(m.split is not None for m in materials):
+            for row, m in zip(
+                metrics["materials"], [m for m in materials if len(m.test)], strict=True
+            ):
+                row["split"] = m.split
+            metrics["sets"] = split_sets(net, materials, latents, FABRIC_SPLITS)
+            metrics["settings"]["sets"] = (
+                "per split of the dataset (materials.json's split: train = trained on, "
+                "unseen_material = a parameter draw of a trained pattern never trained on, "
+                "unseen_pattern = a pattern never trained on), on each material's held-out "
+                "queries: the spread over its materials (mean, std, min, max) of the RGB "
+                "relative L1 and of the cloth mean error sum pred / sum gt - 1 (Eq. 8 RGB "
+                "value), overall and per light side (brdf: light above, btdf: below); "
+                "beta_response as below over the split's materials per pattern, against "
+                "the mean of the warp and weft betas (the materials also differ in alpha, "
+                "w and albedos, so Monte Carlo and model are regressed on the same materials)"
             )
+            if "beta_response" not in metrics["settings"]:
+                metrics["settings"]["beta_response"] = _BETA_RESPONSE_NOTE
     ctx.progress(P_SCORED, "writing artifacts")
     _write(ctx, params, net, materials, latents, metrics, curves)
     ms = 1000.0 * curves.seconds / steps

@@ -15,6 +15,10 @@ from typing import Any, NotRequired  # pydantic needs this TypedDict on 3.11
 from pydantic import ConfigDict, with_config
 from typing_extensions import TypedDict
 
+#: The splits of a dataset with held-out sets (``materials.json``'s ``split``), in report
+#: order: trained on, an unseen parameter draw of a trained pattern, an unseen pattern.
+FABRIC_SPLITS: tuple[str, ...] = ("train", "unseen_material", "unseen_pattern")
+
 #: Unknown keys are refused; each field's docstring is its description in the docs.
 document = with_config(ConfigDict(extra="forbid", use_attribute_docstrings=True))
 
@@ -50,6 +54,11 @@ class FabricMaterial(TypedDict):
     """Its maps."""
     shards: list[str]
     """Its shards, in query order."""
+    split: NotRequired[str]
+    """``train``, ``unseen_material`` (a parameter draw of a trained pattern that no
+    trained material has) or ``unseen_pattern`` (a pattern no trained material has); only
+    in datasets of the ``unseen*`` presets. ``train.fabric`` trains on ``train`` alone and
+    reports each split apart."""
 
 
 @document
@@ -77,7 +86,8 @@ class FabricMaterials(TypedDict):
     components: list[str]
     """The order of a shard's ``value`` columns (C_warp, C_weft, S_warp, S_weft)."""
     preset: str
-    """The preset (``small``, ``paper``, ``beta``)."""
+    """The preset (``small``, ``paper``, ``beta``, ``unseen_small``, ``unseen``,
+    ``unseen_paper``)."""
     config: dict[str, Any]
     """The resolved settings (queries, samples, footprint sizes, backend, ...)."""
     preview: FabricPreview

@@ -51,7 +51,9 @@ def test02_satin_interlaces_once_per_row_and_column_never_adjacent(name: str) ->
     assert sorted(offset[:, 0][m[:, 0]]) == list(range(n - 1))
 
 
-@pytest.mark.parametrize(("name", "up"), [("twill_3x3", 2), ("twill_4x4", 2), ("twill_5x5", 3)])
+@pytest.mark.parametrize(
+    ("name", "up"), [("twill_3x3", 2), ("twill_4x4", 2), ("twill_5x5", 3), ("twill_8x8", 4)]
+)
 def test03_twill_diagonal_and_floats(name: str, up: int) -> None:
     p = PATTERNS[name]
     m = p.warp_up
@@ -61,6 +63,18 @@ def test03_twill_diagonal_and_floats(name: str, up: int) -> None:
     _, length = p.float_tables()
     assert np.all(length[m] == up) and np.all(length[~m] == n - up)
     assert p.warp_fraction == pytest.approx(up / n)
+
+
+def test03b_satin_5x10_is_the_5x5_on_tall_cells() -> None:
+    """Sec. 5.1's satin 5x10: the 5x5 matrix on cells twice as tall, so the tile is 5 x 10
+    and a warp float (4 cells along t) is 8 units long, a weft float 1 unit."""
+    tall, square = PATTERNS["satin_5x10"], PATTERNS["satin_5x5"]
+    np.testing.assert_array_equal(tall.warp_up, square.warp_up)
+    assert tall.tile_size == (5.0, 10.0) and square.tile_size == (5.0, 5.0)
+    _, length = tall.float_tables()
+    m = tall.warp_up
+    assert np.all(length[m] * tall.cell_size[1] == 8.0)
+    assert np.all(length[~m] * tall.cell_size[0] == 1.0)
 
 
 def test04_plain_and_float_tables() -> None:
