@@ -14,9 +14,13 @@ render's or a training job's own rows get a line too. For each method and metric
   of some row (a render's own ``render_seconds`` row) is the column ``cost.<name>``.
 
 ``best[column]`` is the method with the lowest mean (or highest, for a metric where higher
-is better, from the rows' ``lower_is_better``; every cost is lower-is-better). A metric
-without a better direction (``lower_is_better`` null) has no best. Ties go to the method
-named first. Methods keep the order of their first row.
+is better, from the rows' ``lower_is_better``; every cost is lower-is-better), among the
+methods that are not training errors (a ``train`` split's). A metric without a better
+direction (``lower_is_better`` null) has no best. Ties go to the method
+named first. Methods keep the order of their first row. A method's rows of the ``train``
+and ``test`` splits are two methods (``"hybrid 32x3 (train)"``, ``"hybrid 32x3 (test)"``).
+Metric columns are the rows' names, which say their space where it is ambiguous
+(``brdf.mae``, ``image.mae``: :mod:`jobapi.metric_names`): two units never share a column.
 """
 
 from __future__ import annotations
@@ -33,12 +37,14 @@ FORMAT = "matforge.pivot/1"
 
 
 def method_of(row: Mapping[str, Any], by: str = "candidate") -> str:
-    """The method a row belongs to: its ``by`` value, else its step, else ``kind job[:8]``."""
-    for key in (by, "step"):
-        value = row.get(key)
-        if value not in (None, ""):
-            return str(value)
-    return f"{row.get('kind')} {str(row.get('job') or '')[:8]}".strip()
+    """The method a row belongs to: its ``by`` value, else its step, else ``kind job[:8]``;
+    a row with a ``split`` (``train``, ``test``) names it after the method (``"hybrid 32x3
+    (test)"``), so that training and held-out errors are never one mean."""
+    name = next((str(row[k]) for k in (by, "step") if row.get(k) not in (None, "")), None)
+    if name is None:
+        name = f"{row.get('kind')} {str(row.get('job') or '')[:8]}".strip()
+    split = row.get("split")
+    return f"{name} ({split})" if split and by != "split" else name
 
 
 def _finite(value: Any) -> float | None:
@@ -57,11 +63,14 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
     values: dict[str, dict[str, list[float]]] = {}
     costs: dict[str, dict[str, list[float]]] = {}
     direction: dict[str, bool | None] = {}
+    trained: set[str] = set()  # methods of training rows: never "best"
     for row in rows:
         method = method_of(row, by)
         if method not in values:
             methods.append(method)
             values[method], costs[method] = {}, {}
+            if row.get("split") == "train" and by != "split":
+                trained.add(method)
         metric, value = row.get("metric"), _finite(row.get("value"))
         if isinstance(metric, str) and value is not None:
             values[method].setdefault(metric, []).append(value)
@@ -94,7 +103,9 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
         if lib is None:
             continue
         key = "mean" if col["role"] == "metric" else "median"
-        scored = [(cells[m][name][key], m) for m in methods if name in cells[m]]
+        scored = [
+            (cells[m][name][key], m) for m in methods if name in cells[m] and m not in trained
+        ]
         if len(scored) < 2:
             continue
         pick = min if lib else max

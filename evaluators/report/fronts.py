@@ -3,7 +3,8 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
 
 - A *panel* is one dataset, scene, error metric and cost column. Its *points* are the
   candidates (``"hybrid 32x3"``, ``"net16"``, ``"mc1"``): all rows of one candidate in the
-  panel, whole-set rows only (``material`` empty or ``"mean"``), are its repeated
+  panel, whole-set rows only (``material`` empty or ``"mean"``; of a job with a ``test``
+  split, its test rows: :func:`jobapi.rows.headline_rows`), are its repeated
   measurements, one per job (seed); the point's error is their mean, with the sample std and
   the min and max over seeds (the error bars), and its cost the median of the rows' costs.
 - The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
@@ -33,10 +34,19 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from evaluators.metrics.pareto import dominated_by, front_indices, spread
-from jobapi.rows import ResultRow
+from jobapi.metric_names import matches, qualified
+from jobapi.rows import ResultRow, headline_rows, whole_set
 
 #: Error metrics charted when none are asked for, in this order (those present).
-DEFAULT_ERRORS = ("smape", "flip", "flip_mean", "l1", "rgb.rel", "mae")
+DEFAULT_ERRORS = (
+    qualified("brdf", "smape"),
+    qualified("image", "flip"),
+    qualified("image", "flip_mean"),
+    "l1",
+    "rgb.rel",
+    qualified("brdf", "mae"),
+    qualified("image", "mae"),
+)
 #: Cost columns charted when none are asked for, in this order (those present).
 DEFAULT_COSTS = ("ns_per_eval", "bytes_per_material", "ms_per_frame", "render_seconds", "spp")
 #: Axis labels of the cost columns: the column's name, then what it measures.
@@ -50,11 +60,6 @@ COST_LABELS = {
     "train_seconds": "train_seconds: wall seconds of the training job",
 }
 RELATIONS = ("<", "<=")
-
-
-def whole_set(row: ResultRow) -> bool:
-    """A row about the whole set (no material, or the mean over materials)."""
-    return row.material in (None, "mean")
 
 
 def error_metrics(rows: Iterable[ResultRow], asked: Sequence[str] | None) -> list[str]:
@@ -116,8 +121,8 @@ def panels(
     """One panel per (dataset, scene, metric, cost) with at least one costed point, in the
     order of first appearance; see the module docstring."""
     groups: dict[tuple[Any, ...], dict[str, list[ResultRow]]] = {}
-    for r in rows:
-        if r.metric in metrics and whole_set(r) and r.candidate is not None:
+    for r in headline_rows(rows):
+        if matches(r.metric, metrics) and r.candidate is not None:
             for cost in costs:
                 key = (r.dataset, r.scene, r.metric, cost)
                 groups.setdefault(key, {}).setdefault(r.candidate, []).append(r)
@@ -153,7 +158,7 @@ def families(rows: Sequence[ResultRow], metrics: Sequence[str]) -> list[dict[str
     over its materials."""
     acc: dict[tuple[Any, ...], dict[str, list[float]]] = {}
     for r in rows:
-        if r.metric in metrics and not whole_set(r) and r.family and r.candidate is not None:
+        if matches(r.metric, metrics) and not whole_set(r) and r.family and r.candidate is not None:
             key = (r.dataset, r.metric, r.candidate, r.family)
             acc.setdefault(key, {}).setdefault(r.job, []).append(r.value)
     out = []
@@ -183,23 +188,23 @@ def check_claim(rows: Sequence[ResultRow], claim: Mapping[str, Any]) -> dict[str
     dataset = claim.get("dataset")
     out: dict[str, Any] = {"claim": text, "a": a, "b": b, "metric": metric, "relation": rel}
 
+    headline = headline_rows(rows)
+
     def values(cand: str) -> list[float]:
         return [
             r.value
-            for r in rows
+            for r in headline
             if r.candidate == cand
-            and r.metric == metric
-            and whole_set(r)
+            and matches(r.metric, metric)
             and (dataset is None or r.dataset == dataset)
         ]
 
     def per_job(cand: str) -> list[float]:
         by: dict[str, list[float]] = defaultdict(list)
-        for r in rows:
+        for r in headline:
             if (
                 r.candidate == cand
-                and r.metric == metric
-                and whole_set(r)
+                and matches(r.metric, metric)
                 and (dataset is None or r.dataset == dataset)
             ):
                 by[r.job].append(r.value)

@@ -407,5 +407,6 @@ register(
         },
         summary=summarize,
         rows=fabric_stats_rows,
+        metrics=("samples_per_second", "seconds"),
     )
 )
