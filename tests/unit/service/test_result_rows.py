@@ -394,3 +394,40 @@ def test08_glint_renders_carry_their_memory() -> None:
     lost = render(d, {"data": f"job:{A}", "method": "tiny_example"}, 2.0)
     (row,) = rows_of(lost)
     assert row.bytes_per_material is None and row.config["example"] is None
+
+
+def test11_a_brdf_mae_and_an_image_mae_are_two_columns() -> None:
+    """The batch methods table (``/compare?batch=``, ``results --pivot``) of a demo-like
+    batch: a hybrid's BRDF-space MAE (1/sr) and a render's image MAE were one ``mae``
+    column, the hybrid marked best. Through the kinds' rows hooks they are two columns, and
+    neither has a best across the two units."""
+    from service.results_pivot import pivot
+
+    image = FakeSource(
+        "score",
+        {"reference": "sha256:" + "1" * 64, "candidates": {"rougher": "sha256:" + "2" * 64}},
+        {
+            "metrics.json": {
+                "metrics": {"rougher": {"flip": 0.1, "mae": 0.0358}},
+                "settings": {"artifact_kind": "image-hdr"},
+            }
+        },  # fmt: skip
+    )
+    gold = brdf_scores("gold", "metal", smape=0.07, mae=0.003472)
+    brdf = FakeSource(
+        "train.brdf",
+        {"dataset": f"job:{B}"},
+        {
+            "metrics.json": brdf_metrics([gold], smape=0.07, mae=0.003472),
+            "materials.json": brdf_materials([("gold", "metal", "train")]),
+        },  # fmt: skip
+        job_id=C,
+    )
+    rows = [r.document() for r in rows_of(image) + rows_of(brdf)]
+    doc = pivot(rows)
+    names = [c["name"] for c in doc["columns"]]
+    assert "mae" not in names and {"brdf.mae", "image.mae"} <= set(names)
+    assert doc["cells"]["rougher"]["image.mae"]["mean"] == pytest.approx(0.0358)
+    assert doc["cells"]["hybrid 32x3 (train)"]["brdf.mae"]["mean"] == pytest.approx(0.003472)
+    assert "image.mae" not in doc["cells"]["hybrid 32x3 (train)"]
+    assert "brdf.mae" not in doc["best"] and "image.mae" not in doc["best"]  # one method each

@@ -66,3 +66,18 @@ def test04_a_cost_that_is_also_a_metric_keeps_both_columns() -> None:
     assert names == ["render_seconds", "flip", "cost.render_seconds"]
     assert doc["cells"]["spp1"]["cost.render_seconds"]["median"] == 0.5
     assert doc["best"]["cost.render_seconds"] == "spp1" and doc["best"]["flip"] == "spp2"
+
+
+def test_train_and_test_splits_are_two_methods_and_a_training_error_is_never_best() -> None:
+    """A model's training and held-out rows are one method each, named by their split; the
+    training error (lower than any test error here) is not marked best."""
+    rows = [
+        _row("hybrid", "brdf.smape", 0.02, True, split="train"),
+        _row("hybrid", "brdf.smape", 0.30, True, split="test"),
+        _row("neural", "brdf.smape", 0.20, True, split="test"),
+    ]
+    doc = pivot(rows)
+    assert doc["methods"] == ["hybrid (train)", "hybrid (test)", "neural (test)"]
+    assert doc["cells"]["hybrid (train)"]["brdf.smape"]["mean"] == pytest.approx(0.02)
+    assert doc["best"] == {"brdf.smape": "neural (test)"}
+    assert method_of(rows[0], "split") == "train"  # by split itself: no suffix
