@@ -53,9 +53,7 @@ def kinds_markdown() -> str:
             lines.append(timed + "\n")
         if kind.metrics:
             names = ", ".join(f"`{m}`" for m in kind.metrics)
-            lines.append(
-                f"Metrics of its result rows ([names](../usage.md#results)): {names}.\n"
-            )
+            lines.append(f"Metrics of its result rows ([names](../usage.md#results)): {names}.\n")
         if kind.layout:
             lines.append(kind.layout.strip() + "\n")
         lines.append("| param | type | default | description |")
