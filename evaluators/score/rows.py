@@ -144,7 +144,7 @@ def score_rows(src: RowSource) -> list[ResultRow]:
     per = per if isinstance(per, Mapping) else {}
     space = metric_space(doc)
 
-    def name(metric: Any) -> str:
+    def named(metric: Any) -> str:
         return qualified(space, str(metric)) if space is not None else str(metric)
 
     rows: list[ResultRow] = []
@@ -166,7 +166,7 @@ def score_rows(src: RowSource) -> list[ResultRow]:
             for metric, raw in vals.items():
                 value = number(raw)
                 if value is not None:
-                    rows.append(base_row(src, name(metric), value, **fields))
+                    rows.append(base_row(src, named(metric), value, **fields))
         for case in cases.get(label) or []:  # a BTF score's failure cases
             if not isinstance(case, Mapping) or not case.get("case"):
                 continue
