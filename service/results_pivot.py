@@ -15,8 +15,8 @@ render's or a training job's own rows get a line too. For each method and metric
 
 ``best[column]`` is the method with the lowest mean (or highest, for a metric where higher
 is better, from the rows' ``lower_is_better``; every cost is lower-is-better), among the
-methods that are not training errors (a ``train`` split's). A metric without a better
-direction (``lower_is_better`` null) has no best. Ties go to the method
+methods that are not training errors (a ``train`` split's) where the column has any other.
+A metric without a better direction (``lower_is_better`` null) has no best. Ties go to the method
 named first. Methods keep the order of their first row. A method's rows of the ``train``
 and ``test`` splits are two methods (``"hybrid 32x3 (train)"``, ``"hybrid 32x3 (test)"``).
 Metric columns are the rows' names, which say their space where it is ambiguous
@@ -63,7 +63,7 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
     values: dict[str, dict[str, list[float]]] = {}
     costs: dict[str, dict[str, list[float]]] = {}
     direction: dict[str, bool | None] = {}
-    trained: set[str] = set()  # methods of training rows: never "best"
+    trained: set[str] = set()  # methods of training rows: not "best" beside test ones
     for row in rows:
         method = method_of(row, by)
         if method not in values:
@@ -103,9 +103,9 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
         if lib is None:
             continue
         key = "mean" if col["role"] == "metric" else "median"
-        scored = [
-            (cells[m][name][key], m) for m in methods if name in cells[m] and m not in trained
-        ]
+        scored = [(cells[m][name][key], m) for m in methods if name in cells[m]]
+        if any(m not in trained for _, m in scored):  # a training error is no score then
+            scored = [(v, m) for v, m in scored if m not in trained]
         if len(scored) < 2:
             continue
         pick = min if lib else max

@@ -141,7 +141,7 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
             )
             assert p["front"] == (not beaten)
     # families from the per-material rows; the BRDF claim recomputed
-    fams = {(f["candidate"], f["family"]) for f in doc["families"] if f["metric"] == "smape"}
+    fams = {(f["candidate"], f["family"]) for f in doc["families"] if f["metric"] == "brdf.smape"}
     assert ("analytic", "blend") in fams and ("hybrid 16x2", "plastic") in fams
     claims = {c["claim"]: c for c in doc["claims"]}
     h = read(settings, jobs["h0"], "metrics.json")["mean"]["smape"]
@@ -232,7 +232,7 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
     doc = read(settings, job, "stability.json")
     for run, src in zip(doc["runs"], runs, strict=True):
         metrics = read(settings, src, "metrics.json")
-        assert run["error"] == metrics["mean"]["smape"] and run["metric"] == "smape"
+        assert run["error"] == metrics["mean"]["smape"] and run["metric"] == "brdf.smape"
         curves = read(settings, src, "curves.json")  # one phase: every point is training
         assert [p["name"] for p in curves["phases"]] == ["train"]
         loss = curves["loss"]

@@ -120,7 +120,7 @@ def test01_chooses_the_cheapest_rung_meeting_the_recomputed_target(
     finally:
         jobs.close()
     assert sorted(str(r.candidate) for r in rows) == ["diffuse", "rough1", "rough16"]
-    assert all(r.metric == "flip" and r.scene == "sphere_env" for r in rows)
+    assert all(r.metric == "image.flip" and r.scene == "sphere_env" for r in rows)
     assert {r.candidate: r.spp for r in rows} == {"diffuse": 4, "rough1": 1, "rough16": 16}
     assert all(r.render_seconds is not None and r.render_seconds > 0 for r in rows)
     # ... which report.pareto reads as any scored renders.
@@ -129,7 +129,7 @@ def test01_chooses_the_cheapest_rung_meeting_the_recomputed_target(
     )
     assert pareto.state == "succeeded", pareto.error
     panels = json.loads(art(inline, pareto, "pareto.json"))["panels"]
-    spp_panel = [p for p in panels if p["metric"] == "flip" and p["cost"] == "spp"]
+    spp_panel = [p for p in panels if p["metric"] == "image.flip" and p["cost"] == "spp"]
     assert spp_panel and {pt["candidate"] for pt in spp_panel[0]["points"]} == set(recomputed)
 
 

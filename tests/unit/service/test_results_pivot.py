@@ -81,3 +81,7 @@ def test_train_and_test_splits_are_two_methods_and_a_training_error_is_never_bes
     assert doc["cells"]["hybrid (train)"]["brdf.smape"]["mean"] == pytest.approx(0.02)
     assert doc["best"] == {"brdf.smape": "neural (test)"}
     assert method_of(rows[0], "split") == "train"  # by split itself: no suffix
+    # training errors alone (a study of fits): the best of them is marked
+    alone = pivot([_row("a", "brdf.smape", 0.2, True, split="train"),
+                   _row("b", "brdf.smape", 0.1, True, split="train")])  # fmt: skip
+    assert alone["best"] == {"brdf.smape": "b (train)"}
