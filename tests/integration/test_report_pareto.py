@@ -101,13 +101,13 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
     doc = read(settings, job, "pareto.json")
     panels = {(p["metric"], p["cost"]): p for p in doc["panels"]}
     assert {
-        ("smape", "ns_per_eval"),
-        ("smape", "bytes_per_material"),
-        ("flip", "spp"),
-        ("flip", "render_seconds"),
+        ("brdf.smape", "ns_per_eval"),
+        ("brdf.smape", "bytes_per_material"),
+        ("image.flip", "spp"),
+        ("image.flip", "render_seconds"),
     } <= set(panels)
     # BRDF: each point is its runs' stored mean SMAPE, its cost their kernel ns/eval
-    smape = {p["candidate"]: p for p in panels[("smape", "ns_per_eval")]["points"]}
+    smape = {p["candidate"]: p for p in panels[("brdf.smape", "ns_per_eval")]["points"]}
     means = [read(settings, jobs[k], "metrics.json")["mean"]["smape"] for k in ("a0", "a1")]
     analytic = smape["analytic"]
     assert analytic["n"] == 2 and analytic["per_seed"] == means and analytic["seeds"] == [0, 1]
@@ -118,13 +118,13 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
         for k in ("a0", "a1")
     ]
     assert analytic["cost"] == pytest.approx(np.median(kernel))
-    assert panels[("smape", "ns_per_eval")]["cost_label"].startswith("ns_per_eval:")
+    assert panels[("brdf.smape", "ns_per_eval")]["cost_label"].startswith("ns_per_eval:")
     # renders: FLIP against the candidate render's spp and time
-    flip = {p["candidate"]: p for p in panels[("flip", "spp")]["points"]}
+    flip = {p["candidate"]: p for p in panels[("image.flip", "spp")]["points"]}
     scored = read(settings, jobs["score"], "metrics.json")["metrics"]
     assert {k: p["cost"] for k, p in flip.items()} == {"spp1": 1, "spp2": 2}
     assert {k: p["mean"] for k, p in flip.items()} == {k: scored[k]["flip"] for k in flip}
-    secs = {p["candidate"]: p["cost"] for p in panels[("flip", "render_seconds")]["points"]}
+    secs = {p["candidate"]: p["cost"] for p in panels[("image.flip", "render_seconds")]["points"]}
     for k in secs:  # the render's own time (manifest), as its result rows give it
         assert secs[k] == pytest.approx(
             own_render_seconds(ArtifactStore(settings.store_dir), jobs[k])
@@ -212,10 +212,10 @@ def test03_results_table_and_batches(study: tuple[Settings, dict[str, Job]]) -> 
         "state": "succeeded",
     }
     assert [(r.step, r.metric) for r in res.rows][2:] == [
-        ("s", "flip"),
-        ("s", "psnr"),
-        ("s", "flip"),
-        ("s", "psnr"),
+        ("s", "image.flip"),
+        ("s", "image.psnr"),
+        ("s", "image.flip"),
+        ("s", "image.psnr"),
     ]
 
 
