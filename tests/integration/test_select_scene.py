@@ -269,3 +269,12 @@ def test05_runs_spec_keeps_its_canonical_form() -> None:
     assert sorted(params) == ["cost", "metric", "runs", "target"]
     scene = json.loads(validate_spec(SPEC).canonical)["params"]
     assert "runs" not in scene and "material" not in scene["scene"]
+
+
+def test06_the_metric_may_be_given_by_its_row_name() -> None:
+    """``image.flip``, the name of the scene mode's result rows, is accepted as ``flip``
+    is (a name read off ``matforge results`` works in the spec); ``image.smape`` is not."""
+    kinds.load_builtin()
+    validate_spec(spec_with(metric="image.flip"))
+    with pytest.raises(SpecError, match="is not an image metric"):
+        validate_spec(spec_with(metric="image.smape"))
