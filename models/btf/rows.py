@@ -1,8 +1,9 @@
 """Result rows of ``train.btf`` (:mod:`jobapi.rows`): the model's L1 errors of
 ``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
 storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
-the decoder's; ``l1_train`` is the ``train`` split, ``l1_heldout`` the ``test`` one (the
-held-out slices). Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest,
+the decoder's. Their names say their slices (``l1_train``: the training slices,
+``l1_heldout``: the held-out ones, ``l1`` and ``relative_l1``: every slice), so their rows
+have no ``split``. Then ``l1`` and ``relative_l1`` per failure case (shadowing, specular, rest,
 and fine_detail: the paper's Fig. 15 failure, the detail within 2 x 2 blocks)."""
 
 from __future__ import annotations
@@ -17,9 +18,6 @@ METRICS = ("l1", "l1_train", "l1_heldout", "relative_l1")
 #: :mod:`models.btf.cases`): rows whose ``material`` and ``family`` are the case's name, so
 #: that ``report.pareto`` and ``report.stability`` break the errors down by case.
 CASE_METRICS = ("l1", "relative_l1")
-#: The split of the metrics over one part of the slices (``l1`` and ``relative_l1`` are
-#: over every slice, training and held-out).
-SPLITS = {"l1_train": "train", "l1_heldout": "test"}
 #: What renders a train.btf model (the fused ``btf_model`` BSDF and ``evaluate.tss``).
 RUNTIME = "drjit-fused"
 #: Params of the spec that describe the model, in ``config``.
@@ -44,8 +42,7 @@ def train_btf_rows(src: RowSource) -> list[ResultRow]:
     }
     values = {"l1": doc["l1"], "l1_train": doc["l1_train"], "l1_heldout": doc["l1_heldout"],
               "relative_l1": doc["relative_l1"]}  # fmt: skip
-    rows = [base_row(src, k, v, split=SPLITS.get(k), **fields)
-            for k in METRICS if (v := number(values[k])) is not None]  # fmt: skip
+    rows = [base_row(src, k, v, **fields) for k in METRICS if (v := number(values[k])) is not None]
     for case in doc["cases"]:
         errors = {"l1": case["l1"], "relative_l1": case["relative_l1"]}
         for k in CASE_METRICS:
