@@ -296,6 +296,9 @@ class ParetoPoint(TypedDict):
     runtime: NotRequired[str | None]
     """What evaluated the candidate (``drjit-fused``, ``onnxruntime``, ``mitsuba``, several
     joined with ``+``)."""
+    split: NotRequired[str | None]
+    """Whose error it is: ``test`` (held-out data), ``train`` (the data it was fitted to),
+    ``null`` for neither (a score of renders)."""
 
 
 @with_config(_OPEN)

@@ -9,6 +9,9 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
   the min and max over seeds (the error bars), and its cost the median of the rows' costs.
 - The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
   error); every point records which points dominate it.
+- Every point names its ``split``: ``test`` where its runs' errors are over held-out data,
+  ``train`` where over the data they were fitted to, ``null`` for neither (a score of
+  renders); the chart labels the points with it.
 - Every point names its ``runtime`` (:data:`jobapi.rows.RUNTIMES`: what evaluated it, the
   rows' ``runtime`` joined with ``+`` when they differ, ``null`` when none says), and a panel
   lists its ``runtimes``: a chart of ``ns_per_eval`` whose points come from two runtimes
@@ -112,6 +115,7 @@ def _point(candidate: str, rows: list[ResultRow], cost: str) -> dict[str, Any] |
         "per_seed": per_job,
         "kind": rows[0].kind,
         "runtime": runtime_of(rows),
+        "split": "+".join(sorted({r.split for r in rows if r.split})) or None,
     }
 
 

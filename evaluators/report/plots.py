@@ -42,8 +42,9 @@ def _panel(ax: Any, panel: dict[str, Any]) -> None:
                     color=FRONT if on else DOMINATED,
                     markerfacecolor=FRONT if on else "white")  # fmt: skip
         runtime = f", {p['runtime']}" if p.get("runtime") else ""
-        ax.annotate(f"{p['candidate']} (n={p['n']}{runtime})", (x, y), textcoords="offset points",
-                    xytext=(5, 5), fontsize=7)  # fmt: skip
+        split = f", {p['split']}" if p.get("split") else ""  # train or test error
+        ax.annotate(f"{p['candidate']} (n={p['n']}{split}{runtime})", (x, y),
+                    textcoords="offset points", xytext=(5, 5), fontsize=7)  # fmt: skip
     front = sorted((p for p in panel["points"] if p["front"]), key=lambda p: p["cost"])
     if len(front) > 1:
         ax.plot([p["cost"] for p in front], [p["mean"] for p in front], "--", color=LINE)

@@ -216,3 +216,17 @@ def test06_claims_inside_the_seed_spread_are_not_resolved() -> None:
     one_job = [brdf_row("f" * 32, "a", v, 1.0) for v in (0.1, 0.3)]
     many = one_job + rows_of({"b": [0.25, 0.26]})
     assert check_claim(many, {"a": "a", "b": "b", "metric": "smape"})["a_seeds"] == 1
+
+
+def test07_points_say_whose_error_they_are() -> None:
+    """A run with held-out materials is charted by its test error, labelled ``test``; a
+    run without any by its training error, labelled ``train``."""
+    held = [
+        brdf_row("h1", "hybrid", 0.30, 10.0).with_(split="test"),
+        brdf_row("h1", "hybrid", 0.05, 10.0).with_(split="train"),
+    ]
+    fitted = [brdf_row("a1", "analytic", 0.20, 2.0).with_(split="train")]
+    (panel,) = panels(held + fitted, ["brdf.smape"], ["ns_per_eval"])
+    by = {p["candidate"]: p for p in panel["points"]}
+    assert (by["hybrid"]["mean"], by["hybrid"]["split"]) == (0.30, "test")
+    assert (by["analytic"]["mean"], by["analytic"]["split"]) == (0.20, "train")
