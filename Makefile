@@ -25,7 +25,7 @@ else
 $(error TORCH must be cpu or cuda, not $(TORCH))
 endif
 
-.PHONY: setup system-deps demo test test-fast docs lint typecheck bench bench-all clean serve check-wheel
+.PHONY: setup system-deps demo test test-fast docs lint typecheck bench bench-all bench-summary clean serve check-wheel
 
 setup: $(STAMP)
 
@@ -98,6 +98,10 @@ bench: setup
 		echo "== benchmarks/$$script $$args"; \
 		$(PY) benchmarks/$$script $$args < /dev/null; \
 	done
+
+# BENCHMARKS.md's summary table from the run records of benchmarks/results/.
+bench-summary:
+	$(PY) benchmarks/summary.py --write
 
 bench-all: setup
 	@set -e; for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b < /dev/null; done

@@ -214,7 +214,7 @@ def print_ladder(settings: Any, jobs: dict[str, Any]) -> dict[str, Any]:
             str(r.candidate),
             {"bytes": r.bytes_per_material, "seconds": r.render_seconds, "spp": r.spp},
         )
-        t[r.metric] = r.value
+        t[r.metric.removeprefix("image.")] = r.value  # image.flip: the column "flip"
     order = [x["candidate"] for x in lad["rungs"]]
     print(f"\nglint ladder, brushed metal; select: {select['metric']} <= {select['target']}")
     print("| rung | FLIP | PSNR dB | SSIM | render s | bytes | meets | front (s) | front (bytes) |")

@@ -87,7 +87,9 @@ def main() -> None:
         ),
         "select.json",
     )
-    (panel,) = [p for p in pareto["panels"] if (p["metric"], p["cost"]) == ("smape", "ns_per_eval")]
+    (panel,) = [
+        p for p in pareto["panels"] if (p["metric"], p["cost"]) == ("brdf.smape", "ns_per_eval")
+    ]
     points = {p["candidate"]: p for p in panel["points"]}
     print(
         "| run | mean SMAPE | ns/eval | on the front | loss change, 2nd half / last tenth | "

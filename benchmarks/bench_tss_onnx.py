@@ -69,7 +69,7 @@ def main() -> None:
         (digest,) = [a.digest for a in job.artifacts if a.name == "timing.json"]
         timing = json.loads(store.read(digest))
         rows = tss_rows(StoreSource(jobs.get(job.id), jobs, store))
-        flips = {r.candidate: r.value for r in rows if r.metric == "flip_mean"}
+        flips = {r.candidate: r.value for r in rows if r.metric == "image.flip_mean"}
         for label, t in timing["rows"].items():
             runtime = next(r.runtime for r in rows if r.candidate == label)
             print(f"| {name} | {runtime} | {label} | {flips[label]:.4f} | "

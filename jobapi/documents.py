@@ -402,6 +402,9 @@ class ParetoPoint(TypedDict):
     """Whether its place on or off the front holds anywhere inside the spreads."""
     tied_with: NotRequired[list[str]]
     """The candidates that make it undecided (empty: resolved)."""
+    split: NotRequired[str | None]
+    """Whose error it is: ``test`` (held-out data), ``train`` (the data it was fitted to),
+    ``null`` for neither (a score of renders)."""
 
 
 @with_config(_OPEN)

@@ -112,6 +112,10 @@ class Kind:
             against the measured frame cost). Every other timing goes to the manifest
             (:meth:`jobapi.context.JobContext.measure`); the registry's determinism test
             compares every artifact of two runs of a spec but these.
+        metrics: the metric names of its result rows (names or ``fnmatch`` patterns, e.g.
+            ``"brdf.smape"``, ``"*.rel"``; :mod:`jobapi.metric_names`): what ``metric.<name>``
+            columns and filters and ``--metric`` accept. A name no kind declares is
+            refused with the closest known ones.
     """
 
     name: str
@@ -130,6 +134,7 @@ class Kind:
     variant_bytes: bool | Callable[[Any], bool] = False
     documents: Mapping[str, type] = field(default_factory=dict)
     timing_artifacts: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
+    metrics: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # Its documents' validators are built with the kind (at import), not by the first
@@ -172,6 +177,12 @@ def restore(snapshot: Mapping[str, Kind]) -> None:
 def registered() -> dict[str, Kind]:
     """The kinds registered so far, by name (a copy)."""
     return dict(_KINDS)
+
+
+def declared_metrics() -> list[str]:
+    """Every registered kind's :attr:`Kind.metrics` (names and patterns), once each, in
+    registry order."""
+    return list(dict.fromkeys(m for k in _KINDS.values() for m in k.metrics))
 
 
 def report_facts(name: str) -> ReportFacts | None:

@@ -6,6 +6,13 @@ as JSON or CSV without knowing any kind's fields. One row holds one value of one
 with what it measured (dataset, scene, candidate, material), how (``config``), whether
 lower is better, the seed, and what it cost.
 
+A metric's name says its space where it is measured in more than one (``brdf.mae``,
+``image.mae``: :mod:`jobapi.metric_names`), so that a column holds one unit. ``split``
+says whether a value is over the data the model was fitted to (``train``) or over data it
+never saw (``test``: held-out materials, betas or patterns); ``None`` for a value that is
+neither (a render, a score of images). Tables and charts label the two, and headline the
+test error where there is one.
+
 Costs: one name per meaning, the same name wherever it is shown or drawn.
 
 ==========================  ==================================================================
@@ -45,9 +52,11 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Protocol
+
+from jobapi.metric_names import SPACED
 
 #: The identity and what-was-measured columns, in order.
 KEY_COLUMNS = (
@@ -59,6 +68,7 @@ KEY_COLUMNS = (
     "candidate",
     "material",
     "family",
+    "split",
     "config",
     "metric",
     "value",
@@ -87,6 +97,9 @@ TIMED_COLUMNS = frozenset({
     "fused_ns", "torch_ns", "seconds_per_frame", "seconds", "samples_per_second",
     "precompute_seconds",
 })  # fmt: skip
+
+#: The ``split`` names (see the module docstring).
+SPLITS = ("train", "test")
 #: The ``runtime`` names (see the module docstring).
 RUNTIMES = ("drjit-fused", "onnxruntime", "mitsuba")
 #: Every column of a row, in the order of a CSV file.
@@ -134,9 +147,13 @@ LOWER_IS_BETTER: dict[str, bool] = {
 
 def lower_is_better(metric: str) -> bool | None:
     """Whether a lower ``metric`` is better (suffixes ``.rel``/``.mse``/``_rel`` count as
-    errors); ``None`` when it has no better direction."""
+    errors; a space's name, ``image.psnr``, as its bare one); ``None`` when it has no
+    better direction."""
     if metric in LOWER_IS_BETTER:
         return LOWER_IS_BETTER[metric]
+    space, _, bare = metric.partition(".")
+    if space in SPACED and bare in SPACED[space]:
+        return LOWER_IS_BETTER.get(bare)
     if metric.endswith((".rel", ".mse", ".loss", "_rel", "_mse", "_error")):
         return True
     return None
@@ -157,6 +174,7 @@ class ResultRow:
     candidate: str | None = None
     material: str | None = None
     family: str | None = None
+    split: str | None = None
     config: Mapping[str, Any] = field(default_factory=dict)
     seed: int | None = None
     ns_per_eval: float | None = None
@@ -253,6 +271,20 @@ def base_row(src: RowSource, metric: str, value: float, **fields: Any) -> Result
     fields.setdefault("lower_is_better", lower_is_better(metric))
     fields.setdefault("seed", src.job.seed)
     return ResultRow(job=src.job.id, kind=src.job.kind, metric=metric, value=value, **fields)
+
+
+def whole_set(row: ResultRow) -> bool:
+    """A row about a job's whole set (no material, or the mean over materials)."""
+    return row.material in (None, "mean")
+
+
+def headline_rows(rows: Iterable[ResultRow]) -> list[ResultRow]:
+    """The whole-set rows (:func:`whole_set`) that stand for their jobs' errors: a job
+    with ``test`` whole-set rows of a metric is represented by those (its test error), not
+    by its ``train`` ones; other jobs by all their whole-set rows. Order kept."""
+    rows = [r for r in rows if whole_set(r)]
+    tested = {(r.job, r.metric) for r in rows if r.split == "test"}
+    return [r for r in rows if r.split == "test" or (r.job, r.metric) not in tested]
 
 
 def dataset_of(params: Mapping[str, Any], *keys: str) -> str | None:

@@ -51,6 +51,9 @@ def kinds_markdown() -> str:
         lines.append(f"### `{kind.name}`\n\n{kind.description}\n\nArtifacts: {arts}\n")
         if timed := timing_line(kind):
             lines.append(timed + "\n")
+        if kind.metrics:
+            names = ", ".join(f"`{m}`" for m in kind.metrics)
+            lines.append(f"Metrics of its result rows ([names](../usage.md#results)): {names}.\n")
         if kind.layout:
             lines.append(kind.layout.strip() + "\n")
         lines.append("| param | type | default | description |")

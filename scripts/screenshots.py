@@ -292,16 +292,16 @@ def main(argv: list[str] | None = None) -> int:
                 shoot(pg, f"{url}/jobs/{job.id}", out / file)
                 shots.append((f"`{kind.name}`", f"screenshots/{file}", kind.description))
             rows = "() => document.querySelectorAll('#jobs-body tr[data-id]').length > 0"
-            cols = "columns=params.model,params.spp,metric.smape_mean,metric.flip&group=1"
+            cols = "columns=params.model,params.spp,metric.brdf.smape,metric.image.flip&group=1"
             shoot(pg, f"{url}/?{cols}", out / "jobs.png", wait=rows, full=False)
             shots.append(
                 (
                     "The job list",
                     "screenshots/jobs.png",
                     "Every job above, grouped by batch, with two parameter and two metric "
-                    "columns (`?columns=params.model,params.spp,metric.smape_mean,"
-                    "metric.flip`); filters such as `params.model=hybrid` or "
-                    "`metric.smape_mean<0.1` go in the Filter box.",
+                    "columns (`?columns=params.model,params.spp,metric.brdf.smape,"
+                    "metric.image.flip`); filters such as `params.model=hybrid` or "
+                    "`metric.brdf.smape<0.1` go in the Filter box.",
                 )
             )
             ids = ",".join(j.id[:12] for j in renders)

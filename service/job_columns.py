@@ -3,13 +3,19 @@
 A *column key* names one value of a job:
 
 - ``params.<path>``: a value of the job's spec params, ``.``-separated at any depth
-  (``params.model``, ``params.material.mitsuba.alpha``);
+  (``params.model``, ``params.material.mitsuba.alpha``); its first name is a param of some
+  kind (else refused, with the closest ones);
 - ``metric.<name>``: the mean of the job's result rows for that metric
-  (:mod:`jobapi.rows`; e.g. ``metric.smape_mean``, ``metric.psnr``), over its candidates,
-  materials and scenes; a job without such rows has none.
+  (:mod:`jobapi.rows`; e.g. ``metric.brdf.smape``, ``metric.image.psnr``), over its
+  candidates, materials and scenes, and of its ``test`` rows where it has some (held-out
+  materials: the test error, not the training one); a job without such rows has none. The
+  name is a metric some kind declares (:attr:`jobapi.kinds.Kind.metrics`) or an old name
+  that stands for one (``metric.smape`` is ``metric.brdf.smape``:
+  :mod:`jobapi.metric_names`); any other is refused with the closest known names, and so
+  is ``metric.mae``, which would mix a BRDF-space and an image MAE in one column.
 
 A *filter* is ``<key><op><value>`` with ``op`` one of ``=``, ``!=``, ``<``, ``<=``, ``>``,
-``>=``: ``params.model=hybrid``, ``metric.smape_mean<0.1``. ``=``/``!=`` compare as numbers
+``>=``: ``params.model=hybrid``, ``metric.brdf.smape<0.1``. ``=``/``!=`` compare as numbers
 when both sides are numbers, else as text (``true``/``false``/``null`` match JSON values
 as written); the order comparisons need numbers. A job without the value never passes a
 filter (``!=`` included: "a job whose model is not hybrid" has a model).
@@ -20,6 +26,7 @@ job list come through here.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import operator
@@ -29,6 +36,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from jobapi.errors import SpecError
+from jobapi.kinds import declared_metrics
+from jobapi.metric_names import one_column, unknown_metric
 
 #: A column key: ``params.`` or ``metric.`` and a dotted path of names.
 KEY = re.compile(r"^(params|metric)\.[A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*$")
@@ -56,18 +65,45 @@ MAX_KEYS = 16
 
 
 def check_key(key: str, where: str) -> str:
-    """``key`` if it is a column key, else :class:`SpecError` naming ``where``."""
+    """``key`` if it is a column key, else :class:`SpecError` naming ``where``: not of the
+    form, or a ``metric.`` key whose name no kind declares (with did-you-mean), or an old
+    name of metrics in two spaces (:func:`jobapi.metric_names.unknown_metric`)."""
     if not KEY.match(key):
         raise SpecError(
             [
                 (
                     where,
                     f"{key!r} is not a column: use params.<name>[.<name>...] or "
-                    "metric.<name> (e.g. params.model, metric.smape_mean)",
+                    "metric.<name> (e.g. params.model, metric.brdf.smape)",
                 )
             ]
         )
+    from service import kinds  # the registry, built-in kinds and plugins loaded
+
+    if key.startswith("params."):
+        name = key.split(".")[1]
+        known = sorted({f for k in kinds.all_kinds().values() for f in k.params.model_fields})
+        if name not in known:
+            close = difflib.get_close_matches(name, known, n=3)
+            hint = f"; did you mean {' or '.join(repr('params.' + c) for c in close)}?"
+            raise SpecError(
+                [(where, f"{key!r}: no kind has a param {name!r}{hint if close else ''}")]
+            )
+    if key.startswith("metric."):
+        kinds.load()
+        why = unknown_metric(
+            key.split(".", 1)[1], declared_metrics(), column=True, prefix="metric."
+        )
+        if why is not None:
+            raise SpecError([(where, f"{key!r}: {why}")])
     return key
+
+
+def metric_of(key: str) -> str:
+    """The row metric a ``metric.<name>`` key reads (an old name resolved: ``metric.smape``
+    reads ``brdf.smape``)."""
+    name = key.split(".", 1)[1]
+    return one_column(name) or name
 
 
 def parse_keys(texts: Iterable[str], where: str = "query.columns") -> list[str]:
@@ -131,9 +167,9 @@ def parse_filters(texts: Iterable[str], where: str = "query.filter") -> list[Job
         if m is None:
             raise _not_a_filter(text, where)
         if m[2] is not None:
-            out.append(JobFilter(m[1], m[2], m[3].rstrip(" ")))
+            out.append(JobFilter(check_key(m[1], where), m[2], m[3].rstrip(" ")))
         else:
-            out.append(JobFilter(m[1], m[4], m[5]))
+            out.append(JobFilter(check_key(m[1], where), m[4], m[5]))
     if len(out) > MAX_KEYS:
         raise SpecError([(where, f"at most {MAX_KEYS} filters")])
     return out
@@ -151,7 +187,7 @@ def _not_a_filter(text: str, where: str) -> SpecError:
             (
                 where,
                 f"{text!r} is not a filter: use <column><op><value> with op one of "
-                "=, !=, <, <=, >, >= (e.g. params.model=hybrid, metric.smape_mean<0.1); "
+                "=, !=, <, <=, >, >= (e.g. params.model=hybrid, metric.brdf.smape<0.1); "
                 "an order (<, <=, >, >=) takes a decimal number",
             )
         ]
@@ -173,9 +209,13 @@ def param_value(spec: Mapping[str, Any], key: str) -> Any:
 
 def metric_means(rows: Iterable[Any]) -> dict[str, float]:
     """The mean value of each metric over ``rows`` (:class:`jobapi.rows.ResultRow`), finite
-    values only."""
+    values only; a metric with ``test`` rows is the mean of those (the held-out error)."""
+    rows = list(rows)
+    tested = {r.metric for r in rows if getattr(r, "split", None) == "test"}
     sums: dict[str, list[float]] = {}
     for r in rows:
+        if r.metric in tested and getattr(r, "split", None) != "test":
+            continue
         v = r.value
         if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
             sums.setdefault(r.metric, []).append(float(v))
@@ -195,7 +235,7 @@ def job_values(
         else:
             if means is None:
                 means = metrics()
-            out[key] = means.get(key.split(".", 1)[1])
+            out[key] = means.get(metric_of(key))
     return out
 
 

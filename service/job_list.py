@@ -89,7 +89,7 @@ def job_list_query(
             max_length=16,
             description="add these values to each job as `columns` (repeatable or "
             "comma-separated): `params.<path>` (e.g. `params.model`) or `metric.<name>` "
-            "(the mean of its result rows, e.g. `metric.smape_mean`)",
+            "(the mean of its result rows, e.g. `metric.brdf.smape`)",
         ),
     ] = None,
     filter: Annotated[
@@ -98,7 +98,7 @@ def job_list_query(
             max_length=16,
             description="only jobs whose value passes `<column><op><value>` "
             "(op: = != < <= > >=, an order with a decimal number; spaces around allowed; "
-            "repeatable, all must pass), e.g. `params.model=hybrid`, `metric.smape_mean<0.1`",
+            "repeatable, all must pass), e.g. `params.model=hybrid`, `metric.brdf.smape<0.1`",
         ),
     ] = None,
     tag: Annotated[

@@ -37,7 +37,8 @@ def direction(name: str) -> Direction | None:
     return None
 
 
-#: Row labels that aggregate the others (never "the best" of them).
+#: Row labels that aggregate the others (never "the best" of them), also as the first word
+#: of a label (``mean test``, ``mean train``: a split's mean).
 AGGREGATES = frozenset({"mean", "median", "all", "total"})
 
 
@@ -52,6 +53,7 @@ def best_labels(rows: Mapping[str, Mapping[str, Any]], names: list[str]) -> dict
             label: float(v[name])
             for label, v in rows.items()
             if label not in AGGREGATES
+            and label.split(" ")[0] not in AGGREGATES  # "mean test", "mean train"
             and isinstance(v.get(name), int | float)
             and not isinstance(v.get(name), bool)
         }

@@ -10,6 +10,7 @@ them (the same canonical spec hash that resubmitting the step would find).
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -17,6 +18,8 @@ from typing import Any
 
 from jobapi import row_sources
 from jobapi.errors import SpecError
+from jobapi.kinds import declared_metrics
+from jobapi.metric_names import matches, unknown_metric
 from jobapi.row_sources import job_id_of_ref
 from jobapi.rows import COLUMNS, ResultRow
 from service import kinds
@@ -38,7 +41,9 @@ def job_rows(job: Job, jobs: JobStore, store: ArtifactStore) -> list[ResultRow]:
 @dataclass(frozen=True)
 class RowFilter:
     """Which rows to keep; ``None`` (or empty) keeps all. ``dataset`` matches the row's
-    dataset ref or the job id inside it."""
+    dataset ref or the job id inside it; ``metric`` names row metrics or old names that
+    stand for them (``smape``: ``brdf.smape``; ``mae``: ``brdf.mae`` and ``image.mae``,
+    :mod:`jobapi.metric_names`)."""
 
     kind: str | None = None
     dataset: str | None = None
@@ -49,7 +54,7 @@ class RowFilter:
     def keep(self, row: ResultRow) -> bool:
         if self.kind and row.kind != self.kind:
             return False
-        if self.metric and row.metric not in self.metric:
+        if self.metric and not matches(row.metric, self.metric):
             return False
         if self.candidate and row.candidate != self.candidate:
             return False
@@ -60,6 +65,30 @@ class RowFilter:
             if self.dataset not in (ds, job_id_of_ref(ds)):
                 return False
         return True
+
+
+def check_row_filter(where: RowFilter, names: Mapping[str, str] | None = None) -> RowFilter:
+    """``where`` if its ``kind`` is a registered kind and each ``metric`` a metric some kind
+    declares (or an old name of one); else :class:`SpecError` naming the option (``names``:
+    ``{"kind": "--kind", "metric": "--metric"}``; default ``query.kind``, ``query.metric``)
+    and the closest known values, so that a misspelt filter is never an empty answer."""
+    at = {"kind": "query.kind", "metric": "query.metric", **(names or {})}
+    errors: list[tuple[str, str]] = []
+    if where.kind:
+        known = sorted(kinds.all_kinds())
+        if where.kind not in known:
+            close = difflib.get_close_matches(where.kind, known, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            errors.append((at["kind"], f"unknown kind {where.kind!r}{hint}"))
+    else:
+        kinds.load()
+    for metric in where.metric:
+        why = unknown_metric(metric, declared_metrics())
+        if why is not None:
+            errors.append((at["metric"], why))
+    if errors:
+        raise SpecError(errors)
+    return where
 
 
 def select_rows(

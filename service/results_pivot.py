@@ -14,9 +14,15 @@ render's or a training job's own rows get a line too. For each method and metric
   of some row (a render's own ``render_seconds`` row) is the column ``cost.<name>``.
 
 ``best[column]`` is the method with the lowest mean (or highest, for a metric where higher
-is better, from the rows' ``lower_is_better``; every cost is lower-is-better). A metric
-without a better direction (``lower_is_better`` null) has no best. Ties go to the method
-named first. Methods keep the order of their first row.
+is better, from the rows' ``lower_is_better``; every cost is lower-is-better), among the
+methods that are not training errors (a ``train`` split's) where a metric's column has any
+other.
+A metric without a better direction (``lower_is_better`` null) has no best. Ties go to the method
+named first. Methods keep the order of their first row. A method's rows of the ``train``
+and ``test`` splits are two methods (``"hybrid 32x3 (train)"``, ``"hybrid 32x3 (test)"``);
+its rows without a split (its speed, measured once for the model) belong to both.
+Metric columns are the rows' names, which say their space where it is ambiguous
+(``brdf.mae``, ``image.mae``: :mod:`jobapi.metric_names`): two units never share a column.
 
 Timings (:data:`jobapi.rows.TIMED_COLUMNS`: ``ns_per_eval``, ``render_seconds``,
 ``fused_kernel_ns``, ...) are each job's own, taken at its own moment and load: the table
@@ -38,12 +44,14 @@ FORMAT = "matforge.pivot/1"
 
 
 def method_of(row: Mapping[str, Any], by: str = "candidate") -> str:
-    """The method a row belongs to: its ``by`` value, else its step, else ``kind job[:8]``."""
-    for key in (by, "step"):
-        value = row.get(key)
-        if value not in (None, ""):
-            return str(value)
-    return f"{row.get('kind')} {str(row.get('job') or '')[:8]}".strip()
+    """The method a row belongs to: its ``by`` value, else its step, else ``kind job[:8]``;
+    a row with a ``split`` (``train``, ``test``) names it after the method (``"hybrid 32x3
+    (test)"``), so that training and held-out errors are never one mean."""
+    name = next((str(row[k]) for k in (by, "step") if row.get(k) not in (None, "")), None)
+    if name is None:
+        name = f"{row.get('kind')} {str(row.get('job') or '')[:8]}".strip()
+    split = row.get("split")
+    return f"{name} ({split})" if split and by != "split" else name
 
 
 def _finite(value: Any) -> float | None:
@@ -63,20 +71,54 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
     values: dict[str, dict[str, list[float]]] = {}
     costs: dict[str, dict[str, list[float]]] = {}
     direction: dict[str, bool | None] = {}
+    trained: set[str] = set()  # methods of training rows: not "best" beside test ones
+    rows = list(rows)
+    # A model's rows without a split (its speed, measured once) belong to each of its splits.
+    splits: dict[str, list[str]] = {}
     for row in rows:
-        method = method_of(row, by)
-        if method not in values:
-            methods.append(method)
-            values[method], costs[method] = {}, {}
-        metric, value = row.get("metric"), _finite(row.get("value"))
-        if isinstance(metric, str) and value is not None:
-            values[method].setdefault(metric, []).append(value)
-            lib = row.get("lower_is_better")
-            direction.setdefault(metric, lib if isinstance(lib, bool) else None)
-        for cost in COST_COLUMNS:
-            amount = _finite(row.get(cost))
-            if amount is not None and cost != metric:  # a cost reported as the metric is one
-                costs[method].setdefault(cost, []).append(amount)
+        if row.get("split") and by != "split":
+            got = splits.setdefault(method_of({**row, "split": None}, by), [])
+            if method_of(row, by) not in got:
+                got.append(method_of(row, by))
+    for row in rows:
+        own = method_of(row, by)
+        for method in [own] if row.get("split") else splits.get(own, [own]):
+            if method not in values:
+                methods.append(method)
+                values[method], costs[method] = {}, {}
+                if method.endswith(" (train)") and by != "split":
+                    trained.add(method)
+            _add(row, values[method], costs[method], direction)
+    return _document(methods, values, costs, direction, trained, by)
+
+
+def _add(
+    row: Mapping[str, Any],
+    values: dict[str, list[float]],
+    costs: dict[str, list[float]],
+    direction: dict[str, bool | None],
+) -> None:
+    """One row's value and costs into its method's lists."""
+    metric, value = row.get("metric"), _finite(row.get("value"))
+    if isinstance(metric, str) and value is not None:
+        values.setdefault(metric, []).append(value)
+        lib = row.get("lower_is_better")
+        direction.setdefault(metric, lib if isinstance(lib, bool) else None)
+    for cost in COST_COLUMNS:
+        amount = _finite(row.get(cost))
+        if amount is not None and cost != metric:  # a cost reported as the metric is one
+            costs.setdefault(cost, []).append(amount)
+
+
+def _document(
+    methods: list[str],
+    values: dict[str, dict[str, list[float]]],
+    costs: dict[str, dict[str, list[float]]],
+    direction: dict[str, bool | None],
+    trained: set[str],
+    by: str,
+) -> dict[str, Any]:
+    """The pivot document of the methods' gathered values (see :func:`pivot`)."""
     metric_names = list(dict.fromkeys(m for meth in methods for m in values[meth]))
     # A cost that is also some row's metric (a render's own row is its render_seconds)
     # keeps both columns: the cost one is named "cost.<name>".
@@ -109,6 +151,9 @@ def pivot(rows: Iterable[Mapping[str, Any]], by: str = "candidate") -> dict[str,
             continue
         key = "mean" if col["role"] == "metric" else "median"
         scored = [(cells[m][name][key], m) for m in methods if name in cells[m]]
+        if col["role"] == "metric" and any(m not in trained for _, m in scored):
+            # beside a test error, a training error is no score
+            scored = [(v, m) for v, m in scored if m not in trained]
         if len(scored) < 2:
             continue
         pick = min if lib else max

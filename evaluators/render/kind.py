@@ -405,5 +405,6 @@ register(
         ),
         summary=summarize,
         rows=render_rows,
+        metrics=("render_seconds",),
     )
 )

@@ -3,7 +3,8 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
 
 - A *panel* is one dataset, scene, error metric and cost column. Its *points* are the
   candidates (``"hybrid 32x3"``, ``"net16"``, ``"mc1"``): all rows of one candidate in the
-  panel, whole-set rows only (``material`` empty or ``"mean"``), are its repeated
+  panel, whole-set rows only (``material`` empty or ``"mean"``; of a job with a ``test``
+  split, its test rows: :func:`jobapi.rows.headline_rows`), are its repeated
   measurements, one per job (seed); the point's error is their mean, with the sample std and
   the min and max over seeds (the error bars), and its cost the median of the rows' costs.
 - The front (:func:`evaluators.metrics.pareto.front_indices`) is taken on (cost, mean
@@ -18,6 +19,9 @@ result rows (:class:`jobapi.rows.ResultRow`). Pure functions; no I/O.
   ``ties`` and says why it is ``not_resolved``. A panel of a cost each job timed itself
   (``render_seconds``, ``train_seconds``, ``ms_per_frame``) is charted but never resolved:
   those costs come from separate passes.
+- Every point names its ``split``: ``test`` where its runs' errors are over held-out data,
+  ``train`` where over the data they were fitted to, ``null`` for neither (a score of
+  renders); the chart labels the points with it.
 - Every point names its ``runtime`` (:data:`jobapi.rows.RUNTIMES`: what evaluated it, the
   rows' ``runtime`` joined with ``+`` when they differ, ``null`` when none says), and a panel
   lists its ``runtimes``: a chart of ``ns_per_eval`` whose points come from two runtimes
@@ -43,10 +47,19 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from evaluators.metrics.pareto import dominated_by, front_indices, spread, unresolved_with
-from jobapi.rows import ResultRow
+from jobapi.metric_names import matches, qualified
+from jobapi.rows import ResultRow, headline_rows, whole_set
 
 #: Error metrics charted when none are asked for, in this order (those present).
-DEFAULT_ERRORS = ("smape", "flip", "flip_mean", "l1", "rgb.rel", "mae")
+DEFAULT_ERRORS = (
+    qualified("brdf", "smape"),
+    qualified("image", "flip"),
+    qualified("image", "flip_mean"),
+    "l1",
+    "rgb.rel",
+    qualified("brdf", "mae"),
+    qualified("image", "mae"),
+)
 #: Cost columns charted when none are asked for, in this order (those present).
 DEFAULT_COSTS = ("ns_per_eval", "bytes_per_material", "ms_per_frame", "render_seconds", "spp")
 #: Axis labels of the cost columns: the column's name, then what it measures.
@@ -62,11 +75,6 @@ COST_LABELS = {
     "bytes_per_eval": "bytes_per_eval: bytes read per evaluation (any machine)",
 }
 RELATIONS = ("<", "<=")
-
-
-def whole_set(row: ResultRow) -> bool:
-    """A row about the whole set (no material, or the mean over materials)."""
-    return row.material in (None, "mean")
 
 
 def error_metrics(rows: Iterable[ResultRow], asked: Sequence[str] | None) -> list[str]:
@@ -123,6 +131,7 @@ def _point(
         "per_seed": per_job,
         "kind": rows[0].kind,
         "runtime": runtime_of(rows),
+        "split": "+".join(sorted({r.split for r in rows if r.split})) or None,
     }
     if timed is not None:  # the comparison's own timing pass replaces the rows' costs
         point.update({k: v for k, v in timed.items() if k not in ("macs_per_eval",
@@ -182,8 +191,8 @@ def panels(
     from evaluators.report.timing import JOB_TIMED_COSTS, PASS_COSTS, pass_cost
 
     groups: dict[tuple[Any, ...], dict[str, list[ResultRow]]] = {}
-    for r in rows:
-        if r.metric in metrics and whole_set(r) and r.candidate is not None:
+    for r in headline_rows(rows):
+        if matches(r.metric, metrics) and r.candidate is not None:
             for cost in costs:
                 key = (r.dataset, r.scene, r.metric, cost)
                 groups.setdefault(key, {}).setdefault(r.candidate, []).append(r)
@@ -239,7 +248,7 @@ def families(rows: Sequence[ResultRow], metrics: Sequence[str]) -> list[dict[str
     over its materials."""
     acc: dict[tuple[Any, ...], dict[str, list[float]]] = {}
     for r in rows:
-        if r.metric in metrics and not whole_set(r) and r.family and r.candidate is not None:
+        if matches(r.metric, metrics) and not whole_set(r) and r.family and r.candidate is not None:
             key = (r.dataset, r.metric, r.candidate, r.family)
             acc.setdefault(key, {}).setdefault(r.job, []).append(r.value)
     out = []
@@ -269,23 +278,23 @@ def check_claim(rows: Sequence[ResultRow], claim: Mapping[str, Any]) -> dict[str
     dataset = claim.get("dataset")
     out: dict[str, Any] = {"claim": text, "a": a, "b": b, "metric": metric, "relation": rel}
 
+    headline = headline_rows(rows)
+
     def values(cand: str) -> list[float]:
         return [
             r.value
-            for r in rows
+            for r in headline
             if r.candidate == cand
-            and r.metric == metric
-            and whole_set(r)
+            and matches(r.metric, metric)
             and (dataset is None or r.dataset == dataset)
         ]
 
     def per_job(cand: str) -> list[float]:
         by: dict[str, list[float]] = defaultdict(list)
-        for r in rows:
+        for r in headline:
             if (
                 r.candidate == cand
-                and r.metric == metric
-                and whole_set(r)
+                and matches(r.metric, metric)
                 and (dataset is None or r.dataset == dataset)
             ):
                 by[r.job].append(r.value)

@@ -49,7 +49,8 @@ def _panel(ax: Any, panel: dict[str, Any]) -> None:
         rel = p.get("relative")
         ratio = f", {rel['median']:.3g}x ref" if isinstance(rel, Mapping) else ""
         tie = " ~" if p.get("resolved") is False else ""
-        ax.annotate(f"{p['candidate']} (n={p['n']}{runtime}{ratio}){tie}", (x, y),
+        split = f", {p['split']}" if p.get("split") else ""  # train or test error
+        ax.annotate(f"{p['candidate']} (n={p['n']}{split}{runtime}{ratio}){tie}", (x, y),
                     textcoords="offset points", xytext=(5, 5), fontsize=7)  # fmt: skip
     front = sorted((p for p in panel["points"] if p["front"]), key=lambda p: p["cost"])
     if len(front) > 1:

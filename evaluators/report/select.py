@@ -51,9 +51,11 @@ from typing_extensions import TypedDict
 from evaluators.report.kind import gather_rows
 from evaluators.report.select_params import SelectParams
 from evaluators.report.timing import PASS_COSTS
+from evaluators.score.params import IMAGE_METRICS
 from jobapi.documents import TimingDocument, document, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
+from jobapi.metric_names import qualified
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.rows import ResultRow, RowSource, base_row, lower_is_better, number
 
@@ -376,14 +378,19 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
     )
 
 
+#: The metric names of the scene mode's rows (:attr:`jobapi.kinds.Kind.metrics`).
+SELECT_METRICS = tuple(qualified("image", m) for m in IMAGE_METRICS)
+
+
 def select_rows(src: RowSource) -> list[ResultRow]:
-    """Result rows of the scene mode: per rung, its metric against the reference with its
+    """Result rows of the scene mode: per rung, its metric against the reference (named in
+    image space, ``image.flip``: :mod:`jobapi.metric_names`) with its
     spp, ``render_seconds`` and model cost. The ``runs`` mode has none of its own (its rows
     are its runs')."""
     doc = read_typed(src.read("select.json"), SelectDocument)
     if doc is None or doc.get("mode") != "scene":
         return []
-    metric, cost = doc["metric"], doc["cost"]
+    metric, cost = qualified("image", doc["metric"]), doc["cost"]
     out = []
     for lad in doc["ladders"]:
         for r in lad["rungs"]:
@@ -471,5 +478,6 @@ register(
         ),
         summary=summarize,
         rows=select_rows,
+        metrics=SELECT_METRICS,
     )
 )

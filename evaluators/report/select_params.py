@@ -239,9 +239,10 @@ class SelectParams(StrictModel):
 
     def _check_scene(self) -> None:
         assert self.scene is not None and self.ladder is not None
-        if self.metric not in IMAGE_METRICS:
+        if self.metric.removeprefix("image.") not in IMAGE_METRICS:  # image.flip: flip
             raise ValueError(
                 f"metric: {self.metric!r} is not an image metric; one of {', '.join(IMAGE_METRICS)}"
+                " (or its row name, image.<metric>)"
             )
         if "material" in self.scene.model_fields_set:
             raise ValueError("scene.material: give each rung's material in ladder instead")

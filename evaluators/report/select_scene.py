@@ -472,7 +472,8 @@ def score_rungs(
     points = []
     for i, rung in enumerate(params.ladder):
         got = by_name[rung.name]
-        value, error_map = image_metric(params.metric, reference, got["image"])
+        value, error_map = image_metric(params.metric.removeprefix("image."), reference,
+                                        got["image"])  # fmt: skip
         ctx.put_bytes(f"rung_{rung.name}.exr", exr_bytes(got["image"]), "image/x-exr")
         ctx.put_bytes(f"rung_{rung.name}.png", write_png(None, tonemap(got["image"])), "image/png")
         if error_map is not None:

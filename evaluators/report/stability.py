@@ -50,9 +50,11 @@ from evaluators.report.stability_document import StabilityDocument
 from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register, registered, report_facts
+from jobapi.metric_names import matches
 from jobapi.params import JobRef, StrictModel, job_id_of
 from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable
+from jobapi.rows import headline_rows, whole_set
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -139,9 +141,9 @@ def headline(kind: str, rows: Sequence[ResultRow]) -> tuple[str, float | None, s
     candidate its kind declares, :class:`~jobapi.reports.ReportFacts`)."""
     facts = _facts(kind)
     metric, cand = facts.metric, facts.candidate
-    for r in rows:
-        if r.metric == metric and r.material in (None, "mean") and cand in (None, r.candidate):
-            return metric, r.value, r.candidate
+    for r in headline_rows(rows):
+        if matches(r.metric, metric) and cand in (None, r.candidate):
+            return r.metric, r.value, r.candidate
     return metric, None, cand
 
 
@@ -283,16 +285,17 @@ def families(rows: Sequence[ResultRow]) -> list[dict[str, Any]]:
     acc: dict[tuple[str, Any, str], list[float]] = {}
     whole: dict[tuple[str, Any], list[float]] = {}
     trained = trained_kinds()
+    headline = {id(r) for r in headline_rows(rows)}  # rows are unhashable (config)
     for r in rows:
         facts = trained.get(r.kind)
         if facts is None:
             continue
         metric, cand = facts.families_by, facts.candidate
-        if r.metric != metric or cand not in (None, r.candidate):
+        if not matches(r.metric, metric) or cand not in (None, r.candidate):
             continue
         if r.family:
             acc.setdefault((r.kind, r.candidate, r.family), []).append(r.value)
-        elif r.material in (None, "mean"):
+        elif id(r) in headline:
             whole.setdefault((r.kind, r.candidate), []).append(r.value)
     return [
         _cell(k, c, f, family_metric(k), v, whole.get((k, c)) or None)
@@ -324,7 +327,7 @@ def render_rows(rows: Sequence[ResultRow], metric: str, label: str) -> list[Resu
     """A score job's whole-image ``metric`` rows, one per candidate, as family ``label``."""
     out = []
     for r in rows:
-        if r.metric == metric and r.material in (None, "mean") and r.candidate is not None:
+        if matches(r.metric, metric) and whole_set(r) and r.candidate is not None:
             out.append(dataclasses.replace(r, family=label))
     return out
 

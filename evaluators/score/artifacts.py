@@ -48,7 +48,10 @@ class ArtifactKind:
     ``FormatError``); ``scorer`` scores candidates of the same kind and of the kinds named in
     ``candidate_kinds``; ``metrics`` lists the metric names it supports. ``bind(data,
     material)`` marks a *model* kind: it returns the loaded data of one material (raising
-    ``FormatError`` for an unknown one); model kinds are candidates only.
+    ``FormatError`` for an unknown one); model kinds are candidates only. ``space``: the
+    space its metrics are measured in (:data:`jobapi.metric_names.SPACES`, ``"image"``,
+    ``"brdf"``), which names its result rows' metrics (``image.mae``, ``brdf.mae``);
+    ``None`` for metrics of one space only.
     """
 
     name: str
@@ -62,6 +65,7 @@ class ArtifactKind:
     candidate_kinds: tuple[str, ...] = ()
     detect: Callable[[Path], bool] | None = None
     bind: Callable[[Any, str], Any] | None = None
+    space: str | None = None
 
 
 ARTIFACT_KINDS: dict[str, ArtifactKind] = {}

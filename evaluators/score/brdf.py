@@ -300,6 +300,7 @@ register_artifact_kind(
         load=read_merl,
         scorer=score_brdfs,
         metrics=BRDF_METRICS,
+        space="brdf",
         candidate_kinds=("brdf-model", "external-brdf"),
     )
 )
@@ -313,6 +314,7 @@ register_artifact_kind(
         load=load_model,
         scorer=score_brdfs,
         metrics=BRDF_METRICS,
+        space="brdf",
         detect=detect_model,
         bind=bind_material,
     )

@@ -257,5 +257,6 @@ register_artifact_kind(
         load=_never_loaded,
         scorer=score_brdfs,
         metrics=("smape", "mae"),
+        space="brdf",
     )
 )

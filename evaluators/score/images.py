@@ -149,6 +149,7 @@ register_artifact_kind(
         load=read_exr,
         scorer=score_images,
         metrics=IMAGE_METRICS,
+        space="image",
     )
 )
 register_artifact_kind(
@@ -161,5 +162,6 @@ register_artifact_kind(
         load=read_png,
         scorer=score_images,
         metrics=IMAGE_METRICS,
+        space="image",
     )
 )

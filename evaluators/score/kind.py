@@ -56,6 +56,7 @@ from evaluators.score import brdf, external, images
 from evaluators.score.artifacts import ARTIFACT_KINDS, Loaded, load_input
 from evaluators.score.document import ScoreMetrics
 from evaluators.score.params import ExternalCandidate, ModelCandidate, ScoreParams
+from evaluators.score.rows import METRICS as ROW_METRICS
 from evaluators.score.rows import score_rows
 from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
@@ -168,5 +169,6 @@ register(
         documents={"metrics.json": ScoreMetrics},
         summary=summarize,
         rows=score_rows,
+        metrics=ROW_METRICS,
     )
 )

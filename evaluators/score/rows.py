@@ -20,6 +20,13 @@ BTF score (external BTFs against a BTF job's slices) gives ``l1``
 and ``relative_l1`` per candidate and per failure case (``material`` and ``family`` the
 case's name), as ``train.btf``'s rows do, so both land in the same ``report.pareto`` and
 ``report.stability`` panels.
+
+Metric names say their space (:mod:`jobapi.metric_names`): an image score's rows are
+``image.flip``, ``image.psnr``, ``image.ssim``, ``image.mae``, ``image.mse``; a BRDF
+score's (tables, models, sets of tables) ``brdf.smape`` and ``brdf.mae``, so that an image
+MAE and a BRDF-space MAE never share a column. ``metrics.json`` keeps the names of the
+score's ``metrics`` param. The space comes from the reference's artifact kind
+(``settings.artifact_kind``, :attr:`evaluators.score.artifacts.ArtifactKind.space`).
 """
 
 from __future__ import annotations
@@ -29,7 +36,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from evaluators.render.rows import render_facts
+from evaluators.score.artifacts import ARTIFACT_KINDS
 from jobapi.kinds import registered
+from jobapi.metric_names import ALIASES, qualified
 from jobapi.rows import ResultRow, RowSource, base_row, number
 
 #: The cost columns a candidate's rows carry.
@@ -37,6 +46,36 @@ CANDIDATE_COSTS = (
     "ns_per_eval", "runtime", "bytes_per_material", "bytes_per_network", "macs_per_eval",
     "bytes_per_eval",
 )  # fmt: skip
+
+
+#: The space of the settings-only artifact kinds of ``metrics.json`` (a set of MERL
+#: tables; BTF slices have metrics of one space only).
+SETTINGS_SPACES = {"merl-set": "brdf", "btf-slices": None}
+#: Every metric name a score's rows may have (:attr:`jobapi.kinds.Kind.metrics`).
+METRICS = (
+    *(qualified("image", m) for m in ("flip", "psnr", "ssim", "mae", "mse")),
+    *(qualified("brdf", m) for m in ("smape", "mae")),
+    "l1",
+    "relative_l1",
+)
+
+
+def metric_space(doc: Mapping[str, Any]) -> str | None:
+    """The space of a ``metrics.json``'s metrics (``"image"``, ``"brdf"``; ``None``: one
+    space only): from its ``settings.artifact_kind``, or for a document without one from
+    its metric names (``smape`` is BRDF-space only, ``flip``, ``psnr``, ``ssim``, ``mse``
+    image-space only)."""
+    settings = doc.get("settings")
+    kind = settings.get("artifact_kind") if isinstance(settings, Mapping) else None
+    if isinstance(kind, str) and kind in ARTIFACT_KINDS:
+        return ARTIFACT_KINDS[kind].space
+    if isinstance(kind, str) and kind in SETTINGS_SPACES:
+        return SETTINGS_SPACES[kind]
+    names = {str(m) for v in doc["metrics"].values() if isinstance(v, Mapping) for m in v}
+    for space in ("brdf", "image"):
+        if any(ALIASES.get(n) == (qualified(space, n),) for n in names):
+            return space
+    return None
 
 
 def _model_costs(src: RowSource, ref: Any, material: Any) -> dict[str, Any]:
@@ -114,6 +153,11 @@ def score_rows(src: RowSource) -> list[ResultRow]:
     ref_scene = render_facts(ref_src).get("scene") if ref_src is not None else None
     per = doc.get("per_material")
     per = per if isinstance(per, Mapping) else {}
+    space = metric_space(doc)
+
+    def named(metric: Any) -> str:
+        return qualified(space, str(metric)) if space is not None else str(metric)
+
     rows: list[ResultRow] = []
     cost = src.job.measured.get("cost")
     cases = doc.get("cases")
@@ -133,7 +177,7 @@ def score_rows(src: RowSource) -> list[ResultRow]:
             for metric, raw in vals.items():
                 value = number(raw)
                 if value is not None:
-                    rows.append(base_row(src, str(metric), value, **fields))
+                    rows.append(base_row(src, named(metric), value, **fields))
         for case in cases.get(label) or []:  # a BTF score's failure cases
             if not isinstance(case, Mapping) or not case.get("case"):
                 continue

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 from evaluators.tss.document import TssMetrics, TssPath, TssTiming
 from evaluators.tss.params import PLANE_SIDE, ExternalBtfRef, TssParams
-from evaluators.tss.rows import tss_rows
+from evaluators.tss.rows import ROW_METRICS, tss_rows
 from jobapi.documents import read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
@@ -304,6 +304,7 @@ register(
         documents={"metrics.json": TssMetrics, "timing.json": TssTiming, "path.json": TssPath},
         summary=summarize,
         rows=tss_rows,
+        metrics=ROW_METRICS,
         layout=LAYOUT,
     )
 )

@@ -1,6 +1,8 @@
 """Result rows of ``evaluate.tss`` (:mod:`jobapi.rows`): per radiance-texture resolution
 ``R`` and update interval ``N`` (candidate ``"<R>/N=<N>"``), the FLIP and PSNR of
-``metrics.json`` and the relative cost of ``timing.json``, each row with its
+``metrics.json`` (named in image space: ``image.flip_mean``, ``image.flip_max``,
+``image.psnr_mean``, ``image.psnr_min``, :mod:`jobapi.metric_names`) and the relative cost
+of ``timing.json``, each row with its
 ``ms_per_frame`` (kernel seconds per frame x 1000) and the model it shaded (dataset)."""
 
 from __future__ import annotations
@@ -9,10 +11,13 @@ from collections.abc import Mapping
 
 from evaluators.tss.document import TssMetrics, TssTiming
 from jobapi.documents import read_typed
+from jobapi.metric_names import qualified
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 
 #: The metrics of a ``metrics.json`` row.
 METRICS = ("flip_mean", "flip_max", "psnr_mean", "psnr_min")
+#: Every metric name of its rows (:attr:`jobapi.kinds.Kind.metrics`).
+ROW_METRICS = (*(qualified("image", m) for m in METRICS), "relative_cost")
 
 
 def tss_rows(src: RowSource) -> list[ResultRow]:
@@ -40,7 +45,9 @@ def tss_rows(src: RowSource) -> list[ResultRow]:
         }
         values: Mapping[str, object] = r
         rows += [
-            base_row(src, k, v, **fields) for k in METRICS if (v := number(values[k])) is not None
+            base_row(src, qualified("image", k), v, **fields)
+            for k in METRICS
+            if (v := number(values[k])) is not None
         ]
         if cost is not None and (rel := number(cost["relative_cost"])) is not None:
             rows.append(base_row(src, "relative_cost", rel, **fields))

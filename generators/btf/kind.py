@@ -253,6 +253,7 @@ register(
         },
         summary=summarize,
         rows=summary_rows(summarize, ("stderr_mean", "stderr_relative")),
+        metrics=("stderr_mean", "stderr_relative"),
         layout=LAYOUT,
     )
 )

@@ -426,5 +426,6 @@ register(
         },
         summary=summarize,
         rows=fabric_stats_rows,
+        metrics=("samples_per_second", "seconds"),
     )
 )

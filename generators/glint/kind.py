@@ -201,6 +201,7 @@ register(
         smoke={"example": {"procedural": "isotropic_noise", "size": 8}, "ndf_resolution": 16},
         summary=summarize,
         rows=glint_rows(summarize),
+        metrics=("bytes", "reference_bytes", "memory_ratio", "precompute_seconds"),
         documents={"stats.json": GlintStats},
         layout=LAYOUT,
     )

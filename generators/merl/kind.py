@@ -503,6 +503,7 @@ register(
         smoke={"source": {"analytic": {"model": "ggx", "alpha": 0.3, "material": "Au"}}},
         summary=summarize,
         rows=summary_rows(summarize, ("missing_bins",), prefix="tabulation."),
+        metrics=("missing_bins", "tabulation.*"),
         figures=(
             Figure(
                 "*.png",

@@ -13,9 +13,12 @@ import re
 from collections.abc import Sequence
 from typing import Any
 
+from jobapi.metric_names import qualified
 from jobapi.reports import CheckClaim
 from jobapi.rows import ResultRow
 
+#: The error the claims compare (:mod:`jobapi.metric_names`).
+SMAPE = qualified("brdf", "smape")
 #: This module's kind: only its rows are read.
 KIND = "train.brdf"
 _SIZE = re.compile(r"^(?P<model>hybrid|neural) (?P<size>\d+x\d+)$")
@@ -42,7 +45,7 @@ def brdf_claims(rows: Sequence[ResultRow], check: CheckClaim) -> list[dict[str, 
                 {
                     "a": f"hybrid {size}",
                     "b": "analytic",
-                    "metric": "smape",
+                    "metric": SMAPE,
                     "claim": f"hybrid {size} mean SMAPE < analytic",
                 },
             )
@@ -54,7 +57,7 @@ def brdf_claims(rows: Sequence[ResultRow], check: CheckClaim) -> list[dict[str, 
             {
                 "a": h,
                 "b": n,
-                "metric": "smape",
+                "metric": SMAPE,
                 "relation": "<=",
                 "claim": f"{h} mean SMAPE <= {n} at equal per-material parameters",
             },

@@ -48,6 +48,7 @@ job's network.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, Literal
@@ -63,7 +64,7 @@ from jobapi.reports import ReportFacts, phase_loss
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from models.brdf.claims import brdf_claims
 from models.brdf.document import BrdfModelDocument, TrainBrdfMaterials, TrainBrdfMetrics
-from models.brdf.rows import train_brdf_rows
+from models.brdf.rows import ROW_METRICS, train_brdf_rows
 
 if TYPE_CHECKING:
     from jobapi.context import JobContext
@@ -359,8 +360,21 @@ def model_checks(ctx: JobContext, job_id: str) -> dict[str, Any]:
 
 
 def summarize(read: ArtifactReader) -> ResultTable | None:
-    """The result table: ``metrics.json`` (read typed), one row per material then the mean."""
-    return per_material_table(read_typed(read("metrics.json"), TrainBrdfMetrics), MATERIAL_COLUMNS)
+    """The result table: ``metrics.json`` (read typed), one row per material (its split
+    beside it) then the mean; with held-out materials, the mean over them first
+    (``mean test``, the headline) and over the training materials (``mean train``) instead
+    of one mean over both."""
+    doc = read_typed(read("metrics.json"), TrainBrdfMetrics)
+    table = per_material_table(doc, MATERIAL_COLUMNS)
+    if table is None or doc is None or "heldout" not in doc["splits"]:
+        return table
+    rows = {k: v for k, v in table.rows.items() if k != "mean"}
+    for label, split in (("mean test", "heldout"), ("mean train", "train")):
+        if split in doc["splits"]:
+            means: dict[str, Any] = dict(doc["splits"][split])
+            rows[label] = {c: means.get(c) for c in table.columns}
+            rows[label]["split"] = split
+    return dataclasses.replace(table, rows=rows)
 
 
 register(
@@ -402,8 +416,9 @@ register(
         },
         summary=summarize,
         rows=train_brdf_rows,
+        metrics=ROW_METRICS,
         report=ReportFacts(
-            metric="smape", loss=training_loss, checks=model_checks, claims=brdf_claims
+            metric="brdf.smape", loss=training_loss, checks=model_checks, claims=brdf_claims
         ),
     )
 )

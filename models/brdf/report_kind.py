@@ -44,6 +44,7 @@ from pydantic import Field
 from jobapi.documents import DocumentError, ParetoDocument, check_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register
+from jobapi.metric_names import qualified
 from jobapi.params import JobRef, StrictModel
 from jobapi.results import ArtifactReader, ResultTable
 from jobapi.row_sources import measured_timings
@@ -267,7 +268,7 @@ def panels(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
             for i, p in enumerate(have)
         ]
         out.append({
-            "dataset": None, "scene": None, "metric": "smape", "cost": cost,
+            "dataset": None, "scene": None, "metric": qualified("brdf", "smape"), "cost": cost,
             "cost_label": label, "points": pts, "front": [pts[i]["candidate"] for i in on],
         })  # fmt: skip
     return out

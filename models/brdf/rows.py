@@ -2,8 +2,12 @@
 
 One row per material and metric of ``metrics.json`` (``smape``, ``smape_floor``, ``mae``
 and, for models with an analytic part, ``smape_analytic``, ``smape_floor_analytic`` and
-``mae_analytic``), the same metrics of the
-mean over materials (``material`` ``"mean"``), and the trained size's speed
+``mae_analytic``), named in BRDF space (``brdf.smape``, ...: :mod:`jobapi.metric_names`),
+each with its material's ``split``: ``train`` for a material the network was fitted to,
+``test`` for a held-out one (``holdout_families``: ``metrics.json``'s ``heldout``). Then the
+same metrics of the mean over each split's materials (``material`` ``"mean"``, its
+``split``; without held-out materials, the mean over all of them, ``train``), and the
+trained size's speed
 (``fused_kernel_ns``, ``fused_ns``, ``torch_ns`` of the speed document: the manifest's
 ``timings.measured.speed``, or the ``speed.json`` artifact of a job run before timings moved
 to the manifest). Every row carries the
@@ -24,6 +28,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from jobapi.documents import read_typed
+from jobapi.metric_names import qualified
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
 from models.brdf.document import (
     BrdfMaterialScores,
@@ -37,6 +42,11 @@ from models.brdf.fused import brdf_counts
 METRICS = (
     "smape", "smape_floor", "mae", "smape_analytic", "smape_floor_analytic", "mae_analytic"
 )  # fmt: skip
+#: The split of a result row per ``metrics.json`` split.
+SPLITS = {"train": "train", "heldout": "test"}
+#: Every metric name of its rows (:attr:`jobapi.kinds.Kind.metrics`).
+ROW_METRICS = (*(qualified("brdf", m) for m in METRICS), "fused_kernel_ns", "fused_ns",
+               "torch_ns")  # fmt: skip
 #: What evaluates a train.brdf model (its ``ns_per_eval`` is the fused kernel's).
 RUNTIME = "drjit-fused"
 #: The speed metrics of the speed document's trained-size row.
@@ -61,7 +71,7 @@ def _scores(scores: BrdfMaterialScores | BrdfScoreMeans) -> dict[str, float]:
               "mae": scores["mae"], "smape_analytic": scores["smape_analytic"],
               "smape_floor_analytic": scores["smape_floor_analytic"],
               "mae_analytic": scores["mae_analytic"]}  # fmt: skip
-    return {k: v for k in METRICS if (v := number(values[k])) is not None}
+    return {qualified("brdf", k): v for k in METRICS if (v := number(values[k])) is not None}
 
 
 def train_brdf_rows(src: RowSource) -> list[ResultRow]:
@@ -102,10 +112,18 @@ def train_brdf_rows(src: RowSource) -> list[ResultRow]:
     rows: list[ResultRow] = []
     for m in metrics["materials"]:
         fields = {**common, "material": m["name"], "family": m["family"],
+                  "split": SPLITS.get(m["split"], m["split"]),
                   "config": {**config, "split": m["split"]}}  # fmt: skip
         rows += [base_row(src, k, v, **fields) for k, v in _scores(m).items()]
-    rows += [base_row(src, k, v, material="mean", **common)
-             for k, v in _scores(metrics["mean"]).items()]  # fmt: skip
+    splits = metrics["splits"]
+    means = (
+        [(SPLITS[s], splits[s]) for s in ("heldout", "train") if s in splits]
+        if "heldout" in splits
+        else [("train", metrics["mean"])]
+    )
+    for split, mean in means:
+        rows += [base_row(src, k, v, material="mean", split=split, **common)
+                 for k, v in _scores(mean).items()]  # fmt: skip
     if speed:
         rows += [base_row(src, k, v, **common)
                  for k in SPEED_METRICS if (v := number(speed.get(k))) is not None]  # fmt: skip

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
@@ -134,12 +135,22 @@ def train_and_report(params: TrainBrdfParams, ctx: JobContext) -> None:
         ctx.job_id, arch.model, arch.width, arch.depth, len(ordered), total, fit_seconds, ms,
         time.perf_counter() - started,
     )  # fmt: skip
-    ctx.progress(
-        1.0,
-        f"{arch.model} {arch.width}x{arch.depth}: mean SMAPE {metrics['mean']['smape']:.4f} "
-        f"over {len(ordered)} materials; {total} steps in {fit_seconds:.0f} s "
-        f"({ms:.1f} ms/step)",
-    )
+    ctx.progress(1.0, f"{arch.model} {arch.width}x{arch.depth}: {headline(metrics)}; "
+                      f"{total} steps in {fit_seconds:.0f} s ({ms:.1f} ms/step)")  # fmt: skip
+
+
+def headline(metrics: dict[str, Any]) -> str:
+    """The job's one-line error: the mean SMAPE over the held-out (test) materials where
+    there are some, with the training materials' beside it; else over the training
+    materials, said so."""
+    splits, n = metrics["splits"], Counter(m["split"] for m in metrics["materials"])
+    if "heldout" in splits:
+        return (f"test SMAPE {splits['heldout']['smape']:.4f} over {n['heldout']} held-out "
+                f"materials (train {splits['train']['smape']:.4f} over {n['train']})"
+                if "train" in splits else
+                f"test SMAPE {splits['heldout']['smape']:.4f} over {n['heldout']} materials "
+                "fitted against a frozen network")  # fmt: skip
+    return f"train SMAPE {metrics['mean']['smape']:.4f} over {n['train']} training materials"
 
 
 def _start_from(

@@ -244,6 +244,7 @@ register(
         },
         summary=summarize,
         rows=train_btf_rows,
+        metrics=("l1", "l1_train", "l1_heldout", "relative_l1"),
         # failure cases (shadowed / specular slices, models.btf.cases) differ in scale:
         # compared by the relative L1
         report=ReportFacts(metric="l1", family_metric="relative_l1", loss_key="train_loss"),

@@ -2,7 +2,9 @@
 ``metrics.json`` (``l1``, ``l1_train``, ``l1_heldout``, ``relative_l1``), each with its
 storage (Table 1 of Xu et al. 2025): bytes per material are the textures', bytes per network
 the decoder's; multiply-adds and bytes read per evaluation from ``model.json``
-(:func:`models.btf.counts.btf_counts`). Then ``l1`` and ``relative_l1`` per failure case
+(:func:`models.btf.counts.btf_counts`). Their names say their slices (``l1_train``: the
+training slices, ``l1_heldout``: the held-out ones, ``l1`` and ``relative_l1``: every slice),
+so their rows have no ``split``. Then ``l1`` and ``relative_l1`` per failure case
 (shadowing, specular, rest, and fine_detail: the paper's Fig. 15 failure, the detail within
 2 x 2 blocks)."""
 

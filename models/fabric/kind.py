@@ -350,6 +350,7 @@ register(
         },
         summary=summarize,
         rows=train_fabric_rows,
+        metrics=("loss", "relative_l2", "*.mse", "*.rel", "*.ratio"),
         # the headline: the network's rows (its Monte Carlo baselines have rows too)
         report=ReportFacts(metric="rgb.rel", candidate="network", claims=fabric_claims),
     )

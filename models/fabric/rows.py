@@ -1,5 +1,6 @@
 """Result rows of ``train.fabric`` (:mod:`jobapi.rows`): the held-out errors of
-``metrics.json``, one row per material (and the mean, ``material`` ``"mean"``) and metric.
+``metrics.json``, one row per material (and the mean, ``material`` ``"mean"``) and metric,
+each of the ``test`` split (the material's held-out queries, never trained on).
 
 Metrics are the flattened keys of a material's row: ``loss`` (Eq. 11), ``rgb.rel``,
 ``rgb.mse``, ``C_warp.rel``, ... The per-material mean predictor's errors (``baseline.*``)
@@ -55,6 +56,7 @@ def train_fabric_rows(src: RowSource) -> list[ResultRow]:
         return []
     params = src.job.params
     common: dict[str, Any] = {
+        "split": "test",  # every error is over held-out queries, never trained on
         "dataset": dataset_of(params, "dataset"),
         "config": {k: params[k] for k in CONFIG_KEYS if params.get(k) is not None},
         "train_seconds": src.job.run_seconds,

@@ -306,7 +306,7 @@ class Client:
         """``GET /api/jobs``: one page of jobs and how many match in all (``None`` when the
         server does not say). ``columns`` (``params.<path>``, ``metric.<name>``) adds each
         job's values as its ``columns``; ``filters`` (``params.model=hybrid``,
-        ``metric.smape_mean<0.1``) keeps the jobs that pass all of them."""
+        ``metric.brdf.smape<0.1``) keeps the jobs that pass all of them."""
         query: dict[str, Any] = {
             "state": state,
             "kind": kind,

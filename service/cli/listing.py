@@ -128,14 +128,14 @@ def ls(
         "--column",
         "-c",
         help="Also show this value (repeatable or comma-separated): params.<path> "
-        "(e.g. params.model) or metric.<name> (the mean of its results, e.g. metric.psnr).",
+        "(e.g. params.model) or metric.<name> (the mean of its results, e.g. metric.image.psnr).",
     ),
     filters: list[str] = typer.Option(
         [],
         "--filter",
         "-f",
         help="Only jobs whose value passes, e.g. params.model=hybrid or "
-        "'metric.smape_mean<0.1' (ops = != < <= > >=; repeatable: all must pass).",
+        "'metric.brdf.smape<0.1' (ops = != < <= > >=; repeatable: all must pass).",
     ),
     tag: str | None = typer.Option(None, "--tag", show_default=False, help="Only this tag."),
     batch: str | None = typer.Option(

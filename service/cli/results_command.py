@@ -36,6 +36,7 @@ SHOWN = (
     "kind",
     "candidate",
     "material",
+    "split",
     "scene",
     "metric",
     "value",
@@ -86,6 +87,25 @@ def _filters(
         "metric": metric or None,
     }
     return {k: v for k, v in out.items() if v}
+
+
+def _check_options(filters: dict[str, Any], by: str | None) -> None:
+    """Refuse (exit 2, before any job is read) an unknown ``--kind`` or ``--metric`` and,
+    with ``--pivot``, a ``--by`` that is not a row column, each with the closest known
+    names: a misspelt option is never an empty table."""
+    import difflib
+
+    from jobapi.rows import KEY_COLUMNS
+    from service.results import RowFilter, check_row_filter
+
+    check_row_filter(
+        RowFilter(kind=filters.get("kind"), metric=tuple(filters.get("metric") or ())),
+        {"kind": "--kind", "metric": "--metric"},
+    )
+    if by is not None and by not in KEY_COLUMNS:
+        close = difflib.get_close_matches(by, KEY_COLUMNS, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise BadInput(f"--by {by}: not a row column{hint} (one of: {', '.join(KEY_COLUMNS)})")
 
 
 def _batch_steps(path: Path, variables: dict[str, str] | None = None) -> list[dict[str, Any]]:
@@ -317,6 +337,7 @@ def register(app: typer.Typer) -> None:
         from service.cli.batch import parse_vars
 
         filters = _filters(kind, dataset, metric, candidate, scene)
+        _check_options(filters, by if pivot else None)
         local = state_of(ctx).local_dir(data_dir)
         arg_list = list(args or [])
         if local is not None:
@@ -342,7 +363,7 @@ def show_pivot(rows: list[dict[str, Any]], by: str, out: Path | None, as_json: b
     from jobapi.rows import KEY_COLUMNS
     from service.results_pivot import pivot, pivot_csv_rows
 
-    if by not in KEY_COLUMNS:
+    if by not in KEY_COLUMNS:  # checked with the other options (_check_options)
         raise BadInput(f"--by {by}: not a row column (one of: {', '.join(KEY_COLUMNS)})")
     doc = pivot(rows, by)
     if out is not None:

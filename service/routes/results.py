@@ -19,7 +19,14 @@ from jobapi.errors import SpecError
 from jobapi.rows import ResultRow
 from service.deps import JOB_ID_PATTERN, AuthDep, JobsDep, SettingsDep, StoreDep
 from service.parse_threads import off_loop
-from service.results import MAX_JOBS, RowFilter, batch_rows, rows_csv, select_rows
+from service.results import (
+    MAX_JOBS,
+    RowFilter,
+    batch_rows,
+    check_row_filter,
+    rows_csv,
+    select_rows,
+)
 from service.schemas import ErrorPublic
 from service.spec_text import parse_json_text
 from service.workers.backend import identity_variant
@@ -39,8 +46,16 @@ class ResultRowPublic(BaseModel):
     candidate: str | None = None
     material: str | None = None
     family: str | None = None
+    split: Literal["train", "test"] | None = Field(
+        None,
+        description="`train`: over the data the model was fitted to; `test`: over held-out "
+        "data (materials, betas, patterns) it never saw",
+    )
     config: dict[str, Any] = Field(default_factory=dict)
-    metric: str
+    metric: str = Field(
+        description="the metric; one measured in more than one space names it "
+        "(`brdf.mae`, `image.mae`)"
+    )
     value: float
     lower_is_better: bool | None = None
     seed: int | None = None
@@ -106,11 +121,20 @@ Format = Annotated[
     Literal["json", "csv"] | None,
     Query(description="`csv` or `json`; default: `Accept: text/csv` gives CSV, else JSON"),
 ]
-KindQ = Annotated[str | None, Query(max_length=64, description="only rows of this job kind")]
+KindQ = Annotated[
+    str | None, Query(max_length=64, description="only rows of this job kind (422 if none)")
+]
 DatasetQ = Annotated[
     str | None, Query(max_length=200, description="only this dataset (a ref or its job id)")
 ]
-MetricQ = Annotated[list[str], Query(max_length=64, description="only these metrics")]
+MetricQ = Annotated[
+    list[str],
+    Query(
+        max_length=64,
+        description="only these metrics (old names too: `smape` keeps `brdf.smape`; a name "
+        "no kind declares is a 422 with the closest ones)",
+    ),
+]
 CandidateQ = Annotated[str | None, Query(max_length=200, description="only this candidate")]
 SceneQ = Annotated[str | None, Query(max_length=64, description="only this scene")]
 _CSV_DOC: dict[int | str, dict[str, Any]] = {
@@ -152,8 +176,8 @@ def get_results(
 ) -> Any:
     """Every value the jobs measured, one row each: job, kind, dataset, scene, candidate,
     material, config, metric, value, lower_is_better, seed and the costs."""
-    where = RowFilter(kind=kind, dataset=dataset, metric=tuple(metric), candidate=candidate,
-                      scene=scene)  # fmt: skip
+    where = check_row_filter(RowFilter(kind=kind, dataset=dataset, metric=tuple(metric),
+                                       candidate=candidate, scene=scene))  # fmt: skip
     rows = select_rows(jobs, store, job_ids=job, where=where, max_jobs=limit)
     if _wants_csv(request, format):
         return _csv(rows)
@@ -225,8 +249,8 @@ def post_batch_results(
     """The rows of a batch's steps in step order (each row names its `step`), and each
     step's job: the succeeded job of its spec once its `step:` refs name the earlier
     steps' jobs (`missing` if there is none). A spec that does not validate is a 422."""
-    where = RowFilter(kind=kind, dataset=dataset, metric=tuple(metric), candidate=candidate,
-                      scene=scene)  # fmt: skip
+    where = check_row_filter(RowFilter(kind=kind, dataset=dataset, metric=tuple(metric),
+                                       candidate=candidate, scene=scene))  # fmt: skip
     variant = identity_variant(settings)  # a sync route: in the thread pool already
     result = batch_rows([s.model_dump() for s in body.steps], jobs, store, where, variant)
     if _wants_csv(request, format):

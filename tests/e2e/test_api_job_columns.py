@@ -77,3 +77,39 @@ def test03_ls_refuses_a_bad_filter_with_exit_2(capsys: pytest.CaptureFixture[str
         main(["--server", "http://127.0.0.1:9", "ls", "-f", "params.x~1"])
     assert exit_info.value.code == 2
     assert "--filter" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("query", "needle"),
+    [
+        # the docs' old example: a metric no kind writes was an empty column, not an error
+        ({"columns": "metric.smape_mean"}, "did you mean 'metric.brdf.smape'"),
+        ({"filter": "metric.smape_mean<0.1"}, "did you mean 'metric.brdf.smape'"),
+        ({"columns": "params.modle"}, "did you mean 'params.model'"),
+        # one column, one unit: the old name of two spaces' MAE is refused
+        ({"columns": "metric.mae"}, "'metric.brdf.mae' or 'metric.image.mae'"),
+    ],
+)
+def test04_unknown_metrics_and_params_are_refused(
+    client: TestClient, query: dict[str, str], needle: str
+) -> None:
+    res = client.get("/api/jobs", params=query)
+    assert res.status_code == 422 and needle in res.text, res.text
+    where = "query.columns" if "columns" in query else "query.filter"
+    assert where in res.text
+
+
+def test05_known_and_old_metric_names_are_columns(client: TestClient) -> None:
+    for query in ({"columns": "metric.brdf.smape,metric.image.psnr,metric.smape"},
+                  {"filter": "metric.brdf.smape<0.1"}):  # fmt: skip
+        assert client.get("/api/jobs", params=query).status_code == 200, query
+
+
+def test06_ls_refuses_an_unknown_metric_with_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    """``matforge ls --filter 'metric.smape_mean<0.1'`` printed "no jobs match"; it is now
+    refused before any request (nothing listens on the server address)."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--server", "http://127.0.0.1:9", "ls", "-f", "metric.smape_mean<0.1"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--filter" in err and "did you mean 'metric.brdf.smape'" in err, err

@@ -246,7 +246,7 @@ def test08_batch_with_step_refs(server: Server, tmp_path: Path) -> None:
     with open(tmp_path / "results.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["step"] for r in rows[:2]] == ["gold", "rough"]
-    assert {r["metric"] for r in rows if r["step"] == "score"} >= {"flip"}
+    assert {r["metric"] for r in rows if r["step"] == "score"} >= {"image.flip"}
     assert {r["candidate"] for r in rows if r["step"] == "score"} == {"rough", "same"}
     assert len(rows[0]) < 30  # a fixed set of columns, not one per step and metric
     same = run_cli("results", str(f), "--out", str(tmp_path / "same.csv"), env=server.env())

@@ -69,6 +69,7 @@ def columns_kind() -> Kind:
         description="test-only kind with a result row",
         artifacts=("metrics.json",),
         rows=column_rows,
+        metrics=("smape_mean",),  # declared: metric.smape_mean is a column of this kind
     )
 
 

@@ -57,17 +57,18 @@ def test_methods_table_of_a_report(page: Any, server: str, prepared: dict[str, A
     rows = json.loads(prepared["store"].read(record.digest))
     # the reference: each candidate's mean SMAPE, from the rows themselves
     smape: dict[str, list[float]] = {}
-    for r in rows:
-        if r["metric"] == "smape":
-            smape.setdefault(r["candidate"], []).append(r["value"])
+    for r in rows:  # a method is a candidate and its split: "hybrid 16x2 (train)"
+        if r["metric"] == "brdf.smape":
+            method = f"{r['candidate']} ({r['split']})" if r["split"] else r["candidate"]
+            smape.setdefault(method, []).append(r["value"])
     assert len(smape) == 2, smape
     means = {c: statistics.fmean(v) for c, v in smape.items()}
     pg.goto(f"{server}/jobs/{report.id}?token={TOKEN}")
     table = pg.locator("#methods-table")
     table.wait_for()
     heads = table.locator("thead th").evaluate_all("ths => ths.map(t => t.dataset.column || '')")
-    assert "smape" in heads and "ns_per_eval" in heads, heads
-    col = heads.index("smape")
+    assert "brdf.smape" in heads and "ns_per_eval" in heads, heads
+    col = heads.index("brdf.smape")
     shown = table.locator("tbody tr").evaluate_all(
         "trs => trs.map(tr => [tr.dataset.method, [...tr.cells].map(c => c.textContent),"
         " [...tr.cells].map(c => c.classList.contains('best'))])"

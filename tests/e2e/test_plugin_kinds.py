@@ -220,15 +220,15 @@ def test04_rows_results_pareto_and_select(
     assert res.returncode == 0, res
     rows = res.json()
     assert {r["candidate"] for r in rows} == {"ashikhmin-shirley"}
-    assert {r["metric"] for r in rows} == {"smape", "smape_floor", "mae"}
+    assert {r["metric"] for r in rows} == {"brdf.smape", "brdf.smape_floor", "brdf.mae"}
     assert {r["kind"] for r in rows} == {KIND}
-    mean = [r for r in rows if r["material"] == "mean" and r["metric"] == "smape"]
+    mean = [r for r in rows if r["material"] == "mean" and r["metric"] == "brdf.smape"]
     assert len(mean) == 1 and mean[0]["bytes_per_material"] == 28
     assert mean[0]["dataset"] == f"job:{fitted['gen']['id']}"
 
     pareto = run_job(client, {"kind": "report.pareto", "params": {"runs": [f"job:{fit['id']}"]}})
     doc = fetch_json(client, pareto, "pareto.json")
-    points = [pt for p in doc["panels"] if p["metric"] == "smape" for pt in p["points"]]
+    points = [pt for p in doc["panels"] if p["metric"] == "brdf.smape" for pt in p["points"]]
     assert [(pt["candidate"], pt["kind"], pt["front"]) for pt in points] == [
         ("ashikhmin-shirley", KIND, True)
     ]
@@ -241,7 +241,7 @@ def test04_rows_results_pareto_and_select(
     )  # fmt: skip
     ladders = fetch_json(client, select, "select.json")["ladders"]
     assert [lad["chosen"] for lad in ladders] == ["ashikhmin-shirley"]
-    floor = next(r for r in rows if r["material"] == "mean" and r["metric"] == "smape_floor")
+    floor = next(r for r in rows if r["material"] == "mean" and r["metric"] == "brdf.smape_floor")
     assert ladders[0]["rungs"][0]["value"] == pytest.approx(floor["value"])
     assert ladders[0]["rungs"][0]["cost"] == 28
 

@@ -28,6 +28,7 @@ COLUMNS = [
     "candidate",
     "material",
     "family",
+    "split",
     "config",
     "metric",
     "value",
@@ -87,13 +88,14 @@ def test01_rest_json_and_csv(server: Server, batch: tuple[Path, list[str]]) -> N
     with server.http() as http:
         rows = http.get("/api/results", params={"job": ids[3]}).json()
         # a job alone: its candidates as stored (canonical, sorted); a batch keeps its order
+        # image metrics say their space (an image MAE is not a BRDF-space one)
         assert [(r["candidate"], r["metric"]) for r in rows] == [
-            ("spp1", "flip"),
-            ("spp1", "psnr"),
-            ("spp2", "flip"),
-            ("spp2", "psnr"),
+            ("spp1", "image.flip"),
+            ("spp1", "image.psnr"),
+            ("spp2", "image.flip"),
+            ("spp2", "image.psnr"),
         ]
-        flip = {r["candidate"]: r for r in rows if r["metric"] == "flip"}
+        flip = {r["candidate"]: r for r in rows if r["metric"] == "image.flip"}
         assert (flip["spp1"]["spp"], flip["spp2"]["spp"]) == (1, 2)
         assert flip["spp1"]["lower_is_better"] is True and flip["spp1"]["scene"] == "sphere_env"
         # render_seconds is the render's own time (its passes less JIT compilation), as its
@@ -105,8 +107,16 @@ def test01_rest_json_and_csv(server: Server, batch: tuple[Path, list[str]]) -> N
         assert 0 < own < run_s
         assert list(rows[0]) == COLUMNS
         # filters; the render rows of the batch's jobs, in the order asked
+        # the old name stands for its space's
         psnr = http.get("/api/results", params={"metric": "psnr", "kind": "score"}).json()
-        assert {r["metric"] for r in psnr} == {"psnr"} and len(psnr) == 2
+        assert {r["metric"] for r in psnr} == {"image.psnr"} and len(psnr) == 2
+        # an unknown metric or kind is a 422 naming it and the closest, never an empty list
+        for params, needle in (
+            ({"metric": "psnr_avg"}, "did you mean 'image.psnr'"),
+            ({"kind": "scor"}, "did you mean 'score'"),
+        ):
+            res = http.get("/api/results", params=params)
+            assert res.status_code == 422 and needle in res.text, res.text
         renders = http.get("/api/results", params={"job": [ids[2], ids[0]]}).json()
         assert [(r["job"], r["metric"]) for r in renders] == [
             (ids[2], "render_seconds"),
@@ -116,7 +126,7 @@ def test01_rest_json_and_csv(server: Server, batch: tuple[Path, list[str]]) -> N
         text = http.get("/api/results", params={"job": ids[3], "format": "csv"})
         assert text.headers["content-type"].startswith("text/csv")
         table = list(csv.DictReader(io.StringIO(text.text)))
-        assert [r["metric"] for r in table] == ["flip", "psnr", "flip", "psnr"]
+        assert [r["metric"] for r in table] == ["image.flip", "image.psnr"] * 2
         assert float(table[0]["value"]) == pytest.approx(rows[0]["value"])
         assert json.loads(table[0]["config"])["spp"] == 1
         accept = http.get("/api/results", params={"job": ids[3]}, headers={"Accept": "text/csv"})
@@ -153,8 +163,8 @@ def test03_cli_results(server: Server, batch: tuple[Path, list[str]], tmp_path: 
     printed = run_cli("results", ids[3], "--json", "--metric", "flip", env=server.env())
     assert printed.returncode == 0, printed
     assert [(r["candidate"], r["metric"]) for r in printed.json()] == [
-        ("spp1", "flip"),
-        ("spp2", "flip"),
+        ("spp1", "image.flip"),
+        ("spp2", "image.flip"),
     ]
     as_json = tmp_path / "r.json"
     assert run_cli("results", ids[3], "--out", str(as_json), env=server.env()).returncode == 0
@@ -180,6 +190,9 @@ def test03_cli_results(server: Server, batch: tuple[Path, list[str]], tmp_path: 
         (["--out", "x.txt"], "must end in .csv or .json"),
         (["not-a-job"], "neither a job id"),
         (["0" * 31 + "g"], "neither a job id"),
+        (["--metric", "smape_mean"], "did you mean 'brdf.smape'"),
+        (["--kind", "trian.brdf"], "did you mean 'train.brdf'"),
+        (["--pivot", "--by", "candidat"], "did you mean 'candidate'"),
     ],
 )
 def test04_cli_bad_input_exits_2(server: Server, args: list[str], needle: str) -> None:
@@ -197,10 +210,10 @@ def test05_cli_pivot(server: Server, batch: tuple[Path, list[str]], tmp_path: Pa
     doc = res.json()
     assert doc["format"] == "matforge.pivot/1" and sorted(doc["methods"]) == ["spp1", "spp2"]
     for meth in doc["methods"]:
-        flips = [r["value"] for r in tidy if r["candidate"] == meth and r["metric"] == "flip"]
-        assert doc["cells"][meth]["flip"]["mean"] == pytest.approx(sum(flips) / len(flips))
-    lowest = min(doc["methods"], key=lambda m: doc["cells"][m]["flip"]["mean"])
-    assert doc["best"]["flip"] == lowest
+        flips = [r["value"] for r in tidy if r["candidate"] == meth and r["metric"] == "image.flip"]
+        assert doc["cells"][meth]["image.flip"]["mean"] == pytest.approx(sum(flips) / len(flips))
+    lowest = min(doc["methods"], key=lambda m: doc["cells"][m]["image.flip"]["mean"])
+    assert doc["best"]["image.flip"] == lowest
     out = tmp_path / "pivot.csv"
     human = run_cli("results", str(f), "--pivot", "--out", str(out), env=server.env())
     assert human.returncode == 0 and "*" in human.stdout + human.stderr, human

@@ -3,7 +3,9 @@
 The batch file is loaded and validated as ``matforge batch`` does (:func:`load_batch`),
 then each step runs through :func:`service.submission.run_in_process` with its ``step:``
 refs resolved by :func:`service.cli.batch.substitute_refs`, after shrinking the costly params:
-the model gets a short fit (16x2, 400 steps), renders are 40x40 at 16 spp, depth 4.
+the model gets a short fit (16x2, 400 steps, and 400 for the held-out paints), renders are
+40x40 at 16 spp, depth 4. The scored paint is held out of the network's training: a test
+material (its ``materials.json`` split says so).
 
 Reference: the render of the material's own MERL table (``{"merl": REF}``). Oracles: the
 model's render (``{"model": REF, "material": NAME}``) gives finite FLIP / PSNR / SSIM, and it
@@ -35,6 +37,7 @@ SHRINK: dict[str, dict[str, Any]] = {
         "batch_pairs": 256,
         "eval_pairs": 2048,
         "speed": "off",
+        "holdout_steps": 400,
     },  # fmt: skip
     "render": {"resolution": [40, 40], "spp": 16, "max_depth": 4},
 }
@@ -54,6 +57,10 @@ def test01_model_render_is_scored_against_its_table_render(
     (digest,) = [a.digest for a in scores.artifacts if a.name == "metrics.json"]
     doc = json.loads(ArtifactStore(settings.store_dir).read(digest))
     model, other = doc["metrics"]["model"], doc["metrics"]["other_material"]
+    (info,) = [a.digest for a in jobs["model"].artifacts if a.name == "materials.json"]
+    splits = {m["name"]: m["split"] for m in json.loads(ArtifactStore(settings.store_dir)
+              .read(info))["materials"]}  # fmt: skip
+    assert (splits["paint-000"], splits["metal-000-TiN"]) == ("heldout", "train")
     print(f"\nmodel {model}\nother material {other}")
     for row in (model, other):
         assert set(row) == {"flip", "psnr", "ssim"}

@@ -130,8 +130,8 @@ def test03_pareto_and_select_of_network_against_monte_carlo(
     settings, jobs = chain
     doc = json.loads(artifact(settings, jobs["pareto"], "pareto.json"))
     assert {(p["metric"], p["cost"]) for p in doc["panels"]} == {
-        ("flip", "render_seconds"),
-        ("flip", "spp"),
+        ("image.flip", "render_seconds"),
+        ("image.flip", "spp"),
     }
     for material in ("seen", "unseen"):
         table = scores(settings, jobs[f"{material}_scores"])

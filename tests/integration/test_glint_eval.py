@@ -258,7 +258,11 @@ def test06_stability_per_example_type(chain: tuple[Settings, dict[str, Job]]) ->
     cells = {f["family"]: f for f in doc["families"]}
     assert set(cells) == set(TYPES)
     for t, cell in cells.items():
-        assert cell["kind"] == "score" and cell["candidate"] == "tiny" and cell["metric"] == "flip"
+        assert (
+            cell["kind"] == "score"
+            and cell["candidate"] == "tiny"
+            and cell["metric"] == "image.flip"
+        )
         assert cell["mean"] == pytest.approx(flips[t], rel=1e-9)
         assert cell["ratio"] == pytest.approx(flips[t] / mean, rel=1e-9)
     assert [r["label"] for r in doc["runs"]] == list(TYPES)

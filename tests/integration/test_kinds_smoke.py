@@ -30,6 +30,8 @@ import pytest
 
 from jobapi.documents import DocumentError, check_typed, document_fields, read_typed
 from jobapi.kinds import Kind
+from jobapi.metric_names import declared
+from jobapi.row_sources import job_rows
 from service import kinds
 from service.cli.batch import substitute_refs
 from service.settings import Settings
@@ -37,7 +39,7 @@ from service.specs import STEP_REF
 from service.submission import run_in_process
 from service.summaries import job_summary
 from storage.artifacts import ArtifactStore
-from storage.jobs import Job
+from storage.jobs import Job, JobStore
 
 KINDS = sorted(kinds.all_kinds().values(), key=lambda k: k.name)
 #: Kinds without smoke params, each with the reason.
@@ -116,6 +118,12 @@ def test01_smoke(kind: Kind, smoke: SmokeRuns) -> None:
         assert table is not None, f"{kind.name}: the summary hook found no table"
         assert table["labels"] and table["names"], table
         assert all(set(row) <= set(table["names"]) for row in table["rows"].values())
+    # Every metric of its result rows is one it declares (what `metric.<name>` columns,
+    # filters and `--metric` accept): a name it does not declare would be refused there.
+    if kind.rows is not None:
+        rows = job_rows(job, JobStore(smoke.settings.db_path), store)
+        undeclared = {r.metric for r in rows if not declared(kind.metrics, r.metric)}
+        assert not undeclared, f"{kind.name}: rows of undeclared metrics {sorted(undeclared)}"
 
 
 DOCUMENTS = [(k, name) for k in KINDS if k.smoke for name in k.documents]

@@ -101,13 +101,13 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
     doc = read(settings, job, "pareto.json")
     panels = {(p["metric"], p["cost"]): p for p in doc["panels"]}
     assert {
-        ("smape", "ns_per_eval"),
-        ("smape", "bytes_per_material"),
-        ("flip", "spp"),
-        ("flip", "render_seconds"),
+        ("brdf.smape", "ns_per_eval"),
+        ("brdf.smape", "bytes_per_material"),
+        ("image.flip", "spp"),
+        ("image.flip", "render_seconds"),
     } <= set(panels)
     # BRDF: each point is its runs' stored mean SMAPE, its cost their kernel ns/eval
-    smape = {p["candidate"]: p for p in panels[("smape", "ns_per_eval")]["points"]}
+    smape = {p["candidate"]: p for p in panels[("brdf.smape", "ns_per_eval")]["points"]}
     means = [read(settings, jobs[k], "metrics.json")["mean"]["smape"] for k in ("a0", "a1")]
     analytic = smape["analytic"]
     assert analytic["n"] == 2 and analytic["per_seed"] == means and analytic["seeds"] == [0, 1]
@@ -128,18 +128,18 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
     rel = analytic["relative"]
     assert rel["n"] == 5 and rel["min"] <= rel["median"] <= rel["max"] and rel["median"] > 0
     assert isinstance(analytic["resolved"], bool) and isinstance(analytic["tied_with"], list)
-    assert panels[("smape", "ns_per_eval")]["cost_label"].startswith("ns_per_eval:")
-    assert "one timing pass" in panels[("smape", "ns_per_eval")]["cost_label"]
+    assert panels[("brdf.smape", "ns_per_eval")]["cost_label"].startswith("ns_per_eval:")
+    assert "one timing pass" in panels[("brdf.smape", "ns_per_eval")]["cost_label"]
     # render seconds are each render job's own timing: charted, not ranked
-    secs_panel = panels[("flip", "render_seconds")]
+    secs_panel = panels[("image.flip", "render_seconds")]
     assert secs_panel["resolved"] is False
     assert "separate passes" in secs_panel["not_resolved"]
     # renders: FLIP against the candidate render's spp and time
-    flip = {p["candidate"]: p for p in panels[("flip", "spp")]["points"]}
+    flip = {p["candidate"]: p for p in panels[("image.flip", "spp")]["points"]}
     scored = read(settings, jobs["score"], "metrics.json")["metrics"]
     assert {k: p["cost"] for k, p in flip.items()} == {"spp1": 1, "spp2": 2}
     assert {k: p["mean"] for k, p in flip.items()} == {k: scored[k]["flip"] for k in flip}
-    secs = {p["candidate"]: p["cost"] for p in panels[("flip", "render_seconds")]["points"]}
+    secs = {p["candidate"]: p["cost"] for p in panels[("image.flip", "render_seconds")]["points"]}
     for k in secs:  # the render's own time (manifest), as its result rows give it
         assert secs[k] == pytest.approx(
             own_render_seconds(ArtifactStore(settings.store_dir), jobs[k])
@@ -156,7 +156,7 @@ def test01_fronts_over_brdf_runs_and_renders(study: tuple[Settings, dict[str, Jo
             )
             assert p["front"] == (not beaten)
     # families from the per-material rows; the BRDF claim recomputed
-    fams = {(f["candidate"], f["family"]) for f in doc["families"] if f["metric"] == "smape"}
+    fams = {(f["candidate"], f["family"]) for f in doc["families"] if f["metric"] == "brdf.smape"}
     assert ("analytic", "blend") in fams and ("hybrid 16x2", "plastic") in fams
     claims = {c["claim"]: c for c in doc["claims"]}
     h = read(settings, jobs["h0"], "metrics.json")["mean"]["smape"]
@@ -227,10 +227,10 @@ def test03_results_table_and_batches(study: tuple[Settings, dict[str, Job]]) -> 
         "state": "succeeded",
     }
     assert [(r.step, r.metric) for r in res.rows][2:] == [
-        ("s", "flip"),
-        ("s", "psnr"),
-        ("s", "flip"),
-        ("s", "psnr"),
+        ("s", "image.flip"),
+        ("s", "image.psnr"),
+        ("s", "image.flip"),
+        ("s", "image.psnr"),
     ]
 
 
@@ -247,7 +247,7 @@ def test04_stability_of_the_runs(study: tuple[Settings, dict[str, Job]]) -> None
     doc = read(settings, job, "stability.json")
     for run, src in zip(doc["runs"], runs, strict=True):
         metrics = read(settings, src, "metrics.json")
-        assert run["error"] == metrics["mean"]["smape"] and run["metric"] == "smape"
+        assert run["error"] == metrics["mean"]["smape"] and run["metric"] == "brdf.smape"
         curves = read(settings, src, "curves.json")  # one phase: every point is training
         assert [p["name"] for p in curves["phases"]] == ["train"]
         loss = curves["loss"]

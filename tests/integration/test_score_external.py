@@ -208,7 +208,7 @@ def test01_external_brdf_against_a_table(tmp_path: Path, settings: Settings) -> 
         assert c["runtime"] == "numpy-test" and c["ns_per_eval"] > 0
         assert c["bytes_per_network"] == 20 and c["batch"] == 1 << 18
     rows = {(r.candidate, r.metric): r for r in job_rows(job, settings)}
-    row = rows[("close", "smape")]
+    row = rows[("close", "brdf.smape")]
     assert (
         row.runtime == "numpy-test"
         and row.ns_per_eval == cost["candidates"]["close"]["ns_per_eval"]

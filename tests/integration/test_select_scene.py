@@ -120,7 +120,7 @@ def test01_chooses_the_cheapest_rung_meeting_the_recomputed_target(
     finally:
         jobs.close()
     assert sorted(str(r.candidate) for r in rows) == ["diffuse", "rough1", "rough16"]
-    assert all(r.metric == "flip" and r.scene == "sphere_env" for r in rows)
+    assert all(r.metric == "image.flip" and r.scene == "sphere_env" for r in rows)
     assert {r.candidate: r.spp for r in rows} == {"diffuse": 4, "rough1": 1, "rough16": 16}
     assert all(r.render_seconds is not None and r.render_seconds > 0 for r in rows)
     # ... which report.pareto reads as any scored renders.
@@ -129,7 +129,7 @@ def test01_chooses_the_cheapest_rung_meeting_the_recomputed_target(
     )
     assert pareto.state == "succeeded", pareto.error
     panels = json.loads(art(inline, pareto, "pareto.json"))["panels"]
-    spp_panel = [p for p in panels if p["metric"] == "flip" and p["cost"] == "spp"]
+    spp_panel = [p for p in panels if p["metric"] == "image.flip" and p["cost"] == "spp"]
     assert spp_panel and {pt["candidate"] for pt in spp_panel[0]["points"]} == set(recomputed)
 
 
@@ -269,3 +269,12 @@ def test05_runs_spec_keeps_its_canonical_form() -> None:
     assert sorted(params) == ["cost", "metric", "runs", "target"]
     scene = json.loads(validate_spec(SPEC).canonical)["params"]
     assert "runs" not in scene and "material" not in scene["scene"]
+
+
+def test06_the_metric_may_be_given_by_its_row_name() -> None:
+    """``image.flip``, the name of the scene mode's result rows, is accepted as ``flip``
+    is (a name read off ``matforge results`` works in the spec); ``image.smape`` is not."""
+    kinds.load_builtin()
+    validate_spec(spec_with(metric="image.flip"))
+    with pytest.raises(SpecError, match="is not an image metric"):
+        validate_spec(spec_with(metric="image.smape"))

@@ -40,6 +40,7 @@ from evaluators.metrics.brdf import (
 )
 from jobapi.errors import JobFailed
 from jobapi.kinds import Kind, register
+from jobapi.metric_names import qualified
 from jobapi.params import JobRef, StrictModel, job_id_of
 from jobapi.results import ArtifactReader, ResultTable, per_material_table
 from jobapi.rows import ResultRow, RowSource, base_row, dataset_of, number
@@ -165,7 +166,8 @@ def summarize(read: ArtifactReader) -> ResultTable | None:
 
 
 def rows(src: RowSource) -> list[ResultRow]:
-    """One row per material and metric, then the means (candidate ``ashikhmin-shirley``,
+    """One row per material and metric (BRDF space: ``brdf.smape``, ``brdf.smape_floor``,
+    ``brdf.mae``), then the means (candidate ``ashikhmin-shirley``,
     the dataset job, 28 bytes per material, the job's wall seconds)."""
     doc = src.read("metrics.json")
     if not isinstance(doc, dict):
@@ -182,13 +184,13 @@ def rows(src: RowSource) -> list[ResultRow]:
         if isinstance(m, dict):
             fields = {**common, "material": str(m.get("name")), "family": m.get("family")}
             out += [
-                base_row(src, k, v, **fields)
+                base_row(src, qualified("brdf", k), v, **fields)
                 for k in METRICS
                 if (v := number(m.get(k))) is not None
             ]
     mean = doc.get("mean")
     if isinstance(mean, dict):
-        out += [base_row(src, k, v, material="mean", **common)
+        out += [base_row(src, qualified("brdf", k), v, material="mean", **common)
                 for k in METRICS if (v := number(mean.get(k))) is not None]  # fmt: skip
     return out
 
@@ -204,5 +206,6 @@ register(
         smoke={"dataset": "step:generate.merl", "fit_pairs": 2048, "eval_pairs": 4096},
         summary=summarize,
         rows=rows,
+        metrics=tuple(qualified("brdf", k) for k in METRICS),
     )
 )

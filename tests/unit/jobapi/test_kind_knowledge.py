@@ -118,7 +118,7 @@ def test04_the_training_kinds_declare_what_the_reports_read() -> None:
     assert set(facts) == {"train.brdf", "train.fabric", "train.btf"}
     got = {n: (f.metric, f.candidate, f.families_by, f.loss_key) for n, f in facts.items()}
     assert got == {
-        "train.brdf": ("smape", None, "smape", "loss"),
+        "train.brdf": ("brdf.smape", None, "brdf.smape", "loss"),
         "train.fabric": ("rgb.rel", "network", "rgb.rel", "loss"),
         "train.btf": ("l1", None, "relative_l1", "train_loss"),
     }
@@ -187,10 +187,12 @@ def test06_family_claims_are_each_kinds_own_in_registry_order() -> None:
 
     kinds.load_builtin()
     rows = [
-        ResultRow(job="b" * 32, kind="train.brdf", metric="smape", value=v, candidate=c)
+        ResultRow(job="b" * 32, kind="train.brdf", metric="brdf.smape", value=v, candidate=c)
         for c, v in (("hybrid 16x3", 0.1), ("analytic", 0.2))
     ] + [
-        ResultRow(job="c" * 32, kind="score", metric="flip", value=v, candidate=c, dataset="s")
+        ResultRow(
+            job="c" * 32, kind="score", metric="image.flip", value=v, candidate=c, dataset="s"
+        )
         for c, v in (("net16", 0.1), ("mc_eq", 0.2))
     ]
     expect = brdf_claims(rows, check_claim) + fabric_claims(rows, check_claim)

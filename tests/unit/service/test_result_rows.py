@@ -9,7 +9,8 @@ from typing import Any
 
 import pytest
 
-from jobapi.rows import JobFacts, ResultRow, RowSource
+from jobapi.metric_names import declared
+from jobapi.rows import JobFacts, ResultRow, RowSource, headline_rows
 from service import kinds
 from tests.helpers.glint_stats import glint_stats
 from tests.helpers.job_documents import (
@@ -55,9 +56,12 @@ class FakeSource:
 
 
 def rows_of(src: FakeSource) -> list[ResultRow]:
-    hook = kinds.get_kind(src.job.kind).rows
-    assert hook is not None
-    return hook(src)
+    kind = kinds.get_kind(src.job.kind)
+    assert kind.rows is not None
+    rows = kind.rows(src)
+    # each metric is one its kind declares (what metric.<name> columns and --metric accept)
+    assert all(declared(kind.metrics, r.metric) for r in rows), {r.metric for r in rows}
+    return rows
 
 
 def by_metric(rows: list[ResultRow], **where: Any) -> dict[str, ResultRow]:
@@ -85,7 +89,8 @@ def test01_score_of_renders_carries_spp_and_time() -> None:
     )
     net = FakeSource("render", render, {}, job_id=C, seed=2, seconds=1.5)
     metrics = {
-        "metrics": {"net16": {"flip": 0.1, "psnr": 30.0, "ssim": None}, "other": {"flip": 0.3}}
+        "metrics": {"net16": {"flip": 0.1, "psnr": 30.0, "ssim": None}, "other": {"flip": 0.3}},
+        "settings": {"artifact_kind": "image-hdr"},
     }
     score = FakeSource(
         "score",
@@ -99,13 +104,14 @@ def test01_score_of_renders_carries_spp_and_time() -> None:
     )
     rows = rows_of(score)
     net_rows = by_metric(rows, candidate="net16")
-    assert set(net_rows) == {"flip", "psnr"}  # a null value is no measurement
-    flip = net_rows["flip"]
+    # image metrics say their space; a null value is no measurement
+    assert set(net_rows) == {"image.flip", "image.psnr"}
+    flip = net_rows["image.flip"]
     assert (flip.value, flip.lower_is_better, flip.spp, flip.render_seconds) == (0.1, True, 16, 1.5)
     assert flip.scene == "cloth_plane" and flip.seed == 2 and flip.kind == "score"
     assert flip.config["source"] == "model" and flip.dataset == f"job:{B}/image.exr"
-    assert net_rows["psnr"].lower_is_better is False
-    other = by_metric(rows, candidate="other")["flip"]  # not a render: the reference's scene
+    assert net_rows["image.psnr"].lower_is_better is False
+    other = by_metric(rows, candidate="other")["image.flip"]  # not a render: the reference's scene
     assert other.scene == "cloth_plane" and other.spp is None and other.seed == 7
 
 
@@ -150,10 +156,13 @@ def test03_train_brdf() -> None:
     assert not [r for r in rows_of(FakeSource("train.brdf", params, artifacts)) if r.ns_per_eval]
     rows = rows_of(src)
     gold = by_metric(rows, material="gold")
-    assert set(gold) == {"smape", "smape_floor", "mae", "smape_analytic"}
-    assert gold["smape_floor"].value == 0.3
-    assert gold["smape"].family == "metal" and gold["smape"].config["split"] == "train"
-    assert set(by_metric(rows, material="mean")) == {"smape", "mae", "smape_analytic"}
+    assert set(gold) == {"brdf.smape", "brdf.smape_floor", "brdf.mae", "brdf.smape_analytic"}
+    assert gold["brdf.smape_floor"].value == 0.3
+    assert gold["brdf.smape"].family == "metal" and gold["brdf.smape"].config["split"] == "train"
+    assert gold["brdf.smape"].split == "train"
+    mean = by_metric(rows, material="mean")
+    assert set(mean) == {"brdf.smape", "brdf.mae", "brdf.smape_analytic"}
+    assert {r.split for r in mean.values()} == {"train"}  # no held-out materials
     speed_rows = by_metric(rows, material=None)
     assert {k: r.value for k, r in speed_rows.items()} == {
         "fused_kernel_ns": 4.09,
@@ -163,6 +172,29 @@ def test03_train_brdf() -> None:
     for r in rows:  # one cost per meaning: ns_per_eval is the kernel's time everywhere
         assert (r.candidate, r.ns_per_eval, r.bytes_per_material) == ("hybrid 32x3", 4.09, 44.0)
         assert (r.bytes_per_network, r.train_seconds, r.dataset) == (5000, 90.0, f"job:{B}")
+
+
+def test03b_train_brdf_held_out_materials_are_the_test_split() -> None:
+    """Held-out families: each material's rows say its split (heldout: ``test``), and the
+    whole-set rows are the mean of each split, the test one first, never one mean over
+    both (which would headline a training error)."""
+    mats = [brdf_scores("gold", "metal", smape=0.1), brdf_scores("blue", "paint", "heldout",
+                                                                  smape=0.3)]  # fmt: skip
+    metrics = brdf_metrics(mats, smape=0.2, mae=0.0)
+    metrics["splits"] = {
+        "train": brdf_metrics(mats[:1], smape=0.1, mae=0.0)["mean"],
+        "heldout": brdf_metrics(mats[1:], smape=0.3, mae=0.0)["mean"],
+    }
+    info = brdf_materials([("gold", "metal", "train"), ("blue", "paint", "heldout")])
+    src = FakeSource("train.brdf", {"dataset": f"job:{B}"},
+                     {"metrics.json": metrics, "materials.json": info})  # fmt: skip
+    rows = rows_of(src)
+    assert by_metric(rows, material="blue")["brdf.smape"].split == "test"
+    assert by_metric(rows, material="gold")["brdf.smape"].split == "train"
+    means = [(r.split, r.value) for r in rows if r.material == "mean" and r.metric == "brdf.smape"]
+    assert means == [("test", 0.3), ("train", 0.1)]
+    (head,) = [r for r in headline_rows(rows) if r.metric == "brdf.smape"]
+    assert (head.split, head.value) == ("test", 0.3)
 
 
 def test04_train_fabric_network_and_baseline() -> None:
@@ -208,17 +240,18 @@ def test05_train_btf_and_tss() -> None:
             )
         )
     )
-    assert set(tss) == {"flip_mean", "flip_max", "psnr_mean", "relative_cost"}
-    assert tss["flip_mean"].ms_per_frame == pytest.approx(4.0)
-    assert tss["flip_mean"].candidate == "64/N=2" and tss["flip_mean"].config["interval"] == 2
+    assert set(tss) == {"image.flip_mean", "image.flip_max", "image.psnr_mean", "relative_cost"}
+    assert tss["image.flip_mean"].ms_per_frame == pytest.approx(4.0)
+    flip = tss["image.flip_mean"]
+    assert flip.candidate == "64/N=2" and flip.config["interval"] == 2
     # The documents are read typed: a metrics.json of another shape gives no rows, and a
     # timing.json of another shape no costs (the FLIP rows stay).
     params = {"model": f"job:{C}/model.json"}
     assert rows_of(FakeSource("evaluate.tss", params, {"metrics.json": {"rows": [row]}})) == []
     untimed = by_metric(rows_of(FakeSource("evaluate.tss", params, {
         "metrics.json": metrics, "timing.json": {"rows": timing["rows"]}})))  # fmt: skip
-    assert set(untimed) == {"flip_mean", "flip_max", "psnr_mean"}
-    assert untimed["flip_mean"].ms_per_frame is None
+    assert set(untimed) == {"image.flip_mean", "image.flip_max", "image.psnr_mean"}
+    assert untimed["image.flip_mean"].ms_per_frame is None
 
 
 def test06_render_and_missing_artifacts() -> None:
@@ -361,3 +394,40 @@ def test08_glint_renders_carry_their_memory() -> None:
     lost = render(d, {"data": f"job:{A}", "method": "tiny_example"}, 2.0)
     (row,) = rows_of(lost)
     assert row.bytes_per_material is None and row.config["example"] is None
+
+
+def test11_a_brdf_mae_and_an_image_mae_are_two_columns() -> None:
+    """The batch methods table (``/compare?batch=``, ``results --pivot``) of a demo-like
+    batch: a hybrid's BRDF-space MAE (1/sr) and a render's image MAE were one ``mae``
+    column, the hybrid marked best. Through the kinds' rows hooks they are two columns, and
+    neither has a best across the two units."""
+    from service.results_pivot import pivot
+
+    image = FakeSource(
+        "score",
+        {"reference": "sha256:" + "1" * 64, "candidates": {"rougher": "sha256:" + "2" * 64}},
+        {
+            "metrics.json": {
+                "metrics": {"rougher": {"flip": 0.1, "mae": 0.0358}},
+                "settings": {"artifact_kind": "image-hdr"},
+            }
+        },  # fmt: skip
+    )
+    gold = brdf_scores("gold", "metal", smape=0.07, mae=0.003472)
+    brdf = FakeSource(
+        "train.brdf",
+        {"dataset": f"job:{B}"},
+        {
+            "metrics.json": brdf_metrics([gold], smape=0.07, mae=0.003472),
+            "materials.json": brdf_materials([("gold", "metal", "train")]),
+        },  # fmt: skip
+        job_id=C,
+    )
+    rows = [r.document() for r in rows_of(image) + rows_of(brdf)]
+    doc = pivot(rows)
+    names = [c["name"] for c in doc["columns"]]
+    assert "mae" not in names and {"brdf.mae", "image.mae"} <= set(names)
+    assert doc["cells"]["rougher"]["image.mae"]["mean"] == pytest.approx(0.0358)
+    assert doc["cells"]["hybrid 32x3 (train)"]["brdf.mae"]["mean"] == pytest.approx(0.003472)
+    assert "image.mae" not in doc["cells"]["hybrid 32x3 (train)"]
+    assert "brdf.mae" not in doc["best"] and "image.mae" not in doc["best"]  # one method each

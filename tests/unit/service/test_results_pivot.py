@@ -72,9 +72,33 @@ def test04_a_cost_that_is_also_a_metric_keeps_both_columns() -> None:
 
 
 def test05_the_cli_table_names_the_unranked_timings() -> None:
-    from service.cli.results_command import pivot_table
+    from service.cli.results_command import pivot_tables
 
-    table = pivot_table(pivot(ROWS))
+    table = pivot_tables(pivot(ROWS), 200)[-1]
     assert table.caption is not None and "not ranked: ns_per_eval" in str(table.caption)
-    quiet = pivot_table(pivot([_row("a", "flip", 0.1, True), _row("b", "flip", 0.2, True)]))
+    (quiet,) = pivot_tables(
+        pivot([_row("a", "flip", 0.1, True), _row("b", "flip", 0.2, True)]), 200
+    )
     assert quiet.caption is None
+
+
+def test_train_and_test_splits_are_two_methods_and_a_training_error_is_never_best() -> None:
+    """A model's training and held-out rows are one method each, named by their split; the
+    training error (lower than any test error here) is not marked best."""
+    rows = [
+        _row("hybrid", "brdf.smape", 0.02, True, split="train"),
+        _row("hybrid", "brdf.smape", 0.30, True, split="test"),
+        _row("neural", "brdf.smape", 0.20, True, split="test"),
+        _row("hybrid", "fused_kernel_ns", 30.0, True),  # the model's speed: both splits'
+    ]
+    doc = pivot(rows)
+    assert doc["methods"] == ["hybrid (train)", "hybrid (test)", "neural (test)"]
+    assert doc["cells"]["hybrid (test)"]["fused_kernel_ns"]["mean"] == pytest.approx(30.0)
+    assert doc["cells"]["hybrid (train)"]["fused_kernel_ns"]["mean"] == pytest.approx(30.0)
+    assert doc["cells"]["hybrid (train)"]["brdf.smape"]["mean"] == pytest.approx(0.02)
+    assert doc["best"]["brdf.smape"] == "neural (test)"
+    assert method_of(rows[0], "split") == "train"  # by split itself: no suffix
+    # training errors alone (a study of fits): the best of them is marked
+    alone = pivot([_row("a", "brdf.smape", 0.2, True, split="train"),
+                   _row("b", "brdf.smape", 0.1, True, split="train")])  # fmt: skip
+    assert alone["best"] == {"brdf.smape": "b (train)"}

@@ -46,9 +46,10 @@
       const found = byKey.get(select.value) || [];
       chart.data.datasets = found.flatMap(([p, q], i) => {
         const colour = colours[i % colours.length];
-        const pts = q.points.map((pt) => ({ x: pt.cost, y: pt.mean, candidate: pt.candidate }));
+        const named = (pt) => pt.candidate + (pt.split ? ` (${pt.split})` : "");  // test/train
+        const pts = q.points.map((pt) => ({ x: pt.cost, y: pt.mean, candidate: named(pt) }));
         const front = q.points.filter((pt) => pt.front).sort((a, b) => a.cost - b.cost)
-          .map((pt) => ({ x: pt.cost, y: pt.mean, candidate: pt.candidate }));
+          .map((pt) => ({ x: pt.cost, y: pt.mean, candidate: named(pt) }));
         return [
           { type: "scatter", label: `${p.title} (${p.short})`, data: pts, borderColor: colour,
             backgroundColor: colour, pointRadius: 5, pointHoverRadius: 7 },

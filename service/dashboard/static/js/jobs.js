@@ -1,7 +1,7 @@
 /* The jobs list: polls /api/jobs (one page, filtered and sorted by the server) and
    /api/stats every second. Filters, sort and page live in the address (?name=&state=&kind=
    &sort=&page=, and the parameter and metric columns and filters: ?columns=params.model,
-   metric.smape_mean&filter=params.model=hybrid&filter=metric.smape_mean<0.1), so a view can
+   metric.brdf.smape&filter=params.model=hybrid&filter=metric.brdf.smape<0.1), so a view can
    be bookmarked and shared. */
 "use strict";
 

@@ -193,7 +193,9 @@
           tooltip: {
             filter: (item) => item.dataset.type !== "line",
             callbacks: {
-              title: (items) => items.map((i) => i.raw.point.candidate),
+              // the split says whose error it is: test (held-out data) or train
+              title: (items) => items.map((i) => i.raw.point.candidate
+                + (i.raw.point.split ? ` (${i.raw.point.split})` : "")),
               label: (item) => {
                 const p = item.raw.point;
                 const spreadText = number(p.std) ? ` ± ${MF.si(p.std, yUnit)}` : "";
