@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from models.fused_mlp import DenseLayer, fused_mlp, parameter_count, random_layers, torch_mlp
+from models.timing import cpu_name
 
 #: MLP sizes ``(width, depth)`` of the paper's Table 4.
 SIZES: tuple[tuple[int, int], ...] = ((16, 2), (16, 3), (32, 2), (32, 3), (64, 2), (64, 3))
@@ -249,7 +250,7 @@ def environment(threads: int) -> dict[str, Any]:
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
     return {
         "machine": platform.machine(),
-        "processor": _cpu_name(),
+        "processor": cpu_name(),
         "cpus": os.cpu_count(),
         "threads": threads,
         "load_average": [round(v, 2) for v in load],
@@ -257,17 +258,6 @@ def environment(threads: int) -> dict[str, Any]:
         "torch": torch.__version__,
         "python": platform.python_version(),
     }
-
-
-def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def mlp_speed(

@@ -34,6 +34,7 @@ from service.specs import canonical_json, validate_spec
 from service.workers.memory import (
     current_limit,
     describe_limit,
+    exception_chain,
     is_out_of_memory,
     mentions_allocation_failure,
 )
@@ -251,15 +252,6 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
-def _chain(exc: BaseException) -> list[BaseException]:
-    seen: list[BaseException] = []
-    cur: BaseException | None = exc
-    while cur is not None and all(cur is not e for e in seen):
-        seen.append(cur)
-        cur = cur.__cause__ or cur.__context__
-    return seen
-
-
 def crash_message(kind: str, exc: BaseException, step: str | None) -> str:
     """The one-line ``error`` of a job whose runner raised ``exc`` (not a ``JobFailed``).
 
@@ -271,7 +263,7 @@ def crash_message(kind: str, exc: BaseException, step: str | None) -> str:
     the memory limit, as native code is, or crashed) too. ``step`` is the runner's last
     progress line."""
     at = f" ({step})" if step else ""
-    chain = _chain(exc)
+    chain = exception_chain(exc)
     if is_out_of_memory(exc):
         return (
             f"out of memory in {kind}{at}: the job needs more memory than this worker could "

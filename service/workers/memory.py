@@ -72,7 +72,8 @@ def current_limit() -> int | None:
     return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
-def _chain(exc: BaseException) -> list[BaseException]:
+def exception_chain(exc: BaseException) -> list[BaseException]:
+    """``exc`` and its causes and contexts, outermost first (each once)."""
     seen: list[BaseException] = []
     cur: BaseException | None = exc
     while cur is not None and all(cur is not e for e in seen):
@@ -84,7 +85,7 @@ def _chain(exc: BaseException) -> list[BaseException]:
 def is_out_of_memory(exc: BaseException) -> bool:
     """Whether ``exc`` (or an exception it came from) is a failed allocation: a
     ``MemoryError``, or a runtime's error saying so (see the module docstring)."""
-    for e in _chain(exc):
+    for e in exception_chain(exc):
         if isinstance(e, MemoryError):
             return True
         if isinstance(e, RuntimeError | OSError) or type(e).__module__.startswith("onnxruntime"):
