@@ -98,7 +98,8 @@ def job_list_query(
             max_length=16,
             description="only jobs whose value passes `<column><op><value>` "
             "(op: = != < <= > >=, an order with a decimal number; spaces around allowed; "
-            "repeatable, all must pass), e.g. `params.model=hybrid`, `metric.brdf.smape<0.1`",
+            "repeatable, all must pass), e.g. `params.model=hybrid`, `metric.brdf.smape<0.1`; "
+            "a column no kind has (a param, a metric) is refused naming the closest ones",
         ),
     ] = None,
     tag: Annotated[

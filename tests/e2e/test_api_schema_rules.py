@@ -77,7 +77,12 @@ def test01_an_empty_filter_is_outside_the_schema_and_refused(app_doc) -> None:
     item = {"type": "string", "pattern": _filter_pattern(doc)}
     assert not _valid(doc, item, "")
     assert client.get("/api/jobs", params={"filter": ""}).status_code == 422
-    for ok in ("params.model=hybrid", " metric.psnr >= 1e999 ", "params.a.b!=\t", "params.x<.5"):
+    for ok in (
+        "params.model=hybrid",
+        " metric.psnr >= 1e999 ",
+        "params.scene.name!=\t",
+        "params.spp<.5",
+    ):
         assert _valid(doc, item, ok), ok
         r = client.get("/api/jobs", params={"filter": ok})
         assert r.status_code == 200, (ok, r.text)
@@ -145,7 +150,15 @@ def _drawn(pattern: str) -> st.SearchStrategy[str]:
     return st.from_regex(re.compile(pattern[:-1] + r"\Z", re.ASCII))
 
 
-def test06_values_drawn_from_the_patterns_are_accepted_by_the_code(app_doc) -> None:
+def test06_values_drawn_from_the_patterns_are_accepted_by_the_code(
+    app_doc, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The pattern states a filter's syntax; its column is checked against the kinds'
+    params and metrics (an unknown one is refused naming the closest, as the parameter's
+    description says), which no pattern can state: drawn names pass that check here."""
+    import service.job_columns
+
+    monkeypatch.setattr(service.job_columns, "check_key", lambda key, where: key)
     _, doc = app_doc
     filters, tags, names = _filter_pattern(doc), _tag_pattern(doc), _name_pattern(doc)
     bad_chars = set("/\\\x00") | {chr(c) for c in range(32)}
