@@ -40,6 +40,8 @@ APP = create_app(Settings.from_env({}).with_(data_dir=_DATA_DIR))
 #: - ``POST /api/artifacts``: the bytes must be a valid file of the type the name says (a
 #:   name with no known extension has no type);
 #: - the ``{job_id}`` routes: a prefix shared by several jobs is ambiguous.
+#: - ``GET /api/jobs`` and ``GET /api/results``: a column, metric or kind named in a filter
+#:   or a query must be one the registered kinds declare (refused naming the closest ones).
 _SEMANTIC_422 = {
     "positive_data_acceptance": {
         "expected-statuses": ["2xx", "3xx", "401", "403", "404", "409", "422", "429", "5xx"]
@@ -57,6 +59,8 @@ CONFIG = SchemathesisConfig.from_dict(
             {"include-path": "/api/results/batch", "checks": _SEMANTIC_422},
             {"include-path": "/api/artifacts", "include-method": "POST", "checks": _SEMANTIC_422},
             {"include-path-regex": r"\{job_id\}", "checks": _SEMANTIC_422},
+            {"include-path": "/api/jobs", "include-method": "GET", "checks": _SEMANTIC_422},
+            {"include-path": "/api/results", "include-method": "GET", "checks": _SEMANTIC_422},
         ]
     }
 )
