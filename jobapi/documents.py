@@ -51,6 +51,9 @@ from pydantic import ConfigDict, TypeAdapter, ValidationError, with_config
 from typing_extensions import TypedDict
 
 __all__ = [
+    "ManifestArtifact",
+    "ManifestDocument",
+    "ManifestTimings",
     "CurvesDocument",
     "CurvesPhase",
     "DocumentError",
@@ -246,6 +249,67 @@ def _check_panel(name: str, where: str, panel: Any) -> None:
 # group, a note; a kind's own keys), so the types describe the documents as they are.
 
 _OPEN = ConfigDict(extra="allow", use_attribute_docstrings=True)
+
+
+@document
+class ManifestArtifact(TypedDict):
+    """One artifact a job wrote, as its manifest lists it."""
+
+    name: str
+    """The artifact's name, e.g. ``image.exr``."""
+    digest: str
+    """sha256 of its bytes, 64 lowercase hex."""
+    size: int
+    """Its size in bytes."""
+    media_type: str
+    """Its media type, e.g. ``image/x-exr``."""
+
+
+@document
+class ManifestTimings(TypedDict):
+    """When a job's run started and finished (Unix seconds) and what it timed itself."""
+
+    started: float
+    finished: float
+    run_seconds: float
+    measured: dict[str, float]
+    """What the kind timed itself (``JobContext.measure``), e.g. ``render_seconds``."""
+
+
+@document
+class ManifestDocument(TypedDict):
+    """A succeeded job's provenance, stored beside its artifacts (``GET
+    /api/jobs/{id}/manifest``; its ``sha256:`` ref is the job's ``manifest``)."""
+
+    job: str
+    """The job id, 32 lowercase hex."""
+    kind: str
+    name: str | None
+    spec: dict[str, Any]
+    """The validated spec, defaults filled in."""
+    spec_hash: str
+    """sha256 of the canonical spec (the job's identity)."""
+    seed: int
+    artifacts: list[ManifestArtifact]
+    """Every artifact the job wrote, by name."""
+    matforge_version: str
+    code_version: str
+    """The git commit of the code (``<sha>``, ``<sha>+dirty`` or ``unknown``)."""
+    packages: dict[str, str | None]
+    """Installed versions of the packages that decide artifact bytes (``python`` too)."""
+    worker: str | None
+    """``<host>:<pid>`` of the worker that ran it."""
+    executor: str
+    """Where the shards ran: ``process`` (the local pool), ``inline`` or ``ray``."""
+    executor_nodes: int
+    """How many machines (Ray: the live nodes when the job finished)."""
+    variant: str | None
+    """The Mitsuba variant the job's processes used (``MATFORGE_VARIANT``, resolved)."""
+    device: str | None
+    """The torch device a training kind ran on (``None`` for the other kinds)."""
+    attempt: int
+    """Which attempt succeeded (1 unless a worker was lost)."""
+    timings: ManifestTimings
 
 
 @document

@@ -5,8 +5,10 @@ This package is small and stable; everything else (``service``, ``generators``,
 
 - :data:`__version__`: the one version (also ``matforge --version``, the API's OpenAPI
   document and every job manifest);
-- :class:`Client`: the REST API of a server, typed, with the CLI's errors as exceptions
-  (:class:`SpecError`, :class:`JobFailed`, :class:`ServerUnreachable`, ...);
+- :class:`Client`: the REST API of a server, answering with typed objects (:class:`Job`,
+  :class:`Artifact`, :class:`ResultRow`, :class:`Kind`, :class:`Upload`, each with
+  ``.raw``, the whole document), with the CLI's errors as exceptions (:class:`SpecError`,
+  :class:`JobFailed`, :class:`ServerUnreachable`, ...);
 - :func:`run`: one job in this process, no server;
 - :mod:`matforge.datasets`: dataset jobs as typed readers with ``.numpy()`` and
   ``.torch_dataset(...)``;
@@ -35,6 +37,7 @@ from matforge.client import (
     ServerUnreachable,
     SpecError,
 )
+from matforge.objects import Artifact, Job, Kind, ResultRow, Upload
 from matforge.run import run
 
 #: Submodules imported on first attribute access (PEP 562), so that ``import matforge``
@@ -55,13 +58,18 @@ def __dir__() -> list[str]:
 
 
 __all__ = [
+    "Artifact",
     "BadInput",
     "Client",
     "ClientError",
+    "Job",
     "JobFailed",
+    "Kind",
+    "ResultRow",
     "ServerRefused",
     "ServerUnreachable",
     "SpecError",
+    "Upload",
     "__version__",
     "datasets",
     "export",

@@ -4,8 +4,8 @@ Run: ``.venv/bin/python scripts/api_reference.py --write`` (without ``--write`` 
 the page); ``tests/unit/matforge/test_api_reference.py`` fails when the page is stale.
 Documented: every name in ``matforge.__all__``, ``matforge.datasets.__all__``,
 ``matforge.export.__all__`` and ``matforge.export_onnx.__all__``; for a
-class, its public methods and properties defined in matforge (or, for ``Client``, in the
-REST client it extends).
+class, its public methods and properties defined in matforge (or, for the errors, in the
+REST client's module), and for a typed object (a pydantic model) its fields.
 """
 
 from __future__ import annotations
@@ -37,10 +37,18 @@ def _signature(obj: Any) -> str:
         return ""
 
 
+def _annotation(tp: Any) -> str:
+    """A field's type as written, without module prefixes."""
+    text = tp.__name__ if isinstance(tp, type) else str(tp)
+    for prefix in ("typing.", "matforge.objects.", "service.schemas."):
+        text = text.replace(prefix, "")
+    return text
+
+
 def _members(cls: type) -> list[tuple[str, Any]]:
     out = []
     for name in sorted(dir(cls)):
-        if name.startswith("_"):
+        if name.startswith("_") or name.startswith("model_"):  # pydantic's own
             continue
         attr = inspect.getattr_static(cls, name)
         owner = next((k for k in cls.__mro__ if name in vars(k)), None)
@@ -54,9 +62,18 @@ def _members(cls: type) -> list[tuple[str, Any]]:
 def _entry(qual: str, obj: Any, level: str = "###") -> list[str]:
     lines = []
     if inspect.isclass(obj):
-        lines.append(f"{level} `{qual}{_signature(obj)}`\n")
+        typed = isinstance(getattr(obj, "model_fields", None), dict)  # built by ``.of(raw)``
+        lines.append(f"{level} `{qual}{'' if typed else _signature(obj)}`\n")
         if _doc(obj):
             lines.append(_doc(obj) + "\n")
+        fields = getattr(obj, "model_fields", None)
+        if isinstance(fields, dict) and fields:
+            lines.append("Fields:\n")
+            for fname, info in fields.items():
+                kind = _annotation(info.annotation)
+                text = f": {info.description}" if info.description else ""
+                lines.append(f"- `{fname}` ({kind}){text}")
+            lines.append("")
         for name, attr in _members(obj):
             if isinstance(attr, property):
                 lines.append(

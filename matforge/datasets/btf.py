@@ -106,7 +106,8 @@ class BtfSlices(DatasetReader):
         k %= n
         j = int(np.searchsorted(self._starts, k, side="right") - 1)
         name, first, _ = self._shards[j]
-        return self._shard(name)["rgb"][k - first]
+        rgb: np.ndarray = self._shard(name)["rgb"][k - first]
+        return rgb
 
     def nearest(self, wi: Any, wo: Any) -> int:
         """The index of the slice whose ``(wi, wo)`` is nearest to the given pair (the sum

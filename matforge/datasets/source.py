@@ -140,13 +140,14 @@ def default_cache_dir() -> Path:
 
 
 class RemoteSource(Source):
-    """A job on a server, through a :class:`service.cli.client.Client`; objects are
-    downloaded once into ``cache_dir`` (default :func:`default_cache_dir`)."""
+    """A job on a server, through a :class:`matforge.Client` (or the REST client it holds);
+    objects are downloaded once into ``cache_dir`` (default :func:`default_cache_dir`)."""
 
     def __init__(
         self, ref_or_job: str, client: Any, cache_dir: str | os.PathLike[str] | None = None
     ) -> None:
-        doc = client.get(job_text(ref_or_job))
+        got = client.get(job_text(ref_or_job))
+        doc = got.raw if hasattr(got, "raw") else got  # a matforge.Client's Job, or a dict
         if doc.get("state") != "succeeded":
             raise ValueError(
                 f"job {doc.get('id')} is {doc.get('state')}: only a succeeded job has a dataset"
@@ -156,7 +157,7 @@ class RemoteSource(Source):
         self.spec = dict(doc.get("spec") or {})
         arts = doc.get("artifacts")
         if arts is None:
-            arts = client.artifacts(self.job_id)
+            arts = [getattr(a, "raw", a) for a in client.artifacts(self.job_id)]
         self.artifacts = {
             str(a["name"]): Artifact(
                 str(a["name"]), str(a["digest"]), int(a["size"]), str(a.get("media_type", ""))

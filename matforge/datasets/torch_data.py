@@ -96,7 +96,8 @@ class BtfTexelDataset(Dataset[dict[str, torch.Tensor]]):
         if self._maps is None:
             self._maps = [open_npz(p, p.name)["rgb"] for p, _, _ in self.shards]
         j = int(np.searchsorted(self._starts, k, side="right") - 1)
-        return self._maps[j][k - int(self._starts[j])]
+        rgb: np.ndarray = self._maps[j][k - int(self._starts[j])]
+        return rgb
 
     def __len__(self) -> int:
         return int(self.slice.shape[0])

@@ -1,6 +1,6 @@
 """The typed HTTP client of the matforge REST API: the one implementation under the CLI,
-the batch runner and the public :class:`matforge.Client` (which adds waiting, batches and
-result rows on top of it).
+the batch runner and the public :class:`matforge.Client` (which holds one, and answers
+with typed objects built from the server's response models).
 
 Every failure is one of these types, which the CLI maps to the contract's exit codes:
 

@@ -27,62 +27,12 @@ from service.results import (
     rows_csv,
     select_rows,
 )
-from service.schemas import ErrorPublic
+from service.schemas import ErrorPublic, ResultRowPublic
 from service.spec_text import parse_json_text
 from service.workers.backend import identity_variant
 
 router = APIRouter(prefix="/api/results", tags=["results"], dependencies=[AuthDep])
 CSV = "text/csv"
-
-
-class ResultRowPublic(BaseModel):
-    """One measured value (see ``jobapi.rows`` for the cost columns' meaning)."""
-
-    job: str
-    step: str | None = None
-    kind: str
-    dataset: str | None = None
-    scene: str | None = None
-    candidate: str | None = None
-    material: str | None = None
-    family: str | None = None
-    split: Literal["train", "test"] | None = Field(
-        None,
-        description="`train`: over the data the model was fitted to; `test`: over held-out "
-        "data (materials, betas, patterns) it never saw",
-    )
-    config: dict[str, Any] = Field(default_factory=dict)
-    metric: str = Field(
-        description="the metric; one measured in more than one space names it "
-        "(`brdf.mae`, `image.mae`)"
-    )
-    value: float
-    lower_is_better: bool | None = None
-    seed: int | None = None
-    ns_per_eval: float | None = Field(
-        None, description="ns per evaluation on a fixed batch, in the row's runtime"
-    )
-    runtime: str | None = Field(
-        None,
-        description="what evaluated the model: drjit-fused, onnxruntime or mitsuba (costs of "
-        "two runtimes are not alike)",
-    )
-    ms_per_frame: float | None = None
-    bytes_per_material: float | None = None
-    bytes_per_network: float | None = None
-    train_seconds: float | None = Field(None, description="wall seconds of the training job")
-    spp: int | None = None
-    render_seconds: float | None = Field(None, description="wall seconds of the render job")
-    macs_per_eval: float | None = Field(
-        None,
-        description="multiply-adds of the model's dense layers per evaluation (the same on "
-        "every machine)",
-    )
-    bytes_per_eval: float | None = Field(
-        None,
-        description="bytes one evaluation reads: weights, analytic parameters, and what one "
-        "lookup reads of a latent texture or a table",
-    )
 
 
 class BatchStep(BaseModel):

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from jobapi.context import JobContext, JobLimits
+from jobapi.documents import ManifestArtifact, ManifestDocument, ManifestTimings
 from jobapi.errors import JobCancelled, JobFailed, SpecError
 from jobapi.executor import Executor, InlineExecutor
 from jobapi.version import __version__
@@ -437,34 +438,39 @@ def _execute(
                 return "failed"
         finished = time.time()
         arts = sorted(ctx.artifacts.values(), key=lambda a: a.name)
-        manifest = {
-            "job": job.id,
-            "kind": job.kind,
-            "name": job.name,
-            "spec": job.spec,
-            "spec_hash": job.spec_hash,
-            "seed": spec.seed,
-            "artifacts": [a.public() for a in arts],
-            "matforge_version": __version__,
-            "code_version": code_version(),
-            "packages": package_versions(),
-            "worker": job.worker,
+        where = (executor if executor is not None else InlineExecutor()).describe()
+        manifest = ManifestDocument(
+            job=job.id,
+            kind=job.kind,
+            name=job.name,
+            spec=job.spec,
+            spec_hash=job.spec_hash,
+            seed=spec.seed,
+            artifacts=[
+                ManifestArtifact(name=a.name, digest=a.digest, size=a.size, media_type=a.media_type)
+                for a in arts
+            ],
+            matforge_version=__version__,
+            code_version=code_version(),
+            packages=package_versions(),
+            worker=job.worker,
             # Where the shards ran: "process" (the local pool) or "ray", and how many
             # machines (Ray: the live nodes when the job finished).
-            **(executor.describe() if executor is not None else InlineExecutor().describe()),
+            executor=str(where["executor"]),
+            executor_nodes=int(where["executor_nodes"]),
             # The Mitsuba variant the job's processes used (MATFORGE_VARIANT, resolved), and
             # the torch device a training kind ran on (null for the other kinds).
-            "variant": variant,
-            "device": ctx.device,
-            "attempt": job.attempts,
-            "timings": {
-                "started": started,
-                "finished": finished,
-                "run_seconds": finished - started,
+            variant=variant,
+            device=ctx.device,
+            attempt=job.attempts,
+            timings=ManifestTimings(
+                started=started,
+                finished=finished,
+                run_seconds=finished - started,
                 # what the kind timed itself (JobContext.measure), e.g. render_seconds
-                "measured": dict(sorted(ctx.measured.items())),
-            },
-        }
+                measured=dict(sorted(ctx.measured.items())),
+            ),
+        )
         minfo = store.put_bytes((canonical_json(manifest) + "\n").encode())
         # The runner's last progress line (e.g. a throughput) stays visible after success.
         last = hb.last_message
