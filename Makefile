@@ -62,7 +62,7 @@ test: setup
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
-	$(VENV)/bin/mypy --strict -p matforge
+	$(VENV)/bin/mypy --strict --follow-imports=silent -p matforge
 	$(VENV)/bin/python -m pytest -q
 
 # The inner loop: unit tests not marked slow, in well under 2 minutes.
@@ -83,7 +83,7 @@ lint: setup
 
 typecheck: setup
 	$(VENV)/bin/mypy
-	$(VENV)/bin/mypy --strict -p matforge
+	$(VENV)/bin/mypy --strict --follow-imports=silent -p matforge
 	$(VENV)/bin/lint-imports
 
 demo: setup
