@@ -37,6 +37,7 @@ from evaluators.report.timing import TimingParams
 from jobapi.documents import ParetoDocument, read_typed
 from jobapi.errors import JobFailed
 from jobapi.kinds import Figure, Kind, register, registered
+from jobapi.metric_names import matches
 from jobapi.params import JobRef, StrictModel, job_id_of
 from jobapi.results import ArtifactReader, ResultTable
 
@@ -148,7 +149,7 @@ def timed_pass(
     cost = next((c for c in costs if c in PASS_COSTS), None)
     if cost is None:
         return None
-    charted = [r for r in rows if r.metric in metrics and whole_set(r)]
+    charted = [r for r in rows if matches(r.metric, metrics) and whole_set(r)]
     targets = pass_targets(charted, cost)
     if not targets:
         return None
