@@ -234,6 +234,12 @@ def active_variant() -> str | None:
     return _variant
 
 
+def runs_on_cpu_jit(mi: types.ModuleType) -> bool:
+    """Whether the active variant JIT-compiles for the CPU (an ``llvm_`` variant): there a
+    timing's clock is the process's CPU time over its threads, not the wall clock."""
+    return str(mi.variant()).startswith("llvm_")
+
+
 def jit_backend(mi: types.ModuleType | None = None) -> types.ModuleType:
     """The Dr.Jit array module of the active variant's backend (``drjit.llvm`` or
     ``drjit.cuda``; their ``ad`` flavours are what ``mi.Float`` is), for the types Mitsuba

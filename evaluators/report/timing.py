@@ -173,7 +173,7 @@ def comparison_pass(
 ) -> dict[str, Any]:
     """The ``matforge.timing/1`` record of ``targets`` (candidate -> model) and the
     reference kernel, timed in one interleaved pass with ``timing``'s settings."""
-    from materials.backend import load_mitsuba
+    from materials.backend import load_mitsuba, runs_on_cpu_jit
     from models import timing_kernels as tk
     from models.timing import fixed_threads, timing_pass
 
@@ -188,7 +188,7 @@ def comparison_pass(
                 replace(_kernel(n, t, q, ctx), counts=dict(t.counts)) for n, t in targets.items()
             ]
             ctx.check_cancelled()
-            on_cpu = mi.variant().startswith("llvm_")
+            on_cpu = runs_on_cpu_jit(mi)
             record = timing_pass(
                 kernels,
                 reference=tk.REFERENCE,
